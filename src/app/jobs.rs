@@ -1,0 +1,174 @@
+//! Long work off the UI thread: one named thread per job, a [`JobContext`] whose
+//! progress sink wakes the UI, results through one bounded channel, and a handle whose
+//! drop cancels the work.
+
+use crate::job::{JobContext, Progress};
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+/// What a finished (or partly finished) job hands back to the UI thread.
+pub enum JobEvent<T> {
+    /// A result that is ready now; more may follow from the same job.
+    Output { job: u64, output: T },
+    /// The job stopped: `Ok(())`, or the one-line reason it failed or was cancelled.
+    Finished {
+        job: u64,
+        result: Result<(), String>,
+    },
+}
+
+/// A running job as the UI sees it.
+pub struct JobHandle {
+    pub id: u64,
+    pub name: String,
+    pub started: Instant,
+    ctx: JobContext,
+    progress: Arc<Mutex<Option<Progress>>>,
+}
+
+impl JobHandle {
+    #[must_use]
+    pub fn progress(&self) -> Option<Progress> {
+        self.progress.lock().ok().and_then(|p| p.clone())
+    }
+
+    pub fn cancel(&self) {
+        self.ctx.cancel();
+    }
+
+    #[must_use]
+    pub fn is_cancelled(&self) -> bool {
+        self.ctx.is_cancelled()
+    }
+}
+
+impl Drop for JobHandle {
+    fn drop(&mut self) {
+        // Dropping the handle (closing the app, replacing the session) must stop the
+        // work rather than leave a thread computing into a channel nobody reads.
+        self.ctx.cancel();
+    }
+}
+
+/// Sends a job's partial results to the UI and wakes it.
+pub struct Emitter<T> {
+    job: u64,
+    tx: SyncSender<JobEvent<T>>,
+    wake: Arc<dyn Fn() + Send + Sync>,
+}
+
+impl<T> Emitter<T> {
+    pub fn emit(&self, output: T) {
+        // A closed channel means the app is gone; the work is then cancelled anyway.
+        let _ = self.tx.send(JobEvent::Output {
+            job: self.job,
+            output,
+        });
+        (self.wake)();
+    }
+}
+
+/// The set of jobs and the channel their results arrive on.
+pub struct Jobs<T> {
+    next_id: u64,
+    pub running: Vec<JobHandle>,
+    tx: SyncSender<JobEvent<T>>,
+    rx: Receiver<JobEvent<T>>,
+    wake: Arc<dyn Fn() + Send + Sync>,
+}
+
+impl<T: Send + 'static> Jobs<T> {
+    /// `wake` is called from worker threads whenever there is something new to show.
+    pub fn new(wake: impl Fn() + Send + Sync + 'static) -> Self {
+        // Bounded: a fast producer waits for the UI rather than queueing without limit.
+        let (tx, rx) = sync_channel(64);
+        Self {
+            next_id: 1,
+            running: Vec::new(),
+            tx,
+            rx,
+            wake: Arc::new(wake),
+        }
+    }
+
+    /// Starts `work` on its own named thread.
+    ///
+    /// # Errors
+    /// The thread could not be spawned.
+    pub fn spawn(
+        &mut self,
+        name: &str,
+        work: impl FnOnce(&JobContext, &Emitter<T>) -> Result<(), String> + Send + 'static,
+    ) -> Result<u64, String> {
+        let id = self.next_id;
+        self.next_id += 1;
+        let progress = Arc::new(Mutex::new(None));
+        let p2 = Arc::clone(&progress);
+        let wake = Arc::clone(&self.wake);
+        let ctx = JobContext::with_sink(move |p| {
+            if let Ok(mut slot) = p2.lock() {
+                *slot = Some(p.clone());
+            }
+            wake();
+        });
+        let emitter = Emitter {
+            job: id,
+            tx: self.tx.clone(),
+            wake: Arc::clone(&self.wake),
+        };
+        let worker_ctx = ctx.clone();
+        std::thread::Builder::new()
+            .name(format!("job-{id}-{name}"))
+            .spawn(move || {
+                let result = work(&worker_ctx, &emitter);
+                let result = if worker_ctx.is_cancelled() && result.is_err() {
+                    Err("cancelled".into())
+                } else {
+                    result
+                };
+                let _ = emitter.tx.send(JobEvent::Finished { job: id, result });
+                (emitter.wake)();
+            })
+            .map_err(|e| format!("cannot start job '{name}': {e}"))?;
+        self.running.push(JobHandle {
+            id,
+            name: name.to_owned(),
+            started: Instant::now(),
+            ctx,
+            progress,
+        });
+        Ok(id)
+    }
+
+    /// Everything that arrived since the last call, in order; finished jobs leave
+    /// `running`.
+    pub fn drain(&mut self) -> Vec<JobEvent<T>> {
+        let events: Vec<_> = self.rx.try_iter().collect();
+        for e in &events {
+            if let JobEvent::Finished { job, .. } = e {
+                self.running.retain(|h| h.id != *job);
+            }
+        }
+        events
+    }
+
+    #[must_use]
+    pub fn name_of(&self, id: u64) -> Option<&str> {
+        self.running
+            .iter()
+            .find(|h| h.id == id)
+            .map(|h| h.name.as_str())
+    }
+
+    #[must_use]
+    pub fn is_running(&self, name: &str) -> bool {
+        self.running.iter().any(|h| h.name == name)
+    }
+
+    pub fn cancel(&mut self, id: u64) {
+        if let Some(h) = self.running.iter().find(|h| h.id == id) {
+            h.cancel();
+        }
+    }
+}

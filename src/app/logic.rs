@@ -1,0 +1,336 @@
+//! Applies commands and drains finished jobs. Never draws.
+
+use super::jobs::JobEvent;
+use super::{Command, JobOutput, ShotPreview, StudioApp};
+use crate::plane::{Capture, Channel, ChannelPlane, Plane};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+pub(super) fn drain_jobs(app: &mut StudioApp) {
+    for event in app.jobs.drain() {
+        match event {
+            JobEvent::Output { output, .. } => match output {
+                JobOutput::DemoReady(s) => {
+                    let n = s.shots.len();
+                    app.set_session(s);
+                    app.info(format!(
+                        "demo session ready: {n} simulated shots of the virtual lens"
+                    ));
+                }
+                JobOutput::ShotLoaded { index, capture } => {
+                    let preview = make_preview(&app.ctx, index, &capture);
+                    if let Some(s) = app.session.as_mut() {
+                        if let Some(shot) = s.shots.get_mut(index) {
+                            // EXIF fills what the user has not typed.
+                            let mut changed = false;
+                            if shot.focal_mm.is_none() && capture.setting_focal_mm.is_some() {
+                                shot.focal_mm = capture.setting_focal_mm;
+                                changed = true;
+                            }
+                            if shot.f_number.is_none() && capture.setting_f_number.is_some() {
+                                shot.f_number = capture.setting_f_number;
+                                changed = true;
+                            }
+                            if changed {
+                                save(app);
+                            }
+                        }
+                    }
+                    app.previews.insert(index, preview);
+                }
+                JobOutput::PhotoLoaded { path, capture } => {
+                    let tex = channel_texture(&app.ctx, "photo", &capture, None);
+                    app.photo = Some((path, capture, tex));
+                }
+            },
+            JobEvent::Finished { result: Err(e), .. } => app.error(e),
+            JobEvent::Finished { result: Ok(()), .. } => {}
+        }
+    }
+}
+
+fn save(app: &mut StudioApp) {
+    if let Some(s) = &app.session {
+        if let Err(e) = s.save() {
+            app.error(e.to_string());
+        }
+    }
+}
+
+pub(super) fn apply(app: &mut StudioApp, command: Command) {
+    match command {
+        Command::SelectView(v) => app.view = v,
+        Command::SelectShot(i) => {
+            app.selected_shot = Some(i);
+            app.viewer.sensor_px_per_point = None;
+        }
+        Command::SelectChannel(c) => app.channel = c,
+        Command::AddShotsDialog => {
+            if let Some(files) = rfd::FileDialog::new()
+                .set_title("Add calibration shots")
+                .add_filter("RAW, DNG, TIFF, PNG, JPEG", crate::session::SHOT_EXTENSIONS)
+                .pick_files()
+            {
+                apply(app, Command::AddShots(files));
+            }
+        }
+        Command::AddShots(files) => add_shots(app, &files),
+        Command::RemoveShot(i) => {
+            if let Some(s) = app.session.as_mut() {
+                if i < s.shots.len() {
+                    s.shots.remove(i);
+                    app.previews.clear();
+                    app.loading.clear();
+                    app.selected_shot = if s.shots.is_empty() {
+                        None
+                    } else {
+                        Some(i.min(s.shots.len() - 1))
+                    };
+                    save(app);
+                }
+            }
+        }
+        Command::SetShotSetting {
+            index,
+            focal_mm,
+            f_number,
+        } => {
+            if let Some(shot) = app.session.as_mut().and_then(|s| s.shots.get_mut(index)) {
+                shot.focal_mm = focal_mm;
+                shot.f_number = f_number;
+                save(app);
+            }
+        }
+        Command::RunDetect(_) => {
+            app.info("detection is not available in this build yet: the detect stage has not been merged");
+        }
+        Command::RunKernels(_) => {
+            app.info("kernel estimation is not available in this build yet: the kernel stage has not been merged");
+        }
+        Command::RunCalibrate => {
+            app.info("calibration is not available in this build yet: the model stage has not been merged");
+        }
+        Command::OpenPhotoDialog => {
+            if let Some(p) = rfd::FileDialog::new()
+                .set_title("Open a photo to deblur")
+                .add_filter("RAW, DNG, TIFF, PNG, JPEG", crate::session::SHOT_EXTENSIONS)
+                .pick_file()
+            {
+                apply(app, Command::OpenPhoto(p));
+            }
+        }
+        Command::OpenPhoto(path) => {
+            let p2 = path.clone();
+            let r = app.jobs.spawn("open photo", move |ctx, out| {
+                ctx.report("loading", 0, 1);
+                let capture = load_capture(&p2)?;
+                ctx.report("loading", 1, 1);
+                out.emit(JobOutput::PhotoLoaded {
+                    path: p2,
+                    capture: Arc::new(capture),
+                });
+                Ok(())
+            });
+            if let Err(e) = r {
+                app.error(e);
+            }
+        }
+        Command::LoadProfileDialog | Command::SaveProfileDialog => {
+            app.info("profiles are not available in this build yet: the profile stage has not been merged");
+        }
+        Command::OpenSessionDialog => {
+            if let Some(dir) = rfd::FileDialog::new()
+                .set_title("Open or create a session folder")
+                .pick_folder()
+            {
+                match crate::session::Session::open(&dir) {
+                    Ok(s) => {
+                        app.set_session(s);
+                        save(app);
+                    }
+                    Err(e) => app.error(e.to_string()),
+                }
+            }
+        }
+        Command::Cancel(id) => app.jobs.cancel(id),
+        Command::CancelAll => {
+            for h in &app.jobs.running {
+                h.cancel();
+            }
+        }
+        Command::SetDark(dark) => {
+            app.dark = dark;
+            app.ctx.set_theme(if dark {
+                egui::Theme::Dark
+            } else {
+                egui::Theme::Light
+            });
+        }
+        Command::DismissMessage(i) => {
+            if i < app.messages.len() {
+                app.messages.remove(i);
+            }
+        }
+    }
+}
+
+fn add_shots(app: &mut StudioApp, files: &[PathBuf]) {
+    if app.session.is_none() {
+        app.error("open or create a session folder before adding shots (Ctrl+O)");
+        return;
+    }
+    let mut errors = Vec::new();
+    let mut added = None;
+    if let Some(s) = app.session.as_mut() {
+        for f in files {
+            match s.add_shot(f) {
+                Ok(i) => added = Some(i),
+                Err(e) => errors.push(e.to_string()),
+            }
+        }
+    }
+    for e in errors {
+        app.error(e);
+    }
+    if let Some(i) = added {
+        app.selected_shot = Some(i);
+        save(app);
+    }
+}
+
+/// Starts loading the selected shot (and then the others, for thumbnails), one at a
+/// time so the machine is not flooded.
+pub(super) fn ensure_preview(app: &mut StudioApp) {
+    let Some(s) = &app.session else { return };
+    if app.jobs.is_running("load shot") {
+        return;
+    }
+    let order = app.selected_shot.into_iter().chain(0..s.shots.len());
+    let Some(index) = order
+        .filter(|i| *i < s.shots.len())
+        .find(|i| !app.loading.contains(i))
+    else {
+        return;
+    };
+    let path = s.shot_path(index);
+    app.loading.insert(index);
+    let r = app.jobs.spawn("load shot", move |ctx, out| {
+        ctx.report("loading shot", 0, 1);
+        let capture = load_capture(&path)?;
+        ctx.check().map_err(|e| e.to_string())?;
+        ctx.report("loading shot", 1, 1);
+        out.emit(JobOutput::ShotLoaded {
+            index,
+            capture: Arc::new(capture),
+        });
+        Ok(())
+    });
+    if let Err(e) = r {
+        app.error(e);
+    }
+}
+
+/// Loads a shot or photo for display. RAW/DNG need the RAW loader; PNG, TIFF and JPEG
+/// are read directly.
+pub(crate) fn load_capture(path: &Path) -> Result<Capture, String> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    if !matches!(ext.as_str(), "png" | "tif" | "tiff" | "jpg" | "jpeg") {
+        return Err(format!(
+            "{}: RAW files need the RAW loader, which this build does not have yet",
+            path.display()
+        ));
+    }
+    let img = image::open(path)
+        .map_err(|e| format!("{}: {e}", path.display()))?
+        .into_rgb32f();
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let planes = [Channel::R, Channel::G, Channel::B]
+        .into_iter()
+        .enumerate()
+        .map(|(k, channel)| ChannelPlane {
+            channel,
+            plane: Plane::from_fn(w, h, |x, y| img.get_pixel(x as u32, y as u32)[k]),
+            step: 1,
+            offset_x: 0,
+            offset_y: 0,
+        })
+        .collect();
+    Ok(Capture {
+        width: w,
+        height: h,
+        planes,
+        setting_focal_mm: None,
+        setting_f_number: None,
+        identity: crate::plane::CameraIdentity::default(),
+        is_raw: false,
+    })
+}
+
+/// Display value of a linear sample: sRGB-like encoding so mid-greys look right.
+fn encode(v: f32) -> u8 {
+    let v = v.clamp(0.0, 1.0);
+    let e = if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    };
+    (e * 255.0 + 0.5) as u8
+}
+
+/// A grey texture of one channel (the pooled grey when `channel` is `None`) at its
+/// plane's own resolution.
+pub(crate) fn channel_texture(
+    ctx: &egui::Context,
+    name: &str,
+    capture: &Capture,
+    channel: Option<Channel>,
+) -> Option<egui::TextureHandle> {
+    let plane: Plane = match channel {
+        Some(c) => pooled_plane(capture, c)?.plane,
+        None => capture.grey(),
+    };
+    let img = egui::ColorImage::from_gray_iter(
+        [plane.width, plane.height],
+        plane.data.iter().map(|&v| encode(v)),
+    );
+    Some(ctx.load_texture(name, img, egui::TextureOptions::NEAREST))
+}
+
+/// The first plane of a channel (G1 for a Bayer G): enough for display.
+pub(crate) fn pooled_plane(capture: &Capture, channel: Channel) -> Option<ChannelPlane> {
+    capture
+        .planes
+        .iter()
+        .find(|p| p.channel == channel)
+        .cloned()
+}
+
+fn make_preview(ctx: &egui::Context, index: usize, capture: &Arc<Capture>) -> ShotPreview {
+    let mut textures = std::collections::BTreeMap::new();
+    let mut channels: Vec<Channel> = capture.planes.iter().map(|p| p.channel).collect();
+    channels.dedup();
+    for c in channels {
+        if let Some(t) = channel_texture(ctx, &format!("shot{index}-{c}"), capture, Some(c)) {
+            textures.insert(c, t);
+        }
+    }
+    let grey = capture.grey();
+    let step = (grey.width / 96).max(1);
+    let (tw, th) = (grey.width / step, grey.height / step);
+    let thumb = egui::ColorImage::from_gray_iter(
+        [tw, th],
+        (0..th)
+            .flat_map(|j| (0..tw).map(move |i| (i, j)))
+            .map(|(i, j)| encode(grey.get(i * step, j * step))),
+    );
+    let thumbnail =
+        Some(ctx.load_texture(format!("thumb{index}"), thumb, egui::TextureOptions::LINEAR));
+    ShotPreview {
+        capture: Arc::clone(capture),
+        textures,
+        thumbnail,
+    }
+}

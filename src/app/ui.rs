@@ -1,0 +1,870 @@
+//! Drawing. Functions end in `_ui`; they read the app and push [`Command`]s.
+
+use super::{Command, StudioApp, View};
+use crate::plane::{Channel, LensSetting};
+use crate::psf::Gaussian2;
+use crate::session::StageStatus;
+use crate::simulate::VirtualLens;
+use egui::{Color32, Key, KeyboardShortcut, Modifiers, Pos2, Rect, Sense, Stroke, Vec2};
+
+pub const TIP_CXX: &str = "C_xx: standard deviation σx of the Gaussian blur along the sensor's x axis, in full-resolution sensor pixels (includes the pixel's own 1-px integration).";
+pub const TIP_CYY: &str = "C_yy: standard deviation σy of the Gaussian blur along the sensor's y axis, in full-resolution sensor pixels.";
+pub const TIP_COR: &str = "C_or: correlation ρ = C_xy / (C_xx·C_yy) of the Gaussian, between −1 and 1; it tilts the blur ellipse.";
+pub const TIP_ALPHA: &str = "α: polynomial order of the model over the sensor position (x, y).";
+pub const TIP_BETA: &str = "β: polynomial order of the model over focal length f and aperture a; it must stay below the number of distinct settings shot.";
+
+pub(super) fn root_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    shortcuts(app, ui.ctx());
+    dropped_files(app, ui.ctx());
+    egui::Panel::top("top").show(ui, |ui| top_bar_ui(app, ui));
+    egui::Panel::bottom("status").show(ui, |ui| status_ui(app, ui));
+    egui::Panel::left("session")
+        .default_size(300.0)
+        .resizable(true)
+        .show(ui, |ui| {
+            egui::ScrollArea::vertical().show(ui, |ui| session_panel_ui(app, ui));
+        });
+    egui::CentralPanel::default().show(ui, |ui| match app.view {
+        View::Shot => shot_view_ui(app, ui),
+        View::KernelField => kernel_field_ui(app, ui),
+        View::Sweeps => sweeps_ui(app, ui),
+        View::Models => models_ui(app, ui),
+        View::Deblur => deblur_ui(app, ui),
+    });
+}
+
+fn shortcuts(app: &mut StudioApp, ctx: &egui::Context) {
+    let cmd = |k| KeyboardShortcut::new(Modifiers::COMMAND, k);
+    let mut out = Vec::new();
+    ctx.input_mut(|i| {
+        if i.consume_shortcut(&cmd(Key::O)) {
+            out.push(Command::OpenSessionDialog);
+        }
+        if i.consume_shortcut(&KeyboardShortcut::new(
+            Modifiers::COMMAND | Modifiers::SHIFT,
+            Key::A,
+        )) {
+            out.push(Command::AddShotsDialog);
+        }
+        if i.consume_shortcut(&cmd(Key::D)) {
+            out.push(Command::RunDetect(None));
+        }
+        if i.consume_shortcut(&cmd(Key::K)) {
+            out.push(Command::RunKernels(None));
+        }
+        if i.consume_shortcut(&cmd(Key::M)) {
+            out.push(Command::RunCalibrate);
+        }
+        if i.consume_shortcut(&cmd(Key::T)) {
+            out.push(Command::SetDark(!app.dark));
+        }
+        if i.consume_key(Modifiers::NONE, Key::Escape) {
+            out.push(Command::CancelAll);
+        }
+        for (k, v) in [Key::Num1, Key::Num2, Key::Num3, Key::Num4, Key::Num5]
+            .into_iter()
+            .zip(View::ALL)
+        {
+            if i.consume_shortcut(&KeyboardShortcut::new(Modifiers::ALT, k)) {
+                out.push(Command::SelectView(v));
+            }
+        }
+    });
+    app.commands.extend(out);
+}
+
+fn dropped_files(app: &mut StudioApp, ctx: &egui::Context) {
+    let files: Vec<_> = ctx.input(|i| {
+        i.raw
+            .dropped_files
+            .iter()
+            .map(|f| f.path().to_path_buf())
+            .filter(|p| !p.as_os_str().is_empty())
+            .collect()
+    });
+    if !files.is_empty() {
+        app.commands.push(Command::AddShots(files));
+    }
+}
+
+fn top_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    ui.horizontal(|ui| {
+        ui.strong("lensblur studio");
+        ui.separator();
+        for (k, v) in View::ALL.into_iter().enumerate() {
+            if ui
+                .selectable_label(app.view == v, v.label())
+                .on_hover_text(format!("Alt+{}", k + 1))
+                .clicked()
+            {
+                app.commands.push(Command::SelectView(v));
+            }
+        }
+        ui.separator();
+        ui.label("Channel");
+        for c in [Channel::R, Channel::G, Channel::B] {
+            if ui.selectable_label(app.channel == c, c.name()).clicked() {
+                app.commands.push(Command::SelectChannel(c));
+            }
+        }
+        ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
+            let label = if app.dark {
+                "Light theme"
+            } else {
+                "Dark theme"
+            };
+            if ui.button(label).on_hover_text("Ctrl+T").clicked() {
+                app.commands.push(Command::SetDark(!app.dark));
+            }
+            if ui
+                .button("Open session…")
+                .on_hover_text("Open or create a session folder (Ctrl+O)")
+                .clicked()
+            {
+                app.commands.push(Command::OpenSessionDialog);
+            }
+        });
+    });
+}
+
+fn status_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    for h in &app.jobs.running {
+        ui.horizontal(|ui| {
+            let (stage, frac, counts) = match h.progress() {
+                Some(p) if p.total > 0 => (
+                    p.stage.clone(),
+                    p.done as f32 / p.total as f32,
+                    format!("{}/{}", p.done, p.total),
+                ),
+                Some(p) => (p.stage.clone(), 0.0, String::new()),
+                None => ("starting".into(), 0.0, String::new()),
+            };
+            ui.label(format!("{}: {stage}", h.name));
+            ui.add(
+                egui::ProgressBar::new(frac)
+                    .desired_width(240.0)
+                    .text(counts),
+            );
+            ui.label(format!("{:.0} s", h.started.elapsed().as_secs_f32()));
+            let cancel = if h.is_cancelled() {
+                "Cancelling…"
+            } else {
+                "Cancel"
+            };
+            if ui
+                .button(cancel)
+                .on_hover_text("Stop this job (Esc stops all)")
+                .clicked()
+            {
+                app.commands.push(Command::Cancel(h.id));
+            }
+        });
+    }
+    let mut dismiss = None;
+    for (i, m) in app.messages.iter().enumerate().rev().take(4) {
+        ui.horizontal(|ui| {
+            let color = if m.is_error {
+                ui.visuals().error_fg_color
+            } else {
+                ui.visuals().text_color()
+            };
+            if ui.small_button("x").on_hover_text("Dismiss").clicked() {
+                dismiss = Some(i);
+            }
+            ui.colored_label(color, &m.text);
+        });
+    }
+    if let Some(i) = dismiss {
+        app.commands.push(Command::DismissMessage(i));
+    }
+    if app.jobs.running.is_empty() && app.messages.is_empty() {
+        ui.label("Ready.");
+    }
+}
+
+fn status_text(s: &StageStatus) -> String {
+    match s {
+        StageStatus::Pending => "—".into(),
+        StageStatus::Done { summary } => summary.clone(),
+        StageStatus::Failed { reason } => format!("failed: {reason}"),
+    }
+}
+
+fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    let Some(session) = &app.session else {
+        ui.heading("Session");
+        if app.jobs.is_running("demo session") {
+            ui.label("Making the demo session: simulated calibration shots of the virtual lens…");
+            ui.spinner();
+        } else {
+            ui.label("No session open. Open a session folder (Ctrl+O).");
+        }
+        return;
+    };
+    ui.heading(&session.name);
+    ui.label(
+        egui::RichText::new(session.folder().display().to_string())
+            .small()
+            .weak(),
+    );
+    if session.is_demo {
+        ui.label("Demo: shots simulated from the virtual lens, whose true blur is known.");
+    }
+    ui.horizontal_wrapped(|ui| {
+        if ui
+            .button("Add shots…")
+            .on_hover_text(
+                "RAW, DNG, TIFF, PNG or JPEG; or drop files on the window (Ctrl+Shift+A)",
+            )
+            .clicked()
+        {
+            app.commands.push(Command::AddShotsDialog);
+        }
+        if ui
+            .button("Detect")
+            .on_hover_text("Find and align the chart's squares in every shot (Ctrl+D)")
+            .clicked()
+        {
+            app.commands.push(Command::RunDetect(None));
+        }
+        if ui
+            .button("Kernels")
+            .on_hover_text("Estimate the blur kernel at every square (Ctrl+K)")
+            .clicked()
+        {
+            app.commands.push(Command::RunKernels(None));
+        }
+        if ui
+            .button("Calibrate")
+            .on_hover_text("Cross-validate and fit the blur model; write the profile (Ctrl+M)")
+            .clicked()
+        {
+            app.commands.push(Command::RunCalibrate);
+        }
+    });
+    ui.separator();
+    ui.label(format!("{} shots", session.shots.len()));
+    let mut set = None;
+    for (i, shot) in session.shots.iter().enumerate() {
+        let selected = app.selected_shot == Some(i);
+        let frame = egui::Frame::group(ui.style()).fill(if selected {
+            ui.visuals().selection.bg_fill.gamma_multiply(0.35)
+        } else {
+            Color32::TRANSPARENT
+        });
+        let r = frame.show(ui, |ui| {
+            ui.horizontal(|ui| {
+                match app.previews.get(&i).and_then(|p| p.thumbnail.as_ref()) {
+                    Some(t) => {
+                        let size = t.size_vec2() * (72.0 / t.size_vec2().x.max(1.0));
+                        ui.image((t.id(), size));
+                    }
+                    None => {
+                        ui.add_sized([72.0, 48.0], egui::Spinner::new());
+                    }
+                }
+                ui.vertical(|ui| {
+                    let name = shot.path.file_name().map_or_else(
+                        || shot.path.display().to_string(),
+                        |n| n.to_string_lossy().into_owned(),
+                    );
+                    if ui.selectable_label(selected, name).clicked() {
+                        app.commands.push(Command::SelectShot(i));
+                    }
+                    ui.horizontal(|ui| {
+                        // Unknown settings show as "?" (0 internally) until the user drags.
+                        let mut f = shot.focal_mm.unwrap_or(0.0);
+                        let mut a = shot.f_number.unwrap_or(0.0);
+                        ui.label("f")
+                            .on_hover_text("focal length, mm (from EXIF; editable)");
+                        let rf = ui.add(egui::DragValue::new(&mut f).speed(0.5).custom_formatter(
+                            |v, _| {
+                                if v > 0.0 {
+                                    format!("{v:.0} mm")
+                                } else {
+                                    "? mm".into()
+                                }
+                            },
+                        ));
+                        ui.label("a")
+                            .on_hover_text("aperture, f-number (from EXIF; editable)");
+                        let ra = ui.add(egui::DragValue::new(&mut a).speed(0.05).custom_formatter(
+                            |v, _| {
+                                if v > 0.0 {
+                                    format!("f/{v:.1}")
+                                } else {
+                                    "f/?".into()
+                                }
+                            },
+                        ));
+                        if rf.changed() || ra.changed() {
+                            set = Some(Command::SetShotSetting {
+                                index: i,
+                                focal_mm: (f > 0.0).then_some(f.min(5000.0)),
+                                f_number: (a > 0.0).then_some(a.min(128.0)),
+                            });
+                        }
+                    });
+                    ui.label(
+                        egui::RichText::new(format!(
+                            "detect: {}   kernels: {}",
+                            status_text(&shot.detect),
+                            status_text(&shot.kernels)
+                        ))
+                        .small(),
+                    );
+                });
+            });
+        });
+        if r.response.interact(Sense::click()).clicked() {
+            app.commands.push(Command::SelectShot(i));
+        }
+    }
+    if let Some(c) = set {
+        app.commands.push(c);
+    }
+    ui.separator();
+    egui::CollapsingHeader::new("Settings")
+        .default_open(false)
+        .show(ui, |ui| {
+            let s = &session.settings;
+            ui.label(format!(
+                "Chart: {} × {} squares, {} mm",
+                session.chart.cols, session.chart.rows, session.chart.square_mm
+            ));
+            ui.label(format!("Kernel oversampling: {}×", s.oversample));
+            ui.label(format!(
+                "Weights: {}",
+                if s.weight_all_subpixels {
+                    "every sub-pixel (W = I)"
+                } else {
+                    "pixel centres"
+                }
+            ));
+            ui.label(format!("Deblur method: {}", s.deblur_method));
+        });
+}
+
+/// Sensor-to-screen mapping of the shot viewer.
+struct SensorView {
+    rect: Rect,
+    points_per_px: f32,
+    centre: [f32; 2],
+}
+
+impl SensorView {
+    fn to_screen(&self, x: f64, y: f64) -> Pos2 {
+        self.rect.center()
+            + Vec2::new(
+                (x as f32 - self.centre[0]) * self.points_per_px,
+                (y as f32 - self.centre[1]) * self.points_per_px,
+            )
+    }
+    fn to_sensor(&self, p: Pos2) -> [f32; 2] {
+        let d = (p - self.rect.center()) / self.points_per_px;
+        [self.centre[0] + d.x, self.centre[1] + d.y]
+    }
+}
+
+fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    let Some(session) = &app.session else {
+        ui.label("No session yet.");
+        return;
+    };
+    let Some(index) = app.selected_shot.filter(|i| *i < session.shots.len()) else {
+        ui.label("No shots in this session: add shots (Ctrl+Shift+A) or drop files on the window.");
+        return;
+    };
+    let shot = &session.shots[index];
+    ui.horizontal(|ui| {
+        ui.heading(shot.path.display().to_string());
+        match shot.setting() {
+            Some(s) => ui.label(format!("{:.0} mm  f/{:.1}", s.focal_mm, s.f_number)),
+            None => ui.colored_label(
+                ui.visuals().warn_fg_color,
+                "settings unknown: type f and a in the shot list",
+            ),
+        };
+    });
+    let detect_note = match &shot.detect {
+        StageStatus::Pending => "No detection yet — press Detect (Ctrl+D) to overlay squares, corners and the chart grid.".to_owned(),
+        StageStatus::Failed { reason } => format!("Detection failed: {reason}"),
+        StageStatus::Done { summary } => format!("Detection: {summary}"),
+    };
+    ui.label(detect_note);
+    let Some(preview) = app.previews.get(&index) else {
+        ui.horizontal(|ui| {
+            ui.spinner();
+            ui.label("loading shot…");
+        });
+        return;
+    };
+    let Some(texture) = preview
+        .textures
+        .get(&app.channel)
+        .or_else(|| preview.textures.values().next())
+    else {
+        ui.label("this shot has no image planes");
+        return;
+    };
+    let cap = &preview.capture;
+    let plane =
+        super::logic::pooled_plane(cap, app.channel).or_else(|| cap.planes.first().cloned());
+    let (step, ox, oy) = plane.as_ref().map_or((1.0, 0.0, 0.0), |p| {
+        (p.step as f64, p.offset_x as f64, p.offset_y as f64)
+    });
+
+    let (rect, response) = ui.allocate_exact_size(ui.available_size(), Sense::click_and_drag());
+    let fit = (rect.width() / cap.width as f32).min(rect.height() / cap.height as f32);
+    let ppp = app.viewer.sensor_px_per_point.map_or(fit, |s| 1.0 / s);
+    if app.viewer.sensor_px_per_point.is_none() {
+        app.viewer.centre_sensor = [
+            (cap.width as f32 - 1.0) / 2.0,
+            (cap.height as f32 - 1.0) / 2.0,
+        ];
+    }
+    let mut view = SensorView {
+        rect,
+        points_per_px: ppp,
+        centre: app.viewer.centre_sensor,
+    };
+    if response.dragged() {
+        let d = response.drag_delta() / ppp;
+        view.centre = [view.centre[0] - d.x, view.centre[1] - d.y];
+    }
+    if response.hovered() {
+        let scroll = ui.input(|i| i.smooth_scroll_delta.y);
+        if scroll != 0.0 {
+            let factor = (scroll * 0.002).exp();
+            let new_ppp = (ppp * factor).clamp(fit * 0.5, 64.0);
+            if let Some(p) = response.hover_pos() {
+                // Zoom about the cursor: the sensor point under it stays put.
+                let under = view.to_sensor(p);
+                let d = (p - rect.center()) / new_ppp;
+                view.centre = [under[0] - d.x, under[1] - d.y];
+            }
+            view.points_per_px = new_ppp;
+        }
+    }
+    if response.double_clicked() {
+        view.points_per_px = fit;
+        view.centre = [
+            (cap.width as f32 - 1.0) / 2.0,
+            (cap.height as f32 - 1.0) / 2.0,
+        ];
+    }
+    app.viewer.centre_sensor = view.centre;
+    app.viewer.sensor_px_per_point = Some(1.0 / view.points_per_px);
+
+    let painter = ui.painter_at(rect);
+    painter.rect_filled(rect, 0.0, Color32::from_gray(20));
+    let tex_size = texture.size_vec2();
+    // Plane pixel (i, j) covers sensor [step·i + ox ± step/2]: the texture's outer edges.
+    let min = view.to_screen(ox - step / 2.0, oy - step / 2.0);
+    let max = view.to_screen(
+        ox + step * (f64::from(tex_size.x) - 0.5),
+        oy + step * (f64::from(tex_size.y) - 0.5),
+    );
+    painter.image(
+        texture.id(),
+        Rect::from_min_max(min, max),
+        Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)),
+        Color32::WHITE,
+    );
+    if let Some(p) = response.hover_pos() {
+        let [x, y] = view.to_sensor(p);
+        let v = plane.as_ref().and_then(|cp| {
+            let [i, j] = cp.plane_from_sensor(f64::from(x), f64::from(y));
+            cp.plane.get_checked(i.round() as i64, j.round() as i64)
+        });
+        let text = match v {
+            Some(v) => format!("x {x:.1}  y {y:.1}  {} {v:.4}", app.channel),
+            None => format!("x {x:.1}  y {y:.1}"),
+        };
+        caption(
+            &painter,
+            rect.left_bottom() + Vec2::new(6.0, -6.0),
+            egui::Align2::LEFT_BOTTOM,
+            text,
+        );
+    }
+    caption(
+        &painter,
+        rect.right_top() + Vec2::new(-6.0, 6.0),
+        egui::Align2::RIGHT_TOP,
+        format!(
+            "{}  {:.0}%  (scroll: zoom, drag: pan, double-click: fit)",
+            app.channel,
+            view.points_per_px * 100.0
+        ),
+    );
+}
+
+/// White text on a dark box, readable over any image.
+fn caption(painter: &egui::Painter, pos: Pos2, align: egui::Align2, text: String) {
+    let galley = painter.layout_no_wrap(text, egui::FontId::proportional(12.0), Color32::WHITE);
+    let rect = align.anchor_size(pos, galley.size());
+    painter.rect_filled(rect.expand(3.0), 3.0, Color32::from_black_alpha(170));
+    painter.galley(rect.min, galley, Color32::WHITE);
+}
+
+/// Viridis-like colour for σ in px over [0.5, 3.5].
+fn sigma_color(sigma_px: f64) -> Color32 {
+    const STOPS: [[u8; 3]; 5] = [
+        [68, 1, 84],
+        [59, 82, 139],
+        [33, 145, 140],
+        [94, 201, 98],
+        [253, 231, 37],
+    ];
+    let t = ((sigma_px - 0.5) / 3.0).clamp(0.0, 1.0) * 4.0;
+    let k = (t.floor() as usize).min(3);
+    let f = (t - k as f64) as f32;
+    let [a, b] = [STOPS[k], STOPS[k + 1]];
+    let mix = |i: usize| (f32::from(a[i]) * (1.0 - f) + f32::from(b[i]) * f) as u8;
+    Color32::from_rgb(mix(0), mix(1), mix(2))
+}
+
+/// The 1-σ ellipse of `g` scaled by `scale` screen points per px, as a closed polyline.
+fn ellipse_points(centre: Pos2, g: &Gaussian2, scale: f32) -> Vec<Pos2> {
+    let (sx, sy, r) = (g.sigma_x, g.sigma_y, g.rho.clamp(-0.999, 0.999));
+    // Cholesky factor of the covariance maps the unit circle onto the 1-σ ellipse.
+    let l21 = r * sy;
+    let l22 = sy * (1.0 - r * r).sqrt();
+    (0..=40)
+        .map(|k| {
+            let t = f64::from(k) / 40.0 * std::f64::consts::TAU;
+            let (c, s) = (t.cos(), t.sin());
+            centre + Vec2::new((sx * c) as f32, (l21 * c + l22 * s) as f32) * scale
+        })
+        .collect()
+}
+
+/// Pixel-level truth of the virtual lens: the optical Gaussian plus the 1-px box.
+fn truth_gaussian(
+    lens: &VirtualLens,
+    ch: Channel,
+    x: f64,
+    y: f64,
+    w: usize,
+    h: usize,
+    s: LensSetting,
+) -> Gaussian2 {
+    lens.gaussian_at(ch, x, y, w, h, s)
+        .convolved_variance(1.0 / 12.0, 1.0 / 12.0, 0.0)
+}
+
+fn sensor_size(app: &StudioApp) -> (usize, usize) {
+    if let Some(p) = app.selected_shot.and_then(|i| app.previews.get(&i)) {
+        return (p.capture.width, p.capture.height);
+    }
+    (app.options.demo_spec.width, app.options.demo_spec.height)
+}
+
+fn setting_sliders_ui(app: &mut StudioApp, ui: &mut egui::Ui, lens: &VirtualLens) {
+    ui.horizontal(|ui| {
+        ui.label("focal length");
+        ui.add(
+            egui::Slider::new(
+                &mut app.field_focal_mm,
+                lens.focal_range_mm[0]..=lens.focal_range_mm[1],
+            )
+            .suffix(" mm"),
+        );
+        ui.label("aperture");
+        ui.add(
+            egui::Slider::new(
+                &mut app.field_f_number,
+                lens.f_number_range[0]..=lens.f_number_range[1],
+            )
+            .prefix("f/")
+            .logarithmic(true),
+        );
+    });
+}
+
+fn field_panel_ui(
+    ui: &mut egui::Ui,
+    title: &str,
+    lens: &VirtualLens,
+    ch: Channel,
+    (w, h): (usize, usize),
+    s: LensSetting,
+    size: Vec2,
+) {
+    ui.vertical(|ui| {
+        ui.label(title);
+        let (rect, _) = ui.allocate_exact_size(size, Sense::hover());
+        let painter = ui.painter_at(rect);
+        painter.rect_filled(rect, 2.0, ui.visuals().extreme_bg_color);
+        painter.rect_stroke(
+            rect,
+            2.0,
+            Stroke::new(1.0, ui.visuals().weak_text_color()),
+            egui::StrokeKind::Inside,
+        );
+        let points_per_px = rect.width() / w as f32;
+        let (nx, ny) = (12usize, 8usize);
+        let cell = rect.width() / nx as f32;
+        let mut max_sigma: f64 = 0.0;
+        let mut gs = Vec::new();
+        for j in 0..ny {
+            for i in 0..nx {
+                let x = (i as f64 + 0.5) / nx as f64 * (w as f64 - 1.0);
+                let y = (j as f64 + 0.5) / ny as f64 * (h as f64 - 1.0);
+                let g = truth_gaussian(lens, ch, x, y, w, h, s);
+                max_sigma = max_sigma.max(g.sigma_x.max(g.sigma_y));
+                gs.push((x, y, g));
+            }
+        }
+        // Ellipses are magnified so the largest 1-σ radius fills 45 % of a cell.
+        let scale = 0.45 * cell / max_sigma.max(1e-6) as f32;
+        for (x, y, g) in gs {
+            let c = rect.min + Vec2::new(x as f32 * points_per_px, y as f32 * points_per_px);
+            let color = sigma_color((g.sigma_x * g.sigma_y).sqrt());
+            painter.add(egui::Shape::convex_polygon(
+                ellipse_points(c, &g, scale),
+                color,
+                Stroke::NONE,
+            ));
+        }
+        ui.label(
+            egui::RichText::new(format!(
+                "ellipses: 1 σ, magnified {:.1}× (sensor {w}×{h} px)",
+                scale / points_per_px
+            ))
+            .small(),
+        );
+    });
+}
+
+fn sigma_legend_ui(ui: &mut egui::Ui) {
+    ui.horizontal(|ui| {
+        ui.label("σ = √(C_xx·C_yy)")
+            .on_hover_text(format!("{TIP_CXX}\n{TIP_CYY}"));
+        ui.label("0.5 px");
+        let (rect, _) = ui.allocate_exact_size(Vec2::new(160.0, 12.0), Sense::hover());
+        let p = ui.painter_at(rect);
+        for k in 0..32 {
+            let t = k as f32 / 32.0;
+            let r = Rect::from_min_size(
+                rect.min + Vec2::new(t * rect.width(), 0.0),
+                Vec2::new(rect.width() / 32.0 + 0.5, rect.height()),
+            );
+            p.rect_filled(r, 0.0, sigma_color(0.5 + 3.0 * f64::from(t)));
+        }
+        ui.label("3.5 px");
+    });
+}
+
+fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    ui.heading("Kernel field");
+    let is_demo = app.session.as_ref().is_some_and(|s| s.is_demo);
+    let any_kernels = app
+        .session
+        .as_ref()
+        .is_some_and(|s| s.shots.iter().any(|sh| sh.kernels.is_done()));
+    if !any_kernels {
+        ui.label("No kernels measured yet — press Kernels (Ctrl+K) after Detect.");
+    }
+    if !is_demo {
+        ui.label("No profile yet: the predicted field appears after Calibrate.");
+        return;
+    }
+    let lens = VirtualLens::demo();
+    ui.label("GROUND TRUTH of the demo's virtual lens (pixel-level Gaussians: optical blur plus the 1-px pixel integration).");
+    setting_sliders_ui(app, ui, &lens);
+    ui.horizontal(|ui| {
+        ui.checkbox(&mut app.compare_units, "Compare with a second unit")
+            .on_hover_text(
+                "Two copies of one lens model blur differently (the paper's two 17–40 mm units).",
+            );
+        sigma_legend_ui(ui);
+    });
+    let s = LensSetting {
+        focal_mm: app.field_focal_mm,
+        f_number: app.field_f_number,
+    };
+    let size = sensor_size(app);
+    let avail = ui.available_size();
+    let cols = if app.compare_units { 2.0 } else { 1.0 };
+    let w = ((avail.x - 16.0 * cols) / cols)
+        .min((avail.y - 60.0) * size.0 as f32 / size.1 as f32)
+        .max(100.0);
+    let panel = Vec2::new(w, w * size.1 as f32 / size.0 as f32);
+    ui.horizontal(|ui| {
+        field_panel_ui(
+            ui,
+            &format!("{} {} — channel {}", lens.model, lens.serial, app.channel),
+            &lens,
+            app.channel,
+            size,
+            s,
+            panel,
+        );
+        if app.compare_units {
+            let other = VirtualLens::demo_second_unit();
+            field_panel_ui(
+                ui,
+                &format!("{} {} — channel {}", other.model, other.serial, app.channel),
+                &other,
+                app.channel,
+                size,
+                s,
+                panel,
+            );
+        }
+    });
+}
+
+fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    use egui_plot::{Legend, Line, Plot, PlotPoints};
+    ui.heading("Sweeps");
+    let is_demo = app.session.as_ref().is_some_and(|s| s.is_demo);
+    ui.label("No kernels measured yet: measured points appear here after Kernels (Ctrl+K); model curves after Calibrate.");
+    if !is_demo {
+        return;
+    }
+    let lens = VirtualLens::demo();
+    ui.label(
+        "Lines: GROUND TRUTH of the demo's virtual lens at five sensor locations (pixel-level).",
+    );
+    setting_sliders_ui(app, ui, &lens);
+    let (w, h) = sensor_size(app);
+    let locations: [(&str, f64, f64); 5] = [
+        ("centre", 0.5, 0.5),
+        ("top-left", 0.08, 0.08),
+        ("top-right", 0.92, 0.08),
+        ("bottom-left", 0.08, 0.92),
+        ("bottom-right", 0.92, 0.92),
+    ];
+    let ch = app.channel;
+    let params: [(&str, &str, fn(&Gaussian2) -> f64); 3] = [
+        ("C_xx", TIP_CXX, |g| g.sigma_x),
+        ("C_yy", TIP_CYY, |g| g.sigma_y),
+        ("C_or", TIP_COR, |g| g.rho),
+    ];
+    let avail = ui.available_size();
+    let plot_w = (avail.x - 24.0) / 3.0;
+    let plot_h = ((avail.y - 60.0) / 2.0).max(120.0);
+    for vs_aperture in [true, false] {
+        ui.horizontal(|ui| {
+            for (name, tip, get) in params {
+                ui.vertical(|ui| {
+                    let title = if vs_aperture {
+                        format!(
+                            "{name} vs aperture at {:.0} mm, channel {ch}",
+                            app.field_focal_mm
+                        )
+                    } else {
+                        format!(
+                            "{name} vs focal length at f/{:.1}, channel {ch}",
+                            app.field_f_number
+                        )
+                    };
+                    ui.label(title).on_hover_text(tip);
+                    let unit = if name == "C_or" {
+                        "ρ (unitless)"
+                    } else {
+                        "σ (px)"
+                    };
+                    let x_label = if vs_aperture {
+                        "aperture (f-number)"
+                    } else {
+                        "focal length (mm)"
+                    };
+                    Plot::new(format!("sweep-{name}-{vs_aperture}"))
+                        .width(plot_w)
+                        .height(plot_h)
+                        .x_axis_label(x_label)
+                        .y_axis_label(format!("{name}: {unit}"))
+                        .legend(Legend::default())
+                        .allow_scroll(false)
+                        .show(ui, |plot| {
+                            for (loc, fx, fy) in locations {
+                                let (x, y) = (fx * (w as f64 - 1.0), fy * (h as f64 - 1.0));
+                                let pts: Vec<[f64; 2]> = (0..=40)
+                                    .map(|k| {
+                                        let t = f64::from(k) / 40.0;
+                                        let s = if vs_aperture {
+                                            let [a0, a1] = lens.f_number_range;
+                                            LensSetting {
+                                                focal_mm: app.field_focal_mm,
+                                                f_number: a0 * (a1 / a0).powf(t),
+                                            }
+                                        } else {
+                                            let [f0, f1] = lens.focal_range_mm;
+                                            LensSetting {
+                                                focal_mm: f0 + (f1 - f0) * t,
+                                                f_number: app.field_f_number,
+                                            }
+                                        };
+                                        let g = truth_gaussian(&lens, ch, x, y, w, h, s);
+                                        [if vs_aperture { s.f_number } else { s.focal_mm }, get(&g)]
+                                    })
+                                    .collect();
+                                plot.line(Line::new(format!("truth {loc}"), PlotPoints::from(pts)));
+                            }
+                        });
+                });
+            }
+        });
+    }
+}
+
+fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    ui.heading("Models");
+    ui.horizontal(|ui| {
+        ui.label("Model complexity:");
+        ui.label("α").on_hover_text(TIP_ALPHA);
+        ui.label("β").on_hover_text(TIP_BETA);
+    });
+    ui.label("No cross-validation yet — press Calibrate (Ctrl+M) once kernels are measured on every shot.");
+    ui.label("The cross-validation curves over α and β, the error CDFs and the chosen model appear here.");
+    ui.horizontal(|ui| {
+        if ui.button("Load profile…").clicked() {
+            app.commands.push(Command::LoadProfileDialog);
+        }
+        if ui.button("Save profile…").clicked() {
+            app.commands.push(Command::SaveProfileDialog);
+        }
+    });
+}
+
+fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    ui.heading("Deblur");
+    ui.horizontal(|ui| {
+        if ui
+            .button("Open photo…")
+            .on_hover_text("A photo taken with the calibrated lens; its settings come from EXIF")
+            .clicked()
+        {
+            app.commands.push(Command::OpenPhotoDialog);
+        }
+    });
+    match &app.photo {
+        None => {
+            ui.label("No photo open.");
+        }
+        Some((path, cap, tex)) => {
+            let setting = match (cap.setting_focal_mm, cap.setting_f_number) {
+                (Some(f), Some(a)) => format!("{f:.0} mm f/{a:.1} (EXIF)"),
+                _ => "settings not in EXIF".to_owned(),
+            };
+            ui.label(format!(
+                "{} — {}×{} — {setting}",
+                path.display(),
+                cap.width,
+                cap.height
+            ));
+            ui.label("No profile yet: the predicted-Gaussian and measured-kernel results appear beside the original after Calibrate.");
+            if let Some(t) = tex {
+                let avail = ui.available_size();
+                let s = (avail.x / t.size_vec2().x)
+                    .min(avail.y / t.size_vec2().y)
+                    .min(1.0);
+                ui.image((t.id(), t.size_vec2() * s));
+            }
+        }
+    }
+}

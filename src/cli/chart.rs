@@ -1,0 +1,8 @@
+//! `lensblur chart` (being built).
+
+#[derive(clap::Args, Default)]
+pub struct Args {}
+
+pub fn run(_args: Args) -> anyhow::Result<()> {
+    anyhow::bail!("'chart' is not built yet")
+}

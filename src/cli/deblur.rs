@@ -1,0 +1,8 @@
+//! `lensblur deblur` (being built).
+
+#[derive(clap::Args, Default)]
+pub struct Args {}
+
+pub fn run(_args: Args) -> anyhow::Result<()> {
+    anyhow::bail!("'deblur' is not built yet")
+}

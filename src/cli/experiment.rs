@@ -1,0 +1,8 @@
+//! `lensblur experiment` (being built).
+
+#[derive(clap::Args, Default)]
+pub struct Args {}
+
+pub fn run(_args: Args) -> anyhow::Result<()> {
+    anyhow::bail!("'experiment' is not built yet")
+}

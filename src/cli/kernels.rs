@@ -1,0 +1,8 @@
+//! `lensblur kernels` (being built).
+
+#[derive(clap::Args, Default)]
+pub struct Args {}
+
+pub fn run(_args: Args) -> anyhow::Result<()> {
+    anyhow::bail!("'kernels' is not built yet")
+}

@@ -1,0 +1,14 @@
+//! One file per subcommand: its arguments and a `run` that calls into the core.
+
+pub mod calibrate;
+pub mod chart;
+pub mod common;
+pub mod crossval;
+pub mod deblur;
+pub mod detect;
+pub mod experiment;
+pub mod kernels;
+pub mod predict;
+pub mod simulate;
+pub mod studio;
+pub mod sweeps;

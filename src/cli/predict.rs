@@ -1,0 +1,111 @@
+//! `lensblur predict`: the Gaussian blur a profile predicts at given sensor points.
+
+use super::common::write_json;
+use anyhow::{Context, Result};
+use lensblur::model::ModelKind;
+use lensblur::plane::{Channel, LensSetting};
+use lensblur::profile::Profile;
+use serde::Serialize;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Default)]
+pub struct Args {
+    /// The lens profile (lensblur.profile/1).
+    #[arg(long)]
+    pub profile: PathBuf,
+    /// Focal length in mm.
+    #[arg(long)]
+    pub focal: f64,
+    /// Aperture as an f-number.
+    #[arg(long)]
+    pub aperture: f64,
+    /// Sensor points: [[x, y], ...] in full-resolution pixels.
+    #[arg(long)]
+    pub points: PathBuf,
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Channels to predict (default: every channel of the profile).
+    #[arg(long, value_delimiter = ',')]
+    pub channels: Vec<Channel>,
+    /// Use this model instead of the profile's preferred one.
+    #[arg(long, value_enum)]
+    pub model: Option<KindArg>,
+    /// Predict outside the calibrated range of focal length and aperture.
+    #[arg(long)]
+    pub allow_extrapolation: bool,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Default)]
+pub enum KindArg {
+    #[default]
+    Global,
+    Local,
+}
+
+#[derive(Serialize)]
+struct Pred {
+    focal_mm: f64,
+    f_number: f64,
+    samples: Vec<PredSample>,
+}
+
+#[derive(Serialize)]
+struct PredSample {
+    x: f64,
+    y: f64,
+    channel: Channel,
+    cxx: f64,
+    cyy: f64,
+    cor: f64,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let mut profile = Profile::load(&args.profile)?;
+    profile.allow_extrapolation = args.allow_extrapolation;
+    let setting = LensSetting {
+        focal_mm: args.focal,
+        f_number: args.aperture,
+    };
+    if !profile.norm.contains(setting) && args.allow_extrapolation {
+        eprintln!(
+            "lensblur: warning: f = {} mm, f/{} is outside the calibrated range; extrapolating",
+            args.focal, args.aperture
+        );
+    }
+    let text = std::fs::read_to_string(&args.points)
+        .with_context(|| format!("{}: cannot read", args.points.display()))?;
+    let points: Vec<[f64; 2]> = serde_json::from_str(&text)
+        .with_context(|| format!("{}: expected [[x, y], ...]", args.points.display()))?;
+    let kind = match args.model {
+        Some(KindArg::Global) => ModelKind::Global,
+        Some(KindArg::Local) => ModelKind::Local,
+        None => profile.preferred,
+    };
+    let channels = if args.channels.is_empty() {
+        profile.channels()
+    } else {
+        args.channels.clone()
+    };
+    let mut samples = Vec::with_capacity(points.len() * channels.len());
+    for &ch in &channels {
+        for &[x, y] in &points {
+            let g = profile.predict_with(kind, ch, x, y, setting)?;
+            samples.push(PredSample {
+                x,
+                y,
+                channel: ch,
+                cxx: g.sigma_x,
+                cyy: g.sigma_y,
+                cor: g.rho,
+            });
+        }
+    }
+    write_json(
+        &args.out,
+        &Pred {
+            focal_mm: args.focal,
+            f_number: args.aperture,
+            samples,
+        },
+    )
+}

@@ -1,0 +1,677 @@
+//! Cross-validation and model selection (DESIGN.md §1.7).
+//!
+//! Whole shots are held out (the paper's holdout-10: each fold holds about 10 % of the
+//! shots, assigned by a fixed seeded shuffle so runs are repeatable). The error of a
+//! parameter is |predicted − measured| / range × 100 %, where the range is the width of
+//! the 0.5–99.5 percentile interval of that parameter over the whole dataset, all
+//! channels pooled. Selection is two-staged: α with β = N − 1, then β with that α.
+//!
+//! Every fold's fit solves the normal equations of the largest candidate model once
+//! accumulated per fold: the training Gram matrix of a fold is the total minus the
+//! held-out fold's, and a smaller candidate is the matching sub-block. In the Legendre
+//! basis these systems are well conditioned (the final fit uses QR; a unit test checks
+//! the two agree).
+
+use crate::job::JobContext;
+use crate::model::{
+    Basis, CentreGrid, Dataset, LocalOptions, ModelError, ModelKind, global_coords, local_coords,
+    local_grid, local_members, model_basis, solve_normal,
+};
+use crate::plane::{Channel, LensSetting};
+use nalgebra::DMatrix;
+use rand::SeedableRng;
+use rand::seq::SliceRandom;
+use serde::{Deserialize, Serialize};
+
+/// What to cross-validate.
+#[derive(Clone, Debug)]
+pub struct CvOptions {
+    /// Number of folds; each holds out about 1/folds of the shots (10 = holdout-10).
+    pub folds: usize,
+    pub global_alphas: Vec<usize>,
+    pub local_alphas: Vec<usize>,
+    pub local: LocalOptions,
+    pub run_global: bool,
+    pub run_local: bool,
+    pub seed: u64,
+}
+
+impl Default for CvOptions {
+    fn default() -> Self {
+        Self {
+            folds: 10,
+            global_alphas: (1..=8).collect(),
+            local_alphas: vec![1, 2],
+            local: LocalOptions::default(),
+            run_global: true,
+            run_local: true,
+            seed: 0x1e45_b1a2,
+        }
+    }
+}
+
+/// The mean and 95th percentile of the errors of one (α, β), in % of range.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CvPoint {
+    pub alpha: usize,
+    pub beta: usize,
+    pub terms: usize,
+    /// Mean error per parameter (C_xx, C_yy, C_or).
+    pub mean_error_pct: [f64; 3],
+    /// 95th percentile of the error per parameter.
+    pub p95_error_pct: [f64; 3],
+    /// Mean over the three parameters: what selection minimises.
+    pub mean_pct: f64,
+}
+
+/// Error distributions as quantiles: `cxx[i]` is the `percentiles[i]`-th percentile.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ErrorCdf {
+    pub percentiles: Vec<f64>,
+    pub cxx: Vec<f64>,
+    pub cyy: Vec<f64>,
+    pub cor: Vec<f64>,
+}
+
+impl ErrorCdf {
+    #[must_use]
+    pub fn from_errors(errors: &[Vec<f64>; 3]) -> Self {
+        let percentiles: Vec<f64> = (0..=100).map(f64::from).collect();
+        let q = |e: &Vec<f64>| {
+            let mut s = e.clone();
+            s.sort_by(f64::total_cmp);
+            percentiles
+                .iter()
+                .map(|&p| percentile_sorted(&s, p))
+                .collect()
+        };
+        Self {
+            cxx: q(&errors[0]),
+            cyy: q(&errors[1]),
+            cor: q(&errors[2]),
+            percentiles,
+        }
+    }
+}
+
+/// The selection of one model family: both stages' curves (Fig. 5), the choice, and
+/// the chosen model's error distribution (Fig. 6).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Selection {
+    pub kind: ModelKind,
+    pub alpha_curve: Vec<CvPoint>,
+    pub beta_curve: Vec<CvPoint>,
+    pub alpha: usize,
+    pub beta: usize,
+    pub chosen: CvPoint,
+    pub error_cdf: ErrorCdf,
+}
+
+/// Parameter ranges (0.5–99.5 percentile widths) the errors are relative to.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Ranges {
+    pub cxx: f64,
+    pub cyy: f64,
+    pub cor: f64,
+}
+
+impl Ranges {
+    #[must_use]
+    pub fn as_array(&self) -> [f64; 3] {
+        [self.cxx, self.cyy, self.cor]
+    }
+}
+
+/// A whole cross-validation run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CvReport {
+    pub schema: String,
+    pub folds: usize,
+    pub shots: usize,
+    pub n_f: usize,
+    pub n_a: usize,
+    pub ranges: Ranges,
+    pub global: Option<Selection>,
+    pub local: Option<Selection>,
+}
+
+impl CvReport {
+    /// The family with the lower cross-validation error, with its α, β.
+    #[must_use]
+    pub fn best(&self) -> Option<(ModelKind, usize, usize)> {
+        let mut best: Option<&Selection> = None;
+        for s in [&self.global, &self.local].into_iter().flatten() {
+            if best.is_none_or(|b| s.chosen.mean_pct < b.chosen.mean_pct) {
+                best = Some(s);
+            }
+        }
+        best.map(|s| (s.kind, s.alpha, s.beta))
+    }
+}
+
+/// Linear-interpolated percentile of sorted values (p in 0–100).
+#[must_use]
+pub fn percentile_sorted(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let pos = (p / 100.0).clamp(0.0, 1.0) * (sorted.len() - 1) as f64;
+    let i = pos.floor() as usize;
+    let f = pos - i as f64;
+    if i + 1 < sorted.len() {
+        sorted[i] * (1.0 - f) + sorted[i + 1] * f
+    } else {
+        sorted[i]
+    }
+}
+
+/// The 0.5–99.5 percentile width of each parameter over the dataset.
+#[must_use]
+pub fn param_ranges(ds: &Dataset) -> Ranges {
+    let r = |p: usize| {
+        let mut v: Vec<f64> = ds.samples.iter().map(|s| s.params()[p]).collect();
+        v.sort_by(f64::total_cmp);
+        (percentile_sorted(&v, 99.5) - percentile_sorted(&v, 0.5)).max(1e-9)
+    };
+    Ranges {
+        cxx: r(0),
+        cyy: r(1),
+        cor: r(2),
+    }
+}
+
+/// Deterministic fold of each shot: a seeded shuffle, then round robin.
+#[must_use]
+pub fn shot_folds(n_shots: usize, folds: usize, seed: u64) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..n_shots).collect();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+    order.shuffle(&mut rng);
+    let mut fold = vec![0; n_shots];
+    for (rank, &shot) in order.iter().enumerate() {
+        fold[shot] = rank % folds.max(1);
+    }
+    fold
+}
+
+/// Errors (% of range) of a predictor on every sample of a dataset, per parameter.
+pub fn prediction_errors(
+    ds: &Dataset,
+    ranges: &Ranges,
+    predict: impl Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>,
+) -> [Vec<f64>; 3] {
+    let r = ranges.as_array();
+    let mut out: [Vec<f64>; 3] = Default::default();
+    for s in &ds.samples {
+        let setting = LensSetting {
+            focal_mm: s.focal_mm,
+            f_number: s.f_number,
+        };
+        if let Some(p) = predict(s.channel, s.x, s.y, setting) {
+            let m = s.params();
+            for k in 0..3 {
+                out[k].push((p[k] - m[k]).abs() / r[k] * 100.0);
+            }
+        }
+    }
+    out
+}
+
+/// Summary of per-parameter errors.
+#[must_use]
+pub fn summarise(alpha: usize, beta: usize, terms: usize, errors: &[Vec<f64>; 3]) -> CvPoint {
+    let mut mean = [0.0; 3];
+    let mut p95 = [0.0; 3];
+    for k in 0..3 {
+        let mut s = errors[k].clone();
+        s.sort_by(f64::total_cmp);
+        mean[k] = if s.is_empty() {
+            f64::NAN
+        } else {
+            s.iter().sum::<f64>() / s.len() as f64
+        };
+        p95[k] = percentile_sorted(&s, 95.0);
+    }
+    CvPoint {
+        alpha,
+        beta,
+        terms,
+        mean_error_pct: mean,
+        p95_error_pct: p95,
+        mean_pct: (mean[0] + mean[1] + mean[2]) / 3.0,
+    }
+}
+
+/// Normal equations of one least-squares problem, split by fold.
+struct FoldedSystem {
+    gram_total: DMatrix<f64>,
+    rhs_total: DMatrix<f64>,
+    gram_fold: Vec<DMatrix<f64>>,
+    rhs_fold: Vec<DMatrix<f64>>,
+}
+
+impl FoldedSystem {
+    fn build(basis: &Basis, rows: &[([f64; 4], [f64; 3], usize)], folds: usize) -> Self {
+        let n = basis.len();
+        let mut gram_fold = Vec::with_capacity(folds);
+        let mut rhs_fold = Vec::with_capacity(folds);
+        let mut row = vec![0.0; n];
+        for k in 0..folds {
+            let mine: Vec<&([f64; 4], [f64; 3], usize)> =
+                rows.iter().filter(|r| r.2 == k).collect();
+            let mut a = DMatrix::zeros(mine.len(), n);
+            let mut y = DMatrix::zeros(mine.len(), 3);
+            for (i, r) in mine.iter().enumerate() {
+                basis.row(r.0, &mut row);
+                for (c, v) in row.iter().enumerate() {
+                    a[(i, c)] = *v;
+                }
+                for p in 0..3 {
+                    y[(i, p)] = r.1[p];
+                }
+            }
+            gram_fold.push(a.tr_mul(&a));
+            rhs_fold.push(a.tr_mul(&y));
+        }
+        let mut gram_total = DMatrix::zeros(n, n);
+        let mut rhs_total = DMatrix::zeros(n, 3);
+        for k in 0..folds {
+            gram_total += &gram_fold[k];
+            rhs_total += &rhs_fold[k];
+        }
+        Self {
+            gram_total,
+            rhs_total,
+            gram_fold,
+            rhs_fold,
+        }
+    }
+
+    /// Coefficients (subset.len() × 3) fitted without fold `k` (or with all data when
+    /// `k` is `None`), restricted to the `subset` of the union's terms.
+    fn solve(&self, k: Option<usize>, subset: &[usize]) -> DMatrix<f64> {
+        let mut g = self.gram_total.select_rows(subset).select_columns(subset);
+        let mut b = self.rhs_total.select_rows(subset);
+        if let Some(k) = k {
+            g -= self.gram_fold[k].select_rows(subset).select_columns(subset);
+            b -= self.rhs_fold[k].select_rows(subset);
+        }
+        solve_normal(g, &b)
+    }
+}
+
+fn subset_of(union: &Basis, sub: &Basis) -> Vec<usize> {
+    sub.terms()
+        .iter()
+        .map(|t| union.terms().iter().position(|u| u == t).unwrap_or(0))
+        .collect()
+}
+
+fn coeff_cols(x: &DMatrix<f64>) -> [Vec<f64>; 3] {
+    crate::model::split_coeffs(x)
+}
+
+/// Per channel: the samples' coordinates, measured parameters, folds.
+struct ChannelData {
+    /// (x, y, focal, f-number, params, fold)
+    samples: Vec<(f64, f64, f64, f64, [f64; 3], usize)>,
+}
+
+fn channel_data(ds: &Dataset, fold_of_shot: &[usize]) -> Vec<ChannelData> {
+    ds.channels()
+        .into_iter()
+        .map(|ch| ChannelData {
+            samples: ds
+                .samples
+                .iter()
+                .filter(|s| s.channel == ch)
+                .map(|s| {
+                    (
+                        s.x,
+                        s.y,
+                        s.focal_mm,
+                        s.f_number,
+                        s.params(),
+                        fold_of_shot[s.shot],
+                    )
+                })
+                .collect(),
+        })
+        .collect()
+}
+
+/// Cross-validation engine for the global family.
+struct GlobalCv {
+    norm: crate::model::Normalisation,
+    union: Basis,
+    systems: Vec<FoldedSystem>,
+    data: Vec<ChannelData>,
+    folds: usize,
+}
+
+impl GlobalCv {
+    fn new(
+        ds: &Dataset,
+        data: Vec<ChannelData>,
+        max_alpha: usize,
+        max_beta: usize,
+        folds: usize,
+    ) -> Self {
+        let norm = ds.normalisation();
+        let union = model_basis(&norm, max_alpha, max_beta);
+        let systems = {
+            use rayon::prelude::*;
+            data.par_iter()
+                .map(|cd| {
+                    let rows: Vec<([f64; 4], [f64; 3], usize)> = cd
+                        .samples
+                        .iter()
+                        .map(|s| (global_coords(&norm, s.0, s.1, s.2, s.3), s.4, s.5))
+                        .collect();
+                    FoldedSystem::build(&union, &rows, folds)
+                })
+                .collect()
+        };
+        Self {
+            norm,
+            union,
+            systems,
+            data,
+            folds,
+        }
+    }
+
+    fn errors(&self, alpha: usize, beta: usize, ranges: &Ranges) -> ([Vec<f64>; 3], usize) {
+        let basis = model_basis(&self.norm, alpha, beta);
+        let subset = subset_of(&self.union, &basis);
+        let r = ranges.as_array();
+        let mut out: [Vec<f64>; 3] = Default::default();
+        for (cd, sys) in self.data.iter().zip(&self.systems) {
+            let per_fold: Vec<[Vec<f64>; 3]> = {
+                use rayon::prelude::*;
+                (0..self.folds)
+                    .into_par_iter()
+                    .map(|k| coeff_cols(&sys.solve(Some(k), &subset)))
+                    .collect()
+            };
+            for s in &cd.samples {
+                let p = basis.eval3(
+                    global_coords(&self.norm, s.0, s.1, s.2, s.3),
+                    &per_fold[s.5],
+                );
+                for k in 0..3 {
+                    out[k].push((p[k] - s.4[k]).abs() / r[k] * 100.0);
+                }
+            }
+        }
+        (out, basis.len())
+    }
+}
+
+/// Cross-validation engine for the local family.
+struct LocalCv {
+    norm: crate::model::Normalisation,
+    grid: CentreGrid,
+    union: Basis,
+    /// Per channel, per centre.
+    systems: Vec<Vec<FoldedSystem>>,
+    data: Vec<ChannelData>,
+    folds: usize,
+}
+
+impl LocalCv {
+    fn new(
+        ds: &Dataset,
+        data: Vec<ChannelData>,
+        opts: &LocalOptions,
+        max_alpha: usize,
+        max_beta: usize,
+        folds: usize,
+    ) -> Self {
+        let norm = ds.normalisation();
+        let union = model_basis(&norm, max_alpha, max_beta);
+        let grid = local_grid(ds, opts);
+        let systems = data
+            .iter()
+            .map(|cd| {
+                let pts: Vec<[f64; 2]> = cd.samples.iter().map(|s| [s.0, s.1]).collect();
+                use rayon::prelude::*;
+                (0..grid.len())
+                    .into_par_iter()
+                    .map(|idx| {
+                        let members = local_members(&grid, idx, &pts, union.len());
+                        let rows: Vec<([f64; 4], [f64; 3], usize)> = members
+                            .iter()
+                            .map(|&m| {
+                                let s = &cd.samples[m];
+                                (
+                                    local_coords(&grid, &norm, idx, s.0, s.1, s.2, s.3),
+                                    s.4,
+                                    s.5,
+                                )
+                            })
+                            .collect();
+                        FoldedSystem::build(&union, &rows, folds)
+                    })
+                    .collect()
+            })
+            .collect();
+        Self {
+            norm,
+            grid,
+            union,
+            systems,
+            data,
+            folds,
+        }
+    }
+
+    fn errors(&self, alpha: usize, beta: usize, ranges: &Ranges) -> ([Vec<f64>; 3], usize) {
+        let basis = model_basis(&self.norm, alpha, beta);
+        let subset = subset_of(&self.union, &basis);
+        let r = ranges.as_array();
+        let mut out: [Vec<f64>; 3] = Default::default();
+        for (cd, centres) in self.data.iter().zip(&self.systems) {
+            // coeffs[fold][centre]
+            let coeffs: Vec<Vec<[Vec<f64>; 3]>> = {
+                use rayon::prelude::*;
+                (0..self.folds)
+                    .into_par_iter()
+                    .map(|k| {
+                        centres
+                            .iter()
+                            .map(|sys| coeff_cols(&sys.solve(Some(k), &subset)))
+                            .collect()
+                    })
+                    .collect()
+            };
+            for s in &cd.samples {
+                let mut p = [0.0; 3];
+                for (idx, w) in self.grid.blend(s.0, s.1) {
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let q = basis.eval3(
+                        local_coords(&self.grid, &self.norm, idx, s.0, s.1, s.2, s.3),
+                        &coeffs[s.5][idx],
+                    );
+                    for k in 0..3 {
+                        p[k] += w * q[k];
+                    }
+                }
+                for k in 0..3 {
+                    out[k].push((p[k] - s.4[k]).abs() / r[k] * 100.0);
+                }
+            }
+        }
+        (out, basis.len())
+    }
+}
+
+fn select(
+    kind: ModelKind,
+    alphas: &[usize],
+    n: usize,
+    job: &JobContext,
+    done: &mut usize,
+    total: usize,
+    errors: impl Fn(usize, usize) -> ([Vec<f64>; 3], usize),
+) -> Result<Selection, ModelError> {
+    let stage = match kind {
+        ModelKind::Global => "global CV",
+        ModelKind::Local => "local CV",
+    };
+    let beta_max = n - 1;
+    let mut alpha_curve = Vec::new();
+    let mut best: Option<(CvPoint, [Vec<f64>; 3])> = None;
+    for &alpha in alphas {
+        job.check()?;
+        let (e, terms) = errors(alpha, beta_max);
+        let pt = summarise(alpha, beta_max, terms, &e);
+        if best.as_ref().is_none_or(|b| pt.mean_pct < b.0.mean_pct) {
+            best = Some((pt.clone(), e));
+        }
+        alpha_curve.push(pt);
+        *done += 1;
+        job.report(stage, *done, total);
+    }
+    let Some((a_best, a_err)) = best else {
+        return Err(ModelError::Empty);
+    };
+    let alpha = a_best.alpha;
+    let mut beta_curve = Vec::new();
+    let mut best = (a_best.clone(), a_err);
+    for beta in 0..=beta_max {
+        job.check()?;
+        if beta == beta_max {
+            beta_curve.push(a_best.clone());
+        } else {
+            let (e, terms) = errors(alpha, beta);
+            let pt = summarise(alpha, beta, terms, &e);
+            if pt.mean_pct < best.0.mean_pct {
+                best = (pt.clone(), e);
+            }
+            beta_curve.push(pt);
+        }
+        *done += 1;
+        job.report(stage, *done, total);
+    }
+    Ok(Selection {
+        kind,
+        alpha_curve,
+        beta_curve,
+        alpha,
+        beta: best.0.beta,
+        chosen: best.0,
+        error_cdf: ErrorCdf::from_errors(&best.1),
+    })
+}
+
+/// Runs cross-validation and the two-stage selection for the requested families.
+///
+/// # Errors
+/// Unknown settings, fewer than two shots, or cancellation.
+pub fn cross_validate(
+    ds: &Dataset,
+    opts: &CvOptions,
+    job: &JobContext,
+) -> Result<CvReport, ModelError> {
+    ds.validate()?;
+    if ds.shots.len() < 2 {
+        return Err(ModelError::TooFewShots {
+            shots: ds.shots.len(),
+        });
+    }
+    let folds = opts.folds.clamp(2, ds.shots.len());
+    let fold_of_shot = shot_folds(ds.shots.len(), folds, opts.seed);
+    let ranges = param_ranges(ds);
+    let n = ds.setting_resolution();
+    let (fs, as_) = ds.distinct_settings();
+    let total = usize::from(opts.run_global) * (opts.global_alphas.len() + n)
+        + usize::from(opts.run_local) * (opts.local_alphas.len() + n);
+    let mut done = 0;
+    let global = if opts.run_global && !opts.global_alphas.is_empty() {
+        let max_alpha = opts.global_alphas.iter().copied().max().unwrap_or(1);
+        let cv = GlobalCv::new(ds, channel_data(ds, &fold_of_shot), max_alpha, n - 1, folds);
+        Some(select(
+            ModelKind::Global,
+            &opts.global_alphas,
+            n,
+            job,
+            &mut done,
+            total,
+            |a, b| cv.errors(a, b, &ranges),
+        )?)
+    } else {
+        None
+    };
+    let local = if opts.run_local && !opts.local_alphas.is_empty() {
+        let max_alpha = opts.local_alphas.iter().copied().max().unwrap_or(1);
+        let cv = LocalCv::new(
+            ds,
+            channel_data(ds, &fold_of_shot),
+            &opts.local,
+            max_alpha,
+            n - 1,
+            folds,
+        );
+        Some(select(
+            ModelKind::Local,
+            &opts.local_alphas,
+            n,
+            job,
+            &mut done,
+            total,
+            |a, b| cv.errors(a, b, &ranges),
+        )?)
+    } else {
+        None
+    };
+    Ok(CvReport {
+        schema: "lensblur.crossval/1".into(),
+        folds,
+        shots: ds.shots.len(),
+        n_f: fs.len(),
+        n_a: as_.len(),
+        ranges,
+        global,
+        local,
+    })
+}
+
+/// Cross-validation errors of one fixed (α, β) of a family (no selection): for
+/// reporting a named model such as L_{1,3} next to the chosen one.
+///
+/// # Errors
+/// As [`cross_validate`], and β too large for the session.
+pub fn cross_validate_fixed(
+    ds: &Dataset,
+    kind: ModelKind,
+    alpha: usize,
+    beta: usize,
+    opts: &CvOptions,
+) -> Result<(CvPoint, [Vec<f64>; 3]), ModelError> {
+    ds.validate()?;
+    ds.check_beta(beta)?;
+    if ds.shots.len() < 2 {
+        return Err(ModelError::TooFewShots {
+            shots: ds.shots.len(),
+        });
+    }
+    let folds = opts.folds.clamp(2, ds.shots.len());
+    let fold_of_shot = shot_folds(ds.shots.len(), folds, opts.seed);
+    let ranges = param_ranges(ds);
+    let (e, terms) = match kind {
+        ModelKind::Global => GlobalCv::new(ds, channel_data(ds, &fold_of_shot), alpha, beta, folds)
+            .errors(alpha, beta, &ranges),
+        ModelKind::Local => LocalCv::new(
+            ds,
+            channel_data(ds, &fold_of_shot),
+            &opts.local,
+            alpha,
+            beta,
+            folds,
+        )
+        .errors(alpha, beta, &ranges),
+    };
+    Ok((summarise(alpha, beta, terms, &e), e))
+}

@@ -1,0 +1,298 @@
+//! Where a tile's kernel comes from: anything that answers "the kernel of this channel
+//! at this sensor point" — a lens profile, a kernels file, the simulator's truth.
+
+use crate::plane::Channel;
+use crate::psf::{Gaussian2, Kernel};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+#[derive(Debug, thiserror::Error)]
+pub enum SourceError {
+    #[error("{path}: {reason}")]
+    File { path: String, reason: String },
+    #[error("no kernel for channel {0}")]
+    NoKernel(Channel),
+    #[error("{0}")]
+    Other(String),
+}
+
+/// The pixel-level kernel (any oversample) of `channel` at sensor point (x, y).
+pub trait KernelSource: Sync {
+    /// # Errors
+    /// When the source has nothing for this channel or point.
+    fn kernel_at(&self, channel: Channel, x: f64, y: f64) -> Result<Kernel, SourceError>;
+}
+
+impl<F> KernelSource for F
+where
+    F: Fn(Channel, f64, f64) -> Kernel + Sync,
+{
+    fn kernel_at(&self, channel: Channel, x: f64, y: f64) -> Result<Kernel, SourceError> {
+        Ok(self(channel, x, y))
+    }
+}
+
+/// One kernel everywhere.
+#[derive(Clone, Debug)]
+pub struct ConstantKernel(pub Kernel);
+
+impl KernelSource for ConstantKernel {
+    fn kernel_at(&self, _channel: Channel, _x: f64, _y: f64) -> Result<Kernel, SourceError> {
+        Ok(self.0.clone())
+    }
+}
+
+/// A kernel array as the kernels file stores it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct KernelData {
+    pub size: usize,
+    pub data: Vec<f64>,
+}
+
+/// One sample of a kernels file (`lensblur.kernels/1`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct KernelSample {
+    pub x: f64,
+    pub y: f64,
+    pub channel: Channel,
+    #[serde(default)]
+    pub cxx: Option<f64>,
+    #[serde(default)]
+    pub cyy: Option<f64>,
+    #[serde(default)]
+    pub cor: Option<f64>,
+    #[serde(default)]
+    pub kernel: Option<KernelData>,
+}
+
+/// The kernels file (DESIGN.md §3); unknown fields are ignored.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct KernelsFile {
+    #[serde(default)]
+    pub schema: String,
+    pub width: usize,
+    pub height: usize,
+    #[serde(default)]
+    pub focal_mm: Option<f64>,
+    #[serde(default)]
+    pub f_number: Option<f64>,
+    #[serde(default = "default_oversample")]
+    pub oversample: usize,
+    pub samples: Vec<KernelSample>,
+}
+
+fn default_oversample() -> usize {
+    3
+}
+
+impl KernelsFile {
+    /// # Errors
+    /// A one-line reason naming the file when it cannot be read or parsed.
+    pub fn load(path: &Path) -> Result<Self, SourceError> {
+        let err = |reason: String| SourceError::File {
+            path: path.display().to_string(),
+            reason,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| err(e.to_string()))?;
+        let f: KernelsFile =
+            serde_json::from_str(&text).map_err(|e| err(format!("not a kernels file: {e}")))?;
+        if !f.schema.is_empty() && !f.schema.starts_with("lensblur.kernels/") {
+            return Err(err(format!(
+                "schema '{}' is not lensblur.kernels/1",
+                f.schema
+            )));
+        }
+        if f.oversample == 0 {
+            return Err(err("oversample must be at least 1".into()));
+        }
+        for (i, s) in f.samples.iter().enumerate() {
+            if let Some(k) = &s.kernel
+                && (k.size % 2 == 0 || k.data.len() != k.size * k.size)
+            {
+                return Err(err(format!(
+                    "sample {i}: kernel must be odd-sized with size² values"
+                )));
+            }
+        }
+        Ok(f)
+    }
+}
+
+/// Which half of a kernels-file sample to use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Prefer {
+    /// The non-parametric kernel where present, the Gaussian otherwise.
+    #[default]
+    Kernel,
+    /// The Gaussian where present, the kernel otherwise.
+    Gaussian,
+}
+
+/// Kernels at scattered sensor points, interpolated between the nearest samples of the
+/// channel: Gaussians by their covariances, arrays by a weighted blend.
+#[derive(Clone, Debug)]
+pub struct ScatteredKernels {
+    pub file: KernelsFile,
+    pub prefer: Prefer,
+    /// How many nearest samples are blended.
+    pub neighbours: usize,
+}
+
+impl ScatteredKernels {
+    #[must_use]
+    pub fn new(file: KernelsFile, prefer: Prefer) -> Self {
+        Self {
+            file,
+            prefer,
+            neighbours: 4,
+        }
+    }
+
+    fn sample_kernel(&self, s: &KernelSample) -> Option<Kernel> {
+        let gaussian = match (s.cxx, s.cyy) {
+            (Some(sx), Some(sy)) if sx > 0.0 && sy > 0.0 => Some(Gaussian2 {
+                sigma_x: sx,
+                sigma_y: sy,
+                rho: s.cor.unwrap_or(0.0),
+            }),
+            _ => None,
+        };
+        let array = s.kernel.as_ref().map(|k| {
+            let mut k = Kernel {
+                size: k.size,
+                oversample: self.file.oversample,
+                data: k.data.clone(),
+            };
+            k.normalise();
+            k
+        });
+        match self.prefer {
+            Prefer::Kernel => array.or_else(|| gaussian.map(|g| g.kernel(self.file.oversample))),
+            Prefer::Gaussian => gaussian.map(|g| g.kernel(self.file.oversample)).or(array),
+        }
+    }
+}
+
+impl KernelSource for ScatteredKernels {
+    fn kernel_at(&self, channel: Channel, x: f64, y: f64) -> Result<Kernel, SourceError> {
+        // A G1/G2 or Y plane falls back to G, then to any channel the file has.
+        let mut pool: Vec<&KernelSample> = self
+            .file
+            .samples
+            .iter()
+            .filter(|s| s.channel == channel)
+            .collect();
+        if pool.is_empty() {
+            pool = self
+                .file
+                .samples
+                .iter()
+                .filter(|s| s.channel == Channel::G)
+                .collect();
+        }
+        if pool.is_empty() {
+            pool = self.file.samples.iter().collect();
+        }
+        let mut near: Vec<(f64, &KernelSample)> = pool
+            .into_iter()
+            .map(|s| ((s.x - x).powi(2) + (s.y - y).powi(2), s))
+            .collect();
+        near.sort_by(|a, b| a.0.total_cmp(&b.0));
+        near.truncate(self.neighbours.max(1));
+        let gaussians_only =
+            self.prefer == Prefer::Gaussian || near.iter().all(|(_, s)| s.kernel.is_none());
+        let all_gaussian = near.iter().all(|(_, s)| s.cxx.is_some() && s.cyy.is_some());
+        // Inverse squared distance weights; a sample right on the point dominates.
+        let weights: Vec<f64> = near.iter().map(|(d2, _)| 1.0 / (d2 + 1e-6)).collect();
+        let wsum: f64 = weights.iter().sum();
+        if near.is_empty() {
+            return Err(SourceError::NoKernel(channel));
+        }
+        if gaussians_only && all_gaussian {
+            let (mut vx, mut vy, mut cxy) = (0.0, 0.0, 0.0);
+            for ((_, s), w) in near.iter().zip(&weights) {
+                let g = Gaussian2 {
+                    sigma_x: s.cxx.unwrap_or(0.0),
+                    sigma_y: s.cyy.unwrap_or(0.0),
+                    rho: s.cor.unwrap_or(0.0),
+                };
+                vx += w * g.sigma_x.powi(2);
+                vy += w * g.sigma_y.powi(2);
+                cxy += w * g.cov_xy();
+            }
+            return Ok(Gaussian2::from_covariance(vx / wsum, vy / wsum, cxy / wsum)
+                .kernel(self.file.oversample));
+        }
+        let kernels: Vec<(Kernel, f64)> = near
+            .iter()
+            .zip(&weights)
+            .filter_map(|((_, s), &w)| self.sample_kernel(s).map(|k| (k, w)))
+            .collect();
+        let size = kernels
+            .iter()
+            .map(|(k, _)| k.size)
+            .max()
+            .ok_or(SourceError::NoKernel(channel))?;
+        let mut data = vec![0.0; size * size];
+        for (k, w) in &kernels {
+            let off = (size - k.size) / 2;
+            for j in 0..k.size {
+                for i in 0..k.size {
+                    data[(j + off) * size + i + off] += w * k.at(i, j);
+                }
+            }
+        }
+        let mut k = Kernel {
+            size,
+            oversample: self.file.oversample,
+            data,
+        };
+        k.normalise();
+        Ok(k)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(x: f64, y: f64, s: f64) -> KernelSample {
+        KernelSample {
+            x,
+            y,
+            channel: Channel::G,
+            cxx: Some(s),
+            cyy: Some(s),
+            cor: Some(0.0),
+            kernel: None,
+        }
+    }
+
+    #[test]
+    fn gaussians_interpolate_between_samples() {
+        let file = KernelsFile {
+            schema: "lensblur.kernels/1".into(),
+            width: 100,
+            height: 100,
+            focal_mm: None,
+            f_number: None,
+            oversample: 3,
+            samples: vec![sample(0.0, 0.0, 1.0), sample(100.0, 0.0, 2.0)],
+        };
+        let src = ScatteredKernels {
+            neighbours: 2,
+            ..ScatteredKernels::new(file, Prefer::Gaussian)
+        };
+        let at = |x: f64| {
+            src.kernel_at(Channel::G, x, 0.0)
+                .map(|k| k.moments().var_x.sqrt())
+                .unwrap_or(0.0)
+        };
+        assert!((at(0.0) - 1.0).abs() < 0.01);
+        assert!((at(100.0) - 2.0).abs() < 0.01);
+        let mid = at(50.0);
+        assert!((mid - (2.5f64).sqrt()).abs() < 0.02, "{mid}");
+        // Red falls back to green.
+        assert!(src.kernel_at(Channel::R, 0.0, 0.0).is_ok());
+    }
+}

@@ -1,0 +1,458 @@
+//! Sub-pixel alignment of one square (DESIGN.md §1.3, the paper's §2.2.1): the sharp
+//! chart rasterised exactly through H, blurred by a Gaussian whose variance is
+//! estimated jointly (registering a sharp template to a blurred square is unbiased
+//! only when the template carries the blur), given each plane's black/white levels, and
+//! registered to the observed pixels by Gauss–Newton on an 8-parameter projective
+//! warp composed on the left of H, coarse to fine. RAW captures are registered on the
+//! CFA planes themselves, each plane's pixels at their own sensor positions.
+
+use super::DetectParams;
+use super::filter::gaussian_blur;
+use crate::chart::{ChartSpec, rasterize};
+use crate::geometry::Homography;
+use crate::plane::Capture;
+use nalgebra::{DMatrix, DVector, Matrix3};
+
+/// What the refinement of one square gives.
+#[derive(Clone, Debug)]
+pub struct Aligned {
+    pub image_from_chart: Homography,
+    pub residual_rms: f64,
+    pub black_level: f64,
+    pub white_level: f64,
+    /// Mean estimated Gaussian σ of the square's blur beyond the pixel area, sensor px.
+    pub sigma_px: f64,
+}
+
+struct Sample {
+    x: i64,
+    y: i64,
+    plane: usize,
+    value: f64,
+}
+
+/// Integer sensor rectangle `[x0, x1] × [y0, y1]`.
+#[derive(Clone, Copy)]
+struct Rect {
+    x0: i64,
+    y0: i64,
+    x1: i64,
+    y1: i64,
+}
+
+fn quad_rect(h: &Homography, quad: &[[f64; 2]; 4]) -> Rect {
+    let pts: Vec<[f64; 2]> = quad.iter().map(|p| h.apply(*p)).collect();
+    let fx = |f: fn(f64, f64) -> f64, k: usize, init: f64| pts.iter().map(|p| p[k]).fold(init, f);
+    Rect {
+        x0: fx(f64::min, 0, f64::INFINITY).floor() as i64,
+        y0: fx(f64::min, 1, f64::INFINITY).floor() as i64,
+        x1: fx(f64::max, 0, f64::NEG_INFINITY).ceil() as i64,
+        y1: fx(f64::max, 1, f64::NEG_INFINITY).ceil() as i64,
+    }
+}
+
+/// Observed samples of every plane inside `rect`, after an extra Gaussian blur of
+/// `extra_sigma_px` (sensor px) for the coarse levels, every `stride`-th plane pixel.
+fn samples(capture: &Capture, rect: Rect, extra_sigma_px: f64, stride: usize) -> Vec<Sample> {
+    let mut out = Vec::new();
+    for (k, cp) in capture.planes.iter().enumerate() {
+        let step = cp.step as i64;
+        let (ox, oy) = (cp.offset_x as i64, cp.offset_y as i64);
+        let sigma_plane = extra_sigma_px / step as f64;
+        let pad = if extra_sigma_px > 0.0 {
+            (4.0 * sigma_plane).ceil() as i64 + 1
+        } else {
+            0
+        };
+        let i0 = ((rect.x0 - ox) as f64 / step as f64).ceil() as i64;
+        let i1 = ((rect.x1 - ox) as f64 / step as f64).floor() as i64;
+        let j0 = ((rect.y0 - oy) as f64 / step as f64).ceil() as i64;
+        let j1 = ((rect.y1 - oy) as f64 / step as f64).floor() as i64;
+        let (pw, ph) = (cp.plane.width as i64, cp.plane.height as i64);
+        let ci0 = (i0 - pad).max(0);
+        let ci1 = (i1 + pad).min(pw - 1);
+        let cj0 = (j0 - pad).max(0);
+        let cj1 = (j1 + pad).min(ph - 1);
+        if ci1 < ci0 || cj1 < cj0 {
+            continue;
+        }
+        let (cw, ch) = ((ci1 - ci0 + 1) as usize, (cj1 - cj0 + 1) as usize);
+        let mut crop = Vec::with_capacity(cw * ch);
+        for j in cj0..=cj1 {
+            for i in ci0..=ci1 {
+                crop.push(f64::from(cp.plane.get(i as usize, j as usize)));
+            }
+        }
+        if extra_sigma_px > 0.0 {
+            crop = gaussian_blur(&crop, cw, ch, sigma_plane);
+        }
+        let s = stride as i64;
+        let mut j = j0.max(0);
+        while j <= j1.min(ph - 1) {
+            let mut i = i0.max(0);
+            while i <= i1.min(pw - 1) {
+                let v = crop[((j - cj0) as usize) * cw + (i - ci0) as usize];
+                out.push(Sample {
+                    x: step * i + ox,
+                    y: step * j + oy,
+                    plane: k,
+                    value: v,
+                });
+                i += s;
+            }
+            j += s;
+        }
+    }
+    out
+}
+
+/// Black and white levels of a plane's square: the two histogram peaks.
+fn histogram_peaks(values: &[f64]) -> Option<(f64, f64)> {
+    if values.len() < 16 {
+        return None;
+    }
+    let (lo, hi) = values
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
+    if !(hi > lo) {
+        return None;
+    }
+    const BINS: usize = 64;
+    let mut hist = [0usize; BINS];
+    for &v in values {
+        let b = (((v - lo) / (hi - lo)) * BINS as f64).floor() as usize;
+        hist[b.min(BINS - 1)] += 1;
+    }
+    // Split at the mean (the square is part black part white), take each side's mode.
+    let mean = values.iter().sum::<f64>() / values.len() as f64;
+    let split = ((((mean - lo) / (hi - lo)) * BINS as f64) as usize).clamp(1, BINS - 1);
+    let mode = |r: std::ops::Range<usize>| r.max_by_key(|&b| hist[b]).unwrap_or(0);
+    let b_lo = mode(0..split);
+    let b_hi = mode(split..BINS);
+    let centre = |b: usize| lo + (b as f64 + 0.5) / BINS as f64 * (hi - lo);
+    Some((centre(b_lo), centre(b_hi)))
+}
+
+struct State {
+    h: Homography,
+    var: Vec<f64>,
+    a: Vec<f64>,
+    b: Vec<f64>,
+}
+
+struct Eval {
+    cost: f64,
+    jtj: DMatrix<f64>,
+    jtr: DVector<f64>,
+}
+
+/// Sum of squared residuals and the Gauss–Newton normal equations at `st`.
+fn evaluate(
+    spec: &ChartSpec,
+    st: &State,
+    smp: &[Sample],
+    rect: Rect,
+    extra_var: f64,
+    centre: [f64; 2],
+    scale: f64,
+) -> Eval {
+    let np = st.var.len();
+    let n = 8 + 3 * np;
+    let max_sigma = st
+        .var
+        .iter()
+        .fold(0.0f64, |m, &v| m.max((v + extra_var).sqrt()));
+    let pad = (4.0 * max_sigma).ceil() as i64 + 3;
+    let (rx0, ry0) = (rect.x0 - pad, rect.y0 - pad);
+    let rw = (rect.x1 - rect.x0 + 1 + 2 * pad) as usize;
+    let rh = (rect.y1 - rect.y0 + 1 + 2 * pad) as usize;
+    let local = Homography::translation(-(rx0 as f64), -(ry0 as f64)).compose(&st.h);
+    let sharp: Vec<f64> = rasterize(spec, &local, rw, rh, 1.0)
+        .data
+        .iter()
+        .map(|&v| f64::from(v))
+        .collect();
+    let mut templ: Vec<Option<Vec<f64>>> = vec![None; np];
+    for s in smp {
+        if templ[s.plane].is_none() {
+            let sigma = (st.var[s.plane] + extra_var).max(1e-4).sqrt();
+            templ[s.plane] = Some(gaussian_blur(&sharp, rw, rh, sigma));
+        }
+    }
+    let mut jtj = DMatrix::<f64>::zeros(n, n);
+    let mut jtr = DVector::<f64>::zeros(n);
+    let mut cost = 0.0;
+    let mut j = [0.0f64; 11];
+    let mut idx = [0usize; 11];
+    for s in smp {
+        let Some(t) = templ[s.plane].as_ref() else {
+            continue;
+        };
+        let (xi, yi) = ((s.x - rx0) as usize, (s.y - ry0) as usize);
+        let c = yi * rw + xi;
+        let t0 = t[c];
+        let tx = 0.5 * (t[c + 1] - t[c - 1]);
+        let ty = 0.5 * (t[c + rw] - t[c - rw]);
+        let lap = t[c + 1] + t[c - 1] + t[c + rw] + t[c - rw] - 4.0 * t0;
+        let k = s.plane;
+        let (a, b) = (st.a[k], st.b[k]);
+        let r = s.value - (a + b * t0);
+        cost += r * r;
+        let (u, v) = (
+            (s.x as f64 - centre[0]) / scale,
+            (s.y as f64 - centre[1]) / scale,
+        );
+        // Moving the template by d (image px) changes it by −∇T·d.
+        let gx = -b * tx * scale;
+        let gy = -b * ty * scale;
+        j[..8].copy_from_slice(&[
+            gx * u,
+            gx * v,
+            gx,
+            gy * u,
+            gy * v,
+            gy,
+            -(gx * u * u + gy * u * v),
+            -(gx * u * v + gy * v * v),
+        ]);
+        j[8] = 0.5 * b * lap;
+        j[9] = 1.0;
+        j[10] = t0;
+        for (m, slot) in idx.iter_mut().enumerate() {
+            *slot = if m < 8 { m } else { 8 + 3 * k + (m - 8) };
+        }
+        for p in 0..11 {
+            jtr[idx[p]] += j[p] * r;
+            for q in 0..11 {
+                jtj[(idx[p], idx[q])] += j[p] * j[q];
+            }
+        }
+    }
+    Eval { cost, jtj, jtr }
+}
+
+fn apply_step(st: &State, d: &DVector<f64>, centre: [f64; 2], scale: f64) -> State {
+    let w = Matrix3::new(
+        1.0 + d[0],
+        d[1],
+        d[2],
+        d[3],
+        1.0 + d[4],
+        d[5],
+        d[6],
+        d[7],
+        1.0,
+    );
+    let norm = Homography::scaling(1.0 / scale, 1.0 / scale)
+        .compose(&Homography::translation(-centre[0], -centre[1]));
+    let norm_inv =
+        Homography::translation(centre[0], centre[1]).compose(&Homography::scaling(scale, scale));
+    let h = norm_inv
+        .compose(&Homography(w))
+        .compose(&norm)
+        .compose(&st.h);
+    let np = st.var.len();
+    State {
+        h,
+        var: (0..np)
+            .map(|k| (st.var[k] + d[8 + 3 * k]).clamp(0.01, 64.0))
+            .collect(),
+        a: (0..np).map(|k| st.a[k] + d[9 + 3 * k]).collect(),
+        b: (0..np).map(|k| st.b[k] + d[10 + 3 * k]).collect(),
+    }
+}
+
+fn max_corner_shift(h1: &Homography, h2: &Homography, quad: &[[f64; 2]; 4]) -> f64 {
+    quad.iter()
+        .map(|p| {
+            let (a, b) = (h1.apply(*p), h2.apply(*p));
+            (a[0] - b[0]).hypot(a[1] - b[1])
+        })
+        .fold(0.0, f64::max)
+}
+
+/// Refines `bootstrap` for square (col, row).
+///
+/// # Errors
+/// A one-line reason when the square cannot be aligned: out of frame, saturated, too
+/// dark, or the registration did not converge.
+pub fn align_square(
+    capture: &Capture,
+    spec: &ChartSpec,
+    col: usize,
+    row: usize,
+    bootstrap: &Homography,
+    params: &DetectParams,
+) -> Result<Aligned, String> {
+    let quad = spec.square_corners(col, row);
+    let img = quad.map(|p| bootstrap.apply(p));
+    let side_px = ((img[0][0] - img[1][0]).hypot(img[0][1] - img[1][1])
+        + (img[1][0] - img[2][0]).hypot(img[1][1] - img[2][1]))
+        / 2.0;
+    if !(side_px.is_finite() && side_px > 4.0) {
+        return Err("degenerate square".into());
+    }
+    let m = (params.margin_px / side_px).min(0.4);
+    let outer = [
+        [quad[0][0] - m, quad[0][1] - m],
+        [quad[1][0] + m, quad[1][1] - m],
+        [quad[2][0] + m, quad[2][1] + m],
+        [quad[3][0] - m, quad[3][1] + m],
+    ];
+    let rect = quad_rect(bootstrap, &outer);
+    // The template needs room for its blur and the one-pixel stencils.
+    if rect.x0 < 1
+        || rect.y0 < 1
+        || rect.x1 >= capture.width as i64 - 1
+        || rect.y1 >= capture.height as i64 - 1
+    {
+        return Err("partly out of frame".into());
+    }
+    let chart_from_image = bootstrap.inverse().ok_or("degenerate homography")?;
+    // Levels come from a wider window than the square alone: a blurred square's
+    // circles never reach the full level of the opposite colour, the neighbours do.
+    let wide_m = 0.35f64.max(m);
+    let wide = [
+        [quad[0][0] - wide_m, quad[0][1] - wide_m],
+        [quad[1][0] + wide_m, quad[1][1] - wide_m],
+        [quad[2][0] + wide_m, quad[2][1] + wide_m],
+        [quad[3][0] - wide_m, quad[3][1] + wide_m],
+    ];
+    let mut wide_rect = quad_rect(bootstrap, &wide);
+    wide_rect.x0 = wide_rect.x0.max(0);
+    wide_rect.y0 = wide_rect.y0.max(0);
+    wide_rect.x1 = wide_rect.x1.min(capture.width as i64 - 1);
+    wide_rect.y1 = wide_rect.y1.min(capture.height as i64 - 1);
+    let fine = samples(capture, wide_rect, 0.0, 1);
+    let np = capture.planes.len();
+    let mut a = vec![0.0; np];
+    let mut b = vec![1.0; np];
+    let (mut black_sum, mut white_sum) = (0.0, 0.0);
+    for k in 0..np {
+        let inside: Vec<f64> = fine
+            .iter()
+            .filter(|s| s.plane == k)
+            .filter(|s| {
+                let c = chart_from_image.apply([s.x as f64, s.y as f64]);
+                c[0] >= col as f64 - wide_m
+                    && c[0] <= col as f64 + 1.0 + wide_m
+                    && c[1] >= row as f64 - wide_m
+                    && c[1] <= row as f64 + 1.0 + wide_m
+            })
+            .map(|s| s.value)
+            .collect();
+        let saturated = inside
+            .iter()
+            .filter(|&&v| v >= params.saturation_level)
+            .count();
+        if saturated as f64 > params.max_saturated_fraction * inside.len() as f64 {
+            return Err(format!(
+                "saturated ({} of {} pixels at or above {})",
+                saturated,
+                inside.len(),
+                params.saturation_level
+            ));
+        }
+        let (lo, hi) = histogram_peaks(&inside).ok_or("too few pixels")?;
+        if hi - lo < params.min_contrast {
+            return Err(format!(
+                "too dark (contrast {:.3} below {})",
+                hi - lo,
+                params.min_contrast
+            ));
+        }
+        a[k] = lo;
+        b[k] = hi - lo;
+        black_sum += lo;
+        white_sum += hi;
+    }
+    let centre = bootstrap.apply([col as f64 + 0.5, row as f64 + 0.5]);
+    let scale = side_px / 2.0;
+    let mut st = State {
+        h: *bootstrap,
+        var: vec![params.initial_sigma_px.powi(2); np],
+        a,
+        b,
+    };
+    let mut total_iters = 0usize;
+    let mut last_eval: Option<(f64, usize)> = None;
+    for level in (0..params.levels).rev() {
+        let extra_sigma = if level == 0 {
+            0.0
+        } else {
+            params.coarse_sigma_px * f64::from(1u32 << (level - 1))
+        };
+        let stride = 1usize << level.min(2);
+        let smp = if level == 0 {
+            samples(capture, rect, 0.0, 1)
+        } else {
+            samples(capture, rect, extra_sigma, stride)
+        };
+        let extra_var = extra_sigma * extra_sigma;
+        let tol = if level == 0 {
+            params.tolerance_px
+        } else {
+            params.tolerance_px * 10.0
+        };
+        let mut ev = evaluate(spec, &st, &smp, rect, extra_var, centre, scale);
+        let mut lambda = 1e-4;
+        let mut converged = false;
+        for _ in 0..params.max_iterations {
+            total_iters += 1;
+            let mut damped = ev.jtj.clone();
+            for d in 0..damped.nrows() {
+                damped[(d, d)] += lambda * ev.jtj[(d, d)].max(1e-12);
+            }
+            let Some(step) = damped.cholesky().map(|c| c.solve(&ev.jtr)) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let next = apply_step(&st, &step, centre, scale);
+            let shift = max_corner_shift(&st.h, &next.h, &quad);
+            let nev = evaluate(spec, &next, &smp, rect, extra_var, centre, scale);
+            if nev.cost <= ev.cost {
+                st = next;
+                ev = nev;
+                lambda = (lambda * 0.3).max(1e-7);
+                if shift < tol {
+                    converged = true;
+                    break;
+                }
+            } else {
+                lambda *= 10.0;
+                if lambda > 1e6 {
+                    // No descent left: at the minimum to within numerical noise.
+                    converged = true;
+                    break;
+                }
+            }
+        }
+        if level == 0 {
+            if !converged {
+                return Err(format!(
+                    "alignment did not converge in {} iterations",
+                    params.max_iterations
+                ));
+            }
+            last_eval = Some((ev.cost, smp.len()));
+        }
+    }
+    let _ = total_iters;
+    let (cost, n) = last_eval.ok_or("no alignment level ran")?;
+    if max_corner_shift(&st.h, bootstrap, &quad) > params.max_refine_shift_px {
+        return Err(format!(
+            "alignment moved a corner by more than {} px from its bootstrap",
+            params.max_refine_shift_px
+        ));
+    }
+    let sigma_px = st.var.iter().map(|v| v.sqrt()).sum::<f64>() / np as f64;
+    Ok(Aligned {
+        image_from_chart: st.h,
+        residual_rms: (cost / n.max(1) as f64).sqrt(),
+        black_level: black_sum / np as f64,
+        white_level: white_sum / np as f64,
+        sigma_px,
+    })
+}

@@ -1,0 +1,649 @@
+//! Finding the checkerboard: X-junction candidates from the Hessian of a smoothed grey
+//! image, a ring test that keeps only true four-sector junctions, sub-pixel saddle
+//! refinement, and growth of the junctions into a lattice indexed by chart corner.
+
+use super::filter::gaussian_blur;
+use crate::chart::ChartSpec;
+use crate::geometry::Homography;
+use crate::plane::Plane;
+use std::collections::{HashMap, VecDeque};
+
+/// A refined X-junction in sensor pixels.
+#[derive(Clone, Copy, Debug)]
+pub struct Junction {
+    pub pos: [f64; 2],
+    pub response: f64,
+}
+
+/// Smoothed grey image with its size.
+pub struct Smoothed {
+    pub w: usize,
+    pub h: usize,
+    pub data: Vec<f64>,
+}
+
+impl Smoothed {
+    #[must_use]
+    pub fn new(grey: &Plane, sigma_px: f64) -> Self {
+        let d: Vec<f64> = grey.data.iter().map(|&v| f64::from(v)).collect();
+        Self {
+            w: grey.width,
+            h: grey.height,
+            data: gaussian_blur(&d, grey.width, grey.height, sigma_px),
+        }
+    }
+
+    #[inline]
+    fn at(&self, x: usize, y: usize) -> f64 {
+        self.data[y * self.w + x]
+    }
+
+    /// Bilinear sample; `None` outside.
+    #[must_use]
+    pub fn sample(&self, x: f64, y: f64) -> Option<f64> {
+        if !(x >= 0.0 && y >= 0.0 && x <= (self.w - 1) as f64 && y <= (self.h - 1) as f64) {
+            return None;
+        }
+        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(self.w - 1), (y0 + 1).min(self.h - 1));
+        let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+        let a = self.at(x0, y0) * (1.0 - fx) + self.at(x1, y0) * fx;
+        let b = self.at(x0, y1) * (1.0 - fx) + self.at(x1, y1) * fx;
+        Some(a * (1.0 - fy) + b * fy)
+    }
+}
+
+/// X-junction candidates: local maxima of −det(Hessian) that pass the ring test.
+#[must_use]
+pub fn find_junctions(s: &Smoothed, ring_radius_px: f64, min_rel_response: f64) -> Vec<Junction> {
+    let (w, h) = (s.w, s.h);
+    if w < 16 || h < 16 {
+        return Vec::new();
+    }
+    let mut resp = vec![0.0f64; w * h];
+    for y in 1..h - 1 {
+        for x in 1..w - 1 {
+            let c = s.at(x, y);
+            let ixx = s.at(x + 1, y) - 2.0 * c + s.at(x - 1, y);
+            let iyy = s.at(x, y + 1) - 2.0 * c + s.at(x, y - 1);
+            let ixy = 0.25
+                * (s.at(x + 1, y + 1) - s.at(x - 1, y + 1) - s.at(x + 1, y - 1)
+                    + s.at(x - 1, y - 1));
+            resp[y * w + x] = ixy * ixy - ixx * iyy;
+        }
+    }
+    let mut sorted: Vec<f64> = resp.iter().copied().filter(|v| *v > 0.0).collect();
+    if sorted.is_empty() {
+        return Vec::new();
+    }
+    sorted.sort_by(f64::total_cmp);
+    // The junctions are a tiny fraction of the pixels: scale the threshold by a high
+    // quantile so it adapts to contrast and blur.
+    let q = sorted[((sorted.len() as f64 * 0.9995) as usize).min(sorted.len() - 1)];
+    let thr = min_rel_response * q;
+    let nms = 3i64;
+    let border = (ring_radius_px.ceil() as usize + 2).max(4);
+    let mut out = Vec::new();
+    for y in border..h.saturating_sub(border) {
+        for x in border..w.saturating_sub(border) {
+            let v = resp[y * w + x];
+            if v <= thr {
+                continue;
+            }
+            let mut is_max = true;
+            'n: for dy in -nms..=nms {
+                for dx in -nms..=nms {
+                    if dx == 0 && dy == 0 {
+                        continue;
+                    }
+                    let (xx, yy) = ((x as i64 + dx) as usize, (y as i64 + dy) as usize);
+                    let u = resp[yy * w + xx];
+                    if u > v || (u == v && (dy < 0 || (dy == 0 && dx < 0))) {
+                        is_max = false;
+                        break 'n;
+                    }
+                }
+            }
+            if !is_max {
+                continue;
+            }
+            let Some(pos) = refine_saddle(s, [x as f64, y as f64]) else {
+                continue;
+            };
+            if ring_test(s, pos, ring_radius_px) {
+                out.push(Junction { pos, response: v });
+            }
+        }
+    }
+    out
+}
+
+/// Four alternating sectors on a ring around `p`, each close to a quarter turn with
+/// opposite sectors equal: the signature of two straight edges crossing (an
+/// X-junction). Saddles between a circle and a square edge have unequal sectors.
+fn ring_test(s: &Smoothed, p: [f64; 2], r: f64) -> bool {
+    const N: usize = 48;
+    let mut v = [0.0; N];
+    for (k, vk) in v.iter_mut().enumerate() {
+        let a = 2.0 * std::f64::consts::PI * k as f64 / N as f64;
+        match s.sample(p[0] + r * a.cos(), p[1] + r * a.sin()) {
+            Some(x) => *vk = x,
+            None => return false,
+        }
+    }
+    let mean = v.iter().sum::<f64>() / N as f64;
+    let (lo, hi) = v
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+            (a.min(x), b.max(x))
+        });
+    if hi - lo < 0.05 {
+        return false;
+    }
+    // Sign changes, located by linear interpolation, in units of the sample step.
+    let mut bounds = Vec::with_capacity(4);
+    for k in 0..N {
+        let (a, b) = (v[k] - mean, v[(k + 1) % N] - mean);
+        if (a > 0.0) != (b > 0.0) {
+            bounds.push(k as f64 + a / (a - b));
+        }
+    }
+    if bounds.len() != 4 {
+        return false;
+    }
+    let deg = 360.0 / N as f64;
+    let spans: Vec<f64> = (0..4)
+        .map(|k| ((bounds[(k + 1) % 4] - bounds[k]).rem_euclid(N as f64)) * deg)
+        .collect();
+    spans.iter().all(|&s| (60.0..=120.0).contains(&s))
+        && (spans[0] - spans[2]).abs() < 16.0
+        && (spans[1] - spans[3]).abs() < 16.0
+}
+
+/// Sub-pixel saddle: the stationary point of a quadratic fitted to the smoothed image
+/// around `p`, iterated while it moves. `None` when it runs away or is not a saddle.
+#[must_use]
+pub fn refine_saddle(s: &Smoothed, p: [f64; 2]) -> Option<[f64; 2]> {
+    let r = 3i64;
+    let mut c = p;
+    for _ in 0..6 {
+        let (cx, cy) = (c[0].round() as i64, c[1].round() as i64);
+        if cx - r < 0 || cy - r < 0 || cx + r >= s.w as i64 || cy + r >= s.h as i64 {
+            return None;
+        }
+        // Fit f = a + b x + c y + d x² + e xy + f y² by least squares.
+        let mut ata = nalgebra::SMatrix::<f64, 6, 6>::zeros();
+        let mut atb = nalgebra::SVector::<f64, 6>::zeros();
+        for dy in -r..=r {
+            for dx in -r..=r {
+                let (x, y) = (dx as f64, dy as f64);
+                let wgt = (-(x * x + y * y) / (2.0 * 2.0 * 2.0)).exp();
+                let row = nalgebra::SVector::<f64, 6>::from([1.0, x, y, x * x, x * y, y * y]);
+                let v = s.at((cx + dx) as usize, (cy + dy) as usize);
+                ata += wgt * row * row.transpose();
+                atb += wgt * v * row;
+            }
+        }
+        let k = ata.lu().solve(&atb)?;
+        let (b, cc, d, e, f) = (k[1], k[2], k[3], k[4], k[5]);
+        let det = 4.0 * d * f - e * e;
+        if det >= 0.0 {
+            return None;
+        }
+        let x = (-2.0 * f * b + e * cc) / det;
+        let y = (-2.0 * d * cc + e * b) / det;
+        let next = [cx as f64 + x, cy as f64 + y];
+        if (next[0] - p[0]).hypot(next[1] - p[1]) > 4.0 {
+            return None;
+        }
+        let moved = (next[0] - c[0]).hypot(next[1] - c[1]);
+        c = next;
+        if moved < 0.01 || (x.abs() <= 0.5 && y.abs() <= 0.5) {
+            return Some(c);
+        }
+    }
+    Some(c)
+}
+
+/// Junctions assigned to inner chart corners: `corners[(c, r)]` is the junction at chart
+/// point (c, r), 1 ≤ c < cols, 1 ≤ r < rows.
+pub struct Lattice {
+    pub corners: HashMap<(usize, usize), [f64; 2]>,
+    pub image_from_chart: Homography,
+}
+
+/// Why the junctions could not be organised into the chart's lattice.
+#[derive(Debug)]
+pub enum LatticeError {
+    NotFound,
+    TooLarge { cols: usize, rows: usize },
+}
+
+struct Buckets {
+    cell: f64,
+    map: HashMap<(i64, i64), Vec<usize>>,
+}
+
+impl Buckets {
+    fn new(pts: &[Junction], cell: f64) -> Self {
+        let mut map: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+        for (i, j) in pts.iter().enumerate() {
+            map.entry((
+                (j.pos[0] / cell).floor() as i64,
+                (j.pos[1] / cell).floor() as i64,
+            ))
+            .or_default()
+            .push(i);
+        }
+        Self { cell, map }
+    }
+
+    /// The nearest point to `q` within `radius` (radius ≤ cell).
+    fn nearest(&self, pts: &[Junction], q: [f64; 2], radius: f64) -> Option<usize> {
+        let (bx, by) = (
+            (q[0] / self.cell).floor() as i64,
+            (q[1] / self.cell).floor() as i64,
+        );
+        let mut best: Option<(usize, f64)> = None;
+        let reach = (radius / self.cell).ceil() as i64;
+        for dy in -reach..=reach {
+            for dx in -reach..=reach {
+                if let Some(v) = self.map.get(&(bx + dx, by + dy)) {
+                    for &i in v {
+                        let d = (pts[i].pos[0] - q[0]).hypot(pts[i].pos[1] - q[1]);
+                        if d <= radius && best.is_none_or(|(_, bd)| d < bd) {
+                            best = Some((i, d));
+                        }
+                    }
+                }
+            }
+        }
+        best.map(|(i, _)| i)
+    }
+}
+
+fn sub(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
+    [a[0] - b[0], a[1] - b[1]]
+}
+fn add(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
+    [a[0] + b[0], a[1] + b[1]]
+}
+fn norm(a: [f64; 2]) -> f64 {
+    a[0].hypot(a[1])
+}
+
+/// Grows a lattice from `seed` with starting axes `ex`, `ey`: every node predicts its
+/// four neighbours from its own local axes, so mild perspective and rotation are
+/// followed smoothly.
+fn grow(
+    pts: &[Junction],
+    buckets: &Buckets,
+    seed: usize,
+    ex: [f64; 2],
+    ey: [f64; 2],
+) -> HashMap<(i64, i64), usize> {
+    let mut grid: HashMap<(i64, i64), usize> = HashMap::new();
+    let mut taken: HashMap<usize, (i64, i64)> = HashMap::new();
+    grid.insert((0, 0), seed);
+    taken.insert(seed, (0, 0));
+    let mut queue = VecDeque::from([((0i64, 0i64), ex, ey)]);
+    while let Some(((i, j), ex, ey)) = queue.pop_front() {
+        let p = pts[grid[&(i, j)]].pos;
+        for (di, dj, step) in [
+            (1, 0, ex),
+            (-1, 0, [-ex[0], -ex[1]]),
+            (0, 1, ey),
+            (0, -1, [-ey[0], -ey[1]]),
+        ] {
+            let key = (i + di, j + dj);
+            if grid.contains_key(&key) {
+                continue;
+            }
+            let radius = 0.3 * norm(step);
+            let Some(k) = buckets.nearest(pts, add(p, step), radius) else {
+                continue;
+            };
+            if taken.contains_key(&k) {
+                continue;
+            }
+            let found = sub(pts[k].pos, p);
+            let (nx, ny) = match (di, dj) {
+                (1, 0) => (found, ey),
+                (-1, 0) => ([-found[0], -found[1]], ey),
+                (0, 1) => (ex, found),
+                _ => (ex, [-found[0], -found[1]]),
+            };
+            grid.insert(key, k);
+            taken.insert(k, key);
+            queue.push_back((key, nx, ny));
+        }
+    }
+    grid
+}
+
+/// Organises junctions into the chart's lattice of inner corners, fixing the chart
+/// column/row of each from the visible board edges and the square colours.
+///
+/// # Errors
+/// [`LatticeError`] when no lattice of at least 3 × 3 junctions is found, or it is
+/// larger than the chart.
+pub fn build_lattice(
+    pts: &[Junction],
+    smoothed: &Smoothed,
+    spec: &ChartSpec,
+) -> Result<Lattice, LatticeError> {
+    if pts.len() < 9 {
+        return Err(LatticeError::NotFound);
+    }
+    let buckets = Buckets::new(pts, 8.0);
+    // Saddles also form between the circles and the square edges, in lattices of their
+    // own; grow lattices from several seeds and axis hypotheses and keep the one whose
+    // edges separate dark from light squares in the checkerboard's alternation.
+    let mut order: Vec<usize> = (0..pts.len()).collect();
+    order.sort_by(|&a, &b| pts[b].response.total_cmp(&pts[a].response));
+    let n_seeds = 24usize;
+    let stride = (order.len() / n_seeds).max(1);
+    let seeds: Vec<usize> = order
+        .iter()
+        .step_by(stride)
+        .take(n_seeds)
+        .copied()
+        .collect();
+    let max_step = (smoothed.w.min(smoothed.h) as f64) / 3.0;
+    let mut best: HashMap<(i64, i64), usize> = HashMap::new();
+    let mut best_score = 0.0;
+    let mut too_large = (0usize, 0usize, 0usize);
+    for &seed in &seeds {
+        let p0 = pts[seed].pos;
+        let cone = |target: f64| -> Vec<[f64; 2]> {
+            let mut v: Vec<(f64, [f64; 2])> = pts
+                .iter()
+                .map(|q| sub(q.pos, p0))
+                .filter(|d| {
+                    let n = norm(*d);
+                    if !(6.0..=max_step).contains(&n) {
+                        return false;
+                    }
+                    let mut diff = (d[1].atan2(d[0]) - target).abs();
+                    if diff > std::f64::consts::PI {
+                        diff = 2.0 * std::f64::consts::PI - diff;
+                    }
+                    diff < std::f64::consts::FRAC_PI_4
+                })
+                .map(|d| (norm(d), d))
+                .collect();
+            v.sort_by(|a, b| a.0.total_cmp(&b.0));
+            v.into_iter().take(8).map(|x| x.1).collect()
+        };
+        for ex in cone(0.0) {
+            for ey in cone(std::f64::consts::FRAC_PI_2) {
+                let ratio = norm(ex) / norm(ey);
+                if !(0.6..=1.6).contains(&ratio) {
+                    continue;
+                }
+                let g = grow(pts, &buckets, seed, ex, ey);
+                if g.len() < 9 {
+                    continue;
+                }
+                // Finer lattices of saddles between circles span more nodes than the
+                // chart has corners.
+                let (imin, imax, jmin, jmax) = extent(&g);
+                let (ni, nj) = ((imax - imin + 1) as usize, (jmax - jmin + 1) as usize);
+                if ni > spec.cols - 1 || nj > spec.rows - 1 {
+                    if g.len() > too_large.0 {
+                        too_large = (g.len(), ni + 1, nj + 1);
+                    }
+                    continue;
+                }
+                let score = lattice_score(&g, pts, smoothed);
+                if score > best_score {
+                    best_score = score;
+                    best = g;
+                }
+            }
+        }
+    }
+    if std::env::var_os("LB_DEBUG").is_some() {
+        eprintln!("lattice: best {} nodes score {best_score}", best.len());
+    }
+    if best.len() < 9 {
+        if too_large.0 >= 9 && too_large.0 > 2 * best.len() {
+            return Err(LatticeError::TooLarge {
+                cols: too_large.1,
+                rows: too_large.2,
+            });
+        }
+        return Err(LatticeError::NotFound);
+    }
+    let mut steps: Vec<f64> = best
+        .iter()
+        .filter_map(|(&(i, j), &k)| {
+            best.get(&(i + 1, j))
+                .map(|&q| norm(sub(pts[q].pos, pts[k].pos)))
+        })
+        .collect();
+    if steps.is_empty() {
+        return Err(LatticeError::NotFound);
+    }
+    steps.sort_by(f64::total_cmp);
+    let spacing = steps[steps.len() / 2];
+    let fit = |g: &HashMap<(i64, i64), usize>| -> Option<Homography> {
+        let mut keys: Vec<&(i64, i64)> = g.keys().collect();
+        keys.sort();
+        let from: Vec<[f64; 2]> = keys.iter().map(|k| [k.0 as f64, k.1 as f64]).collect();
+        let to: Vec<[f64; 2]> = keys.iter().map(|k| pts[g[k]].pos).collect();
+        Homography::from_correspondences(&from, &to)
+    };
+    let Some(mut h) = fit(&best) else {
+        return Err(LatticeError::NotFound);
+    };
+    // Drop nodes the global fit disowns, then fill holes from its predictions.
+    for _ in 0..2 {
+        best.retain(|k, &mut i| {
+            norm(sub(h.apply([k.0 as f64, k.1 as f64]), pts[i].pos)) < 0.2 * spacing
+        });
+        let (imin, imax, jmin, jmax) = extent(&best);
+        let mut taken: std::collections::HashSet<usize> = best.values().copied().collect();
+        for j in jmin - 1..=jmax + 1 {
+            for i in imin - 1..=imax + 1 {
+                if best.contains_key(&(i, j)) {
+                    continue;
+                }
+                let q = h.apply([i as f64, j as f64]);
+                if let Some(k) = buckets.nearest(pts, q, 0.2 * spacing)
+                    && !taken.contains(&k)
+                {
+                    best.insert((i, j), k);
+                    taken.insert(k);
+                }
+            }
+        }
+        match fit(&best) {
+            Some(nh) => h = nh,
+            None => return Err(LatticeError::NotFound),
+        }
+    }
+    let (imin, imax, jmin, jmax) = extent(&best);
+    if std::env::var_os("LB_DEBUG").is_some() {
+        eprintln!(
+            "lattice after fill: {} nodes, extent {imin}..{imax} × {jmin}..{jmax}",
+            best.len()
+        );
+    }
+    let (ni, nj) = ((imax - imin + 1) as usize, (jmax - jmin + 1) as usize);
+    if ni < 3 || nj < 3 || best.len() * 2 < ni * nj {
+        return Err(LatticeError::NotFound);
+    }
+    if ni > spec.cols - 1 || nj > spec.rows - 1 {
+        return Err(LatticeError::TooLarge {
+            cols: ni + 1,
+            rows: nj + 1,
+        });
+    }
+    // Which square colour sits below-right of lattice node (i, j): vote over nodes.
+    let mut parity_votes = [0usize; 2];
+    for (&(i, j), &k) in &best {
+        let p = pts[k].pos;
+        let e_x = sub(h.apply([i as f64 + 1.0, j as f64]), p);
+        let e_y = sub(h.apply([i as f64, j as f64 + 1.0]), p);
+        let below = add(
+            p,
+            [0.5 * e_x[0] + 0.15 * e_y[0], 0.5 * e_x[1] + 0.15 * e_y[1]],
+        );
+        let above = add(
+            p,
+            [0.5 * e_x[0] - 0.15 * e_y[0], 0.5 * e_x[1] - 0.15 * e_y[1]],
+        );
+        if let (Some(b), Some(a)) = (
+            smoothed.sample(below[0], below[1]),
+            smoothed.sample(above[0], above[1]),
+        ) {
+            let below_black = b < a;
+            // Square (c, r) = (i + oi, j + oj) black ⇔ ((c + r) even) == black_top_left.
+            let even_needed = below_black == spec.black_top_left;
+            let ij_even = (i + j).rem_euclid(2) == 0;
+            // offset parity: (oi + oj) even ⇔ ij_even == even_needed
+            parity_votes[usize::from(ij_even != even_needed)] += 1;
+        }
+    }
+    let offset_parity = i64::from(parity_votes[1] > parity_votes[0]);
+    let (w, hgt) = (smoothed.w as f64, smoothed.h as f64);
+    let inside = |p: [f64; 2]| p[0] > 2.0 && p[1] > 2.0 && p[0] < w - 3.0 && p[1] < hgt - 3.0;
+    // A side of the board is visible when the lattice line beyond the last found one
+    // still falls inside the frame (there is no junction there: it is the board's edge).
+    let line_inside = |fixed_i: Option<i64>, fixed_j: Option<i64>| -> bool {
+        let mut n_in = 0;
+        let mut n = 0;
+        match (fixed_i, fixed_j) {
+            (Some(i), _) => {
+                for j in jmin..=jmax {
+                    n += 1;
+                    n_in += usize::from(inside(h.apply([i as f64, j as f64])));
+                }
+            }
+            (_, Some(j)) => {
+                for i in imin..=imax {
+                    n += 1;
+                    n_in += usize::from(inside(h.apply([i as f64, j as f64])));
+                }
+            }
+            _ => {}
+        }
+        n_in * 2 > n
+    };
+    let choose = |lo: i64, hi: i64, n_chart: i64, lo_edge: bool, hi_edge: bool| -> Vec<i64> {
+        // Valid offsets o: lo + o ≥ 1 and hi + o ≤ n_chart − 1.
+        let (omin, omax) = (1 - lo, n_chart - 1 - hi);
+        if lo_edge {
+            vec![omin]
+        } else if hi_edge {
+            vec![omax]
+        } else {
+            (omin..=omax).collect()
+        }
+    };
+    let ois = choose(
+        imin,
+        imax,
+        spec.cols as i64,
+        line_inside(Some(imin - 1), None),
+        line_inside(Some(imax + 1), None),
+    );
+    let ojs = choose(
+        jmin,
+        jmax,
+        spec.rows as i64,
+        line_inside(None, Some(jmin - 1)),
+        line_inside(None, Some(jmax + 1)),
+    );
+    // Among the offsets the edges allow, keep those matching the colours, nearest the
+    // middle of the allowed range.
+    let mut pick: Option<(i64, i64, f64)> = None;
+    let (mi, mj) = (ois[ois.len() / 2] as f64, ojs[ojs.len() / 2] as f64);
+    for &oi in &ois {
+        for &oj in &ojs {
+            if (oi + oj).rem_euclid(2) != offset_parity {
+                continue;
+            }
+            let d = (oi as f64 - mi).abs() + (oj as f64 - mj).abs();
+            if pick.is_none_or(|(_, _, bd)| d < bd) {
+                pick = Some((oi, oj, d));
+            }
+        }
+    }
+    let (oi, oj) = match pick {
+        Some((a, b, _)) => (a, b),
+        None => (ois[0], ojs[0]),
+    };
+    let mut corners = HashMap::new();
+    for (&(i, j), &k) in &best {
+        let (c, r) = (i + oi, j + oj);
+        if c >= 1 && r >= 1 && c < spec.cols as i64 && r < spec.rows as i64 {
+            corners.insert((c as usize, r as usize), pts[k].pos);
+        }
+    }
+    let mut keys: Vec<&(usize, usize)> = corners.keys().collect();
+    keys.sort();
+    let from: Vec<[f64; 2]> = keys.iter().map(|k| [k.0 as f64, k.1 as f64]).collect();
+    let to: Vec<[f64; 2]> = keys.iter().map(|k| corners[k]).collect();
+    let image_from_chart =
+        Homography::from_correspondences(&from, &to).ok_or(LatticeError::NotFound)?;
+    Ok(Lattice {
+        corners,
+        image_from_chart,
+    })
+}
+
+fn extent(g: &HashMap<(i64, i64), usize>) -> (i64, i64, i64, i64) {
+    let imin = g.keys().map(|k| k.0).min().unwrap_or(0);
+    let imax = g.keys().map(|k| k.0).max().unwrap_or(0);
+    let jmin = g.keys().map(|k| k.1).min().unwrap_or(0);
+    let jmax = g.keys().map(|k| k.1).max().unwrap_or(0);
+    (imin, imax, jmin, jmax)
+}
+
+/// How well a lattice's edges separate alternating dark and light squares: the sum over
+/// lattice edges of the contrast across the edge, signed by the checkerboard parity.
+/// Large only for the lattice of true square corners.
+fn lattice_score(g: &HashMap<(i64, i64), usize>, pts: &[Junction], s: &Smoothed) -> f64 {
+    let mut total = 0.0;
+    let mut total_abs = 0.0;
+    for (&(i, j), &k) in g {
+        let p = pts[k].pos;
+        let sign = if (i + j).rem_euclid(2) == 0 {
+            1.0
+        } else {
+            -1.0
+        };
+        // Edge to (i+1, j): square (i, j) lies on its +y side; edge to (i, j+1): square
+        // (i, j) lies on its +x side.
+        for (key, rot) in [((i + 1, j), [-1.0, 1.0]), ((i, j + 1), [1.0, -1.0])] {
+            let Some(&q) = g.get(&key) else { continue };
+            let d = sub(pts[q].pos, p);
+            let mid = [p[0] + 0.5 * d[0], p[1] + 0.5 * d[1]];
+            // Perpendicular pointing into square (i, j).
+            let n = if rot[0] < 0.0 {
+                [-d[1], d[0]]
+            } else {
+                [d[1], -d[0]]
+            };
+            let a = s.sample(mid[0] + 0.15 * n[0], mid[1] + 0.15 * n[1]);
+            let b = s.sample(mid[0] - 0.15 * n[0], mid[1] - 0.15 * n[1]);
+            if let (Some(a), Some(b)) = (a, b) {
+                // Weighted by the edge's squared length: the true corners' lattice
+                // covers the chart with the fewest, longest edges, while saddles between
+                // circles chain into finer lattices over the same area.
+                let area = d[0] * d[0] + d[1] * d[1];
+                total += sign * (a - b) * area;
+                total_abs += (a - b).abs() * area;
+            }
+        }
+    }
+    // Lattices mixing true corners with other saddles have edges of either sign.
+    let consistency = if total_abs > 0.0 {
+        total.abs() / total_abs
+    } else {
+        0.0
+    };
+    total.abs() * consistency.powi(8)
+}

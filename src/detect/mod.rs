@@ -1,0 +1,321 @@
+//! Stage 3: find the chart's squares in a shot and align each to sub-pixel accuracy
+//! (DESIGN.md §1.3).
+//!
+//! Detection runs on the full-resolution grey image: X-junctions of the checkerboard
+//! (Hessian saddles that pass a four-sector ring test) are grown into a lattice whose
+//! chart column/row follow from the board's visible edges and the square colours (the
+//! chart is taken as roughly upright, rotated by less than 45°). Every square of the
+//! chart is then predicted, bootstrapped from its four localised corners by a
+//! normalised DLT, and refined by registering the exactly rasterised, Gaussian-blurred
+//! chart to the observed pixels ([`align`]). Squares that cannot be used are reported
+//! as skipped with a reason, never dropped.
+
+pub mod align;
+pub mod filter;
+pub mod grid;
+
+use crate::chart::ChartSpec;
+use crate::geometry::Homography;
+use crate::job::{Cancelled, JobContext};
+use crate::plane::Capture;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Thresholds and iteration limits of detection and alignment.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DetectParams {
+    /// Gaussian σ (px) of the smoothing before the saddle detector.
+    pub smoothing_sigma_px: f64,
+    /// Radius (px) of the ring on which an X-junction must show four sectors.
+    pub ring_radius_px: f64,
+    /// Minimum saddle response relative to the strongest junctions.
+    pub min_relative_response: f64,
+    /// Pixels of context around each square in the registration, px.
+    pub margin_px: f64,
+    /// Starting guess of the blur σ beyond the pixel area, px.
+    pub initial_sigma_px: f64,
+    /// Coarse-to-fine levels (1 = fine only); level ℓ > 0 smooths both images by
+    /// `coarse_sigma_px · 2^(ℓ−1)` and subsamples.
+    pub levels: usize,
+    pub coarse_sigma_px: f64,
+    /// Gauss–Newton iterations per level.
+    pub max_iterations: usize,
+    /// Stop when no corner moves by more than this, px.
+    pub tolerance_px: f64,
+    /// Refinement that moves a corner further than this from its bootstrap is rejected, px.
+    pub max_refine_shift_px: f64,
+    /// Values at or above this (normalised units) count as clipped.
+    pub saturation_level: f64,
+    /// A square with more clipped pixels than this fraction is skipped.
+    pub max_saturated_fraction: f64,
+    /// A square whose white − black peak difference is below this is skipped.
+    pub min_contrast: f64,
+}
+
+impl Default for DetectParams {
+    fn default() -> Self {
+        Self {
+            smoothing_sigma_px: 1.5,
+            ring_radius_px: 4.0,
+            min_relative_response: 0.05,
+            margin_px: 6.0,
+            initial_sigma_px: 1.0,
+            levels: 2,
+            coarse_sigma_px: 1.5,
+            max_iterations: 30,
+            tolerance_px: 2e-4,
+            max_refine_shift_px: 3.0,
+            saturation_level: 0.995,
+            max_saturated_fraction: 0.01,
+            min_contrast: 0.05,
+        }
+    }
+}
+
+/// Whether a square was aligned.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SquareStatus {
+    Ok,
+    Skipped,
+}
+
+/// One chart square in the shot.
+#[derive(Clone, Debug)]
+pub struct SquareAlignment {
+    pub row: usize,
+    pub col: usize,
+    pub status: SquareStatus,
+    pub reason: Option<String>,
+    /// Refined corners, sensor px, chart order TL TR BR BL.
+    pub corners: [[f64; 2]; 4],
+    pub bootstrap_corners: [[f64; 2]; 4],
+    /// Refined `image_from_chart`.
+    pub image_from_chart: Homography,
+    pub bootstrap: Homography,
+    /// RMS of observed − synthetic over the square after alignment (normalised units).
+    pub residual_rms: f64,
+    /// Histogram peaks of the observed square, normalised units.
+    pub black_level: f64,
+    pub white_level: f64,
+    /// Estimated Gaussian blur σ beyond the pixel area (mean over planes), px.
+    pub sigma_px: f64,
+}
+
+/// Every square of the chart, found or skipped, and the global chart pose.
+#[derive(Clone, Debug)]
+pub struct Detection {
+    pub width: usize,
+    pub height: usize,
+    pub squares: Vec<SquareAlignment>,
+    pub global: Homography,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum DetectError {
+    #[error("no chart found")]
+    NoChart,
+    #[error(
+        "the chart in the shot has at least {cols} × {rows} squares, more than the chart spec's {spec_cols} × {spec_rows} (wrong --chart?)"
+    )]
+    ChartTooLarge {
+        cols: usize,
+        rows: usize,
+        spec_cols: usize,
+        spec_rows: usize,
+    },
+    #[error("cancelled")]
+    Cancelled(#[from] Cancelled),
+}
+
+/// Finds and aligns every square of `spec` in `capture`.
+///
+/// # Errors
+/// [`DetectError::NoChart`] when no checkerboard is found; `Cancelled` when the job is.
+pub fn detect(
+    capture: &Capture,
+    spec: &ChartSpec,
+    params: &DetectParams,
+    job: &JobContext,
+) -> Result<Detection, DetectError> {
+    job.check()?;
+    let grey = capture.grey();
+    let smoothed = grid::Smoothed::new(&grey, params.smoothing_sigma_px);
+    let junctions = grid::find_junctions(
+        &smoothed,
+        params.ring_radius_px,
+        params.min_relative_response,
+    );
+    job.check()?;
+    let lattice = grid::build_lattice(&junctions, &smoothed, spec).map_err(|e| match e {
+        grid::LatticeError::NotFound => DetectError::NoChart,
+        grid::LatticeError::TooLarge { cols, rows } => DetectError::ChartTooLarge {
+            cols,
+            rows,
+            spec_cols: spec.cols,
+            spec_rows: spec.rows,
+        },
+    })?;
+    let mut cells: Vec<(usize, usize)> = Vec::with_capacity(spec.rows * spec.cols);
+    for row in 0..spec.rows {
+        for col in 0..spec.cols {
+            cells.push((row, col));
+        }
+    }
+    let total = cells.len();
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    job.report("detect", 0, total);
+    let squares: Result<Vec<SquareAlignment>, Cancelled> = cells
+        .par_iter()
+        .map(|&(row, col)| {
+            job.check()?;
+            let sq = square(capture, spec, &lattice, row, col, params);
+            let d = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            job.report("detect", d, total);
+            Ok(sq)
+        })
+        .collect();
+    let squares = squares?;
+    if squares.iter().all(|s| s.status == SquareStatus::Skipped) && lattice.corners.len() < 4 {
+        return Err(DetectError::NoChart);
+    }
+    Ok(Detection {
+        width: capture.width,
+        height: capture.height,
+        squares,
+        global: lattice.image_from_chart,
+    })
+}
+
+/// Bootstrap position of chart corner (c, r): its junction when found, else a local
+/// homography over nearby junctions, else the global one.
+fn corner_estimate(lattice: &grid::Lattice, c: usize, r: usize) -> [f64; 2] {
+    if let Some(p) = lattice.corners.get(&(c, r)) {
+        return *p;
+    }
+    let (ci, ri) = (c as i64, r as i64);
+    let mut from = Vec::new();
+    let mut to = Vec::new();
+    for dr in -2..=2i64 {
+        for dc in -2..=2i64 {
+            let (cc, rr) = (ci + dc, ri + dr);
+            if cc < 0 || rr < 0 {
+                continue;
+            }
+            if let Some(p) = lattice.corners.get(&(cc as usize, rr as usize)) {
+                from.push([cc as f64, rr as f64]);
+                to.push(*p);
+            }
+        }
+    }
+    if from.len() >= 6
+        && let Some(h) = Homography::from_correspondences(&from, &to)
+    {
+        return h.apply([c as f64, r as f64]);
+    }
+    lattice.image_from_chart.apply([c as f64, r as f64])
+}
+
+fn square(
+    capture: &Capture,
+    spec: &ChartSpec,
+    lattice: &grid::Lattice,
+    row: usize,
+    col: usize,
+    params: &DetectParams,
+) -> SquareAlignment {
+    let chart = spec.square_corners(col, row);
+    let boot: [[f64; 2]; 4] = [
+        corner_estimate(lattice, col, row),
+        corner_estimate(lattice, col + 1, row),
+        corner_estimate(lattice, col + 1, row + 1),
+        corner_estimate(lattice, col, row + 1),
+    ];
+    let bootstrap =
+        Homography::from_correspondences(&chart, &boot).unwrap_or(lattice.image_from_chart);
+    let mut out = SquareAlignment {
+        row,
+        col,
+        status: SquareStatus::Skipped,
+        reason: None,
+        corners: boot,
+        bootstrap_corners: boot,
+        image_from_chart: bootstrap,
+        bootstrap,
+        residual_rms: f64::NAN,
+        black_level: f64::NAN,
+        white_level: f64::NAN,
+        sigma_px: f64::NAN,
+    };
+    match align::align_square(capture, spec, col, row, &bootstrap, params) {
+        Ok(a) => {
+            out.status = SquareStatus::Ok;
+            out.corners = chart.map(|p| a.image_from_chart.apply(p));
+            out.image_from_chart = a.image_from_chart;
+            out.residual_rms = a.residual_rms;
+            out.black_level = a.black_level;
+            out.white_level = a.white_level;
+            out.sigma_px = a.sigma_px;
+        }
+        Err(reason) => out.reason = Some(reason),
+    }
+    out
+}
+
+/// `detect.json` (DESIGN.md §3).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct DetectFile {
+    pub schema: String,
+    pub width: usize,
+    pub height: usize,
+    pub squares: Vec<SquareRecord>,
+}
+
+/// One square in `detect.json`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SquareRecord {
+    pub row: usize,
+    pub col: usize,
+    pub status: SquareStatus,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
+    pub corners: [[f64; 2]; 4],
+    pub bootstrap_corners: [[f64; 2]; 4],
+    /// `image_from_chart`, 9 numbers row-major.
+    pub homography: Homography,
+    /// `null` for a skipped square.
+    pub residual_rms: Option<f64>,
+}
+
+pub const DETECT_SCHEMA: &str = "lensblur.detect/1";
+
+impl Detection {
+    /// The file form.
+    #[must_use]
+    pub fn to_file(&self) -> DetectFile {
+        DetectFile {
+            schema: DETECT_SCHEMA.into(),
+            width: self.width,
+            height: self.height,
+            squares: self
+                .squares
+                .iter()
+                .map(|s| SquareRecord {
+                    row: s.row,
+                    col: s.col,
+                    status: s.status,
+                    reason: s.reason.clone(),
+                    corners: s.corners,
+                    bootstrap_corners: s.bootstrap_corners,
+                    homography: s.image_from_chart,
+                    residual_rms: s.residual_rms.is_finite().then_some(s.residual_rms),
+                })
+                .collect(),
+        }
+    }
+
+    /// Squares that were aligned.
+    pub fn ok_squares(&self) -> impl Iterator<Item = &SquareAlignment> {
+        self.squares.iter().filter(|s| s.status == SquareStatus::Ok)
+    }
+}

@@ -1,0 +1,489 @@
+//! The paper's Gaussian-approximation experiment (Fig. 2): blur a natural-statistics
+//! image and a hard-edge synthetic one with many non-parametric kernels, deconvolve each
+//! with the kernel itself, its robust Gaussian fit and its maximum-likelihood Gaussian,
+//! and compare by the SSIM error ratio of Eq. 1, (SSIM_non + 2) / (SSIM_gau + 2).
+
+use crate::deblur::fft::Fft2;
+use crate::deblur::solve::{Method, deconvolve_block};
+use crate::job::{Cancelled, JobContext};
+use crate::metrics::{SsimParams, ssim_f64};
+use crate::plane::{Channel, LensSetting, Plane};
+use crate::psf::{Gaussian2, Kernel};
+use crate::simulate::lens::{PsfShape, VirtualLens};
+use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, Normal};
+use rand_pcg::Pcg64;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// One kernel of the experiment with its two Gaussian approximations (pixel-level, in
+/// sensor pixels).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExperimentKernel {
+    pub kernel: Kernel,
+    pub robust: Gaussian2,
+    pub ml: Gaussian2,
+}
+
+/// A dead-leaves image: opaque discs of uniform random grey, radii drawn from a power
+/// law p(r) ∝ r⁻³ (scale invariant, like natural images), 2 × 2 supersampled.
+#[must_use]
+pub fn dead_leaves(width: usize, height: usize, seed: u64) -> Plane {
+    let mut rng = Pcg64::seed_from_u64(seed);
+    let (r_min, r_max) = (1.0f64, width.max(height) as f64 / 4.0);
+    let ss = 2usize;
+    let (sw, sh) = (width * ss, height * ss);
+    let mut fine = vec![f32::NAN; sw * sh];
+    let mut unfilled = sw * sh;
+    // Leaves fall front to back: a later leaf only shows where no earlier one lies.
+    for _ in 0..200_000 {
+        if unfilled == 0 {
+            break;
+        }
+        let u: f64 = rng.random();
+        // Inverse CDF of p(r) ∝ r⁻³ on [r_min, r_max].
+        let inv = 1.0 / (r_min * r_min) - u * (1.0 / (r_min * r_min) - 1.0 / (r_max * r_max));
+        let r = inv.powf(-0.5) * ss as f64;
+        let cx = rng.random_range(-r..sw as f64 + r);
+        let cy = rng.random_range(-r..sh as f64 + r);
+        let grey: f32 = rng.random_range(0.05..0.95);
+        let x0 = (cx - r).floor().max(0.0) as usize;
+        let x1 = ((cx + r).ceil().max(0.0) as usize).min(sw);
+        let y0 = (cy - r).floor().max(0.0) as usize;
+        let y1 = ((cy + r).ceil().max(0.0) as usize).min(sh);
+        for y in y0..y1 {
+            for x in x0..x1 {
+                let i = y * sw + x;
+                if fine[i].is_nan()
+                    && (x as f64 + 0.5 - cx).powi(2) + (y as f64 + 0.5 - cy).powi(2) <= r * r
+                {
+                    fine[i] = grey;
+                    unfilled -= 1;
+                }
+            }
+        }
+    }
+    downsample(&fine, width, height, ss, 0.5)
+}
+
+fn downsample(fine: &[f32], width: usize, height: usize, ss: usize, fill: f32) -> Plane {
+    let sw = width * ss;
+    Plane::from_fn(width, height, |x, y| {
+        let mut acc = 0.0;
+        for b in 0..ss {
+            for a in 0..ss {
+                let v = fine[(y * ss + b) * sw + x * ss + a];
+                acc += if v.is_nan() { fill } else { v };
+            }
+        }
+        acc / (ss * ss) as f32
+    })
+}
+
+/// A synthetic hard-edge image: rotated rectangles and discs of flat grey on a flat
+/// background, edges at every orientation, 4 × 4 supersampled.
+#[must_use]
+pub fn hard_edges(width: usize, height: usize, seed: u64) -> Plane {
+    let mut rng = Pcg64::seed_from_u64(seed);
+    let ss = 4usize;
+    let (sw, sh) = (width * ss, height * ss);
+    let mut fine = vec![0.3f32; sw * sh];
+    let n = 6 + width * height / 2000;
+    for s in 0..n {
+        let grey: f32 = rng.random_range(0.05..0.95);
+        let cx = rng.random_range(0.0..sw as f64);
+        let cy = rng.random_range(0.0..sh as f64);
+        let a = rng.random_range(4.0..width.min(height) as f64 / 4.0) * ss as f64;
+        let b = rng.random_range(4.0..width.min(height) as f64 / 4.0) * ss as f64;
+        let th: f64 = rng.random_range(0.0..std::f64::consts::PI);
+        let (c, sn) = (th.cos(), th.sin());
+        let disc = s % 3 == 2;
+        for y in 0..sh {
+            for x in 0..sw {
+                let (dx, dy) = (x as f64 + 0.5 - cx, y as f64 + 0.5 - cy);
+                let inside = if disc {
+                    dx * dx + dy * dy <= a * a / 4.0
+                } else {
+                    let (u, v) = (c * dx + sn * dy, -sn * dx + c * dy);
+                    u.abs() <= a / 2.0 && v.abs() <= b / 2.0
+                };
+                if inside {
+                    fine[y * sw + x] = grey;
+                }
+            }
+        }
+    }
+    downsample(&fine, width, height, ss, 0.3)
+}
+
+/// Pixel-level kernels from the virtual lens in each of its PSF shapes at spread-out
+/// positions and settings, with a moments (ML) Gaussian and a least-squares (robust)
+/// Gaussian fitted to each: the stand-in for kernels measured on calibration shots.
+#[must_use]
+pub fn simulated_kernels(count: usize, oversample: usize) -> Vec<ExperimentKernel> {
+    let mut lens = VirtualLens::demo();
+    let mut rng = Pcg64::seed_from_u64(0x5eed);
+    let shapes = [PsfShape::Gaussian, PsfShape::Disc, PsfShape::Comet];
+    (0..count)
+        .map(|i| {
+            lens.shape = shapes[i % shapes.len()];
+            let u = rng.random_range(-1.0..1.0);
+            let v = rng.random_range(-1.0..1.0);
+            let focal_mm = rng.random_range(lens.focal_range_mm[0]..lens.focal_range_mm[1]);
+            let f_number = rng.random_range(lens.f_number_range[0]..lens.f_number_range[1]);
+            let ch = [Channel::R, Channel::G, Channel::B][i % 3];
+            let optical =
+                lens.optical_kernel_uv(ch, u, v, LensSetting { focal_mm, f_number }, oversample);
+            let kernel = with_pixel_box(&optical);
+            let (robust, ml) = fit_gaussians(&kernel);
+            ExperimentKernel { kernel, robust, ml }
+        })
+        .collect()
+}
+
+/// Convolves a kernel with the 1-pixel box (pixel integration), at its own oversample.
+#[must_use]
+pub fn with_pixel_box(k: &Kernel) -> Kernel {
+    let os = k.oversample;
+    let n = k.size + os - 1 + usize::from(os % 2 == 0);
+    let size = n | 1;
+    let off = (size - k.size) / 2;
+    let half = os as isize / 2;
+    let mut data = vec![0.0; size * size];
+    for j in 0..k.size {
+        for i in 0..k.size {
+            let v = k.at(i, j);
+            for b in -half..=half {
+                for a in -half..=half {
+                    let x = (i + off) as isize + a;
+                    let y = (j + off) as isize + b;
+                    if x >= 0 && y >= 0 && (x as usize) < size && (y as usize) < size {
+                        data[y as usize * size + x as usize] += v;
+                    }
+                }
+            }
+        }
+    }
+    let mut out = Kernel {
+        size,
+        oversample: os,
+        data,
+    };
+    out.normalise();
+    out
+}
+
+/// (robust, ML) Gaussians of a kernel: ML from its moments; robust by least squares on
+/// the sampled kernel values (which the bright core dominates, not a faint tail),
+/// started from ML and refined by Nelder–Mead over (ln σx, ln σy, atanh ρ).
+#[must_use]
+pub fn fit_gaussians(k: &Kernel) -> (Gaussian2, Gaussian2) {
+    let m = k.moments();
+    let ml = Gaussian2::from_covariance(m.var_x, m.var_y, m.cov_xy);
+    let c = (k.size / 2) as f64;
+    let s = k.oversample as f64;
+    let cell = 1.0 / (s * s);
+    let cost = |p: &[f64; 3]| -> f64 {
+        let g = Gaussian2 {
+            sigma_x: p[0].exp(),
+            sigma_y: p[1].exp(),
+            rho: p[2].tanh(),
+        };
+        let mut e = 0.0;
+        for j in 0..k.size {
+            for i in 0..k.size {
+                let d = g.density((i as f64 - c) / s - m.mean_x, (j as f64 - c) / s - m.mean_y)
+                    * cell
+                    - k.at(i, j);
+                e += d * d;
+            }
+        }
+        e
+    };
+    let start = [
+        ml.sigma_x.max(0.05).ln(),
+        ml.sigma_y.max(0.05).ln(),
+        ml.rho.clamp(-0.95, 0.95).atanh(),
+    ];
+    let p = nelder_mead(&cost, start, 0.2, 200);
+    (
+        Gaussian2 {
+            sigma_x: p[0].exp(),
+            sigma_y: p[1].exp(),
+            rho: p[2].tanh(),
+        },
+        ml,
+    )
+}
+
+fn nelder_mead(
+    f: &dyn Fn(&[f64; 3]) -> f64,
+    start: [f64; 3],
+    step: f64,
+    iterations: usize,
+) -> [f64; 3] {
+    let mut pts: Vec<([f64; 3], f64)> = (0..4)
+        .map(|i| {
+            let mut p = start;
+            if i > 0 {
+                p[i - 1] += step;
+            }
+            (p, f(&p))
+        })
+        .collect();
+    let comb = |a: &[f64; 3], b: &[f64; 3], t: f64| -> [f64; 3] {
+        [
+            a[0] + t * (b[0] - a[0]),
+            a[1] + t * (b[1] - a[1]),
+            a[2] + t * (b[2] - a[2]),
+        ]
+    };
+    for _ in 0..iterations {
+        pts.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let mut cen = [0.0; 3];
+        for (p, _) in &pts[..3] {
+            for d in 0..3 {
+                cen[d] += p[d] / 3.0;
+            }
+        }
+        let worst = pts[3];
+        let refl = comb(&cen, &worst.0, -1.0);
+        let fr = f(&refl);
+        if fr < pts[0].1 {
+            let exp = comb(&cen, &worst.0, -2.0);
+            let fe = f(&exp);
+            pts[3] = if fe < fr { (exp, fe) } else { (refl, fr) };
+        } else if fr < pts[2].1 {
+            pts[3] = (refl, fr);
+        } else {
+            let con = comb(&cen, &worst.0, 0.5);
+            let fc = f(&con);
+            if fc < worst.1 {
+                pts[3] = (con, fc);
+            } else {
+                let best = pts[0].0;
+                for p in pts.iter_mut().skip(1) {
+                    let q = comb(&best, &p.0, 0.5);
+                    *p = (q, f(&q));
+                }
+            }
+        }
+    }
+    pts.sort_by(|a, b| a.1.total_cmp(&b.1));
+    pts[0].0
+}
+
+/// Experiment settings.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ExperimentOptions {
+    /// Side of the square test images in pixels.
+    pub image_px: usize,
+    /// Standard deviation of the Gaussian noise added to each blurred image.
+    pub noise_sigma: f64,
+    pub method: Method,
+    pub seed: u64,
+}
+
+impl Default for ExperimentOptions {
+    fn default() -> Self {
+        Self {
+            image_px: 160,
+            noise_sigma: 0.002,
+            method: Method::default(),
+            seed: 7,
+        }
+    }
+}
+
+/// SSIMs and error ratios of one kernel on one image.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RatioRow {
+    pub image: String,
+    pub kernel_index: usize,
+    pub robust: Gaussian2,
+    pub ml: Gaussian2,
+    pub ssim_blurry: f64,
+    pub ssim_nonparametric: f64,
+    pub ssim_robust: f64,
+    pub ssim_ml: f64,
+    pub ratio_robust: f64,
+    pub ratio_ml: f64,
+}
+
+/// Distribution summary of one image's ratios.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RatioSummary {
+    pub image: String,
+    pub count: usize,
+    pub robust_p50: f64,
+    pub robust_p99: f64,
+    pub robust_max: f64,
+    pub ml_p50: f64,
+    pub ml_p99: f64,
+    pub ml_max: f64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ExperimentReport {
+    pub options: ExperimentOptions,
+    pub rows: Vec<RatioRow>,
+    pub summary: Vec<RatioSummary>,
+}
+
+/// The p-quantile (0..=1) of values, by nearest rank on the sorted list.
+#[must_use]
+pub fn quantile(values: &[f64], p: f64) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let idx = ((p * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1;
+    v[idx]
+}
+
+/// A 1× kernel from a Gaussian, sampled the way the non-parametric kernels are (at
+/// their oversample, then resampled), so the comparison differs only in shape.
+fn gaussian_kernel_1x(g: &Gaussian2, oversample: usize) -> Kernel {
+    g.kernel(oversample).resampled(1)
+}
+
+/// Runs the experiment on the natural (dead-leaves) and synthetic (hard-edge) images.
+///
+/// # Errors
+/// On cancellation.
+pub fn gaussian_approx(
+    kernels: &[ExperimentKernel],
+    opts: &ExperimentOptions,
+    job: &JobContext,
+) -> Result<ExperimentReport, Cancelled> {
+    let n = opts.image_px;
+    let images = [
+        ("natural", dead_leaves(n, n, opts.seed)),
+        ("synthetic", hard_edges(n, n, opts.seed + 1)),
+    ];
+    let fft = Fft2::new(n, n);
+    let total = kernels.len() * images.len();
+    let done = AtomicUsize::new(0);
+    let params = SsimParams::default();
+    let mut rows = Vec::with_capacity(total);
+    for (name, img) in &images {
+        let sharp: Vec<f64> = img.data.iter().map(|&v| f64::from(v)).collect();
+        let part: Vec<RatioRow> = kernels
+            .par_iter()
+            .enumerate()
+            .map(|(idx, ek)| -> Result<RatioRow, Cancelled> {
+                job.check()?;
+                let k1 = ek.kernel.resampled(1);
+                // The image is periodic here, so a circular blur is the exact model and
+                // the comparison measures only the kernel's shape.
+                let mut blurry = fft.convolve(&sharp, &k1);
+                let mut rng =
+                    Pcg64::seed_from_u64(opts.seed ^ (idx as u64).wrapping_mul(0x9e37_79b9));
+                if opts.noise_sigma > 0.0
+                    && let Ok(noise) = Normal::new(0.0, opts.noise_sigma)
+                {
+                    for v in &mut blurry {
+                        *v += noise.sample(&mut rng);
+                    }
+                }
+                let s = |x: &[f64]| ssim_f64(x, &sharp, n, n, &params);
+                let x_non = deconvolve_block(&fft, &blurry, &k1, &opts.method);
+                let x_rob = deconvolve_block(
+                    &fft,
+                    &blurry,
+                    &gaussian_kernel_1x(&ek.robust, ek.kernel.oversample),
+                    &opts.method,
+                );
+                let x_ml = deconvolve_block(
+                    &fft,
+                    &blurry,
+                    &gaussian_kernel_1x(&ek.ml, ek.kernel.oversample),
+                    &opts.method,
+                );
+                let (sn, sr, sm) = (s(&x_non), s(&x_rob), s(&x_ml));
+                let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+                job.report("experiment", d, total);
+                Ok(RatioRow {
+                    image: (*name).to_owned(),
+                    kernel_index: idx,
+                    robust: ek.robust,
+                    ml: ek.ml,
+                    ssim_blurry: s(&blurry),
+                    ssim_nonparametric: sn,
+                    ssim_robust: sr,
+                    ssim_ml: sm,
+                    ratio_robust: (sn + 2.0) / (sr + 2.0),
+                    ratio_ml: (sn + 2.0) / (sm + 2.0),
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        rows.extend(part);
+    }
+    let summary = images
+        .iter()
+        .map(|(name, _)| {
+            let rob: Vec<f64> = rows
+                .iter()
+                .filter(|r| r.image == *name)
+                .map(|r| r.ratio_robust)
+                .collect();
+            let ml: Vec<f64> = rows
+                .iter()
+                .filter(|r| r.image == *name)
+                .map(|r| r.ratio_ml)
+                .collect();
+            RatioSummary {
+                image: (*name).to_owned(),
+                count: rob.len(),
+                robust_p50: quantile(&rob, 0.5),
+                robust_p99: quantile(&rob, 0.99),
+                robust_max: quantile(&rob, 1.0),
+                ml_p50: quantile(&ml, 0.5),
+                ml_p99: quantile(&ml, 0.99),
+                ml_max: quantile(&ml, 1.0),
+            }
+        })
+        .collect();
+    Ok(ExperimentReport {
+        options: *opts,
+        rows,
+        summary,
+    })
+}
+
+/// The error-ratio CDFs as CSV: one row per (image, fit) and ratio, sorted, with its
+/// cumulative fraction — the curves of the paper's Fig. 2 (bottom).
+#[must_use]
+pub fn cdf_csv(report: &ExperimentReport) -> String {
+    let mut out = String::from("image,fit,ratio,cumulative_fraction\n");
+    for s in &report.summary {
+        for fit in ["robust", "ml"] {
+            let mut v: Vec<f64> = report
+                .rows
+                .iter()
+                .filter(|r| r.image == s.image)
+                .map(|r| {
+                    if fit == "robust" {
+                        r.ratio_robust
+                    } else {
+                        r.ratio_ml
+                    }
+                })
+                .collect();
+            v.sort_by(f64::total_cmp);
+            let n = v.len();
+            for (i, r) in v.iter().enumerate() {
+                out.push_str(&format!(
+                    "{},{},{:.6},{:.6}\n",
+                    s.image,
+                    fit,
+                    r,
+                    (i + 1) as f64 / n as f64
+                ));
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,117 @@
+//! The small context a long computation receives: a cancel flag it checks between units
+//! of work (squares, folds, tiles), and a sink for progress. The core never knows who
+//! listens: the command line draws a progress bar, the studio wakes its UI.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Where a job stands: `done` of `total` units of the named stage.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Progress {
+    pub stage: String,
+    pub done: usize,
+    pub total: usize,
+}
+
+type Sink = Arc<dyn Fn(&Progress) + Send + Sync>;
+
+/// Cancel flag plus progress sink, cheap to clone into worker threads.
+#[derive(Clone)]
+pub struct JobContext {
+    cancel: Arc<AtomicBool>,
+    sink: Option<Sink>,
+}
+
+/// Returned by work that stopped because it was cancelled.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("cancelled")]
+pub struct Cancelled;
+
+impl Default for JobContext {
+    fn default() -> Self {
+        Self::silent()
+    }
+}
+
+impl std::fmt::Debug for JobContext {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("JobContext")
+            .field("cancelled", &self.is_cancelled())
+            .finish()
+    }
+}
+
+impl JobContext {
+    /// No progress reported, never cancelled (tests, scripts).
+    #[must_use]
+    pub fn silent() -> Self {
+        Self {
+            cancel: Arc::new(AtomicBool::new(false)),
+            sink: None,
+        }
+    }
+
+    /// Reports every progress update to `sink`.
+    #[must_use]
+    pub fn with_sink(sink: impl Fn(&Progress) + Send + Sync + 'static) -> Self {
+        Self {
+            cancel: Arc::new(AtomicBool::new(false)),
+            sink: Some(Arc::new(sink)),
+        }
+    }
+
+    /// The flag that cancels this job; setting it makes [`JobContext::check`] fail.
+    #[must_use]
+    pub fn cancel_flag(&self) -> Arc<AtomicBool> {
+        Arc::clone(&self.cancel)
+    }
+
+    pub fn cancel(&self) {
+        self.cancel.store(true, Ordering::Relaxed);
+    }
+
+    #[must_use]
+    pub fn is_cancelled(&self) -> bool {
+        self.cancel.load(Ordering::Relaxed)
+    }
+
+    /// # Errors
+    /// [`Cancelled`] once the job has been cancelled.
+    pub fn check(&self) -> Result<(), Cancelled> {
+        if self.is_cancelled() {
+            Err(Cancelled)
+        } else {
+            Ok(())
+        }
+    }
+
+    pub fn report(&self, stage: &str, done: usize, total: usize) {
+        if let Some(sink) = &self.sink {
+            sink(&Progress {
+                stage: stage.to_owned(),
+                done,
+                total,
+            });
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Mutex;
+
+    #[test]
+    fn cancel_and_progress() {
+        let seen = Arc::new(Mutex::new(Vec::new()));
+        let s2 = Arc::clone(&seen);
+        let job = JobContext::with_sink(move |p| s2.lock().unwrap().push(p.done));
+        job.report("x", 1, 3);
+        job.report("x", 2, 3);
+        assert_eq!(*seen.lock().unwrap(), vec![1, 2]);
+        assert!(job.check().is_ok());
+        let clone = job.clone();
+        clone.cancel();
+        assert_eq!(job.check(), Err(Cancelled));
+    }
+}

@@ -1,0 +1,317 @@
+//! The kernel's least-squares problem as FFT operators, and conjugate gradients on its
+//! normal equations.
+//!
+//! Unknowns: the `K × K` kernel (row-major) followed by one constant offset. The model
+//! at convolution-output sample n is y(n) = Σ_i k(i) X(n − i) + c, valid for n in
+//! `[K − 1, N − 1]` along each axis; observations carry a weight w(n) (how many
+//! observations fall there) and a sum t(n), so ‖W(Ak − b)‖² has normal equations
+//! Aᵀ diag(w) A k = Aᵀ t.
+
+use crate::fft::{Fft2, good_size};
+use realfft::num_complex::Complex;
+
+/// A symmetric positive semi-definite system `N x = r` given by its action.
+pub trait NormalEquations {
+    fn dim(&self) -> usize;
+    /// `out = N x`.
+    fn apply(&mut self, x: &[f64], out: &mut [f64]);
+    /// The right-hand side r.
+    fn rhs(&mut self) -> Vec<f64>;
+}
+
+/// The kernel problem of one square and channel.
+pub struct LeastSquares {
+    m: usize,
+    k_size: usize,
+    fft: Fft2,
+    sharp_spectrum: Vec<Complex<f64>>,
+    weight: Vec<f64>,
+    target: Vec<f64>,
+    rows_lo: usize,
+    rows_hi: usize,
+    sharp_mean_square: f64,
+    smoothness: f64,
+    image: Vec<f64>,
+    spectrum: Vec<Complex<f64>>,
+}
+
+impl LeastSquares {
+    /// A problem for a `k_size × k_size` kernel over the sharp raster `sharp`
+    /// (`nx × ny`, row-major), with no observations yet.
+    ///
+    /// # Panics
+    /// If the raster is smaller than the kernel or wrongly sized.
+    #[must_use]
+    pub fn new(sharp: &[f32], nx: usize, ny: usize, k_size: usize) -> Self {
+        assert!(
+            sharp.len() == nx * ny && nx >= k_size && ny >= k_size,
+            "raster smaller than the kernel"
+        );
+        let m = good_size(nx.max(ny));
+        let mut fft = Fft2::new(m);
+        let mut padded = vec![0.0; m * m];
+        for y in 0..ny {
+            for x in 0..nx {
+                padded[y * m + x] = f64::from(sharp[y * nx + x]);
+            }
+        }
+        let mut sharp_spectrum = vec![Complex::default(); fft.spectrum_len()];
+        fft.forward(&padded, 0..ny, &mut sharp_spectrum);
+        let spectrum = vec![Complex::default(); fft.spectrum_len()];
+        Self {
+            m,
+            k_size,
+            fft,
+            sharp_spectrum,
+            weight: vec![0.0; m * m],
+            target: vec![0.0; m * m],
+            rows_lo: usize::MAX,
+            rows_hi: 0,
+            sharp_mean_square: sharp.iter().map(|&v| f64::from(v).powi(2)).sum::<f64>()
+                / sharp.len() as f64,
+            smoothness: 0.0,
+            image: vec![0.0; m * m],
+            spectrum,
+        }
+    }
+
+    /// Adds λ·‖∇k‖² to the objective, λ = `relative` × the typical diagonal of AᵀWA
+    /// (so the setting does not depend on the number of observations or the levels).
+    pub fn set_smoothness(&mut self, relative: f64) {
+        self.smoothness = relative.max(0.0);
+    }
+
+    /// Adds an observation `value` at convolution-output sample (n_x, n_y), which must
+    /// be a valid one (≥ K − 1 and inside the raster along each axis).
+    pub fn observe(&mut self, n_x: usize, n_y: usize, value: f64) {
+        let idx = n_y * self.m + n_x;
+        self.weight[idx] += 1.0;
+        self.target[idx] += value;
+        self.rows_lo = self.rows_lo.min(n_y);
+        self.rows_hi = self.rows_hi.max(n_y + 1);
+    }
+
+    fn obs_rows(&self) -> std::ops::Range<usize> {
+        if self.rows_lo >= self.rows_hi {
+            0..0
+        } else {
+            self.rows_lo..self.rows_hi
+        }
+    }
+
+    /// `out_k = Aᵀ z` for the image in `self.image` (zero outside the observed rows).
+    fn correlate_into(&mut self, out: &mut [f64]) {
+        let m = self.m;
+        let rows = self.obs_rows();
+        self.fft.forward(&self.image, rows, &mut self.spectrum);
+        for (s, x) in self.spectrum.iter_mut().zip(&self.sharp_spectrum) {
+            *s *= x.conj();
+        }
+        let k = self.k_size;
+        self.fft.inverse(&mut self.spectrum, 0..k, &mut self.image);
+        for j in 0..k {
+            out[j * k..(j + 1) * k].copy_from_slice(&self.image[j * m..j * m + k]);
+        }
+    }
+}
+
+impl NormalEquations for LeastSquares {
+    fn dim(&self) -> usize {
+        self.k_size * self.k_size + 1
+    }
+
+    fn apply(&mut self, x: &[f64], out: &mut [f64]) {
+        let (m, k) = (self.m, self.k_size);
+        let (kernel, offset) = x.split_at(k * k);
+        let offset = offset[0];
+        self.image.iter_mut().for_each(|v| *v = 0.0);
+        for j in 0..k {
+            self.image[j * m..j * m + k].copy_from_slice(&kernel[j * k..(j + 1) * k]);
+        }
+        self.fft.forward(&self.image, 0..k, &mut self.spectrum);
+        for (s, x) in self.spectrum.iter_mut().zip(&self.sharp_spectrum) {
+            *s *= x;
+        }
+        let rows = self.obs_rows();
+        self.fft
+            .inverse(&mut self.spectrum, rows.clone(), &mut self.image);
+        let mut sum = 0.0;
+        for row in 0..m {
+            let line = &mut self.image[row * m..(row + 1) * m];
+            if rows.contains(&row) {
+                for (v, w) in line.iter_mut().zip(&self.weight[row * m..(row + 1) * m]) {
+                    *v = w * (*v + offset);
+                    sum += *v;
+                }
+            } else {
+                line.iter_mut().for_each(|v| *v = 0.0);
+            }
+        }
+        let (out_k, out_c) = out.split_at_mut(k * k);
+        out_c[0] = sum;
+        self.correlate_into(out_k);
+        if self.smoothness > 0.0 {
+            let total_weight: f64 = self.weight.iter().sum();
+            let lambda = self.smoothness * total_weight * self.sharp_mean_square;
+            // Dᵀ D k for forward differences along x and y (free boundary).
+            for j in 0..k {
+                for i in 0..k {
+                    let v = kernel[j * k + i];
+                    let mut acc = 0.0;
+                    if i > 0 {
+                        acc += v - kernel[j * k + i - 1];
+                    }
+                    if i + 1 < k {
+                        acc += v - kernel[j * k + i + 1];
+                    }
+                    if j > 0 {
+                        acc += v - kernel[(j - 1) * k + i];
+                    }
+                    if j + 1 < k {
+                        acc += v - kernel[(j + 1) * k + i];
+                    }
+                    out_k[j * k + i] += lambda * acc;
+                }
+            }
+        }
+    }
+
+    fn rhs(&mut self) -> Vec<f64> {
+        let k = self.k_size;
+        self.image.copy_from_slice(&self.target);
+        let mut out = vec![0.0; k * k + 1];
+        out[k * k] = self.target.iter().sum();
+        self.correlate_into(&mut out[..k * k]);
+        out
+    }
+}
+
+/// What conjugate gradients reached.
+#[derive(Clone, Debug)]
+pub struct CgSolution {
+    pub x: Vec<f64>,
+    pub iterations: usize,
+    /// ‖r‖ / ‖b‖ of the normal equations at the end.
+    pub relative_residual: f64,
+}
+
+/// Conjugate gradients from zero on `N x = r`, at most `max_iterations`, stopping when
+/// ‖r‖ ≤ `tolerance`·‖b‖.
+pub fn cg_solve(
+    problem: &mut impl NormalEquations,
+    max_iterations: usize,
+    tolerance: f64,
+) -> CgSolution {
+    let n = problem.dim();
+    let b = problem.rhs();
+    let b_norm = dot(&b, &b).sqrt();
+    let mut x = vec![0.0; n];
+    if !(b_norm > 0.0) {
+        return CgSolution {
+            x,
+            iterations: 0,
+            relative_residual: 0.0,
+        };
+    }
+    let mut r = b;
+    let mut p = r.clone();
+    let mut q = vec![0.0; n];
+    let mut rr = dot(&r, &r);
+    let mut iterations = 0;
+    while iterations < max_iterations && rr.sqrt() > tolerance * b_norm {
+        problem.apply(&p, &mut q);
+        let pq = dot(&p, &q);
+        if !(pq > 0.0) {
+            break;
+        }
+        let alpha = rr / pq;
+        for i in 0..n {
+            x[i] += alpha * p[i];
+            r[i] -= alpha * q[i];
+        }
+        let rr_new = dot(&r, &r);
+        let beta = rr_new / rr;
+        for i in 0..n {
+            p[i] = r[i] + beta * p[i];
+        }
+        rr = rr_new;
+        iterations += 1;
+    }
+    CgSolution {
+        x,
+        iterations,
+        relative_residual: rr.sqrt() / b_norm,
+    }
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{DMatrix, DVector};
+    use rand::{Rng, SeedableRng};
+
+    /// The same model built as a dense matrix: rows are observations, columns the kernel
+    /// samples and the offset.
+    fn dense(
+        sharp: &[f32],
+        nx: usize,
+        k: usize,
+        obs: &[(usize, usize, f64)],
+    ) -> (DMatrix<f64>, DVector<f64>) {
+        let mut a = DMatrix::zeros(obs.len(), k * k + 1);
+        let mut b = DVector::zeros(obs.len());
+        for (row, &(n_x, n_y, v)) in obs.iter().enumerate() {
+            for j in 0..k {
+                for i in 0..k {
+                    a[(row, j * k + i)] = f64::from(sharp[(n_y - j) * nx + (n_x - i)]);
+                }
+            }
+            a[(row, k * k)] = 1.0;
+            b[row] = v;
+        }
+        (a, b)
+    }
+
+    #[test]
+    fn fft_operator_and_cg_match_a_dense_solve() {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+        let (nx, ny, k) = (14, 12, 3);
+        let sharp: Vec<f32> = (0..nx * ny).map(|_| rng.random::<f32>()).collect();
+        let mut obs = Vec::new();
+        for n_y in (k - 1)..ny {
+            for n_x in (k - 1)..nx {
+                if rng.random::<f64>() < 0.6 {
+                    obs.push((n_x, n_y, rng.random::<f64>()));
+                }
+            }
+        }
+        let mut problem = LeastSquares::new(&sharp, nx, ny, k);
+        for &(x, y, v) in &obs {
+            problem.observe(x, y, v);
+        }
+        let (a, b) = dense(&sharp, nx, k, &obs);
+        // The operator is AᵀWA.
+        let ata = a.transpose() * &a;
+        let probe: Vec<f64> = (0..k * k + 1).map(|_| rng.random::<f64>() - 0.5).collect();
+        let mut out = vec![0.0; k * k + 1];
+        problem.apply(&probe, &mut out);
+        let want = &ata * DVector::from_vec(probe);
+        for (o, w) in out.iter().zip(want.iter()) {
+            assert!((o - w).abs() < 1e-9 * (1.0 + w.abs()), "{o} vs {w}");
+        }
+        let rhs = problem.rhs();
+        let want_rhs = a.transpose() * &b;
+        for (o, w) in rhs.iter().zip(want_rhs.iter()) {
+            assert!((o - w).abs() < 1e-9 * (1.0 + w.abs()));
+        }
+        let dense_x = ata.clone().lu().solve(&want_rhs).unwrap();
+        let cg = cg_solve(&mut problem, 200, 1e-13);
+        for (c, d) in cg.x.iter().zip(dense_x.iter()) {
+            assert!((c - d).abs() < 1e-6 * (1.0 + d.abs()), "{c} vs {d}");
+        }
+    }
+}

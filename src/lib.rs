@@ -1,0 +1,26 @@
+//! lensblur: measure, model and remove a lens's own spatially varying optical blur,
+//! after Kee, Paris, Chen and Wang, "Modeling and Removing Spatially-Varying Optical
+//! Blur" (ICCP 2011).
+//!
+//! The core is one module per pipeline stage and never depends on egui; the studio lives
+//! in `app` behind the `gui` feature.
+
+#[cfg(feature = "gui")]
+pub mod app;
+pub mod chart;
+pub mod detect;
+pub mod fft;
+pub mod gaussian;
+pub mod geometry;
+pub mod job;
+pub mod kernel;
+pub mod crossval;
+pub mod model;
+pub mod deblur;
+pub mod experiment;
+pub mod metrics;
+pub mod plane;
+pub mod profile;
+pub mod psf;
+pub mod session;
+pub mod simulate;

@@ -1,0 +1,71 @@
+//! The `lensblur` command: the studio (default) and the headless pipeline's subcommands
+//! (DESIGN.md §3).
+
+mod cli;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(
+    name = "lensblur",
+    version,
+    about = "Measure, model and remove a lens's own optical blur"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Open the studio on a session folder or manifest (the demo session without one).
+    Studio(cli::studio::Args),
+    /// Write the calibration chart for printing (SVG, PDF or PNG) and its spec.
+    Chart(cli::chart::Args),
+    /// Simulate calibration shots of a virtual lens, with a manifest and ground truth.
+    Simulate(cli::simulate::Args),
+    /// Find the chart's squares in a shot and align each to sub-pixel accuracy.
+    Detect(cli::detect::Args),
+    /// Estimate the blur kernel and its Gaussian fit at every square of a shot.
+    Kernels(cli::kernels::Args),
+    /// Fit blur models over a calibration session and write a lens profile.
+    Calibrate(cli::calibrate::Args),
+    /// Cross-validate model complexity (α, β) over a calibration session.
+    Crossval(cli::crossval::Args),
+    /// Predict the Gaussian blur at given sensor points from a profile.
+    Predict(cli::predict::Args),
+    /// Measured C_xx, C_yy, C_or against aperture and focal length (the paper's Fig. 4 data).
+    Sweeps(cli::sweeps::Args),
+    /// Remove the lens blur from a photo with a profile's or a kernels file's kernels.
+    Deblur(cli::deblur::Args),
+    /// Reproduce the paper's experiments.
+    Experiment(cli::experiment::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        None => cli::studio::run(cli::studio::Args::default()),
+        Some(Command::Studio(a)) => cli::studio::run(a),
+        Some(Command::Chart(a)) => cli::chart::run(a),
+        Some(Command::Simulate(a)) => cli::simulate::run(a),
+        Some(Command::Detect(a)) => cli::detect::run(a),
+        Some(Command::Kernels(a)) => cli::kernels::run(a),
+        Some(Command::Calibrate(a)) => cli::calibrate::run(a),
+        Some(Command::Crossval(a)) => cli::crossval::run(a),
+        Some(Command::Predict(a)) => cli::predict::run(a),
+        Some(Command::Sweeps(a)) => cli::sweeps::run(a),
+        Some(Command::Deblur(a)) => cli::deblur::run(a),
+        Some(Command::Experiment(a)) => cli::experiment::run(a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            // One line: the outermost context first, then its causes.
+            let chain: Vec<String> = e.chain().map(ToString::to_string).collect();
+            eprintln!("lensblur: error: {}", chain.join(": "));
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,185 @@
+//! Image quality against a reference: SSIM (Wang, Bovik, Sheikh, Simoncelli 2004) and
+//! PSNR.
+//!
+//! SSIM follows the common reference implementation exactly, so numbers compare with
+//! published ones: a Gaussian window of σ = 1.5 truncated at 3.5σ (11 × 11), K1 = 0.01,
+//! K2 = 0.03, population (not sample) covariances, reflected borders for the local
+//! statistics, and the mean taken over the image less a 5-pixel border.
+
+use crate::plane::Plane;
+
+/// SSIM parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SsimParams {
+    pub sigma: f64,
+    pub truncate: f64,
+    pub k1: f64,
+    pub k2: f64,
+    /// Range of the pixel values (1 for images in [0, 1]).
+    pub data_range: f64,
+}
+
+impl Default for SsimParams {
+    fn default() -> Self {
+        Self {
+            sigma: 1.5,
+            truncate: 3.5,
+            k1: 0.01,
+            k2: 0.03,
+            data_range: 1.0,
+        }
+    }
+}
+
+#[inline]
+fn reflect(i: isize, n: usize) -> usize {
+    let n2 = 2 * n as isize;
+    let m = i.rem_euclid(n2);
+    if m >= n as isize {
+        (n2 - 1 - m) as usize
+    } else {
+        m as usize
+    }
+}
+
+fn gaussian_taps(sigma: f64, truncate: f64) -> Vec<f64> {
+    let r = (truncate * sigma + 0.5) as isize;
+    let mut t: Vec<f64> = (-r..=r)
+        .map(|x| (-0.5 * (x * x) as f64 / (sigma * sigma)).exp())
+        .collect();
+    let s: f64 = t.iter().sum();
+    for v in &mut t {
+        *v /= s;
+    }
+    t
+}
+
+/// Separable filtering with reflected borders.
+fn filter(data: &[f64], w: usize, h: usize, taps: &[f64]) -> Vec<f64> {
+    let r = (taps.len() / 2) as isize;
+    let mut tmp = vec![0.0; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let mut acc = 0.0;
+            for (k, &t) in taps.iter().enumerate() {
+                acc += t * data[y * w + reflect(x as isize + k as isize - r, w)];
+            }
+            tmp[y * w + x] = acc;
+        }
+    }
+    let mut out = vec![0.0; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let mut acc = 0.0;
+            for (k, &t) in taps.iter().enumerate() {
+                acc += t * tmp[reflect(y as isize + k as isize - r, h) * w + x];
+            }
+            out[y * w + x] = acc;
+        }
+    }
+    out
+}
+
+/// Mean SSIM of `a` against `b` (f64 slices of `w × h`).
+///
+/// # Panics
+/// If the slices do not hold `w × h` values.
+#[must_use]
+pub fn ssim_f64(a: &[f64], b: &[f64], w: usize, h: usize, p: &SsimParams) -> f64 {
+    assert!(a.len() == w * h && b.len() == w * h, "image sizes differ");
+    let taps = gaussian_taps(p.sigma, p.truncate);
+    let pad = taps.len() / 2;
+    let prod = |f: &dyn Fn(usize) -> f64| -> Vec<f64> { (0..w * h).map(f).collect() };
+    let ux = filter(a, w, h, &taps);
+    let uy = filter(b, w, h, &taps);
+    let uxx = filter(&prod(&|i| a[i] * a[i]), w, h, &taps);
+    let uyy = filter(&prod(&|i| b[i] * b[i]), w, h, &taps);
+    let uxy = filter(&prod(&|i| a[i] * b[i]), w, h, &taps);
+    let c1 = (p.k1 * p.data_range).powi(2);
+    let c2 = (p.k2 * p.data_range).powi(2);
+    let (mut sum, mut n) = (0.0, 0usize);
+    for y in pad..h.saturating_sub(pad) {
+        for x in pad..w.saturating_sub(pad) {
+            let i = y * w + x;
+            let vx = uxx[i] - ux[i] * ux[i];
+            let vy = uyy[i] - uy[i] * uy[i];
+            let vxy = uxy[i] - ux[i] * uy[i];
+            let s = ((2.0 * ux[i] * uy[i] + c1) * (2.0 * vxy + c2))
+                / ((ux[i] * ux[i] + uy[i] * uy[i] + c1) * (vx + vy + c2));
+            sum += s;
+            n += 1;
+        }
+    }
+    if n == 0 { f64::NAN } else { sum / n as f64 }
+}
+
+/// Mean SSIM of two planes of equal size.
+///
+/// # Panics
+/// If the sizes differ.
+#[must_use]
+pub fn ssim(a: &Plane, b: &Plane, p: &SsimParams) -> f64 {
+    assert!(
+        a.width == b.width && a.height == b.height,
+        "image sizes differ"
+    );
+    let fa: Vec<f64> = a.data.iter().map(|&v| f64::from(v)).collect();
+    let fb: Vec<f64> = b.data.iter().map(|&v| f64::from(v)).collect();
+    ssim_f64(&fa, &fb, a.width, a.height, p)
+}
+
+/// Peak signal-to-noise ratio in dB for values of range `data_range`.
+///
+/// # Panics
+/// If the sizes differ.
+#[must_use]
+pub fn psnr(a: &Plane, b: &Plane, data_range: f64) -> f64 {
+    assert!(
+        a.width == b.width && a.height == b.height,
+        "image sizes differ"
+    );
+    let mse = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(&x, &y)| (f64::from(x) - f64::from(y)).powi(2))
+        .sum::<f64>()
+        / a.data.len().max(1) as f64;
+    10.0 * (data_range * data_range / mse).log10()
+}
+
+/// The deterministic test images shared with `scripts/ssim_reference.py`: integer
+/// formulas both sides evaluate identically, scaled to [0, 1].
+#[must_use]
+pub fn reference_pair(index: usize, w: usize, h: usize) -> (Vec<f64>, Vec<f64>) {
+    let a: Vec<f64> = (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            ((x * 7 + y * 13 + (x * y) % 17) % 256) as f64 / 255.0
+        })
+        .collect();
+    let b: Vec<f64> = (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            let base = (x * 7 + y * 13 + (x * y) % 17) % 256;
+            let v = match index {
+                0 => (base + (x * 3 + y * 5) % 11) % 256,
+                1 => (base / 2 + 60 + (x ^ y) % 23) % 256,
+                _ => (255 - base + (x * y) % 7) % 256,
+            };
+            v as f64 / 255.0
+        })
+        .collect();
+    (a, b)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn identical_images_have_ssim_one() {
+        let (a, _) = reference_pair(0, 40, 30);
+        assert!((ssim_f64(&a, &a, 40, 30, &SsimParams::default()) - 1.0).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,288 @@
+//! Single-channel images of linear values, and the channel layout of a capture.
+//!
+//! Coordinates follow DESIGN.md §2: x right, y down, pixel centres at integers, (0, 0) the
+//! centre of the top-left pixel. A [`ChannelPlane`] records where its pixels sit on the
+//! full-resolution sensor, so every stage can report in sensor pixels.
+
+use serde::{Deserialize, Serialize};
+
+/// A row-major single-channel image of `f32` values (linear, normally in [0, 1]).
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct Plane {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<f32>,
+}
+
+impl Plane {
+    #[must_use]
+    pub fn new(width: usize, height: usize) -> Self {
+        Self {
+            width,
+            height,
+            data: vec![0.0; width * height],
+        }
+    }
+
+    #[must_use]
+    pub fn filled(width: usize, height: usize, value: f32) -> Self {
+        Self {
+            width,
+            height,
+            data: vec![value; width * height],
+        }
+    }
+
+    #[must_use]
+    pub fn from_fn(width: usize, height: usize, mut f: impl FnMut(usize, usize) -> f32) -> Self {
+        let mut data = Vec::with_capacity(width * height);
+        for y in 0..height {
+            for x in 0..width {
+                data.push(f(x, y));
+            }
+        }
+        Self {
+            width,
+            height,
+            data,
+        }
+    }
+
+    #[inline]
+    #[must_use]
+    pub fn get(&self, x: usize, y: usize) -> f32 {
+        self.data[y * self.width + x]
+    }
+
+    #[inline]
+    pub fn set(&mut self, x: usize, y: usize, v: f32) {
+        self.data[y * self.width + x] = v;
+    }
+
+    /// The value at integer coordinates, or `None` outside the plane.
+    #[inline]
+    #[must_use]
+    pub fn get_checked(&self, x: i64, y: i64) -> Option<f32> {
+        (x >= 0 && y >= 0 && (x as usize) < self.width && (y as usize) < self.height)
+            .then(|| self.get(x as usize, y as usize))
+    }
+
+    /// Bilinear interpolation at a real position; `None` when any of the four
+    /// neighbours lies outside the plane.
+    #[must_use]
+    pub fn bilinear(&self, x: f64, y: f64) -> Option<f32> {
+        let x0 = x.floor();
+        let y0 = y.floor();
+        let (ix, iy) = (x0 as i64, y0 as i64);
+        if ix < 0 || iy < 0 || ix + 1 >= self.width as i64 || iy + 1 >= self.height as i64 {
+            // Exactly on the last row/column is still inside.
+            if ix >= 0
+                && iy >= 0
+                && (ix as usize) < self.width
+                && (iy as usize) < self.height
+                && x == x0
+                && y == y0
+            {
+                return Some(self.get(ix as usize, iy as usize));
+            }
+            return None;
+        }
+        let fx = (x - x0) as f32;
+        let fy = (y - y0) as f32;
+        let (ix, iy) = (ix as usize, iy as usize);
+        let a = self.get(ix, iy);
+        let b = self.get(ix + 1, iy);
+        let c = self.get(ix, iy + 1);
+        let d = self.get(ix + 1, iy + 1);
+        Some((a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy)
+    }
+
+    /// A copy of the rectangle `[x0, x0 + w) × [y0, y0 + h)`, which must lie inside.
+    #[must_use]
+    pub fn crop(&self, x0: usize, y0: usize, w: usize, h: usize) -> Plane {
+        assert!(
+            x0 + w <= self.width && y0 + h <= self.height,
+            "crop outside the plane"
+        );
+        Plane::from_fn(w, h, |x, y| self.get(x0 + x, y0 + y))
+    }
+
+    #[must_use]
+    pub fn mean(&self) -> f64 {
+        if self.data.is_empty() {
+            return 0.0;
+        }
+        self.data.iter().map(|&v| f64::from(v)).sum::<f64>() / self.data.len() as f64
+    }
+}
+
+/// The colour channel a plane measures. G pools both green sites of a Bayer mosaic;
+/// Y is a monochrome input.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub enum Channel {
+    R,
+    G,
+    B,
+    Y,
+}
+
+impl Channel {
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Channel::R => "R",
+            Channel::G => "G",
+            Channel::B => "B",
+            Channel::Y => "Y",
+        }
+    }
+}
+
+impl std::fmt::Display for Channel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Channel {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "R" | "r" => Ok(Channel::R),
+            "G" | "g" => Ok(Channel::G),
+            "B" | "b" => Ok(Channel::B),
+            "Y" | "y" => Ok(Channel::Y),
+            other => Err(format!("unknown channel '{other}' (expected R, G, B or Y)")),
+        }
+    }
+}
+
+/// One plane of a capture and where its pixels sit on the sensor: plane pixel (i, j)
+/// is at sensor `(step·i + offset_x, step·j + offset_y)`. A Bayer plane has step 2; an
+/// RGB or monochrome image has step 1 and offset 0.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ChannelPlane {
+    pub channel: Channel,
+    pub plane: Plane,
+    pub step: usize,
+    pub offset_x: usize,
+    pub offset_y: usize,
+}
+
+impl ChannelPlane {
+    /// Sensor position of plane pixel (i, j).
+    #[inline]
+    #[must_use]
+    pub fn sensor_from_plane(&self, i: f64, j: f64) -> [f64; 2] {
+        let s = self.step as f64;
+        [s * i + self.offset_x as f64, s * j + self.offset_y as f64]
+    }
+
+    /// Plane position of a sensor point (may be fractional or outside).
+    #[inline]
+    #[must_use]
+    pub fn plane_from_sensor(&self, x: f64, y: f64) -> [f64; 2] {
+        let s = self.step as f64;
+        [
+            (x - self.offset_x as f64) / s,
+            (y - self.offset_y as f64) / s,
+        ]
+    }
+}
+
+/// Focal length and aperture of a shot. `focal_mm` is the focal length in millimetres,
+/// `f_number` the aperture as an f-number (N in f/N).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LensSetting {
+    pub focal_mm: f64,
+    pub f_number: f64,
+}
+
+/// Who made the shot: read from EXIF where present. Used to refuse a profile made
+/// for another camera or lens unit.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CameraIdentity {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub make: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub body_serial: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lens_model: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lens_serial: Option<String>,
+}
+
+/// A loaded shot: its channel planes in linear units (black 0, white 1), the sensor
+/// size, and what is known of its settings and origin.
+#[derive(Clone, Debug)]
+pub struct Capture {
+    pub width: usize,
+    pub height: usize,
+    pub planes: Vec<ChannelPlane>,
+    /// From EXIF; `None` where the file did not say.
+    pub setting_focal_mm: Option<f64>,
+    pub setting_f_number: Option<f64>,
+    pub identity: CameraIdentity,
+    /// True for a RAW (CFA) source.
+    pub is_raw: bool,
+}
+
+impl Capture {
+    /// A full-resolution grey image for detection: an RGB/mono image's mean channel, or
+    /// for a Bayer capture each pixel's own CFA value (the planes interleaved back), which
+    /// keeps full resolution; the colour channels differ only in gain over a grey chart.
+    #[must_use]
+    pub fn grey(&self) -> Plane {
+        let mut out = Plane::new(self.width, self.height);
+        let mut count = vec![0u16; self.width * self.height];
+        for cp in &self.planes {
+            for j in 0..cp.plane.height {
+                for i in 0..cp.plane.width {
+                    let x = cp.step * i + cp.offset_x;
+                    let y = cp.step * j + cp.offset_y;
+                    if x < self.width && y < self.height {
+                        out.data[y * self.width + x] += cp.plane.get(i, j);
+                        count[y * self.width + x] += 1;
+                    }
+                }
+            }
+        }
+        for (v, &c) in out.data.iter_mut().zip(&count) {
+            if c > 1 {
+                *v /= f32::from(c);
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bilinear_reproduces_a_plane() {
+        let p = Plane::from_fn(5, 4, |x, y| 2.0 * x as f32 + 3.0 * y as f32);
+        let v = p.bilinear(1.25, 2.5).unwrap();
+        assert!((v - (2.5 + 7.5)).abs() < 1e-5);
+        assert!(p.bilinear(4.0, 3.0).is_some());
+        assert!(p.bilinear(4.5, 1.0).is_none());
+        assert!(p.bilinear(-0.1, 1.0).is_none());
+    }
+
+    #[test]
+    fn plane_sensor_round_trip() {
+        let cp = ChannelPlane {
+            channel: Channel::B,
+            plane: Plane::new(2, 2),
+            step: 2,
+            offset_x: 1,
+            offset_y: 1,
+        };
+        let [x, y] = cp.sensor_from_plane(3.0, 4.0);
+        assert_eq!([x, y], [7.0, 9.0]);
+        assert_eq!(cp.plane_from_sensor(x, y), [3.0, 4.0]);
+    }
+}

@@ -1,0 +1,860 @@
+//! Lens profiles (DESIGN.md §1.8): the fitted models of one camera + lens unit in a
+//! versioned JSON file, `lensblur.profile/1`.
+//!
+//! Coefficients are stored as base64 of little-endian `f32` (7 significant digits, far
+//! below the measurement noise), which keeps a global G_{8,3} profile near the paper's
+//! 12 kB. Loading validates the schema and every coefficient count; predicting refuses
+//! another camera's photos (unless forced) and settings outside the calibrated range
+//! (unless extrapolation is explicitly allowed) — never a silent extrapolation.
+
+use crate::chart::ChartSpec;
+use crate::crossval::{CvPoint, CvReport, Ranges};
+use crate::model::{
+    Basis, CentreGrid, ChannelCoeffs, GlobalModel, LocalModel, ModelKind, Normalisation,
+    model_basis, to_gaussian,
+};
+use crate::plane::{CameraIdentity, Channel, LensSetting};
+use crate::psf::Gaussian2;
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::Path;
+
+pub const PROFILE_SCHEMA: &str = "lensblur.profile/1";
+
+/// Errors of reading, writing and using a profile.
+#[derive(Debug, thiserror::Error)]
+pub enum ProfileError {
+    #[error("{path}: {reason}")]
+    File { path: String, reason: String },
+    #[error("{path}: schema '{found}', expected '{PROFILE_SCHEMA}'")]
+    Schema { path: String, found: String },
+    #[error("{path}: invalid profile: {reason}")]
+    Invalid { path: String, reason: String },
+    #[error(
+        "the profile is for another camera or lens: {field} is '{profile}' in the profile but '{photo}' in the photo (force to use it anyway)"
+    )]
+    IdentityMismatch {
+        field: String,
+        profile: String,
+        photo: String,
+    },
+    #[error(
+        "f = {focal_mm} mm, f/{f_number} is outside the calibrated range {f0}–{f1} mm, f/{a0}–f/{a1} (allow extrapolation to predict anyway)"
+    )]
+    OutOfRange {
+        focal_mm: f64,
+        f_number: f64,
+        f0: f64,
+        f1: f64,
+        a0: f64,
+        a1: f64,
+    },
+    #[error("the profile holds no {0:?} model")]
+    NoModel(ModelKind),
+    #[error("the profile has no model for channel {0}")]
+    NoChannel(Channel),
+}
+
+/// Summary of the cross-validation the models were chosen by.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CvSummary {
+    pub folds: usize,
+    pub ranges: Ranges,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub global: Option<CvPoint>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub local: Option<CvPoint>,
+}
+
+impl CvSummary {
+    #[must_use]
+    pub fn from_report(r: &CvReport) -> Self {
+        Self {
+            folds: r.folds,
+            ranges: r.ranges,
+            global: r.global.as_ref().map(|s| s.chosen.clone()),
+            local: r.local.as_ref().map(|s| s.chosen.clone()),
+        }
+    }
+}
+
+#[derive(Serialize, Deserialize)]
+struct StoredChannel {
+    channel: Channel,
+    /// base64 of little-endian f32, `[centre][term]` order for a local model.
+    cxx: String,
+    cyy: String,
+    cor: String,
+}
+
+#[derive(Serialize, Deserialize)]
+struct StoredGlobal {
+    alpha: usize,
+    beta: usize,
+    terms: usize,
+    channels: Vec<StoredChannel>,
+}
+
+#[derive(Serialize, Deserialize)]
+struct StoredLocal {
+    alpha: usize,
+    beta: usize,
+    terms: usize,
+    radius_px: f64,
+    centres_x: usize,
+    centres_y: usize,
+    channels: Vec<StoredChannel>,
+}
+
+#[derive(Serialize, Deserialize)]
+struct ProfileFile {
+    schema: String,
+    #[serde(default)]
+    identity: CameraIdentity,
+    #[serde(default)]
+    chart: Option<ChartSpec>,
+    width: usize,
+    height: usize,
+    focal_range_mm: [f64; 2],
+    f_number_range: [f64; 2],
+    /// How f and a are normalised, for readers of the file.
+    #[serde(default)]
+    normalisation: String,
+    #[serde(default)]
+    calibrated_settings: Vec<LensSetting>,
+    preferred: ModelKind,
+    #[serde(default)]
+    global: Option<StoredGlobal>,
+    #[serde(default)]
+    local: Option<StoredLocal>,
+    #[serde(default)]
+    cv: Option<CvSummary>,
+}
+
+/// A loaded (or freshly fitted) lens profile.
+#[derive(Clone, Debug)]
+pub struct Profile {
+    pub identity: CameraIdentity,
+    pub chart: Option<ChartSpec>,
+    pub norm: Normalisation,
+    pub calibrated_settings: Vec<LensSetting>,
+    /// The model [`Profile::predict`] uses.
+    pub preferred: ModelKind,
+    pub global: Option<GlobalModel>,
+    pub local: Option<LocalModel>,
+    pub cv: Option<CvSummary>,
+    /// Predict outside the calibrated range instead of failing. Off by default.
+    pub allow_extrapolation: bool,
+}
+
+/// One predicted Gaussian of a field.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FieldSample {
+    pub x: f64,
+    pub y: f64,
+    pub channel: Channel,
+    pub gaussian: Gaussian2,
+}
+
+fn encode_f32(values: &[f64]) -> String {
+    let mut bytes = Vec::with_capacity(values.len() * 4);
+    for &v in values {
+        bytes.extend_from_slice(&(v as f32).to_le_bytes());
+    }
+    base64_encode(&bytes)
+}
+
+fn decode_f32(text: &str) -> Option<Vec<f64>> {
+    let bytes = base64_decode(text)?;
+    if bytes.len() % 4 != 0 {
+        return None;
+    }
+    Some(
+        bytes
+            .chunks_exact(4)
+            .map(|c| f64::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])))
+            .collect(),
+    )
+}
+
+const B64: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+
+fn base64_encode(bytes: &[u8]) -> String {
+    let mut out = String::with_capacity(bytes.len().div_ceil(3) * 4);
+    for chunk in bytes.chunks(3) {
+        let b = [
+            chunk[0],
+            *chunk.get(1).unwrap_or(&0),
+            *chunk.get(2).unwrap_or(&0),
+        ];
+        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
+        for i in 0..4 {
+            if i <= chunk.len() {
+                out.push(B64[((n >> (18 - 6 * i)) & 63) as usize] as char);
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
+}
+
+fn base64_decode(text: &str) -> Option<Vec<u8>> {
+    let t = text.trim().trim_end_matches('=');
+    let mut out = Vec::with_capacity(t.len() * 3 / 4);
+    let mut acc = 0u32;
+    let mut bits = 0;
+    for c in t.bytes() {
+        let v = B64.iter().position(|&b| b == c)? as u32;
+        acc = (acc << 6) | v;
+        bits += 6;
+        if bits >= 8 {
+            bits -= 8;
+            out.push((acc >> bits) as u8);
+            acc &= (1 << bits) - 1;
+        }
+    }
+    Some(out)
+}
+
+fn store_channel(channel: Channel, coeffs: [&[f64]; 3]) -> StoredChannel {
+    StoredChannel {
+        channel,
+        cxx: encode_f32(coeffs[0]),
+        cyy: encode_f32(coeffs[1]),
+        cor: encode_f32(coeffs[2]),
+    }
+}
+
+fn load_channel(
+    sc: &StoredChannel,
+    expected: usize,
+    invalid: &dyn Fn(String) -> ProfileError,
+) -> Result<[Vec<f64>; 3], ProfileError> {
+    let mut out: [Vec<f64>; 3] = Default::default();
+    for (k, text) in [&sc.cxx, &sc.cyy, &sc.cor].into_iter().enumerate() {
+        let v = decode_f32(text).ok_or_else(|| {
+            invalid(format!(
+                "channel {}: coefficients are not base64 f32",
+                sc.channel
+            ))
+        })?;
+        if v.len() != expected {
+            return Err(invalid(format!(
+                "channel {}: {} coefficients, expected {expected}",
+                sc.channel,
+                v.len()
+            )));
+        }
+        if v.iter().any(|x| !x.is_finite()) {
+            return Err(invalid(format!(
+                "channel {}: non-finite coefficient",
+                sc.channel
+            )));
+        }
+        out[k] = v;
+    }
+    Ok(out)
+}
+
+impl Profile {
+    /// A profile from fitted models. `preferred` falls back to whichever model exists.
+    #[must_use]
+    pub fn new(
+        identity: CameraIdentity,
+        chart: Option<ChartSpec>,
+        calibrated_settings: Vec<LensSetting>,
+        global: Option<GlobalModel>,
+        local: Option<LocalModel>,
+        cv: Option<CvSummary>,
+        preferred: ModelKind,
+    ) -> Option<Self> {
+        let norm = global
+            .as_ref()
+            .map(|g| g.norm.clone())
+            .or_else(|| local.as_ref().map(|l| l.norm.clone()))?;
+        let preferred = match (preferred, global.is_some(), local.is_some()) {
+            (ModelKind::Global, false, _) => ModelKind::Local,
+            (ModelKind::Local, _, false) => ModelKind::Global,
+            (p, _, _) => p,
+        };
+        Some(Self {
+            identity,
+            chart,
+            norm,
+            calibrated_settings,
+            preferred,
+            global,
+            local,
+            cv,
+            allow_extrapolation: false,
+        })
+    }
+
+    fn to_file(&self) -> ProfileFile {
+        ProfileFile {
+            schema: PROFILE_SCHEMA.into(),
+            identity: self.identity.clone(),
+            chart: self.chart.clone(),
+            width: self.norm.width,
+            height: self.norm.height,
+            focal_range_mm: self.norm.focal_range_mm,
+            f_number_range: self.norm.f_number_range,
+            normalisation: "Legendre product basis; x, y: 2x/(W-1)-1, 2y/(H-1)-1 (local: (x-cx)/radius); f linear over focal_range_mm; a linear in ln(f-number) over f_number_range; a setting that does not vary has no terms".into(),
+            calibrated_settings: self.calibrated_settings.clone(),
+            preferred: self.preferred,
+            global: self.global.as_ref().map(|g| StoredGlobal {
+                alpha: g.alpha,
+                beta: g.beta,
+                terms: g.basis.len(),
+                channels: g
+                    .channels
+                    .iter()
+                    .map(|c| store_channel(c.channel, [&c.coeffs[0], &c.coeffs[1], &c.coeffs[2]]))
+                    .collect(),
+            }),
+            local: self.local.as_ref().map(|l| StoredLocal {
+                alpha: l.alpha,
+                beta: l.beta,
+                terms: l.basis.len(),
+                radius_px: l.grid.radius_px,
+                centres_x: l.grid.nx,
+                centres_y: l.grid.ny,
+                channels: l
+                    .channels
+                    .iter()
+                    .map(|(ch, centres)| {
+                        let flat = |p: usize| centres.iter().flat_map(|c| c[p].iter().copied()).collect::<Vec<f64>>();
+                        store_channel(*ch, [&flat(0), &flat(1), &flat(2)])
+                    })
+                    .collect(),
+            }),
+            cv: self.cv.clone(),
+        }
+    }
+
+    /// The profile as JSON bytes.
+    ///
+    /// # Errors
+    /// Serialisation failure (not expected).
+    pub fn to_json(&self) -> Result<Vec<u8>, ProfileError> {
+        serde_json::to_vec_pretty(&self.to_file()).map_err(|e| ProfileError::File {
+            path: "profile".into(),
+            reason: e.to_string(),
+        })
+    }
+
+    /// Writes the profile atomically: a temporary file beside `path`, then a rename.
+    ///
+    /// # Errors
+    /// The file cannot be written.
+    pub fn save(&self, path: &Path) -> Result<(), ProfileError> {
+        let bytes = self.to_json()?;
+        let err = |e: std::io::Error| ProfileError::File {
+            path: path.display().to_string(),
+            reason: e.to_string(),
+        };
+        let dir = path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        let name = path
+            .file_name()
+            .map_or_else(|| "profile".into(), |n| n.to_string_lossy().into_owned());
+        let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
+        let mut f = std::fs::File::create(&tmp).map_err(err)?;
+        f.write_all(&bytes).map_err(err)?;
+        f.sync_all().ok();
+        drop(f);
+        std::fs::rename(&tmp, path).map_err(err)
+    }
+
+    /// Reads and validates a profile.
+    ///
+    /// # Errors
+    /// Unreadable file, not JSON, a wrong schema or version, or inconsistent models.
+    pub fn load(path: &Path) -> Result<Self, ProfileError> {
+        let p = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| ProfileError::File {
+            path: p.clone(),
+            reason: e.to_string(),
+        })?;
+        Self::from_json(&text, &p)
+    }
+
+    /// Parses and validates profile JSON; `origin` names it in errors.
+    ///
+    /// # Errors
+    /// As [`Profile::load`].
+    pub fn from_json(text: &str, origin: &str) -> Result<Self, ProfileError> {
+        let value: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| ProfileError::File {
+                path: origin.into(),
+                reason: format!("not JSON: {e}"),
+            })?;
+        let schema = value
+            .get("schema")
+            .and_then(|s| s.as_str())
+            .unwrap_or("(none)");
+        if schema != PROFILE_SCHEMA {
+            return Err(ProfileError::Schema {
+                path: origin.into(),
+                found: schema.into(),
+            });
+        }
+        let file: ProfileFile =
+            serde_json::from_value(value).map_err(|e| ProfileError::Invalid {
+                path: origin.into(),
+                reason: e.to_string(),
+            })?;
+        let invalid = |reason: String| ProfileError::Invalid {
+            path: origin.into(),
+            reason,
+        };
+        if file.width < 2 || file.height < 2 {
+            return Err(invalid(format!("sensor {}×{}", file.width, file.height)));
+        }
+        let ok_range =
+            |r: [f64; 2]| r[0].is_finite() && r[1].is_finite() && r[0] > 0.0 && r[1] >= r[0];
+        if !ok_range(file.focal_range_mm) || !ok_range(file.f_number_range) {
+            return Err(invalid(
+                "calibrated ranges are not positive intervals".into(),
+            ));
+        }
+        let norm = Normalisation {
+            width: file.width,
+            height: file.height,
+            focal_range_mm: file.focal_range_mm,
+            f_number_range: file.f_number_range,
+        };
+        let check_order = |a: usize, b: usize| {
+            if a.max(b) > 15 {
+                Err(invalid(format!("model order α = {a}, β = {b} above 15")))
+            } else {
+                Ok(())
+            }
+        };
+        let global = match &file.global {
+            None => None,
+            Some(g) => {
+                check_order(g.alpha, g.beta)?;
+                let basis = model_basis(&norm, g.alpha, g.beta);
+                if basis.len() != g.terms {
+                    return Err(invalid(format!(
+                        "global model G_{{{},{}}} has {} terms, file says {}",
+                        g.alpha,
+                        g.beta,
+                        basis.len(),
+                        g.terms
+                    )));
+                }
+                let mut channels = Vec::new();
+                for sc in &g.channels {
+                    channels.push(ChannelCoeffs {
+                        channel: sc.channel,
+                        coeffs: load_channel(sc, basis.len(), &invalid)?,
+                    });
+                }
+                Some(GlobalModel {
+                    norm: norm.clone(),
+                    alpha: g.alpha,
+                    beta: g.beta,
+                    basis,
+                    channels,
+                })
+            }
+        };
+        let local = match &file.local {
+            None => None,
+            Some(l) => {
+                check_order(l.alpha, l.beta)?;
+                let basis: Basis = model_basis(&norm, l.alpha, l.beta);
+                if basis.len() != l.terms {
+                    return Err(invalid(format!(
+                        "local model L_{{{},{}}} has {} terms, file says {}",
+                        l.alpha,
+                        l.beta,
+                        basis.len(),
+                        l.terms
+                    )));
+                }
+                if l.centres_x < 2
+                    || l.centres_y < 2
+                    || l.centres_x * l.centres_y > 1_000_000
+                    || !(l.radius_px > 0.0)
+                {
+                    return Err(invalid("local model grid is malformed".into()));
+                }
+                let grid = CentreGrid {
+                    nx: l.centres_x,
+                    ny: l.centres_y,
+                    radius_px: l.radius_px,
+                    width: file.width,
+                    height: file.height,
+                };
+                let n = basis.len();
+                let mut channels = Vec::new();
+                for sc in &l.channels {
+                    let flat = load_channel(sc, n * grid.len(), &invalid)?;
+                    let centres = (0..grid.len())
+                        .map(|c| {
+                            [
+                                flat[0][c * n..(c + 1) * n].to_vec(),
+                                flat[1][c * n..(c + 1) * n].to_vec(),
+                                flat[2][c * n..(c + 1) * n].to_vec(),
+                            ]
+                        })
+                        .collect();
+                    channels.push((sc.channel, centres));
+                }
+                Some(LocalModel {
+                    norm: norm.clone(),
+                    alpha: l.alpha,
+                    beta: l.beta,
+                    grid,
+                    basis,
+                    channels,
+                })
+            }
+        };
+        if global.is_none() && local.is_none() {
+            return Err(invalid("holds neither a global nor a local model".into()));
+        }
+        let preferred = match (file.preferred, global.is_some(), local.is_some()) {
+            (ModelKind::Global, false, _) | (ModelKind::Local, _, false) => {
+                return Err(invalid(format!(
+                    "preferred model {:?} is missing",
+                    file.preferred
+                )));
+            }
+            (p, _, _) => p,
+        };
+        Ok(Self {
+            identity: file.identity,
+            chart: file.chart,
+            norm,
+            calibrated_settings: file.calibrated_settings,
+            preferred,
+            global,
+            local,
+            cv: file.cv,
+            allow_extrapolation: false,
+        })
+    }
+
+    /// Refuses a photo from another camera or lens unit: any identity field present on
+    /// both sides must agree. Returns warnings for fields the photo lacks. With `force`,
+    /// mismatches become warnings too.
+    ///
+    /// # Errors
+    /// [`ProfileError::IdentityMismatch`] naming the first differing field.
+    pub fn check_identity(
+        &self,
+        photo: &CameraIdentity,
+        force: bool,
+    ) -> Result<Vec<String>, ProfileError> {
+        let fields = [
+            ("make", &self.identity.make, &photo.make),
+            ("model", &self.identity.model, &photo.model),
+            (
+                "body serial",
+                &self.identity.body_serial,
+                &photo.body_serial,
+            ),
+            ("lens", &self.identity.lens_model, &photo.lens_model),
+            (
+                "lens serial",
+                &self.identity.lens_serial,
+                &photo.lens_serial,
+            ),
+        ];
+        let mut warnings = Vec::new();
+        for (name, mine, theirs) in fields {
+            match (mine, theirs) {
+                (Some(a), Some(b)) if a.trim() != b.trim() => {
+                    let e = ProfileError::IdentityMismatch {
+                        field: name.into(),
+                        profile: a.clone(),
+                        photo: b.clone(),
+                    };
+                    if force {
+                        warnings.push(e.to_string());
+                    } else {
+                        return Err(e);
+                    }
+                }
+                (Some(a), None) => warnings.push(format!(
+                    "the photo does not record its {name}; the profile is for '{a}'"
+                )),
+                _ => {}
+            }
+        }
+        Ok(warnings)
+    }
+
+    /// Checks a setting against the calibrated range.
+    ///
+    /// # Errors
+    /// [`ProfileError::OutOfRange`] unless extrapolation is allowed.
+    pub fn check_setting(&self, s: LensSetting) -> Result<(), ProfileError> {
+        if self.allow_extrapolation || self.norm.contains(s) {
+            return Ok(());
+        }
+        Err(ProfileError::OutOfRange {
+            focal_mm: s.focal_mm,
+            f_number: s.f_number,
+            f0: self.norm.focal_range_mm[0],
+            f1: self.norm.focal_range_mm[1],
+            a0: self.norm.f_number_range[0],
+            a1: self.norm.f_number_range[1],
+        })
+    }
+
+    /// The pixel-level Gaussian at sensor (x, y) for a setting, from the preferred model.
+    ///
+    /// # Errors
+    /// A setting outside the calibrated range, or a channel the profile lacks.
+    pub fn predict(
+        &self,
+        channel: Channel,
+        x: f64,
+        y: f64,
+        setting: LensSetting,
+    ) -> Result<Gaussian2, ProfileError> {
+        self.predict_with(self.preferred, channel, x, y, setting)
+    }
+
+    /// As [`Profile::predict`] with a chosen model family.
+    ///
+    /// # Errors
+    /// As [`Profile::predict`], and a missing family.
+    pub fn predict_with(
+        &self,
+        kind: ModelKind,
+        channel: Channel,
+        x: f64,
+        y: f64,
+        setting: LensSetting,
+    ) -> Result<Gaussian2, ProfileError> {
+        self.check_setting(setting)?;
+        let p = match kind {
+            ModelKind::Global => self
+                .global
+                .as_ref()
+                .ok_or(ProfileError::NoModel(kind))?
+                .predict(channel, x, y, setting),
+            ModelKind::Local => self
+                .local
+                .as_ref()
+                .ok_or(ProfileError::NoModel(kind))?
+                .predict(channel, x, y, setting),
+        };
+        p.map(to_gaussian).ok_or(ProfileError::NoChannel(channel))
+    }
+
+    /// The channels the preferred model holds.
+    #[must_use]
+    pub fn channels(&self) -> Vec<Channel> {
+        match self.preferred {
+            ModelKind::Global => self
+                .global
+                .as_ref()
+                .map(|g| g.channels.iter().map(|c| c.channel).collect()),
+            ModelKind::Local => self
+                .local
+                .as_ref()
+                .map(|l| l.channels.iter().map(|c| c.0).collect()),
+        }
+        .unwrap_or_default()
+    }
+
+    /// The predicted field every `step_px` pixels (from pixel 0, plus the last row and
+    /// column), every channel, row-major per channel.
+    ///
+    /// # Errors
+    /// As [`Profile::predict`].
+    pub fn predict_field(
+        &self,
+        setting: LensSetting,
+        step_px: usize,
+    ) -> Result<Vec<FieldSample>, ProfileError> {
+        self.check_setting(setting)?;
+        let step = step_px.max(1);
+        let axis = |len: usize| {
+            let mut v: Vec<f64> = (0..len).step_by(step).map(|i| i as f64).collect();
+            if (len - 1) % step != 0 {
+                v.push((len - 1) as f64);
+            }
+            v
+        };
+        let xs = axis(self.norm.width);
+        let ys = axis(self.norm.height);
+        let mut out = Vec::with_capacity(xs.len() * ys.len() * 3);
+        for ch in self.channels() {
+            for &y in &ys {
+                for &x in &xs {
+                    out.push(FieldSample {
+                        x,
+                        y,
+                        channel: ch,
+                        gaussian: self.predict(ch, x, y, setting)?,
+                    });
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Builds a profile from cross-validation: fits both families at their chosen
+    /// (α, β) and prefers the one with the lower CV error.
+    #[must_use]
+    pub fn preferred_from(report: &CvReport) -> ModelKind {
+        report.best().map_or(ModelKind::Global, |b| b.0)
+    }
+}
+
+/// Which model families to fit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Families {
+    Global,
+    Local,
+    Both,
+}
+
+/// What `calibrate` fits.
+#[derive(Clone, Debug)]
+pub struct CalibrateOptions {
+    pub families: Families,
+    /// Fixed α (skips cross-validated selection); β defaults to N − 1.
+    pub alpha: Option<usize>,
+    pub beta: Option<usize>,
+    pub cv: crate::crossval::CvOptions,
+}
+
+impl Default for CalibrateOptions {
+    fn default() -> Self {
+        Self {
+            families: Families::Both,
+            alpha: None,
+            beta: None,
+            cv: crate::crossval::CvOptions::default(),
+        }
+    }
+}
+
+/// Fits the requested families (α, β chosen by cross-validation unless given) and
+/// assembles the profile. Returns the cross-validation report when one was run.
+///
+/// # Errors
+/// Unknown settings, β too large for the session, too few shots for cross-validation,
+/// too few samples, or cancellation.
+pub fn calibrate(
+    ds: &crate::model::Dataset,
+    chart: Option<ChartSpec>,
+    opts: &CalibrateOptions,
+    job: &crate::job::JobContext,
+) -> Result<(Profile, Option<CvReport>), crate::model::ModelError> {
+    use crate::model::ModelError;
+    ds.validate()?;
+    let n = ds.setting_resolution();
+    if let Some(b) = opts.beta {
+        ds.check_beta(b)?;
+    }
+    if let Some(a) = opts.alpha
+        && a.max(opts.beta.unwrap_or(0)) > 15
+    {
+        return Err(ModelError::TooFewSamples {
+            model: format!("order {a} (at most 15)"),
+            samples: 0,
+            terms: 0,
+        });
+    }
+    let want_global = opts.families != Families::Local;
+    let want_local = opts.families != Families::Global;
+    let (report, g_ab, l_ab) = if let Some(alpha) = opts.alpha {
+        let beta = opts.beta.unwrap_or(n - 1);
+        (None, (alpha, beta), (alpha, beta))
+    } else {
+        let mut cv = opts.cv.clone();
+        cv.run_global = want_global;
+        cv.run_local = want_local;
+        let r = crate::crossval::cross_validate(ds, &cv, job)?;
+        let pick = |s: &Option<crate::crossval::Selection>| {
+            s.as_ref()
+                .map_or((1, 0), |s| (s.alpha, opts.beta.unwrap_or(s.beta)))
+        };
+        let (g, l) = (pick(&r.global), pick(&r.local));
+        (Some(r), g, l)
+    };
+    job.check()?;
+    job.report("fitting", 0, 2);
+    let global = if want_global {
+        Some(GlobalModel::fit(ds, g_ab.0, g_ab.1)?)
+    } else {
+        None
+    };
+    job.report("fitting", 1, 2);
+    let local = if want_local {
+        Some(LocalModel::fit(ds, l_ab.0, l_ab.1, &opts.cv.local)?)
+    } else {
+        None
+    };
+    job.report("fitting", 2, 2);
+    let preferred = report.as_ref().map_or(
+        if want_local {
+            ModelKind::Local
+        } else {
+            ModelKind::Global
+        },
+        Profile::preferred_from,
+    );
+    let mut settings: Vec<LensSetting> = ds
+        .shots
+        .iter()
+        .map(|s| LensSetting {
+            focal_mm: s.focal_mm,
+            f_number: s.f_number,
+        })
+        .collect();
+    settings.sort_by(|a, b| {
+        a.focal_mm
+            .total_cmp(&b.focal_mm)
+            .then(a.f_number.total_cmp(&b.f_number))
+    });
+    settings.dedup_by(|a, b| {
+        (a.focal_mm - b.focal_mm).abs() < 1e-6 && (a.f_number - b.f_number).abs() < 1e-6
+    });
+    let cv = report.as_ref().map(CvSummary::from_report);
+    let profile = Profile::new(
+        ds.identity.clone(),
+        chart,
+        settings,
+        global,
+        local,
+        cv,
+        preferred,
+    )
+    .ok_or(ModelError::Empty)?;
+    Ok((profile, report))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn base64_round_trips() {
+        for n in 0..7 {
+            let bytes: Vec<u8> = (0..n).map(|i| (i * 37 + 11) as u8).collect();
+            assert_eq!(base64_decode(&base64_encode(&bytes)).unwrap(), bytes);
+        }
+        assert_eq!(base64_encode(b"Man"), "TWFu");
+        assert_eq!(base64_encode(b"Ma"), "TWE=");
+        let v = vec![1.5, -2.25e-5, 3.0e7];
+        let back = decode_f32(&encode_f32(&v)).unwrap();
+        for (a, b) in v.iter().zip(&back) {
+            assert!((a - b).abs() <= 1e-7 * a.abs());
+        }
+    }
+}

@@ -1,0 +1,577 @@
+//! A calibration session as the studio keeps it: the shots, their lens settings, the
+//! chart, the stage settings, and where each stage's results live.
+//!
+//! A session is a folder: `session.json` plus one results file per shot and stage under
+//! `results/`. The studio rewrites `session.json` (atomically) every time the session
+//! changes, so quitting or a crash loses nothing. A session exports the manifest of
+//! DESIGN.md §3, which is what the command-line stages read.
+//!
+//! This module is core: it never touches egui.
+
+use crate::chart::ChartSpec;
+use crate::plane::LensSetting;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+pub const SESSION_FILE: &str = "session.json";
+pub const SCHEMA: &str = "lensblur.session/1";
+
+/// File types a shot may have (RAW formats rawloader reads, DNG, TIFF, PNG, JPEG).
+pub const SHOT_EXTENSIONS: &[&str] = &[
+    "dng", "tif", "tiff", "png", "jpg", "jpeg", "cr2", "cr3", "nef", "arw", "orf", "rw2", "pef",
+    "raf", "srw", "mrw", "3fr", "erf", "kdc", "dcr", "mef", "nrw", "rwl", "iiq",
+];
+
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    #[error("{path}: cannot read: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: not a session or manifest: {reason}")]
+    Parse { path: PathBuf, reason: String },
+    #[error("{path}: cannot write: {source}")]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: unsupported file type (expected RAW, DNG, TIFF, PNG or JPEG)")]
+    Unsupported { path: PathBuf },
+    #[error("{path}: already in the session")]
+    Duplicate { path: PathBuf },
+    #[error("{path}: no such file")]
+    Missing { path: PathBuf },
+}
+
+/// Parameters of the stages, as the user set them.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StageSettings {
+    /// Kernel super-resolution factor (the paper uses 3).
+    #[serde(default = "default_oversample")]
+    pub oversample: usize,
+    /// Weight every sub-pixel (W = I) instead of only the real pixel centres.
+    #[serde(default)]
+    pub weight_all_subpixels: bool,
+    /// Fixed model complexity; `None` lets cross-validation choose.
+    #[serde(default)]
+    pub alpha: Option<usize>,
+    #[serde(default)]
+    pub beta: Option<usize>,
+    /// Deconvolution method: "hqs", "irls" or "wiener".
+    #[serde(default = "default_method")]
+    pub deblur_method: String,
+}
+
+fn default_oversample() -> usize {
+    3
+}
+fn default_method() -> String {
+    "hqs".into()
+}
+
+impl Default for StageSettings {
+    fn default() -> Self {
+        Self {
+            oversample: default_oversample(),
+            weight_all_subpixels: false,
+            alpha: None,
+            beta: None,
+            deblur_method: default_method(),
+        }
+    }
+}
+
+/// Where one stage stands for one shot.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "state", rename_all = "snake_case")]
+pub enum StageStatus {
+    #[default]
+    Pending,
+    /// Finished; `summary` is a short line for the shot list ("352 squares").
+    Done { summary: String },
+    /// Failed with a one-line reason naming the file.
+    Failed { reason: String },
+}
+
+impl StageStatus {
+    #[must_use]
+    pub fn is_done(&self) -> bool {
+        matches!(self, StageStatus::Done { .. })
+    }
+}
+
+/// One calibration shot.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Shot {
+    /// Relative to the session folder when the file is inside it, absolute otherwise.
+    pub path: PathBuf,
+    /// Settings from EXIF or typed by the user; `None` where unknown.
+    #[serde(default)]
+    pub focal_mm: Option<f64>,
+    #[serde(default)]
+    pub f_number: Option<f64>,
+    #[serde(default)]
+    pub detect: StageStatus,
+    #[serde(default)]
+    pub kernels: StageStatus,
+}
+
+impl Shot {
+    #[must_use]
+    pub fn setting(&self) -> Option<LensSetting> {
+        Some(LensSetting {
+            focal_mm: self.focal_mm?,
+            f_number: self.f_number?,
+        })
+    }
+
+    /// The file name without its extension, used to name the shot's results files.
+    #[must_use]
+    pub fn stem(&self) -> String {
+        self.path
+            .file_stem()
+            .map_or_else(|| "shot".into(), |s| s.to_string_lossy().into_owned())
+    }
+}
+
+/// A session: see the module documentation.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Session {
+    pub schema: String,
+    /// Shown in the title bar.
+    pub name: String,
+    pub chart: ChartSpec,
+    #[serde(default)]
+    pub settings: StageSettings,
+    #[serde(default)]
+    pub shots: Vec<Shot>,
+    /// The lens profile last calibrated or loaded, relative to the folder.
+    #[serde(default)]
+    pub profile: Option<PathBuf>,
+    /// True for the built-in demo session, whose ground truth is known.
+    #[serde(default)]
+    pub is_demo: bool,
+    #[serde(skip)]
+    folder: PathBuf,
+}
+
+#[derive(Deserialize)]
+struct ManifestShot {
+    path: PathBuf,
+    #[serde(default)]
+    focal_mm: Option<f64>,
+    #[serde(default)]
+    f_number: Option<f64>,
+}
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum ChartRef {
+    Spec(ChartSpec),
+    Path(PathBuf),
+}
+
+#[derive(Deserialize)]
+struct Manifest {
+    #[serde(default)]
+    chart: Option<ChartRef>,
+    shots: Vec<ManifestShot>,
+}
+
+impl Session {
+    /// An empty session that will be saved in `folder`.
+    #[must_use]
+    pub fn new(folder: &Path) -> Self {
+        let name = folder
+            .file_name()
+            .map_or_else(|| "session".into(), |s| s.to_string_lossy().into_owned());
+        Self {
+            schema: SCHEMA.into(),
+            name,
+            chart: ChartSpec::default(),
+            settings: StageSettings::default(),
+            shots: Vec::new(),
+            profile: None,
+            is_demo: false,
+            folder: folder.to_path_buf(),
+        }
+    }
+
+    #[must_use]
+    pub fn folder(&self) -> &Path {
+        &self.folder
+    }
+
+    /// Opens a session folder, a `session.json`, or a manifest (DESIGN.md §3), which
+    /// becomes a session in the manifest's folder. A folder without `session.json` is a
+    /// new, empty session there.
+    ///
+    /// # Errors
+    /// The file cannot be read or is neither a session nor a manifest.
+    pub fn open(path: &Path) -> Result<Self, SessionError> {
+        if path.is_dir() {
+            let file = path.join(SESSION_FILE);
+            if file.is_file() {
+                return Self::open(&file);
+            }
+            let manifest = path.join("manifest.json");
+            if manifest.is_file() {
+                return Self::open(&manifest);
+            }
+            return Ok(Self::new(path));
+        }
+        if !path.exists() {
+            return Err(SessionError::Missing {
+                path: path.to_path_buf(),
+            });
+        }
+        let text = std::fs::read_to_string(path).map_err(|source| SessionError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let folder = path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."))
+            .to_path_buf();
+        let value: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| SessionError::Parse {
+                path: path.to_path_buf(),
+                reason: e.to_string(),
+            })?;
+        if value.get("schema").and_then(|s| s.as_str()) == Some(SCHEMA) {
+            let mut s: Session =
+                serde_json::from_value(value).map_err(|e| SessionError::Parse {
+                    path: path.to_path_buf(),
+                    reason: e.to_string(),
+                })?;
+            s.folder = folder;
+            return Ok(s);
+        }
+        let m: Manifest = serde_json::from_value(value).map_err(|e| SessionError::Parse {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+        let mut s = Self::new(&folder);
+        s.chart = match m.chart {
+            None => ChartSpec::default(),
+            Some(ChartRef::Spec(c)) => c,
+            Some(ChartRef::Path(p)) => {
+                let p = if p.is_absolute() { p } else { folder.join(p) };
+                ChartSpec::load(&p).map_err(|e| SessionError::Parse {
+                    path: p.clone(),
+                    reason: e.to_string(),
+                })?
+            }
+        };
+        s.shots = m
+            .shots
+            .into_iter()
+            .map(|ms| Shot {
+                path: ms.path,
+                focal_mm: ms.focal_mm,
+                f_number: ms.f_number,
+                ..Shot::blank()
+            })
+            .collect();
+        Ok(s)
+    }
+
+    /// Writes `session.json` atomically (temporary file, then rename).
+    ///
+    /// # Errors
+    /// The folder cannot be created or the file written.
+    pub fn save(&self) -> Result<(), SessionError> {
+        std::fs::create_dir_all(&self.folder).map_err(|source| SessionError::Write {
+            path: self.folder.clone(),
+            source,
+        })?;
+        let text = serde_json::to_vec_pretty(self).map_err(|e| SessionError::Write {
+            path: self.folder.join(SESSION_FILE),
+            source: std::io::Error::other(e),
+        })?;
+        write_atomic(&self.folder.join(SESSION_FILE), &text)
+    }
+
+    /// Adds a shot file (its settings unknown until read from EXIF or typed).
+    ///
+    /// # Errors
+    /// The file is missing, of an unsupported type, or already in the session.
+    pub fn add_shot(&mut self, path: &Path) -> Result<usize, SessionError> {
+        if !path.is_file() {
+            return Err(SessionError::Missing {
+                path: path.to_path_buf(),
+            });
+        }
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase())
+            .unwrap_or_default();
+        if !SHOT_EXTENSIONS.contains(&ext.as_str()) {
+            return Err(SessionError::Unsupported {
+                path: path.to_path_buf(),
+            });
+        }
+        let abs = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf());
+        if (0..self.shots.len()).any(|i| {
+            std::fs::canonicalize(self.shot_path(i)).ok().as_deref() == Some(abs.as_path())
+        }) {
+            return Err(SessionError::Duplicate {
+                path: path.to_path_buf(),
+            });
+        }
+        let folder = std::fs::canonicalize(&self.folder).unwrap_or_else(|_| self.folder.clone());
+        let stored = abs
+            .strip_prefix(&folder)
+            .map_or_else(|_| abs.clone(), Path::to_path_buf);
+        self.shots.push(Shot {
+            path: stored,
+            ..Shot::blank()
+        });
+        Ok(self.shots.len() - 1)
+    }
+
+    /// The absolute (or working-directory-relative) path of shot `index`.
+    #[must_use]
+    pub fn shot_path(&self, index: usize) -> PathBuf {
+        let p = &self.shots[index].path;
+        if p.is_absolute() {
+            p.clone()
+        } else {
+            self.folder.join(p)
+        }
+    }
+
+    /// Where shot `index` keeps the results of `stage` ("detect", "kernels").
+    #[must_use]
+    pub fn result_path(&self, index: usize, stage: &str) -> PathBuf {
+        self.folder.join("results").join(format!(
+            "{:03}-{}.{stage}.json",
+            index,
+            self.shots[index].stem()
+        ))
+    }
+
+    /// The session's manifest (DESIGN.md §3); shot paths absolute so it can live anywhere.
+    #[must_use]
+    pub fn manifest(&self) -> serde_json::Value {
+        let shots: Vec<serde_json::Value> = (0..self.shots.len())
+            .map(|i| {
+                let s = &self.shots[i];
+                let mut o = serde_json::json!({ "path": self.shot_path(i) });
+                if let Some(f) = s.focal_mm {
+                    o["focal_mm"] = f.into();
+                }
+                if let Some(a) = s.f_number {
+                    o["f_number"] = a.into();
+                }
+                o
+            })
+            .collect();
+        serde_json::json!({ "chart": self.chart, "shots": shots })
+    }
+
+    /// Writes the manifest beside `session.json` and returns its path.
+    ///
+    /// # Errors
+    /// The file cannot be written.
+    pub fn write_manifest(&self) -> Result<PathBuf, SessionError> {
+        let path = self.folder.join("manifest.json");
+        let text =
+            serde_json::to_vec_pretty(&self.manifest()).map_err(|e| SessionError::Write {
+                path: path.clone(),
+                source: std::io::Error::other(e),
+            })?;
+        std::fs::create_dir_all(&self.folder).map_err(|source| SessionError::Write {
+            path: self.folder.clone(),
+            source,
+        })?;
+        write_atomic(&path, &text)?;
+        Ok(path)
+    }
+
+    /// Distinct focal lengths and apertures of the shots with known settings, sorted.
+    #[must_use]
+    pub fn setting_grid(&self) -> (Vec<f64>, Vec<f64>) {
+        let mut f: Vec<f64> = self.shots.iter().filter_map(|s| s.focal_mm).collect();
+        let mut a: Vec<f64> = self.shots.iter().filter_map(|s| s.f_number).collect();
+        for v in [&mut f, &mut a] {
+            v.sort_by(f64::total_cmp);
+            v.dedup_by(|x, y| (*x - *y).abs() < 1e-9);
+        }
+        (f, a)
+    }
+}
+
+impl Shot {
+    fn blank() -> Self {
+        Shot {
+            path: PathBuf::new(),
+            focal_mm: None,
+            f_number: None,
+            detect: StageStatus::Pending,
+            kernels: StageStatus::Pending,
+        }
+    }
+}
+
+/// Where the demo session is cached: `$XDG_DATA_HOME/lensblur/demo`, else
+/// `~/.local/share/lensblur/demo`, else a folder under the temporary directory.
+#[must_use]
+pub fn default_demo_dir() -> PathBuf {
+    let base = std::env::var_os("XDG_DATA_HOME")
+        .filter(|v| !v.is_empty())
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".local").join("share")))
+        .unwrap_or_else(std::env::temp_dir);
+    base.join("lensblur").join("demo")
+}
+
+/// The size and settings of a demo session.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DemoSpec {
+    pub width: usize,
+    pub height: usize,
+    pub settings: Vec<LensSetting>,
+    pub seed: u64,
+}
+
+impl DemoSpec {
+    /// What the studio makes on first launch: modest shots, a 3 × 3 grid of settings
+    /// (enough for a β = 2 model).
+    #[must_use]
+    pub fn studio() -> Self {
+        Self::grid(1200, 800, &[24.0, 50.0, 105.0], &[4.0, 5.6, 10.0])
+    }
+
+    /// A small demo for tests: 600 × 400 shots at a 2 × 2 grid of settings.
+    #[must_use]
+    pub fn small() -> Self {
+        Self::grid(600, 400, &[24.0, 105.0], &[4.0, 10.0])
+    }
+
+    #[must_use]
+    pub fn grid(width: usize, height: usize, focal_mm: &[f64], f_number: &[f64]) -> Self {
+        let settings = focal_mm
+            .iter()
+            .flat_map(|&f| {
+                f_number.iter().map(move |&a| LensSetting {
+                    focal_mm: f,
+                    f_number: a,
+                })
+            })
+            .collect();
+        Self {
+            width,
+            height,
+            settings,
+            seed: 7,
+        }
+    }
+
+    /// The chart for a demo of this size: fewer squares on small shots so each square
+    /// still spans enough pixels to measure a kernel.
+    #[must_use]
+    pub fn chart(&self) -> ChartSpec {
+        let mut c = ChartSpec::default();
+        if self.width < 1000 {
+            c.cols = 12;
+            c.rows = 8;
+        }
+        c
+    }
+
+    /// File name of the demo shot for a setting.
+    #[must_use]
+    pub fn shot_name(s: LensSetting) -> String {
+        format!("demo_f{:03.0}_a{:04.1}.dng", s.focal_mm, s.f_number)
+    }
+}
+
+/// Makes (or remakes) the demo session in `dir`: simulated calibration shots of the
+/// virtual lens at `spec`'s settings, their manifest and ground truth.
+///
+/// # Errors
+/// The simulator failed, the folder cannot be written, or the job was cancelled.
+pub fn make_demo(
+    dir: &Path,
+    spec: &DemoSpec,
+    job: &crate::job::JobContext,
+) -> Result<Session, SessionError> {
+    let _ = (spec, job);
+    Err(SessionError::Parse {
+        path: dir.to_path_buf(),
+        reason: "the simulator is not in this build yet".into(),
+    })
+}
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), SessionError> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
+    let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
+    std::fs::write(&tmp, bytes).map_err(|source| SessionError::Write {
+        path: tmp.clone(),
+        source,
+    })?;
+    std::fs::rename(&tmp, path).map_err(|source| SessionError::Write {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn save_open_round_trip_and_manifest() {
+        let dir = tempfile::tempdir().unwrap();
+        let shot = dir.path().join("a.png");
+        std::fs::write(&shot, b"x").unwrap();
+        let mut s = Session::new(dir.path());
+        assert_eq!(s.add_shot(&shot).unwrap(), 0);
+        assert!(matches!(
+            s.add_shot(&shot),
+            Err(SessionError::Duplicate { .. })
+        ));
+        let txt = dir.path().join("notes.txt");
+        std::fs::write(&txt, b"x").unwrap();
+        assert!(matches!(
+            s.add_shot(&txt),
+            Err(SessionError::Unsupported { .. })
+        ));
+        assert_eq!(s.shots[0].path, PathBuf::from("a.png"));
+        s.shots[0].focal_mm = Some(35.0);
+        s.shots[0].detect = StageStatus::Done {
+            summary: "96 squares".into(),
+        };
+        s.save().unwrap();
+        let back = Session::open(dir.path()).unwrap();
+        assert_eq!(back, s);
+        let m = s.write_manifest().unwrap();
+        std::fs::remove_file(dir.path().join(SESSION_FILE)).unwrap();
+        let from_manifest = Session::open(&m).unwrap();
+        assert_eq!(from_manifest.shots.len(), 1);
+        assert_eq!(from_manifest.shots[0].focal_mm, Some(35.0));
+        assert_eq!(from_manifest.shots[0].f_number, None);
+    }
+
+    #[test]
+    fn bad_files_are_one_line_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let bad = dir.path().join("session.json");
+        std::fs::write(&bad, b"{ not json").unwrap();
+        let e = Session::open(&bad).unwrap_err().to_string();
+        assert!(e.contains("session.json") && !e.contains('\n'), "{e}");
+        let e = Session::open(&dir.path().join("nope.json"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("no such file"), "{e}");
+    }
+}

@@ -1,0 +1,11 @@
+//! The simulator: a virtual lens and a capture model that feed the tests, benchmarks
+//! and the studio's demo session with exact ground truth.
+
+pub mod capture;
+pub mod lens;
+
+pub use capture::{
+    CaptureParams, NoiseModel, Pose, PsfField, ShotTruth, SimulateError, SimulatedShot,
+    SquareTruth, capture_from_raw, simulate_shot,
+};
+pub use lens::{PsfShape, VirtualLens};

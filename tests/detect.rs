@@ -1,0 +1,420 @@
+//! Detection and alignment against exact ground truth on small synthetic shots: the
+//! chart rasterised exactly at 4× under a pose, blurred by a Gaussian, integrated over
+//! pixels (box down-sampling), with Poisson–Gaussian noise.
+
+use lensblur::chart::{ChartSpec, rasterize};
+use lensblur::detect::{DetectError, DetectParams, SquareStatus, detect};
+use lensblur::geometry::Homography;
+use lensblur::job::JobContext;
+use lensblur::plane::{Capture, Channel, ChannelPlane, Plane};
+use rand::SeedableRng;
+use rand_distr::{Distribution, Normal};
+
+fn blur(data: &[f64], w: usize, h: usize, sigma: f64) -> Vec<f64> {
+    lensblur::detect::filter::gaussian_blur(data, w, h, sigma)
+}
+
+/// Grey shot of `spec` under `image_from_chart`: optical Gaussian σ (sensor px), then
+/// pixel integration, black/white levels, noise.
+fn shot(
+    spec: &ChartSpec,
+    image_from_chart: &Homography,
+    w: usize,
+    h: usize,
+    sigma_px: f64,
+    seed: u64,
+) -> Plane {
+    let s = 4usize;
+    let off = (s as f64 - 1.0) / 2.0;
+    let fine_from_image =
+        Homography::translation(off, off).compose(&Homography::scaling(s as f64, s as f64));
+    let fine = rasterize(
+        spec,
+        &fine_from_image.compose(image_from_chart),
+        w * s,
+        h * s,
+        0.5,
+    );
+    let d: Vec<f64> = fine.data.iter().map(|&v| f64::from(v)).collect();
+    let d = blur(&d, w * s, h * s, sigma_px * s as f64);
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+    let (black, white) = (0.05, 0.8);
+    let read = Normal::new(0.0, 0.002).unwrap_or_else(|_| unreachable!());
+    let std_normal = Normal::new(0.0, 1.0).unwrap_or_else(|_| unreachable!());
+    Plane::from_fn(w, h, |x, y| {
+        let mut acc = 0.0;
+        for j in 0..s {
+            for i in 0..s {
+                acc += d[(y * s + j) * w * s + x * s + i];
+            }
+        }
+        let v = black + (white - black) * acc / (s * s) as f64;
+        // Shot noise at a full-well of 20 000 electrons.
+        let shot_sd = (v / 20_000.0).sqrt();
+        (v + shot_sd * std_normal.sample(&mut rng) + read.sample(&mut rng)) as f32
+    })
+}
+
+fn mono(plane: Plane) -> Capture {
+    Capture {
+        width: plane.width,
+        height: plane.height,
+        planes: vec![ChannelPlane {
+            channel: Channel::Y,
+            plane,
+            step: 1,
+            offset_x: 0,
+            offset_y: 0,
+        }],
+        setting_focal_mm: None,
+        setting_f_number: None,
+        identity: Default::default(),
+        is_raw: false,
+    }
+}
+
+/// A chart pose: scale px per square, rotation (degrees), mild perspective.
+fn pose(spec: &ChartSpec, w: usize, h: usize, px_per_square: f64, rot_deg: f64) -> Homography {
+    let (c, s) = (rot_deg.to_radians().cos(), rot_deg.to_radians().sin());
+    let centre = Homography::translation(-(spec.cols as f64) / 2.0, -(spec.rows as f64) / 2.0);
+    let rs = Homography::from_row_major([
+        px_per_square * c,
+        -px_per_square * s,
+        0.0,
+        px_per_square * s,
+        px_per_square * c,
+        0.0,
+        2e-3,
+        -1.5e-3,
+        1.0,
+    ]);
+    Homography::translation(w as f64 / 2.0 + 0.37, h as f64 / 2.0 - 0.21)
+        .compose(&rs)
+        .compose(&centre)
+}
+
+struct Errors {
+    boot_rms: f64,
+    refined_rms: f64,
+    ok: usize,
+}
+
+fn corner_errors(
+    spec: &ChartSpec,
+    truth: &Homography,
+    det: &lensblur::detect::Detection,
+) -> Errors {
+    let (mut e_b, mut e_r, mut n) = (0.0, 0.0, 0usize);
+    for sq in det.ok_squares() {
+        let chart = spec.square_corners(sq.col, sq.row);
+        for k in 0..4 {
+            let t = truth.apply(chart[k]);
+            e_b += (sq.bootstrap_corners[k][0] - t[0]).powi(2)
+                + (sq.bootstrap_corners[k][1] - t[1]).powi(2);
+            e_r += (sq.corners[k][0] - t[0]).powi(2) + (sq.corners[k][1] - t[1]).powi(2);
+            n += 1;
+        }
+    }
+    Errors {
+        boot_rms: (e_b / n.max(1) as f64).sqrt(),
+        refined_rms: (e_r / n.max(1) as f64).sqrt(),
+        ok: n / 4,
+    }
+}
+
+fn small_chart() -> ChartSpec {
+    ChartSpec {
+        cols: 12,
+        rows: 8,
+        ..ChartSpec::default()
+    }
+}
+
+fn run_case(sigma_px: f64, rot_deg: f64, seed: u64) -> Errors {
+    let spec = small_chart();
+    let (w, h) = (480, 340);
+    let truth = pose(&spec, w, h, 34.0, rot_deg);
+    let cap = mono(shot(&spec, &truth, w, h, sigma_px, seed));
+    let det =
+        detect(&cap, &spec, &DetectParams::default(), &JobContext::silent()).expect("chart found");
+    assert_eq!(det.squares.len(), spec.cols * spec.rows);
+    let e = corner_errors(&spec, &truth, &det);
+    let skipped: Vec<_> = det
+        .squares
+        .iter()
+        .filter(|s| s.status == SquareStatus::Skipped)
+        .map(|s| (s.col, s.row, s.reason.clone()))
+        .collect();
+    eprintln!(
+        "σ {sigma_px} rot {rot_deg}: ok {} bootstrap RMS {:.4} px, refined RMS {:.4} px; skipped {skipped:?}",
+        e.ok, e.boot_rms, e.refined_rms
+    );
+    assert_eq!(
+        e.ok,
+        spec.cols * spec.rows,
+        "every square is fully in frame"
+    );
+    e
+}
+
+#[test]
+fn sharp_square_corners_within_three_hundredths() {
+    let e = run_case(0.7, 1.5, 1);
+    assert!(
+        e.refined_rms <= 0.03,
+        "refined corner RMS {} px",
+        e.refined_rms
+    );
+}
+
+#[test]
+fn blurred_square_corners_within_three_hundredths() {
+    let e = run_case(3.0, -2.0, 2);
+    assert!(
+        e.refined_rms <= 0.03,
+        "refined corner RMS {} px",
+        e.refined_rms
+    );
+}
+
+#[test]
+fn no_chart_is_an_error() {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+    let n = Normal::new(0.4, 0.05).unwrap_or_else(|_| unreachable!());
+    let p = Plane::from_fn(320, 240, |x, y| {
+        (n.sample(&mut rng) + 0.2 * ((x as f64 / 40.0).sin() * (y as f64 / 30.0).cos())) as f32
+    });
+    let p = {
+        let d: Vec<f64> = p.data.iter().map(|&v| f64::from(v)).collect();
+        let b = blur(&d, 320, 240, 1.0);
+        Plane {
+            width: 320,
+            height: 240,
+            data: b.iter().map(|&v| v as f32).collect(),
+        }
+    };
+    let r = detect(
+        &mono(p),
+        &ChartSpec::default(),
+        &DetectParams::default(),
+        &JobContext::silent(),
+    );
+    match r {
+        Err(e @ DetectError::NoChart) => assert_eq!(e.to_string(), "no chart found"),
+        other => panic!(
+            "expected no chart, got {:?}",
+            other.map(|d| d.ok_squares().count())
+        ),
+    }
+}
+
+/// A Bayer (RGGB) capture: each channel blurred by its own σ and gain, then mosaicked
+/// into four CFA planes.
+fn bayer(
+    spec: &ChartSpec,
+    truth: &Homography,
+    w: usize,
+    h: usize,
+    sigmas: [f64; 3],
+    gains: [f32; 3],
+    seed: u64,
+) -> Capture {
+    let chans: Vec<Plane> = (0..3)
+        .map(|c| shot(spec, truth, w, h, sigmas[c], seed + c as u64))
+        .collect();
+    let layout = [
+        (Channel::R, 0usize, 0usize, 0usize),
+        (Channel::G, 1, 1, 0),
+        (Channel::G, 1, 0, 1),
+        (Channel::B, 2, 1, 1),
+    ];
+    let planes = layout
+        .iter()
+        .map(|&(channel, c, ox, oy)| {
+            let plane = Plane::from_fn(w / 2, h / 2, |i, j| {
+                chans[c].get(2 * i + ox, 2 * j + oy) * gains[c]
+            });
+            ChannelPlane {
+                channel,
+                plane,
+                step: 2,
+                offset_x: ox,
+                offset_y: oy,
+            }
+        })
+        .collect();
+    Capture {
+        width: w,
+        height: h,
+        planes,
+        setting_focal_mm: None,
+        setting_f_number: None,
+        identity: Default::default(),
+        is_raw: true,
+    }
+}
+
+#[test]
+fn bayer_planes_are_aligned_in_place() {
+    let spec = small_chart();
+    let (w, h) = (480, 340);
+    let truth = pose(&spec, w, h, 34.0, 1.0);
+    let cap = bayer(&spec, &truth, w, h, [1.4, 1.0, 2.2], [0.8, 1.0, 0.7], 11);
+    let det =
+        detect(&cap, &spec, &DetectParams::default(), &JobContext::silent()).expect("chart found");
+    let e = corner_errors(&spec, &truth, &det);
+    eprintln!(
+        "Bayer: ok {} bootstrap RMS {:.4} px, refined RMS {:.4} px",
+        e.ok, e.boot_rms, e.refined_rms
+    );
+    assert_eq!(e.ok, spec.cols * spec.rows);
+    assert!(
+        e.refined_rms <= 0.03,
+        "refined corner RMS {} px",
+        e.refined_rms
+    );
+}
+
+#[test]
+fn chart_partly_out_of_frame_gives_the_visible_squares() {
+    let spec = small_chart();
+    let (w, h) = (480, 340);
+    // Shifted left and down: the left three columns and the bottom row leave the frame.
+    let truth = Homography::translation(-100.0, 40.0).compose(&pose(&spec, w, h, 34.0, 1.0));
+    let cap = mono(shot(&spec, &truth, w, h, 1.2, 21));
+    let det =
+        detect(&cap, &spec, &DetectParams::default(), &JobContext::silent()).expect("chart found");
+    assert_eq!(det.squares.len(), spec.cols * spec.rows);
+    let inside = |p: [f64; 2]| {
+        p[0] >= 8.0 && p[1] >= 8.0 && p[0] <= w as f64 - 9.0 && p[1] <= h as f64 - 9.0
+    };
+    let mut n_visible = 0;
+    for sq in &det.squares {
+        let fully = spec
+            .square_corners(sq.col, sq.row)
+            .iter()
+            .all(|&c| inside(truth.apply(c)));
+        let gone = spec
+            .square_corners(sq.col, sq.row)
+            .iter()
+            .all(|&c| !inside(truth.apply(c)));
+        if fully {
+            n_visible += 1;
+            assert_eq!(
+                sq.status,
+                SquareStatus::Ok,
+                "square ({}, {}) in frame: {:?}",
+                sq.col,
+                sq.row,
+                sq.reason
+            );
+        }
+        if gone {
+            assert_eq!(sq.status, SquareStatus::Skipped);
+        }
+        if sq.status == SquareStatus::Skipped {
+            assert!(sq.reason.as_deref().is_some_and(|r| !r.is_empty()));
+        }
+    }
+    let e = corner_errors(&spec, &truth, &det);
+    eprintln!(
+        "partial: {} visible, ok {} bootstrap RMS {:.4} px, refined RMS {:.4} px",
+        n_visible, e.ok, e.boot_rms, e.refined_rms
+    );
+    assert!(n_visible >= 40);
+    assert!(
+        e.refined_rms <= 0.03,
+        "refined corner RMS {} px",
+        e.refined_rms
+    );
+}
+
+#[test]
+fn detect_json_has_the_contract_fields() {
+    let spec = ChartSpec {
+        cols: 6,
+        rows: 4,
+        ..ChartSpec::default()
+    };
+    let (w, h) = (300, 220);
+    let truth = pose(&spec, w, h, 36.0, 0.5);
+    let cap = mono(shot(&spec, &truth, w, h, 1.0, 31));
+    let det =
+        detect(&cap, &spec, &DetectParams::default(), &JobContext::silent()).expect("chart found");
+    let v = serde_json::to_value(det.to_file()).expect("serialisable");
+    assert_eq!(v["schema"], "lensblur.detect/1");
+    assert_eq!(v["width"], 300);
+    let sq = &v["squares"][0];
+    for key in [
+        "row",
+        "col",
+        "status",
+        "corners",
+        "bootstrap_corners",
+        "homography",
+        "residual_rms",
+    ] {
+        assert!(sq.get(key).is_some(), "missing {key}");
+    }
+    assert_eq!(sq["homography"].as_array().map(Vec::len), Some(9));
+    assert_eq!(sq["status"], "ok");
+}
+
+fn write_png16(path: &std::path::Path, p: &Plane) {
+    let img = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(
+        p.width as u32,
+        p.height as u32,
+        |x, y| {
+            image::Luma([(p.get(x as usize, y as usize).clamp(0.0, 1.0) * 65535.0).round() as u16])
+        },
+    );
+    img.save(path).expect("png written");
+}
+
+#[test]
+fn cli_writes_detect_json_and_fails_without_a_chart() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let spec = ChartSpec {
+        cols: 6,
+        rows: 4,
+        ..ChartSpec::default()
+    };
+    let chart_path = dir.path().join("chart.json");
+    std::fs::write(&chart_path, serde_json::to_string(&spec).expect("spec"))
+        .expect("chart written");
+    let (w, h) = (300, 220);
+    let truth = pose(&spec, w, h, 36.0, 0.5);
+    let shot_path = dir.path().join("shot.png");
+    write_png16(&shot_path, &shot(&spec, &truth, w, h, 1.0, 41));
+    let out = dir.path().join("detect.json");
+    let st = std::process::Command::new(env!("CARGO_BIN_EXE_lensblur"))
+        .args([
+            "detect",
+            shot_path.to_str().unwrap_or_default(),
+            "--out",
+            out.to_str().unwrap_or_default(),
+            "--chart",
+            chart_path.to_str().unwrap_or_default(),
+        ])
+        .status()
+        .expect("runs");
+    assert!(st.success());
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).expect("written")).expect("json");
+    assert_eq!(v["schema"], "lensblur.detect/1");
+    assert_eq!(v["squares"].as_array().map(Vec::len), Some(24));
+
+    let blank = dir.path().join("blank.png");
+    write_png16(&blank, &Plane::filled(200, 150, 0.5));
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_lensblur"))
+        .args([
+            "detect",
+            blank.to_str().unwrap_or_default(),
+            "--out",
+            dir.path().join("x.json").to_str().unwrap_or_default(),
+        ])
+        .output()
+        .expect("runs");
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no chart found"));
+}

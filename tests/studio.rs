@@ -1,0 +1,175 @@
+//! Snapshot tests of the studio: every view rendered on a small demo session, and the
+//! flow driven by clicks through AccessKit labels. Snapshots live in `screenshots/`
+//! (kittest.toml); `UPDATE_SNAPSHOTS=1` rewrites them.
+#![cfg(feature = "gui")]
+
+use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable;
+use lensblur::app::{AppOptions, StudioApp, View};
+use lensblur::session::DemoSpec;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+fn new_harness(demo_dir: &Path, session: Option<&Path>) -> Harness<'static, StudioApp> {
+    // Pin the software Vulkan renderer (lavapipe) so snapshots match across machines.
+    // SAFETY: set before any renderer or thread reads it; tests in this file set the same value.
+    unsafe { std::env::set_var("WGPU_BACKEND", "vulkan") };
+    let options = AppOptions {
+        session: session.map(Path::to_path_buf),
+        demo_dir: demo_dir.to_path_buf(),
+        demo_spec: DemoSpec::small(),
+        log_frame_times: false,
+        autorun: Vec::new(),
+        started: Instant::now(),
+    };
+    Harness::builder()
+        .with_size(egui::Vec2::new(1280.0, 800.0))
+        .wgpu()
+        .build_eframe(move |cc| StudioApp::new(&cc.egui_ctx, options))
+}
+
+/// Steps the UI (in real time, so job threads progress) until `done` holds.
+fn step_until(
+    h: &mut Harness<'_, StudioApp>,
+    what: &str,
+    timeout: Duration,
+    done: impl Fn(&StudioApp) -> bool,
+) {
+    let start = Instant::now();
+    while !done(h.state()) {
+        assert!(
+            start.elapsed() < timeout,
+            "timed out after {timeout:?} waiting for {what}; messages: {:?}",
+            h.state().messages
+        );
+        h.run_steps(1);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    h.run_steps(2);
+}
+
+#[derive(Debug)]
+struct DroppedPath(std::path::PathBuf);
+
+impl egui::DroppedFile for DroppedPath {
+    fn path(&self) -> &Path {
+        &self.0
+    }
+    fn bytes(&self) -> Result<Vec<u8>, String> {
+        std::fs::read(&self.0).map_err(|e| e.to_string())
+    }
+}
+
+fn dropped(p: &Path) -> egui::DroppedFileHandle {
+    std::sync::Arc::new(DroppedPath(p.to_path_buf()))
+}
+
+fn demo_ready(app: &StudioApp) -> bool {
+    app.session
+        .as_ref()
+        .is_some_and(|s| !s.shots.is_empty() && app.previews.len() == s.shots.len())
+        && app.jobs.running.is_empty()
+}
+
+#[test]
+fn every_view_on_the_demo_session() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut h = new_harness(dir.path(), None);
+    // The first frame comes before the demo exists: the panel says what is happening.
+    h.run_steps(1);
+    assert!(h.state().session.is_none());
+    h.get_by_label_contains("Making the demo session");
+    step_until(
+        &mut h,
+        "the demo session",
+        Duration::from_secs(120),
+        demo_ready,
+    );
+    let n = h.state().session.as_ref().map_or(0, |s| s.shots.len());
+    assert_eq!(n, DemoSpec::small().settings.len());
+    assert!(
+        dir.path().join("session.json").is_file(),
+        "the demo session is cached"
+    );
+    h.snapshot("studio_shot");
+
+    for (label, view, name) in [
+        ("Kernel field", View::KernelField, "studio_kernel_field"),
+        ("Sweeps", View::Sweeps, "studio_sweeps"),
+        ("Models", View::Models, "studio_models"),
+        ("Deblur", View::Deblur, "studio_deblur"),
+    ] {
+        h.get_by_label(label).click();
+        h.run_steps(3);
+        assert_eq!(h.state().view, view);
+        h.snapshot(name);
+    }
+    h.get_by_label("Kernel field").click();
+    h.run_steps(2);
+    h.get_by_label("Compare with a second unit").click();
+    h.run_steps(3);
+    assert!(h.state().compare_units);
+    h.snapshot("studio_kernel_field_compare");
+
+    // The cached demo opens at once on the next launch.
+    drop(h);
+    let mut again = new_harness(dir.path(), None);
+    again.run_steps(1);
+    assert!(
+        again.state().session.is_some(),
+        "cached demo session opens without remaking it"
+    );
+}
+
+#[test]
+fn light_theme_and_user_session() {
+    let demo = tempfile::tempdir().expect("temp dir");
+    let folder = tempfile::tempdir().expect("temp dir");
+    // A user's shot: a PNG of the chart.
+    let spec = lensblur::chart::ChartSpec {
+        cols: 6,
+        rows: 4,
+        ..Default::default()
+    };
+    let h_img = lensblur::geometry::Homography::from_row_major([
+        40.0, 0.0, 40.0, 0.0, 40.0, 40.0, 0.0, 0.0, 1.0,
+    ]);
+    let plane = lensblur::chart::rasterize(&spec, &h_img, 320, 240, 1.0);
+    let img = image::GrayImage::from_fn(320, 240, |x, y| {
+        image::Luma([(plane.get(x as usize, y as usize) * 255.0) as u8])
+    });
+    let shot = folder.path().join("my_shot.png");
+    img.save(&shot).expect("write shot");
+
+    let mut h = new_harness(demo.path(), Some(folder.path()));
+    h.run_steps(2);
+    assert!(
+        h.state()
+            .session
+            .as_ref()
+            .is_some_and(|s| s.shots.is_empty())
+    );
+    h.get_by_label("Light theme").click();
+    h.run_steps(2);
+    assert!(!h.state().dark);
+    // Drag and drop a file onto the window.
+    h.input_mut().dropped_files.push(dropped(&shot));
+    step_until(&mut h, "the dropped shot", Duration::from_secs(30), |a| {
+        a.previews.len() == 1
+    });
+    let saved =
+        lensblur::session::Session::open(folder.path()).expect("session saved as it changes");
+    assert_eq!(saved.shots.len(), 1);
+    // A file of the wrong kind is refused with a message naming it.
+    let bad = folder.path().join("notes.txt");
+    std::fs::write(&bad, b"x").expect("write");
+    h.input_mut().dropped_files.push(dropped(&bad));
+    h.run_steps(2);
+    assert!(
+        h.state()
+            .messages
+            .iter()
+            .any(|m| m.is_error && m.text.contains("notes.txt"))
+    );
+    h.snapshot("studio_user_session_light");
+}
