@@ -22,5 +22,6 @@ pub mod metrics;
 pub mod plane;
 pub mod profile;
 pub mod psf;
+pub mod raw;
 pub mod session;
 pub mod simulate;

@@ -371,7 +371,8 @@ mod tests {
     fn reflection() {
         assert_eq!(reflect(-1, 5), 0);
         assert_eq!(reflect(5, 5), 4);
-        assert_eq!(reflect(-7, 5), 1);
+        // Half-sample symmetric: … 3 4 4 3 2 1 0 | 0 1 2 3 4 | 4 3 …
+        assert_eq!(reflect(-7, 5), 3);
         assert_eq!(reflect(12, 5), 2);
     }
 }
