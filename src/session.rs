@@ -485,7 +485,7 @@ impl DemoSpec {
     /// File name of the demo shot for a setting.
     #[must_use]
     pub fn shot_name(s: LensSetting) -> String {
-        format!("demo_f{:03.0}_a{:04.1}.dng", s.focal_mm, s.f_number)
+        format!("demo_f{:03.0}_a{:04.1}.png", s.focal_mm, s.f_number)
     }
 }
 
@@ -499,11 +499,101 @@ pub fn make_demo(
     spec: &DemoSpec,
     job: &crate::job::JobContext,
 ) -> Result<Session, SessionError> {
-    let _ = (spec, job);
-    Err(SessionError::Parse {
+    use crate::simulate::{CaptureParams, Pose, VirtualLens, simulate_shot};
+    let chart = spec.chart();
+    let lens = VirtualLens::demo();
+    std::fs::create_dir_all(dir).map_err(|source| SessionError::Write {
         path: dir.to_path_buf(),
-        reason: "the simulator is not in this build yet".into(),
-    })
+        source,
+    })?;
+    let mut session = Session::new(dir);
+    session.name = "demo".into();
+    session.chart = chart.clone();
+    session.is_demo = true;
+    let total = spec.settings.len();
+    job.report("simulating demo shots", 0, total);
+    for (k, &setting) in spec.settings.iter().enumerate() {
+        let name = DemoSpec::shot_name(setting);
+        let path = dir.join(&name);
+        let truth_path = dir.join(format!("{name}.truth.json"));
+        // A session folder that already holds a shot is reused: only missing shots
+        // are simulated, so an interrupted first launch resumes where it stopped.
+        if !(path.is_file() && truth_path.is_file()) {
+            let mut params = CaptureParams::new(spec.width, spec.height, setting);
+            // Each shot a slightly different pose, as a hand-held series would be.
+            let t = k as f64;
+            params.pose = Pose {
+                rotation_deg: 1.5 * (0.9 * t + 0.3).sin(),
+                tilt_x: 0.02 * (1.3 * t).cos(),
+                tilt_y: 0.015 * (0.7 * t + 1.0).sin(),
+                fill: 0.86,
+                shift_px: [4.0 * (t * 0.5).sin(), 3.0 * (t * 0.8).cos()],
+            };
+            params.bayer = false;
+            params.seed = spec.seed.wrapping_add(k as u64);
+            let shot =
+                simulate_shot(&chart, &lens, &params, job).map_err(|e| SessionError::Parse {
+                    path: path.clone(),
+                    reason: e.to_string(),
+                })?;
+            write_rgb16_png(&path, &shot.capture)?;
+            let truth = serde_json::to_vec(&shot.truth).map_err(|e| SessionError::Write {
+                path: truth_path.clone(),
+                source: std::io::Error::other(e),
+            })?;
+            write_atomic(&truth_path, &truth)?;
+        }
+        session.shots.push(Shot {
+            path: PathBuf::from(&name),
+            focal_mm: Some(setting.focal_mm),
+            f_number: Some(setting.f_number),
+            ..Shot::blank()
+        });
+        job.report("simulating demo shots", k + 1, total);
+    }
+    session.write_manifest()?;
+    session.save()?;
+    Ok(session)
+}
+
+/// A linear 16-bit RGB PNG of a capture's R, G, B planes (black 0, white 65535).
+fn write_rgb16_png(path: &Path, capture: &crate::plane::Capture) -> Result<(), SessionError> {
+    use crate::plane::Channel;
+    let (w, h) = (capture.width, capture.height);
+    let plane = |c: Channel| {
+        capture
+            .planes
+            .iter()
+            .find(|p| p.channel == c && p.step == 1)
+    };
+    let (Some(r), Some(g), Some(b)) = (plane(Channel::R), plane(Channel::G), plane(Channel::B))
+    else {
+        return Err(SessionError::Parse {
+            path: path.to_path_buf(),
+            reason: "a demo shot needs full R, G and B planes".into(),
+        });
+    };
+    let mut data = Vec::with_capacity(w * h * 3);
+    for i in 0..w * h {
+        for p in [r, g, b] {
+            data.push((p.plane.data[i].clamp(0.0, 1.0) * 65535.0).round() as u16);
+        }
+    }
+    let img = image::ImageBuffer::<image::Rgb<u16>, Vec<u16>>::from_raw(w as u32, h as u32, data)
+        .ok_or_else(|| SessionError::Parse {
+        path: path.to_path_buf(),
+        reason: "image size does not match its data".into(),
+    })?;
+    let mut bytes = Vec::new();
+    img.write_to(
+        &mut std::io::Cursor::new(&mut bytes),
+        image::ImageFormat::Png,
+    )
+    .map_err(|e| SessionError::Write {
+        path: path.to_path_buf(),
+        source: std::io::Error::other(e),
+    })?;
+    write_atomic(path, &bytes)
 }
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), SessionError> {

@@ -2,7 +2,9 @@
 
 use super::jobs::JobEvent;
 use super::{Command, JobOutput, ShotPreview, StudioApp};
+use crate::detect::{DetectFile, DetectParams, Detection};
 use crate::plane::{Capture, Channel, ChannelPlane, Plane};
+use crate::session::{Session, StageStatus};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -38,6 +40,30 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                     }
                     app.previews.insert(index, preview);
                 }
+                JobOutput::Detected { index, result } => {
+                    let status = match &result {
+                        Ok(d) => StageStatus::Done {
+                            summary: format!(
+                                "{} of {} squares aligned",
+                                d.ok_squares().count(),
+                                d.squares.len()
+                            ),
+                        },
+                        Err(reason) => StageStatus::Failed {
+                            reason: reason.clone(),
+                        },
+                    };
+                    if let Some(shot) = app.session.as_mut().and_then(|s| s.shots.get_mut(index)) {
+                        shot.detect = status;
+                    }
+                    match result {
+                        Ok(d) => {
+                            app.detections.insert(index, d);
+                        }
+                        Err(e) => app.error(e),
+                    }
+                    save(app);
+                }
                 JobOutput::PhotoLoaded { path, capture } => {
                     let tex = channel_texture(&app.ctx, "photo", &capture, None);
                     app.photo = Some((path, capture, tex));
@@ -62,9 +88,11 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         Command::SelectView(v) => app.view = v,
         Command::SelectShot(i) => {
             app.selected_shot = Some(i);
+            app.selected_square = None;
             app.viewer.sensor_px_per_point = None;
         }
         Command::SelectChannel(c) => app.channel = c,
+        Command::SelectSquare(sq) => app.selected_square = Some(sq),
         Command::AddShotsDialog => {
             if let Some(files) = rfd::FileDialog::new()
                 .set_title("Add calibration shots")
@@ -101,9 +129,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
                 save(app);
             }
         }
-        Command::RunDetect(_) => {
-            app.info("detection is not available in this build yet: the detect stage has not been merged");
-        }
+        Command::RunDetect(which) => run_detect(app, which),
         Command::RunKernels(_) => {
             app.info("kernel estimation is not available in this build yet: the kernel stage has not been merged");
         }
@@ -230,43 +256,10 @@ pub(super) fn ensure_preview(app: &mut StudioApp) {
     }
 }
 
-/// Loads a shot or photo for display. RAW/DNG need the RAW loader; PNG, TIFF and JPEG
-/// are read directly.
+/// Loads a shot or photo through the core's loader; the error is already one line
+/// naming the file.
 pub(crate) fn load_capture(path: &Path) -> Result<Capture, String> {
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    if !matches!(ext.as_str(), "png" | "tif" | "tiff" | "jpg" | "jpeg") {
-        return Err(format!(
-            "{}: RAW files need the RAW loader, which this build does not have yet",
-            path.display()
-        ));
-    }
-    let img = image::open(path)
-        .map_err(|e| format!("{}: {e}", path.display()))?
-        .into_rgb32f();
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    let planes = [Channel::R, Channel::G, Channel::B]
-        .into_iter()
-        .enumerate()
-        .map(|(k, channel)| ChannelPlane {
-            channel,
-            plane: Plane::from_fn(w, h, |x, y| img.get_pixel(x as u32, y as u32)[k]),
-            step: 1,
-            offset_x: 0,
-            offset_y: 0,
-        })
-        .collect();
-    Ok(Capture {
-        width: w,
-        height: h,
-        planes,
-        setting_focal_mm: None,
-        setting_f_number: None,
-        identity: crate::plane::CameraIdentity::default(),
-        is_raw: false,
-    })
+    crate::raw::load_capture(path, &crate::raw::LoadOptions::default()).map_err(|e| e.to_string())
 }
 
 /// Display value of a linear sample: sRGB-like encoding so mid-greys look right.
@@ -333,4 +326,96 @@ fn make_preview(ctx: &egui::Context, index: usize, capture: &Arc<Capture>) -> Sh
         textures,
         thumbnail,
     }
+}
+
+/// Shots a stage should run on: the one asked for, or every shot without a result.
+fn targets(app: &StudioApp, which: Option<usize>, done: impl Fn(usize) -> bool) -> Vec<usize> {
+    let n = app.session.as_ref().map_or(0, |s| s.shots.len());
+    match which {
+        Some(i) if i < n => vec![i],
+        Some(_) => Vec::new(),
+        None => (0..n).filter(|&i| !done(i)).collect(),
+    }
+}
+
+/// Detection of the chosen shots on one job thread (each detection is itself parallel),
+/// results written beside the session and handed back shot by shot.
+fn run_detect(app: &mut StudioApp, which: Option<usize>) {
+    if app.jobs.is_running("detect") {
+        app.info("detection is already running");
+        return;
+    }
+    let indices = targets(app, which, |i| app.detections.contains_key(&i));
+    let Some(session) = app.session.as_ref() else {
+        return;
+    };
+    if indices.is_empty() {
+        app.info("every shot is already detected (select one and press Detect to redo it)");
+        return;
+    }
+    let spec = session.chart.clone();
+    let work: Vec<(usize, PathBuf, PathBuf, Option<Arc<Capture>>)> = indices
+        .iter()
+        .map(|&i| {
+            (
+                i,
+                session.shot_path(i),
+                session.result_path(i, "detect"),
+                app.previews.get(&i).map(|p| Arc::clone(&p.capture)),
+            )
+        })
+        .collect();
+    let r = app.jobs.spawn("detect", move |ctx, out| {
+        for (index, shot, result_path, capture) in work {
+            ctx.check().map_err(|e| e.to_string())?;
+            let capture = match capture {
+                Some(c) => c,
+                None => match load_capture(&shot) {
+                    Ok(c) => Arc::new(c),
+                    Err(e) => {
+                        out.emit(JobOutput::Detected {
+                            index,
+                            result: Err(e),
+                        });
+                        continue;
+                    }
+                },
+            };
+            let result = match crate::detect::detect(&capture, &spec, &DetectParams::default(), ctx)
+            {
+                Ok(d) => write_result(&result_path, &d.to_file()).map(|()| Arc::new(d)),
+                Err(crate::detect::DetectError::Cancelled(c)) => return Err(c.to_string()),
+                Err(e) => Err(format!("{}: {e}", shot.display())),
+            };
+            out.emit(JobOutput::Detected { index, result });
+        }
+        Ok(())
+    });
+    if let Err(e) = r {
+        app.error(e);
+    }
+}
+
+fn write_result<T: serde::Serialize>(path: &Path, value: &T) -> Result<(), String> {
+    let text = serde_json::to_vec_pretty(value).map_err(|e| format!("{}: {e}", path.display()))?;
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    }
+    let tmp = path.with_extension("json.tmp");
+    std::fs::write(&tmp, text).map_err(|e| format!("{}: {e}", tmp.display()))?;
+    std::fs::rename(&tmp, path).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// Detections a reopened session already has on disk.
+pub(super) fn read_detections(
+    session: &Session,
+) -> std::collections::BTreeMap<usize, Arc<Detection>> {
+    (0..session.shots.len())
+        .filter(|&i| session.shots[i].detect.is_done())
+        .filter_map(|i| {
+            let text = std::fs::read_to_string(session.result_path(i, "detect")).ok()?;
+            let file: DetectFile = serde_json::from_str(&text).ok()?;
+            Some((i, Arc::new(Detection::from_file(&file))))
+        })
+        .collect()
 }

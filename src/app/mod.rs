@@ -8,6 +8,7 @@ pub mod jobs;
 mod logic;
 mod ui;
 
+use crate::detect::Detection;
 use crate::job::JobContext;
 use crate::plane::{Capture, Channel};
 use crate::session::{DemoSpec, Session};
@@ -54,6 +55,8 @@ pub enum Command {
     SelectView(View),
     SelectShot(usize),
     SelectChannel(Channel),
+    /// A chart square in the Shot view: (row, col).
+    SelectSquare((usize, usize)),
     /// Opens the file dialog for shots.
     AddShotsDialog,
     AddShots(Vec<PathBuf>),
@@ -88,6 +91,11 @@ pub enum JobOutput {
     PhotoLoaded {
         path: PathBuf,
         capture: Arc<Capture>,
+    },
+    /// A shot's detection finished (or failed: `Err` carries the one-line reason).
+    Detected {
+        index: usize,
+        result: Result<Arc<Detection>, String>,
     },
 }
 
@@ -189,6 +197,10 @@ pub struct StudioApp {
     pub compare_units: bool,
     pub show_ellipses: bool,
     pub photo: Option<(PathBuf, Arc<Capture>, Option<egui::TextureHandle>)>,
+    /// Detection per shot index, this run's or read back from the session's results.
+    pub detections: BTreeMap<usize, Arc<Detection>>,
+    /// The square clicked in the Shot view: (row, col).
+    pub selected_square: Option<(usize, usize)>,
     pub dark: bool,
     pub frames: FrameLog,
     pub options: AppOptions,
@@ -223,6 +235,8 @@ impl StudioApp {
             compare_units: false,
             show_ellipses: true,
             photo: None,
+            detections: BTreeMap::new(),
+            selected_square: None,
             dark: true,
             frames: FrameLog::default(),
             options: options.clone(),
@@ -284,6 +298,8 @@ impl StudioApp {
     pub(crate) fn set_session(&mut self, s: Session) {
         self.previews.clear();
         self.loading.clear();
+        self.detections = logic::read_detections(&s);
+        self.selected_square = None;
         self.selected_shot = if s.shots.is_empty() { None } else { Some(0) };
         self.viewer.sensor_px_per_point = None;
         self.session = Some(s);

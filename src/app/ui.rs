@@ -275,7 +275,8 @@ fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                         // Unknown settings show as "?" (0 internally) until the user drags.
                         let mut f = shot.focal_mm.unwrap_or(0.0);
                         let mut a = shot.f_number.unwrap_or(0.0);
-                        ui.label("f")
+                        let lf = ui
+                            .label("f")
                             .on_hover_text("focal length, mm (from EXIF; editable)");
                         let rf = ui.add(egui::DragValue::new(&mut f).speed(0.5).custom_formatter(
                             |v, _| {
@@ -286,7 +287,9 @@ fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                                 }
                             },
                         ));
-                        ui.label("a")
+                        let rf = rf.labelled_by(lf.id);
+                        let la = ui
+                            .label("a")
                             .on_hover_text("aperture, f-number (from EXIF; editable)");
                         let ra = ui.add(egui::DragValue::new(&mut a).speed(0.05).custom_formatter(
                             |v, _| {
@@ -297,6 +300,7 @@ fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                                 }
                             },
                         ));
+                        let ra = ra.labelled_by(la.id);
                         if rf.changed() || ra.changed() {
                             set = Some(Command::SetShotSetting {
                                 index: i,
@@ -471,6 +475,23 @@ fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)),
         Color32::WHITE,
     );
+    if let Some(det) = app.detections.get(&index) {
+        let clicked = response
+            .clicked()
+            .then(|| response.interact_pointer_pos())
+            .flatten()
+            .map(|p| view.to_sensor(p));
+        if let Some(sq) = detection_overlay(
+            &painter,
+            &view,
+            det,
+            &session.chart,
+            app.selected_square,
+            clicked,
+        ) {
+            app.commands.push(Command::SelectSquare(sq));
+        }
+    }
     if let Some(p) = response.hover_pos() {
         let [x, y] = view.to_sensor(p);
         let v = plane.as_ref().and_then(|cp| {
@@ -563,22 +584,23 @@ fn sensor_size(app: &StudioApp) -> (usize, usize) {
 
 fn setting_sliders_ui(app: &mut StudioApp, ui: &mut egui::Ui, lens: &VirtualLens) {
     ui.horizontal(|ui| {
-        ui.label("focal length");
         ui.add(
             egui::Slider::new(
                 &mut app.field_focal_mm,
                 lens.focal_range_mm[0]..=lens.focal_range_mm[1],
             )
-            .suffix(" mm"),
+            .suffix(" mm")
+            .text("focal length"),
         );
-        ui.label("aperture");
+        ui.add_space(12.0);
         ui.add(
             egui::Slider::new(
                 &mut app.field_f_number,
                 lens.f_number_range[0]..=lens.f_number_range[1],
             )
             .prefix("f/")
-            .logarithmic(true),
+            .logarithmic(true)
+            .text("aperture"),
         );
     });
 }
@@ -867,4 +889,92 @@ fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
         }
     }
+}
+
+/// Colour of a square's outline by its alignment residual (normalised units): green
+/// when the synthetic square explains the observed one to noise level, red when not.
+fn residual_color(rms: f64) -> Color32 {
+    let t = ((rms - 0.005) / 0.03).clamp(0.0, 1.0) as f32;
+    Color32::from_rgb((60.0 + 195.0 * t) as u8, (220.0 - 160.0 * t) as u8, 80)
+}
+
+/// Draws every square's refined outline and corners, and the chart's circles projected
+/// through that square's own homography (so a misaligned square shows its circles off
+/// the imaged ones). Skipped squares get a red cross. Returns the square under a click.
+fn detection_overlay(
+    painter: &egui::Painter,
+    view: &SensorView,
+    det: &crate::detect::Detection,
+    chart: &crate::chart::ChartSpec,
+    selected: Option<(usize, usize)>,
+    clicked: Option<[f32; 2]>,
+) -> Option<(usize, usize)> {
+    let mut hit = None;
+    let zoomed_in = view.points_per_px > 0.6;
+    for sq in &det.squares {
+        let pts: Vec<Pos2> = sq
+            .corners
+            .iter()
+            .map(|c| view.to_screen(c[0], c[1]))
+            .collect();
+        if sq.status != crate::detect::SquareStatus::Ok {
+            if sq.corners.iter().flatten().all(|v| v.is_finite()) && pts[0] != pts[2] {
+                let red = Stroke::new(1.5, Color32::from_rgb(230, 60, 60));
+                painter.line_segment([pts[0], pts[2]], red);
+                painter.line_segment([pts[1], pts[3]], red);
+            }
+            continue;
+        }
+        let is_selected = selected == Some((sq.row, sq.col));
+        let stroke = if is_selected {
+            Stroke::new(2.5, Color32::from_rgb(255, 210, 0))
+        } else {
+            Stroke::new(1.0, residual_color(sq.residual_rms))
+        };
+        painter.add(egui::Shape::closed_line(pts.clone(), stroke));
+        if zoomed_in || is_selected {
+            let h = &sq.image_from_chart;
+            for c in &chart.circle_centres {
+                let ring: Vec<Pos2> = (0..24)
+                    .map(|k| {
+                        let t = std::f64::consts::TAU * f64::from(k) / 24.0;
+                        let p = h.apply([
+                            sq.col as f64 + c[0] + chart.circle_radius * t.cos(),
+                            sq.row as f64 + c[1] + chart.circle_radius * t.sin(),
+                        ]);
+                        view.to_screen(p[0], p[1])
+                    })
+                    .collect();
+                painter.add(egui::Shape::closed_line(
+                    ring,
+                    Stroke::new(1.0, Color32::from_rgb(80, 170, 255)),
+                ));
+            }
+            for p in &pts {
+                painter.circle_stroke(*p, 3.0, Stroke::new(1.0, Color32::from_rgb(255, 120, 0)));
+            }
+        }
+        if let Some([x, y]) = clicked
+            && point_in_quad([f64::from(x), f64::from(y)], &sq.corners)
+        {
+            hit = Some((sq.row, sq.col));
+        }
+    }
+    hit
+}
+
+fn point_in_quad(p: [f64; 2], q: &[[f64; 2]; 4]) -> bool {
+    let mut sign = 0.0;
+    for k in 0..4 {
+        let a = q[k];
+        let b = q[(k + 1) % 4];
+        let cross = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]);
+        if cross != 0.0 {
+            if sign != 0.0 && cross.signum() != sign {
+                return false;
+            }
+            sign = cross.signum();
+        }
+    }
+    true
 }

@@ -314,6 +314,40 @@ impl Detection {
         }
     }
 
+    /// Back from the file form (what the studio reads when it reopens a session). The
+    /// levels and blur estimate are not in the file and come back as NaN.
+    #[must_use]
+    pub fn from_file(file: &DetectFile) -> Self {
+        let squares: Vec<SquareAlignment> = file
+            .squares
+            .iter()
+            .map(|r| SquareAlignment {
+                row: r.row,
+                col: r.col,
+                status: r.status,
+                reason: r.reason.clone(),
+                corners: r.corners,
+                bootstrap_corners: r.bootstrap_corners,
+                image_from_chart: r.homography,
+                bootstrap: r.homography,
+                residual_rms: r.residual_rms.unwrap_or(f64::NAN),
+                black_level: f64::NAN,
+                white_level: f64::NAN,
+                sigma_px: f64::NAN,
+            })
+            .collect();
+        let global = squares
+            .iter()
+            .find(|s| s.status == SquareStatus::Ok)
+            .map_or(Homography::identity(), |s| s.image_from_chart);
+        Self {
+            width: file.width,
+            height: file.height,
+            squares,
+            global,
+        }
+    }
+
     /// Squares that were aligned.
     pub fn ok_squares(&self) -> impl Iterator<Item = &SquareAlignment> {
         self.squares.iter().filter(|s| s.status == SquareStatus::Ok)
