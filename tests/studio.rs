@@ -5,7 +5,7 @@
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use lensblur::app::{AppOptions, StudioApp, View};
+use lensblur::app::{AppOptions, Command, StudioApp, View};
 use lensblur::session::DemoSpec;
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -92,6 +92,36 @@ fn every_view_on_the_demo_session() {
         "the demo session is cached"
     );
     h.snapshot("studio_shot");
+
+    // Detect every shot by clicking, then the overlays line up with the squares.
+    h.get_by_label("Detect").click();
+    step_until(&mut h, "detection", Duration::from_secs(240), |a| {
+        a.detections.len() == DemoSpec::small().settings.len() && a.jobs.running.is_empty()
+    });
+    for d in h.state().detections.values() {
+        let spec = DemoSpec::small().chart();
+        assert_eq!(
+            d.ok_squares().count(),
+            spec.cols * spec.rows,
+            "every square of the demo chart is aligned"
+        );
+    }
+    h.snapshot("studio_shot_detected");
+
+    // Inspect one square: its crops appear beside the shot.
+    h.state_mut().commands.push(Command::SelectSquare((3, 5)));
+    h.run_steps(3);
+    let rms = h
+        .state()
+        .inspection
+        .as_ref()
+        .map(|i| i.crops.residual_rms)
+        .expect("the inspector opens on the clicked square");
+    assert!(
+        rms < 0.05,
+        "aligned square explains the pixels: residual rms {rms}"
+    );
+    h.snapshot("studio_square_inspector");
 
     for (label, view, name) in [
         ("Kernel field", View::KernelField, "studio_kernel_field"),

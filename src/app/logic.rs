@@ -89,10 +89,21 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         Command::SelectShot(i) => {
             app.selected_shot = Some(i);
             app.selected_square = None;
+            app.inspection = None;
             app.viewer.sensor_px_per_point = None;
         }
-        Command::SelectChannel(c) => app.channel = c,
-        Command::SelectSquare(sq) => app.selected_square = Some(sq),
+        Command::SelectChannel(c) => {
+            app.channel = c;
+            update_inspection(app);
+        }
+        Command::ClearSquare => {
+            app.selected_square = None;
+            app.inspection = None;
+        }
+        Command::SelectSquare(sq) => {
+            app.selected_square = Some(sq);
+            update_inspection(app);
+        }
         Command::AddShotsDialog => {
             if let Some(files) = rfd::FileDialog::new()
                 .set_title("Add calibration shots")
@@ -418,4 +429,69 @@ pub(super) fn read_detections(
             Some((i, Arc::new(Detection::from_file(&file))))
         })
         .collect()
+}
+
+/// Recomputes the inspector's crops for the selected shot, square and channel.
+fn update_inspection(app: &mut StudioApp) {
+    app.inspection = None;
+    let (Some(shot), Some(sq)) = (app.selected_shot, app.selected_square) else {
+        return;
+    };
+    let (Some(preview), Some(det), Some(session)) = (
+        app.previews.get(&shot),
+        app.detections.get(&shot),
+        app.session.as_ref(),
+    ) else {
+        return;
+    };
+    let Some(square) = det.squares.iter().find(|s| (s.row, s.col) == sq) else {
+        return;
+    };
+    let channel = if preview
+        .capture
+        .planes
+        .iter()
+        .any(|p| p.channel == app.channel)
+    {
+        app.channel
+    } else {
+        match preview.capture.planes.first() {
+            Some(p) => p.channel,
+            None => return,
+        }
+    };
+    let Some(crops) =
+        crate::detect::inspect::inspect_square(&preview.capture, square, &session.chart, channel)
+    else {
+        return;
+    };
+    let tex = |name: &str, plane: &Plane, map: &dyn Fn(f32) -> u8| {
+        let img = egui::ColorImage::from_gray_iter(
+            [plane.width, plane.height],
+            plane.data.iter().map(|&v| map(v)),
+        );
+        app.ctx
+            .load_texture(name, img, egui::TextureOptions::NEAREST)
+    };
+    // The residual is signed and small: mid-grey is zero, ±25 % of the square's
+    // contrast spans the grey range.
+    let contrast = {
+        let mut v = crops.observed.data.clone();
+        v.sort_by(f32::total_cmp);
+        (v[v.len() * 98 / 100] - v[v.len() * 2 / 100]).max(1e-3)
+    };
+    let textures = [
+        tex("inspect-observed", &crops.observed, &encode),
+        tex("inspect-synthetic", &crops.synthetic, &encode),
+        tex("inspect-residual", &crops.residual, &|r: f32| {
+            ((0.5 + 2.0 * r / contrast).clamp(0.0, 1.0) * 255.0) as u8
+        }),
+    ];
+    app.inspection = Some(super::Inspection {
+        shot,
+        square: sq,
+        channel,
+        crops,
+        textures,
+    });
 }

@@ -57,6 +57,7 @@ pub enum Command {
     SelectChannel(Channel),
     /// A chart square in the Shot view: (row, col).
     SelectSquare((usize, usize)),
+    ClearSquare,
     /// Opens the file dialog for shots.
     AddShotsDialog,
     AddShots(Vec<PathBuf>),
@@ -144,6 +145,16 @@ pub struct Message {
     pub text: String,
 }
 
+/// The inspector's square: which one, its crops and their textures (observed,
+/// synthetic, residual).
+pub struct Inspection {
+    pub shot: usize,
+    pub square: (usize, usize),
+    pub channel: Channel,
+    pub crops: crate::detect::inspect::SquareInspection,
+    pub textures: [egui::TextureHandle; 3],
+}
+
 /// A loaded shot and its display textures per channel.
 pub struct ShotPreview {
     pub capture: Arc<Capture>,
@@ -201,6 +212,8 @@ pub struct StudioApp {
     pub detections: BTreeMap<usize, Arc<Detection>>,
     /// The square clicked in the Shot view: (row, col).
     pub selected_square: Option<(usize, usize)>,
+    /// Crops of the clicked square for the inspector.
+    pub inspection: Option<Inspection>,
     pub dark: bool,
     pub frames: FrameLog,
     pub options: AppOptions,
@@ -237,6 +250,7 @@ impl StudioApp {
             photo: None,
             detections: BTreeMap::new(),
             selected_square: None,
+            inspection: None,
             dark: true,
             frames: FrameLog::default(),
             options: options.clone(),

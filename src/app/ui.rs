@@ -418,7 +418,28 @@ fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         (p.step as f64, p.offset_x as f64, p.offset_y as f64)
     });
 
-    let (rect, response) = ui.allocate_exact_size(ui.available_size(), Sense::click_and_drag());
+    let inspector_w = if app.inspection.as_ref().is_some_and(|i| i.shot == index) {
+        240.0
+    } else {
+        0.0
+    };
+    let avail = ui.available_size();
+    let (rect, response) = ui.allocate_exact_size(
+        Vec2::new((avail.x - inspector_w).max(100.0), avail.y),
+        Sense::click_and_drag(),
+    );
+    if inspector_w > 0.0 {
+        let side = Rect::from_min_size(
+            Pos2::new(rect.right() + 8.0, rect.top()),
+            Vec2::new(inspector_w - 8.0, rect.height()),
+        );
+        let command = ui
+            .scope_builder(egui::UiBuilder::new().max_rect(side), |ui| {
+                inspector_ui(app, ui)
+            })
+            .inner;
+        app.commands.extend(command);
+    }
     let fit = (rect.width() / cap.width as f32).min(rect.height() / cap.height as f32);
     let ppp = app.viewer.sensor_px_per_point.map_or(fit, |s| 1.0 / s);
     if app.viewer.sensor_px_per_point.is_none() {
@@ -977,4 +998,50 @@ fn point_in_quad(p: [f64; 2], q: &[[f64; 2]; 4]) -> bool {
         }
     }
     true
+}
+
+/// The clicked square: observed pixels, the synthetic square the alignment matched, and
+/// their difference, with the numbers behind them.
+fn inspector_ui(app: &StudioApp, ui: &mut egui::Ui) -> Option<Command> {
+    let ins = app.inspection.as_ref()?;
+    let (row, col) = ins.square;
+    ui.strong(format!("Square row {row}, column {col} — {}", ins.channel));
+    let det_sq = app
+        .detections
+        .get(&ins.shot)
+        .and_then(|d| d.squares.iter().find(|s| (s.row, s.col) == ins.square));
+    if let Some(sq) = det_sq {
+        let c = crate::kernel::square_centre(&crate::kernel::SquareGeometry {
+            row,
+            col,
+            image_from_chart: sq.image_from_chart,
+        });
+        ui.label(format!("centre x {:.1}, y {:.1} px", c[0], c[1]));
+        let moved = sq
+            .corners
+            .iter()
+            .zip(&sq.bootstrap_corners)
+            .map(|(a, b)| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt())
+            .fold(0.0, f64::max);
+        ui.label(format!("refinement moved corners ≤ {moved:.3} px"));
+    }
+    ui.label(format!(
+        "residual RMS {:.4} (white = 1)",
+        ins.crops.residual_rms
+    ))
+    .on_hover_text("Observed minus the synthetic square (the chart through this square's refined homography, blurred by the detection's blur estimate). Structure here means misalignment or a non-Gaussian blur.");
+    let w = ui.available_width();
+    for (k, title) in ["observed", "synthetic", "residual (grey = 0)"]
+        .iter()
+        .enumerate()
+    {
+        ui.label(*title);
+        let t = &ins.textures[k];
+        let size = t.size_vec2();
+        let scale = (w / size.x).min(150.0 / size.y);
+        ui.image((t.id(), size * scale));
+    }
+    ui.button("Close inspector")
+        .clicked()
+        .then_some(Command::ClearSquare)
 }

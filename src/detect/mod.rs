@@ -13,6 +13,7 @@
 pub mod align;
 pub mod filter;
 pub mod grid;
+pub mod inspect;
 
 use crate::chart::ChartSpec;
 use crate::geometry::Homography;
