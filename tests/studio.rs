@@ -136,6 +136,8 @@ fn every_view_on_the_demo_session() {
     }
     h.get_by_label("Kernel field").click();
     h.run_steps(2);
+    h.get_by_label("Ground truth").click();
+    h.run_steps(2);
     h.get_by_label("Compare with a second unit").click();
     h.run_steps(3);
     assert!(h.state().compare_units);

@@ -40,6 +40,39 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                     }
                     app.previews.insert(index, preview);
                 }
+                JobOutput::Calibrated {
+                    dataset,
+                    profile,
+                    cv,
+                    path,
+                } => {
+                    let kind = format!("{:?}", profile.preferred).to_lowercase();
+                    app.info(format!(
+                        "calibrated on {} samples from {} shots; {kind} model preferred; profile saved to {}",
+                        dataset.samples.len(),
+                        dataset.shots.len(),
+                        path.display()
+                    ));
+                    if let Some(s) = app.session.as_mut() {
+                        s.profile = Some(path.clone());
+                    }
+                    app.dataset = Some(dataset);
+                    app.profile = Some((path, profile));
+                    app.cv = cv;
+                    save(app);
+                }
+                JobOutput::ProfileLoaded {
+                    profile,
+                    path,
+                    compare,
+                } => {
+                    app.info(format!("profile {} loaded", path.display()));
+                    if compare {
+                        app.compare_profile = Some((path, profile));
+                    } else {
+                        app.profile = Some((path, profile));
+                    }
+                }
                 JobOutput::Detected { index, result } => {
                     let status = match &result {
                         Ok(d) => StageStatus::Done {
@@ -144,9 +177,8 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         Command::RunKernels(_) => {
             app.info("kernel estimation is not available in this build yet: the kernel stage has not been merged");
         }
-        Command::RunCalibrate => {
-            app.info("calibration is not available in this build yet: the model stage has not been merged");
-        }
+        Command::RunCalibrate => run_calibrate(app),
+        Command::SetFieldSource(f) => app.field_source = f,
         Command::OpenPhotoDialog => {
             if let Some(p) = rfd::FileDialog::new()
                 .set_title("Open a photo to deblur")
@@ -172,8 +204,49 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
                 app.error(e);
             }
         }
-        Command::LoadProfileDialog | Command::SaveProfileDialog => {
-            app.info("profiles are not available in this build yet: the profile stage has not been merged");
+        Command::LoadProfileDialog | Command::LoadCompareProfileDialog => {
+            let compare = command == Command::LoadCompareProfileDialog;
+            if let Some(path) = rfd::FileDialog::new()
+                .set_title(if compare {
+                    "Load a second lens profile to compare"
+                } else {
+                    "Load a lens profile"
+                })
+                .add_filter("lens profile", &["json"])
+                .pick_file()
+            {
+                apply(app, Command::LoadProfile { path, compare });
+            }
+        }
+        Command::LoadProfile { path, compare } => {
+            let r = app.jobs.spawn("load profile", move |_ctx, out| {
+                let profile = crate::profile::Profile::load(&path).map_err(|e| e.to_string())?;
+                out.emit(JobOutput::ProfileLoaded {
+                    profile: Arc::new(profile),
+                    path,
+                    compare,
+                });
+                Ok(())
+            });
+            if let Err(e) = r {
+                app.error(e);
+            }
+        }
+        Command::SaveProfileDialog => {
+            let Some((_, profile)) = app.profile.clone() else {
+                app.error("no profile to save: calibrate first (Ctrl+M) or load one");
+                return;
+            };
+            if let Some(path) = rfd::FileDialog::new()
+                .set_title("Save the lens profile")
+                .set_file_name("profile.json")
+                .save_file()
+            {
+                match profile.save(&path) {
+                    Ok(()) => app.info(format!("profile saved to {}", path.display())),
+                    Err(e) => app.error(e.to_string()),
+                }
+            }
         }
         Command::OpenSessionDialog => {
             if let Some(dir) = rfd::FileDialog::new()
@@ -494,4 +567,60 @@ fn update_inspection(app: &mut StudioApp) {
         crops,
         textures,
     });
+}
+
+/// Fits the models over every shot with measured kernels and writes the profile into
+/// the session folder; cross-validation chooses α and β unless the settings fix them.
+fn run_calibrate(app: &mut StudioApp) {
+    if app.jobs.is_running("calibrate") {
+        app.info("calibration is already running");
+        return;
+    }
+    let Some(session) = app.session.as_ref() else {
+        return;
+    };
+    let done: Vec<usize> = (0..session.shots.len())
+        .filter(|&i| session.shots[i].kernels.is_done())
+        .collect();
+    if done.len() < 2 {
+        app.error("calibration needs kernels on at least two shots: run Detect (Ctrl+D) and Kernels (Ctrl+K) first");
+        return;
+    }
+    let paths: Vec<PathBuf> = done
+        .iter()
+        .map(|&i| session.result_path(i, "kernels"))
+        .collect();
+    let settings: Vec<_> = done.iter().map(|&i| session.shots[i].setting()).collect();
+    let names: Vec<String> = done
+        .iter()
+        .map(|&i| session.shots[i].path.display().to_string())
+        .collect();
+    let chart = session.chart.clone();
+    let out_path = session.folder().join("profile.json");
+    let opts = crate::profile::CalibrateOptions {
+        alpha: session.settings.alpha,
+        beta: session.settings.beta,
+        ..Default::default()
+    };
+    let r = app.jobs.spawn("calibrate", move |ctx, out| {
+        let refs: Vec<&Path> = paths.iter().map(PathBuf::as_path).collect();
+        let mut ds = crate::model::Dataset::from_kernels_files(&refs, &settings)
+            .map_err(|e| e.to_string())?;
+        for (info, name) in ds.shots.iter_mut().zip(names) {
+            info.name = name;
+        }
+        let (profile, cv) = crate::profile::calibrate(&ds, Some(chart), &opts, ctx)
+            .map_err(|e| format!("calibration: {e}"))?;
+        profile.save(&out_path).map_err(|e| e.to_string())?;
+        out.emit(JobOutput::Calibrated {
+            dataset: Arc::new(ds),
+            profile: Arc::new(profile),
+            cv: cv.map(Arc::new),
+            path: out_path,
+        });
+        Ok(())
+    });
+    if let Err(e) = r {
+        app.error(e);
+    }
 }

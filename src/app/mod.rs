@@ -74,7 +74,14 @@ pub enum Command {
     OpenPhotoDialog,
     OpenPhoto(PathBuf),
     LoadProfileDialog,
+    /// Load a second profile to show beside the first (two lens units).
+    LoadCompareProfileDialog,
+    LoadProfile {
+        path: PathBuf,
+        compare: bool,
+    },
     SaveProfileDialog,
+    SetFieldSource(FieldSource),
     OpenSessionDialog,
     Cancel(u64),
     CancelAll,
@@ -92,6 +99,19 @@ pub enum JobOutput {
     PhotoLoaded {
         path: PathBuf,
         capture: Arc<Capture>,
+    },
+    /// Calibration finished: the measurements it used, the profile and the
+    /// cross-validation report (absent when α, β were fixed).
+    Calibrated {
+        dataset: Arc<crate::model::Dataset>,
+        profile: Arc<crate::profile::Profile>,
+        cv: Option<Arc<crate::crossval::CvReport>>,
+        path: PathBuf,
+    },
+    ProfileLoaded {
+        profile: Arc<crate::profile::Profile>,
+        path: PathBuf,
+        compare: bool,
     },
     /// A shot's detection finished (or failed: `Err` carries the one-line reason).
     Detected {
@@ -143,6 +163,27 @@ impl Default for AppOptions {
 pub struct Message {
     pub is_error: bool,
     pub text: String,
+}
+
+/// One measured kernel's fit at its square centre (sensor px).
+#[derive(Clone, Debug)]
+pub struct MeasuredSample {
+    pub x: f64,
+    pub y: f64,
+    pub channel: Channel,
+    pub gaussian: crate::psf::Gaussian2,
+    pub kernel: Option<crate::psf::Kernel>,
+}
+
+/// Where the Kernel field view's ellipses come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FieldSource {
+    /// Measured on the selected shot.
+    Measured,
+    /// Predicted by the profile at the sliders' setting.
+    Predicted,
+    /// The demo lens's exact blur (demo sessions only).
+    Truth,
 }
 
 /// The inspector's square: which one, its crops and their textures (observed,
@@ -212,6 +253,16 @@ pub struct StudioApp {
     pub detections: BTreeMap<usize, Arc<Detection>>,
     /// The square clicked in the Shot view: (row, col).
     pub selected_square: Option<(usize, usize)>,
+    /// Measured robust Gaussians per shot index (all channels).
+    pub measured: BTreeMap<usize, Vec<MeasuredSample>>,
+    /// The session's measured Gaussians, as calibration used them.
+    pub dataset: Option<Arc<crate::model::Dataset>>,
+    /// The lens profile in use (calibrated here or loaded) and a second one to compare.
+    pub profile: Option<(PathBuf, Arc<crate::profile::Profile>)>,
+    pub compare_profile: Option<(PathBuf, Arc<crate::profile::Profile>)>,
+    pub cv: Option<Arc<crate::crossval::CvReport>>,
+    /// What the Kernel field view shows.
+    pub field_source: FieldSource,
     /// Crops of the clicked square for the inspector.
     pub inspection: Option<Inspection>,
     pub dark: bool,
@@ -251,6 +302,12 @@ impl StudioApp {
             detections: BTreeMap::new(),
             selected_square: None,
             inspection: None,
+            measured: BTreeMap::new(),
+            dataset: None,
+            profile: None,
+            compare_profile: None,
+            cv: None,
+            field_source: FieldSource::Measured,
             dark: true,
             frames: FrameLog::default(),
             options: options.clone(),
@@ -313,6 +370,23 @@ impl StudioApp {
         self.previews.clear();
         self.loading.clear();
         self.detections = logic::read_detections(&s);
+        self.measured.clear();
+        self.dataset = None;
+        self.cv = None;
+        self.profile = None;
+        if let Some(p) = &s.profile {
+            let path = if p.is_absolute() {
+                p.clone()
+            } else {
+                s.folder().join(p)
+            };
+            if path.is_file() {
+                self.commands.push(Command::LoadProfile {
+                    path,
+                    compare: false,
+                });
+            }
+        }
         self.selected_square = None;
         self.selected_shot = if s.shots.is_empty() { None } else { Some(0) };
         self.viewer.sensor_px_per_point = None;

@@ -626,13 +626,14 @@ fn setting_sliders_ui(app: &mut StudioApp, ui: &mut egui::Ui, lens: &VirtualLens
     });
 }
 
-fn field_panel_ui(
+/// Gaussian ellipses at their sensor positions, coloured by σ = √(C_xx·C_yy), magnified
+/// by `scale` screen points per pixel of σ (shared between panels that are compared).
+fn ellipse_panel_ui(
     ui: &mut egui::Ui,
     title: &str,
-    lens: &VirtualLens,
-    ch: Channel,
+    samples: &[(f64, f64, Gaussian2)],
     (w, h): (usize, usize),
-    s: LensSetting,
+    scale: f32,
     size: Vec2,
 ) {
     ui.vertical(|ui| {
@@ -647,38 +648,62 @@ fn field_panel_ui(
             egui::StrokeKind::Inside,
         );
         let points_per_px = rect.width() / w as f32;
-        let (nx, ny) = (12usize, 8usize);
-        let cell = rect.width() / nx as f32;
-        let mut max_sigma: f64 = 0.0;
-        let mut gs = Vec::new();
-        for j in 0..ny {
-            for i in 0..nx {
-                let x = (i as f64 + 0.5) / nx as f64 * (w as f64 - 1.0);
-                let y = (j as f64 + 0.5) / ny as f64 * (h as f64 - 1.0);
-                let g = truth_gaussian(lens, ch, x, y, w, h, s);
-                max_sigma = max_sigma.max(g.sigma_x.max(g.sigma_y));
-                gs.push((x, y, g));
-            }
-        }
-        // Ellipses are magnified so the largest 1-σ radius fills 45 % of a cell.
-        let scale = 0.45 * cell / max_sigma.max(1e-6) as f32;
-        for (x, y, g) in gs {
-            let c = rect.min + Vec2::new(x as f32 * points_per_px, y as f32 * points_per_px);
+        for (x, y, g) in samples {
+            let c = rect.min + Vec2::new(*x as f32 * points_per_px, *y as f32 * points_per_px);
             let color = sigma_color((g.sigma_x * g.sigma_y).sqrt());
             painter.add(egui::Shape::convex_polygon(
-                ellipse_points(c, &g, scale),
+                ellipse_points(c, g, scale),
                 color,
                 Stroke::NONE,
             ));
         }
         ui.label(
             egui::RichText::new(format!(
-                "ellipses: 1 σ, magnified {:.1}× (sensor {w}×{h} px)",
+                "{} ellipses: 1 σ, magnified {:.1}× (sensor {w}×{h} px)",
+                samples.len(),
                 scale / points_per_px
             ))
             .small(),
         );
     });
+}
+
+/// The demo lens's exact field on a 12 × 8 grid.
+fn truth_field(
+    lens: &VirtualLens,
+    ch: Channel,
+    (w, h): (usize, usize),
+    s: LensSetting,
+) -> Vec<(f64, f64, Gaussian2)> {
+    let (nx, ny) = (12usize, 8usize);
+    let mut out = Vec::with_capacity(nx * ny);
+    for j in 0..ny {
+        for i in 0..nx {
+            let x = (i as f64 + 0.5) / nx as f64 * (w as f64 - 1.0);
+            let y = (j as f64 + 0.5) / ny as f64 * (h as f64 - 1.0);
+            out.push((x, y, truth_gaussian(lens, ch, x, y, w, h, s)));
+        }
+    }
+    out
+}
+
+/// A profile's predicted field on a 12 × 8 grid, or why it has none at this setting.
+fn predicted_field(
+    p: &crate::profile::Profile,
+    ch: Channel,
+    (w, h): (usize, usize),
+    s: LensSetting,
+) -> Result<Vec<(f64, f64, Gaussian2)>, String> {
+    let (nx, ny) = (12usize, 8usize);
+    let mut out = Vec::with_capacity(nx * ny);
+    for j in 0..ny {
+        for i in 0..nx {
+            let x = (i as f64 + 0.5) / nx as f64 * (w as f64 - 1.0);
+            let y = (j as f64 + 0.5) / ny as f64 * (h as f64 - 1.0);
+            out.push((x, y, p.predict(ch, x, y, s).map_err(|e| e.to_string())?));
+        }
+    }
+    Ok(out)
 }
 
 fn sigma_legend_ui(ui: &mut egui::Ui) {
@@ -701,27 +726,37 @@ fn sigma_legend_ui(ui: &mut egui::Ui) {
 }
 
 fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    use super::FieldSource;
     ui.heading("Kernel field");
     let is_demo = app.session.as_ref().is_some_and(|s| s.is_demo);
-    let any_kernels = app
-        .session
-        .as_ref()
-        .is_some_and(|s| s.shots.iter().any(|sh| sh.kernels.is_done()));
-    if !any_kernels {
-        ui.label("No kernels measured yet — press Kernels (Ctrl+K) after Detect.");
-    }
-    if !is_demo {
-        ui.label("No profile yet: the predicted field appears after Calibrate.");
-        return;
-    }
     let lens = VirtualLens::demo();
-    ui.label("GROUND TRUTH of the demo's virtual lens (pixel-level Gaussians: optical blur plus the 1-px pixel integration).");
-    setting_sliders_ui(app, ui, &lens);
     ui.horizontal(|ui| {
-        ui.checkbox(&mut app.compare_units, "Compare with a second unit")
-            .on_hover_text(
-                "Two copies of one lens model blur differently (the paper's two 17–40 mm units).",
-            );
+        for (src, label, tip) in [
+            (
+                FieldSource::Measured,
+                "Measured",
+                "Robust Gaussian fits of the kernels measured on the selected shot",
+            ),
+            (
+                FieldSource::Predicted,
+                "Predicted",
+                "The profile's prediction at the focal length and aperture of the sliders",
+            ),
+            (
+                FieldSource::Truth,
+                "Ground truth",
+                "The demo lens's exact blur (demo session only)",
+            ),
+        ] {
+            if ui
+                .selectable_label(app.field_source == src, label)
+                .on_hover_text(tip)
+                .clicked()
+            {
+                app.commands.push(Command::SetFieldSource(src));
+            }
+        }
+        ui.separator();
         sigma_legend_ui(ui);
     });
     let s = LensSetting {
@@ -729,59 +764,158 @@ fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         f_number: app.field_f_number,
     };
     let size = sensor_size(app);
+    let ch = app.channel;
+    // Panels: (title, samples or the reason there are none).
+    let mut panels: Vec<(String, Result<Vec<(f64, f64, Gaussian2)>, String>)> = Vec::new();
+    match app.field_source {
+        FieldSource::Measured => {
+            let shot = app.selected_shot;
+            let name = shot
+                .and_then(|i| app.session.as_ref()?.shots.get(i))
+                .map_or_else(String::new, |s| s.path.display().to_string());
+            let samples = shot
+                .and_then(|i| app.measured.get(&i))
+                .map(|m| {
+                    m.iter()
+                        .filter(|k| k.channel == ch)
+                        .map(|k| (k.x, k.y, k.gaussian))
+                        .collect::<Vec<_>>()
+                })
+                .ok_or_else(|| {
+                    "No kernels measured on this shot yet — press Kernels (Ctrl+K) after Detect."
+                        .to_owned()
+                });
+            panels.push((format!("measured on {name} — channel {ch}"), samples));
+        }
+        FieldSource::Predicted => {
+            setting_sliders_ui(app, ui, &lens);
+            ui.horizontal(|ui| {
+                if ui
+                    .button("Compare with a second profile…")
+                    .on_hover_text("Two copies of one lens model blur differently (the paper's two 17–40 mm units): load the other unit's profile")
+                    .clicked()
+                {
+                    app.commands.push(Command::LoadCompareProfileDialog);
+                }
+            });
+            match &app.profile {
+                Some((path, p)) => panels.push((
+                    format!(
+                        "{} — {:.0} mm f/{:.1}, channel {ch}",
+                        path.display(),
+                        s.focal_mm,
+                        s.f_number
+                    ),
+                    predicted_field(p, ch, size, s),
+                )),
+                None => panels.push((
+                    "predicted".into(),
+                    Err("No profile yet: Calibrate (Ctrl+M) or load one in Models.".into()),
+                )),
+            }
+            if let Some((path, p)) = &app.compare_profile {
+                panels.push((
+                    format!("{} — channel {ch}", path.display()),
+                    predicted_field(p, ch, size, s),
+                ));
+            }
+        }
+        FieldSource::Truth => {
+            if !is_demo {
+                ui.label("Ground truth exists only for the demo session's simulated lens.");
+                return;
+            }
+            setting_sliders_ui(app, ui, &lens);
+            ui.checkbox(&mut app.compare_units, "Compare with a second unit")
+                .on_hover_text("Two copies of one lens model blur differently (the paper's two 17–40 mm units).");
+            ui.label("GROUND TRUTH of the demo's virtual lens (pixel-level Gaussians: optical blur plus the 1-px pixel integration).");
+            panels.push((
+                format!("{} {} — channel {ch}", lens.model, lens.serial),
+                Ok(truth_field(&lens, ch, size, s)),
+            ));
+            if app.compare_units {
+                let other = VirtualLens::demo_second_unit();
+                panels.push((
+                    format!("{} {} — channel {ch}", other.model, other.serial),
+                    Ok(truth_field(&other, ch, size, s)),
+                ));
+            }
+        }
+    }
     let avail = ui.available_size();
-    let cols = if app.compare_units { 2.0 } else { 1.0 };
+    let cols = panels.len().max(1) as f32;
     let w = ((avail.x - 16.0 * cols) / cols)
-        .min((avail.y - 60.0) * size.0 as f32 / size.1 as f32)
+        .min((avail.y - 40.0) * size.0 as f32 / size.1 as f32)
         .max(100.0);
     let panel = Vec2::new(w, w * size.1 as f32 / size.0 as f32);
+    // One magnification for every panel so compared fields are comparable: the largest
+    // 1-σ radius fills 45 % of a twelfth of the sensor width.
+    let max_sigma = panels
+        .iter()
+        .filter_map(|(_, r)| r.as_ref().ok())
+        .flatten()
+        .map(|(_, _, g)| g.sigma_x.max(g.sigma_y))
+        .fold(1e-6, f64::max);
+    let scale = 0.45 * (panel.x / 12.0) / max_sigma as f32;
     ui.horizontal(|ui| {
-        field_panel_ui(
-            ui,
-            &format!("{} {} — channel {}", lens.model, lens.serial, app.channel),
-            &lens,
-            app.channel,
-            size,
-            s,
-            panel,
-        );
-        if app.compare_units {
-            let other = VirtualLens::demo_second_unit();
-            field_panel_ui(
-                ui,
-                &format!("{} {} — channel {}", other.model, other.serial, app.channel),
-                &other,
-                app.channel,
-                size,
-                s,
-                panel,
-            );
+        for (title, samples) in &panels {
+            match samples {
+                Ok(samples) => ellipse_panel_ui(ui, title, samples, size, scale, panel),
+                Err(reason) => {
+                    ui.vertical(|ui| {
+                        ui.label(title);
+                        ui.label(reason);
+                    });
+                }
+            }
         }
     });
 }
 
+fn nearest(values: &[f64], v: f64) -> Option<f64> {
+    values
+        .iter()
+        .copied()
+        .min_by(|a, b| (a - v).abs().total_cmp(&(b - v).abs()))
+}
+
 fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
-    use egui_plot::{Legend, Line, Plot, PlotPoints};
+    use egui_plot::{Legend, Line, LineStyle, Plot, PlotPoints, Points};
     ui.heading("Sweeps");
     let is_demo = app.session.as_ref().is_some_and(|s| s.is_demo);
-    ui.label("No kernels measured yet: measured points appear here after Kernels (Ctrl+K); model curves after Calibrate.");
-    if !is_demo {
+    let lens = VirtualLens::demo();
+    if app.dataset.is_none() {
+        ui.label("Measured points appear here after Kernels (Ctrl+K) and Calibrate (Ctrl+M); model curves come from the profile.");
+    }
+    if app.dataset.is_none() && app.profile.is_none() && !is_demo {
         return;
     }
-    let lens = VirtualLens::demo();
     ui.label(
-        "Lines: GROUND TRUTH of the demo's virtual lens at five sensor locations (pixel-level).",
+        "Points: measured at the square nearest each location. Solid lines: the profile's model. Dashed: the demo lens's ground truth.",
     );
+    let (f_range, a_range) = match &app.profile {
+        Some((_, p)) => (p.norm.focal_range_mm, p.norm.f_number_range),
+        None => (lens.focal_range_mm, lens.f_number_range),
+    };
     setting_sliders_ui(app, ui, &lens);
     let (w, h) = sensor_size(app);
     let locations: [(&str, f64, f64); 5] = [
         ("centre", 0.5, 0.5),
-        ("top-left", 0.08, 0.08),
-        ("top-right", 0.92, 0.08),
-        ("bottom-left", 0.08, 0.92),
-        ("bottom-right", 0.92, 0.92),
+        ("top-left", 0.1, 0.1),
+        ("top-right", 0.9, 0.1),
+        ("bottom-left", 0.1, 0.9),
+        ("bottom-right", 0.9, 0.9),
     ];
     let ch = app.channel;
+    let (focals, apertures) = app
+        .dataset
+        .as_ref()
+        .map(|d| d.distinct_settings())
+        .unwrap_or_default();
+    // Measured points only exist at shot settings: the sweep holds the other setting at
+    // the calibrated value nearest the slider.
+    let fixed_f = nearest(&focals, app.field_focal_mm).unwrap_or(app.field_focal_mm);
+    let fixed_a = nearest(&apertures, app.field_f_number).unwrap_or(app.field_f_number);
     let params: [(&str, &str, fn(&Gaussian2) -> f64); 3] = [
         ("C_xx", TIP_CXX, |g| g.sigma_x),
         ("C_yy", TIP_CYY, |g| g.sigma_y),
@@ -795,15 +929,9 @@ fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             for (name, tip, get) in params {
                 ui.vertical(|ui| {
                     let title = if vs_aperture {
-                        format!(
-                            "{name} vs aperture at {:.0} mm, channel {ch}",
-                            app.field_focal_mm
-                        )
+                        format!("{name} vs aperture at {fixed_f:.0} mm, channel {ch}")
                     } else {
-                        format!(
-                            "{name} vs focal length at f/{:.1}, channel {ch}",
-                            app.field_f_number
-                        )
+                        format!("{name} vs focal length at f/{fixed_a:.1}, channel {ch}")
                     };
                     ui.label(title).on_hover_text(tip);
                     let unit = if name == "C_or" {
@@ -816,6 +944,23 @@ fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                     } else {
                         "focal length (mm)"
                     };
+                    let setting_at = |t: f64| {
+                        if vs_aperture {
+                            let [a0, a1] = a_range;
+                            LensSetting {
+                                focal_mm: fixed_f,
+                                f_number: a0 * (a1 / a0).powf(t),
+                            }
+                        } else {
+                            let [f0, f1] = f_range;
+                            LensSetting {
+                                focal_mm: f0 + (f1 - f0) * t,
+                                f_number: fixed_a,
+                            }
+                        }
+                    };
+                    let abscissa =
+                        |s: LensSetting| if vs_aperture { s.f_number } else { s.focal_mm };
                     Plot::new(format!("sweep-{name}-{vs_aperture}"))
                         .width(plot_w)
                         .height(plot_h)
@@ -826,27 +971,68 @@ fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                         .show(ui, |plot| {
                             for (loc, fx, fy) in locations {
                                 let (x, y) = (fx * (w as f64 - 1.0), fy * (h as f64 - 1.0));
-                                let pts: Vec<[f64; 2]> = (0..=40)
-                                    .map(|k| {
-                                        let t = f64::from(k) / 40.0;
-                                        let s = if vs_aperture {
-                                            let [a0, a1] = lens.f_number_range;
-                                            LensSetting {
-                                                focal_mm: app.field_focal_mm,
-                                                f_number: a0 * (a1 / a0).powf(t),
-                                            }
+                                if let Some(ds) = &app.dataset {
+                                    let mut pts = Vec::new();
+                                    for (k, info) in ds.shots.iter().enumerate() {
+                                        let on_sweep = if vs_aperture {
+                                            (info.focal_mm - fixed_f).abs() < 1e-6
                                         } else {
-                                            let [f0, f1] = lens.focal_range_mm;
-                                            LensSetting {
-                                                focal_mm: f0 + (f1 - f0) * t,
-                                                f_number: app.field_f_number,
-                                            }
+                                            (info.f_number - fixed_a).abs() < 1e-6
                                         };
-                                        let g = truth_gaussian(&lens, ch, x, y, w, h, s);
-                                        [if vs_aperture { s.f_number } else { s.focal_mm }, get(&g)]
-                                    })
-                                    .collect();
-                                plot.line(Line::new(format!("truth {loc}"), PlotPoints::from(pts)));
+                                        if !on_sweep {
+                                            continue;
+                                        }
+                                        let near = ds
+                                            .samples
+                                            .iter()
+                                            .filter(|s| s.shot == k && s.channel == ch)
+                                            .min_by(|a, b| {
+                                                let da = (a.x - x).powi(2) + (a.y - y).powi(2);
+                                                let db = (b.x - x).powi(2) + (b.y - y).powi(2);
+                                                da.total_cmp(&db)
+                                            });
+                                        if let Some(s) = near {
+                                            let v =
+                                                if vs_aperture { s.f_number } else { s.focal_mm };
+                                            pts.push([v, get(&s.gaussian)]);
+                                        }
+                                    }
+                                    plot.points(
+                                        Points::new(
+                                            format!("measured {loc}"),
+                                            PlotPoints::from(pts),
+                                        )
+                                        .radius(3.5),
+                                    );
+                                }
+                                if let Some((_, p)) = &app.profile {
+                                    let pts: Vec<[f64; 2]> = (0..=40)
+                                        .filter_map(|k| {
+                                            let s = setting_at(f64::from(k) / 40.0);
+                                            p.predict(ch, x, y, s)
+                                                .ok()
+                                                .map(|g| [abscissa(s), get(&g)])
+                                        })
+                                        .collect();
+                                    plot.line(Line::new(
+                                        format!("model {loc}"),
+                                        PlotPoints::from(pts),
+                                    ));
+                                }
+                                if is_demo {
+                                    let pts: Vec<[f64; 2]> = (0..=40)
+                                        .map(|k| {
+                                            let s = setting_at(f64::from(k) / 40.0);
+                                            let g = truth_gaussian(&lens, ch, x, y, w, h, s);
+                                            [abscissa(s), get(&g)]
+                                        })
+                                        .collect();
+                                    plot.line(
+                                        Line::new(format!("truth {loc}"), PlotPoints::from(pts))
+                                            .style(LineStyle::dashed_loose())
+                                            .width(1.0),
+                                    );
+                                }
                             }
                         });
                 });
@@ -856,21 +1042,137 @@ fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
 }
 
 fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    use egui_plot::{Legend, Line, Plot, PlotPoints, Points};
     ui.heading("Models");
     ui.horizontal(|ui| {
-        ui.label("Model complexity:");
-        ui.label("α").on_hover_text(TIP_ALPHA);
-        ui.label("β").on_hover_text(TIP_BETA);
-    });
-    ui.label("No cross-validation yet — press Calibrate (Ctrl+M) once kernels are measured on every shot.");
-    ui.label("The cross-validation curves over α and β, the error CDFs and the chosen model appear here.");
-    ui.horizontal(|ui| {
+        if ui
+            .button("Calibrate")
+            .on_hover_text("Fit global and local models over every shot with kernels; cross-validation picks α and β (Ctrl+M)")
+            .clicked()
+        {
+            app.commands.push(Command::RunCalibrate);
+        }
         if ui.button("Load profile…").clicked() {
             app.commands.push(Command::LoadProfileDialog);
         }
         if ui.button("Save profile…").clicked() {
             app.commands.push(Command::SaveProfileDialog);
         }
+        ui.label("α").on_hover_text(TIP_ALPHA);
+        ui.label("β").on_hover_text(TIP_BETA);
+    });
+    if let Some((path, p)) = &app.profile {
+        let kind = format!("{:?}", p.preferred).to_lowercase();
+        let orders = |g: Option<(usize, usize)>| {
+            g.map_or("—".to_owned(), |(a, b)| format!("α {a}, β {b}"))
+        };
+        ui.label(format!(
+            "Profile {}: preferred {kind} model; global {}; local {}; calibrated {:.0}–{:.0} mm, f/{:.1}–f/{:.1}",
+            path.display(),
+            orders(p.global.as_ref().map(|g| (g.alpha, g.beta))),
+            orders(p.local.as_ref().map(|l| (l.alpha, l.beta))),
+            p.norm.focal_range_mm[0],
+            p.norm.focal_range_mm[1],
+            p.norm.f_number_range[0],
+            p.norm.f_number_range[1],
+        ));
+    } else {
+        ui.label("No profile yet — press Calibrate once kernels are measured on the shots, or load a profile.");
+    }
+    let Some(cv) = app.cv.clone() else {
+        ui.label("Cross-validation curves over α and β (paper Fig. 5) and the error distributions (Fig. 6) appear after a calibration that selects α and β.");
+        return;
+    };
+    ui.label(format!(
+        "Cross-validation: {} shots in {} folds (whole shots held out); errors in % of each parameter's 99 % range (C_xx {:.3} px, C_yy {:.3} px, C_or {:.3}).",
+        cv.shots, cv.folds, cv.ranges.cxx, cv.ranges.cyy, cv.ranges.cor
+    ));
+    let families: Vec<(&str, &crate::crossval::Selection)> =
+        [("global", cv.global.as_ref()), ("local", cv.local.as_ref())]
+            .into_iter()
+            .filter_map(|(n, s)| s.map(|s| (n, s)))
+            .collect();
+    for (name, sel) in &families {
+        ui.label(format!(
+            "{name}: chosen α {}, β {} ({} terms): mean error C_xx {:.2} %, C_yy {:.2} %, C_or {:.2} %; 95th percentile {:.2} / {:.2} / {:.2} %",
+            sel.alpha,
+            sel.beta,
+            sel.chosen.terms,
+            sel.chosen.mean_error_pct[0],
+            sel.chosen.mean_error_pct[1],
+            sel.chosen.mean_error_pct[2],
+            sel.chosen.p95_error_pct[0],
+            sel.chosen.p95_error_pct[1],
+            sel.chosen.p95_error_pct[2],
+        ));
+    }
+    let avail = ui.available_size();
+    let plot_w = (avail.x - 24.0) / 3.0;
+    let plot_h = (avail.y - 40.0).max(140.0);
+    ui.horizontal(|ui| {
+        for (title, tip, by_alpha) in [
+            ("CV error vs α (β = N − 1)", TIP_ALPHA, true),
+            ("CV error vs β (chosen α)", TIP_BETA, false),
+        ] {
+            ui.vertical(|ui| {
+                ui.label(title).on_hover_text(tip);
+                Plot::new(format!("cv-{by_alpha}"))
+                    .width(plot_w)
+                    .height(plot_h)
+                    .x_axis_label(if by_alpha {
+                        "α (spatial order)"
+                    } else {
+                        "β (order in f, a)"
+                    })
+                    .y_axis_label("mean error (% of range)")
+                    .legend(Legend::default())
+                    .allow_scroll(false)
+                    .show(ui, |plot| {
+                        for (name, sel) in &families {
+                            let curve = if by_alpha {
+                                &sel.alpha_curve
+                            } else {
+                                &sel.beta_curve
+                            };
+                            let pts: Vec<[f64; 2]> = curve
+                                .iter()
+                                .map(|p| {
+                                    [if by_alpha { p.alpha } else { p.beta } as f64, p.mean_pct]
+                                })
+                                .collect();
+                            plot.line(Line::new(format!("{name}"), PlotPoints::from(pts.clone())));
+                            plot.points(
+                                Points::new(format!("{name}"), PlotPoints::from(pts)).radius(3.0),
+                            );
+                        }
+                    });
+            });
+        }
+        ui.vertical(|ui| {
+            ui.label("Error CDF of the chosen models (Fig. 6)");
+            Plot::new("cv-cdf")
+                .width(plot_w)
+                .height(plot_h)
+                .x_axis_label("error (% of range)")
+                .y_axis_label("fraction of samples (%)")
+                .legend(Legend::default())
+                .allow_scroll(false)
+                .show(ui, |plot| {
+                    for (name, sel) in &families {
+                        let cdf = &sel.error_cdf;
+                        for (param, q) in
+                            [("C_xx", &cdf.cxx), ("C_yy", &cdf.cyy), ("C_or", &cdf.cor)]
+                        {
+                            let pts: Vec<[f64; 2]> = q
+                                .iter()
+                                .zip(&cdf.percentiles)
+                                .map(|(&e, &p)| [e, p])
+                                .collect();
+                            plot.line(Line::new(format!("{name} {param}"), PlotPoints::from(pts)));
+                        }
+                    }
+                });
+        });
     });
 }
 
