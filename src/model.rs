@@ -106,35 +106,6 @@ pub struct Dataset {
 /// The names of the three modelled parameters, in the order of [`BlurSample::params`].
 pub const PARAM_NAMES: [&str; 3] = ["cxx", "cyy", "cor"];
 
-#[derive(Deserialize)]
-struct KernelsFile {
-    schema: Option<String>,
-    width: usize,
-    height: usize,
-    #[serde(default)]
-    focal_mm: Option<f64>,
-    #[serde(default)]
-    f_number: Option<f64>,
-    #[serde(default)]
-    identity: Option<CameraIdentity>,
-    samples: Vec<KernelsEntry>,
-}
-
-#[derive(Deserialize)]
-struct KernelsEntry {
-    x: f64,
-    y: f64,
-    channel: Channel,
-    #[serde(default)]
-    status: Option<String>,
-    #[serde(default)]
-    cxx: Option<f64>,
-    #[serde(default)]
-    cyy: Option<f64>,
-    #[serde(default)]
-    cor: Option<f64>,
-}
-
 impl Dataset {
     /// An empty session on a `width × height` sensor.
     #[must_use]
@@ -182,16 +153,8 @@ impl Dataset {
                 path: path.display().to_string(),
                 reason,
             };
-            let text = std::fs::read_to_string(path).map_err(|e| file_err(e.to_string()))?;
-            let kf: KernelsFile = serde_json::from_str(&text)
-                .map_err(|e| file_err(format!("not a kernels file: {e}")))?;
-            if let Some(schema) = &kf.schema
-                && schema != "lensblur.kernels/1"
-            {
-                return Err(file_err(format!(
-                    "schema '{schema}', expected 'lensblur.kernels/1'"
-                )));
-            }
+            let kf =
+                crate::kernel::file::KernelsFile::load(path).map_err(|e| file_err(e.reason))?;
             let name = path.file_name().map_or_else(
                 || path.display().to_string(),
                 |n| n.to_string_lossy().into_owned(),
@@ -221,7 +184,6 @@ impl Dataset {
             let samples: Vec<BlurSample> = kf
                 .samples
                 .iter()
-                .filter(|e| e.status.as_deref() != Some("failed"))
                 .filter_map(|e| {
                     let (cxx, cyy, cor) = (e.cxx?, e.cyy?, e.cor?);
                     (cxx.is_finite() && cyy.is_finite() && cor.is_finite()).then_some(BlurSample {

@@ -240,6 +240,9 @@ fn spatially_varying_field_beats_blurry_and_invariant() {
                 cxx: Some(g.sigma_x),
                 cyy: Some(g.sigma_y),
                 cor: Some(g.rho),
+                row: None,
+                col: None,
+                ml: None,
                 kernel: None,
             });
         }
@@ -251,7 +254,9 @@ fn spatially_varying_field_beats_blurry_and_invariant() {
         focal_mm: Some(31.0),
         f_number: Some(4.5),
         oversample: 1,
+        identity: None,
         samples,
+        failed: Vec::new(),
     };
     let predicted = ScatteredKernels::new(file, Prefer::Gaussian);
     let x_true = deblur_channel_plane(&cp, w, h, &true_source, &hqs, &job).unwrap();

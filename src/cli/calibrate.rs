@@ -9,9 +9,13 @@ use super::common::{load_chart, progress_job, write_json};
 use anyhow::{Context, Result, bail};
 use lensblur::chart::ChartSpec;
 use lensblur::crossval::CvOptions;
+use lensblur::detect::{DetectParams, detect};
+use lensblur::kernel::file::KernelsFile;
+use lensblur::kernel::{KernelParams, estimate_shot};
 use lensblur::model::{Dataset, LocalOptions};
 use lensblur::plane::LensSetting;
 use lensblur::profile::{CalibrateOptions, Families, calibrate};
+use lensblur::raw::{LoadOptions, load_capture};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
@@ -152,14 +156,22 @@ pub fn load_session(args: &SessionArgs) -> Result<(Dataset, Option<ChartSpec>)> 
 /// Runs load → detect → kernels on one shot and returns its kernels document.
 fn measure_shot(
     path: &Path,
-    _setting: Option<LensSetting>,
-    _chart: &ChartSpec,
-    _job: &lensblur::job::JobContext,
-) -> Result<serde_json::Value> {
-    bail!(
-        "{}: measuring a photo needs the detection and kernel stages, which this build lacks; give its kernels file (lensblur kernels) instead",
-        path.display()
-    )
+    setting: Option<LensSetting>,
+    chart: &ChartSpec,
+    job: &lensblur::job::JobContext,
+) -> Result<KernelsFile> {
+    let capture = load_capture(path, &LoadOptions::default())?;
+    let det = detect(&capture, chart, &DetectParams::default(), job)
+        .with_context(|| path.display().to_string())?;
+    let shot = estimate_shot(&capture, &det, chart, &KernelParams::default(), job)
+        .with_context(|| path.display().to_string())?;
+    Ok(KernelsFile::from_shot(
+        &shot,
+        setting.map(|s| s.focal_mm).or(capture.setting_focal_mm),
+        setting.map(|s| s.f_number).or(capture.setting_f_number),
+        Some(capture.identity.clone()),
+        false,
+    ))
 }
 
 #[derive(clap::Args, Default)]

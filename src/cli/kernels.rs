@@ -1,8 +1,91 @@
-//! `lensblur kernels` (being built).
+//! `lensblur kernels SHOT --out kernels.json [--with-kernels] [--focal F --aperture A]`:
+//! the 3× kernel and its Gaussian fits at every square and channel of a shot.
+
+use super::common::{load_chart, progress_job, write_json};
+use anyhow::{Context, Result, bail};
+use lensblur::detect::{DetectParams, detect};
+use lensblur::kernel::file::KernelsFile;
+use lensblur::kernel::{KernelParams, Weighting, estimate_shot};
+use lensblur::raw::{LoadOptions, load_capture};
+use std::path::PathBuf;
 
 #[derive(clap::Args, Default)]
-pub struct Args {}
+pub struct Args {
+    /// The shot: a RAW file, or a PNG/TIFF/JPEG image of the chart.
+    pub shot: PathBuf,
+    /// Where to write kernels.json.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Also write every kernel array (at the oversampling), not only its Gaussians.
+    #[arg(long)]
+    pub with_kernels: bool,
+    /// Focal length in mm, when EXIF lacks it or is wrong.
+    #[arg(long)]
+    pub focal: Option<f64>,
+    /// Aperture as an f-number, when EXIF lacks it or is wrong.
+    #[arg(long)]
+    pub aperture: Option<f64>,
+    /// The chart spec printed, when not the default 24 × 16 chart.
+    #[arg(long)]
+    pub chart: Option<PathBuf>,
+    /// Sub-samples per pixel of the kernels (odd).
+    #[arg(long, default_value_t = 3)]
+    pub oversample: usize,
+    /// Weight every sub-sample (the paper's W = I) instead of only real pixel centres.
+    #[arg(long)]
+    pub uniform_weights: bool,
+}
 
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("'kernels' is not built yet")
+pub fn run(args: Args) -> Result<()> {
+    for (name, v) in [("--focal", args.focal), ("--aperture", args.aperture)] {
+        if let Some(v) = v
+            && !(v.is_finite() && v > 0.0)
+        {
+            bail!("{name} must be a positive number (got {v})");
+        }
+    }
+    let spec = load_chart(args.chart.as_deref())?;
+    let capture = load_capture(&args.shot, &LoadOptions::default())?;
+    let params = KernelParams {
+        oversample: args.oversample,
+        weighting: if args.uniform_weights {
+            Weighting::Uniform
+        } else {
+            Weighting::PixelCentres
+        },
+        ..KernelParams::default()
+    };
+    let job = progress_job();
+    let det = detect(&capture, &spec, &DetectParams::default(), &job)
+        .with_context(|| args.shot.display().to_string())?;
+    let shot = estimate_shot(&capture, &det, &spec, &params, &job)
+        .with_context(|| args.shot.display().to_string())?;
+    let file = KernelsFile::from_shot(
+        &shot,
+        args.focal.or(capture.setting_focal_mm),
+        args.aperture.or(capture.setting_f_number),
+        Some(capture.identity.clone()),
+        args.with_kernels,
+    );
+    let mut sigmas: Vec<f64> = file
+        .samples
+        .iter()
+        .filter_map(|s| Some((s.cxx? * s.cyy?).sqrt()))
+        .collect();
+    sigmas.sort_by(f64::total_cmp);
+    let median = sigmas.get(sigmas.len() / 2).copied().unwrap_or(f64::NAN);
+    eprintln!(
+        "{}: {} kernels over {} squares, {} failed; median σ {median:.3} px",
+        args.shot.display(),
+        file.samples.len(),
+        shot.squares.len(),
+        file.failed.len()
+    );
+    if file.focal_mm.is_none() || file.f_number.is_none() {
+        eprintln!(
+            "{}: warning: focal length or aperture unknown (no EXIF); give --focal and --aperture for calibration",
+            args.shot.display()
+        );
+    }
+    write_json(&args.out, &file)
 }

@@ -3,7 +3,6 @@
 
 use crate::plane::Channel;
 use crate::psf::{Gaussian2, Kernel};
-use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 #[derive(Debug, thiserror::Error)]
@@ -42,80 +41,17 @@ impl KernelSource for ConstantKernel {
     }
 }
 
-/// A kernel array as the kernels file stores it.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct KernelData {
-    pub size: usize,
-    pub data: Vec<f64>,
-}
+pub use crate::kernel::file::{KernelData, KernelSample, KernelsFile};
 
-/// One sample of a kernels file (`lensblur.kernels/1`).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct KernelSample {
-    pub x: f64,
-    pub y: f64,
-    pub channel: Channel,
-    #[serde(default)]
-    pub cxx: Option<f64>,
-    #[serde(default)]
-    pub cyy: Option<f64>,
-    #[serde(default)]
-    pub cor: Option<f64>,
-    #[serde(default)]
-    pub kernel: Option<KernelData>,
-}
-
-/// The kernels file (DESIGN.md §3); unknown fields are ignored.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct KernelsFile {
-    #[serde(default)]
-    pub schema: String,
-    pub width: usize,
-    pub height: usize,
-    #[serde(default)]
-    pub focal_mm: Option<f64>,
-    #[serde(default)]
-    pub f_number: Option<f64>,
-    #[serde(default = "default_oversample")]
-    pub oversample: usize,
-    pub samples: Vec<KernelSample>,
-}
-
-fn default_oversample() -> usize {
-    3
-}
-
-impl KernelsFile {
-    /// # Errors
-    /// A one-line reason naming the file when it cannot be read or parsed.
-    pub fn load(path: &Path) -> Result<Self, SourceError> {
-        let err = |reason: String| SourceError::File {
-            path: path.display().to_string(),
-            reason,
-        };
-        let text = std::fs::read_to_string(path).map_err(|e| err(e.to_string()))?;
-        let f: KernelsFile =
-            serde_json::from_str(&text).map_err(|e| err(format!("not a kernels file: {e}")))?;
-        if !f.schema.is_empty() && !f.schema.starts_with("lensblur.kernels/") {
-            return Err(err(format!(
-                "schema '{}' is not lensblur.kernels/1",
-                f.schema
-            )));
-        }
-        if f.oversample == 0 {
-            return Err(err("oversample must be at least 1".into()));
-        }
-        for (i, s) in f.samples.iter().enumerate() {
-            if let Some(k) = &s.kernel
-                && (k.size % 2 == 0 || k.data.len() != k.size * k.size)
-            {
-                return Err(err(format!(
-                    "sample {i}: kernel must be odd-sized with size² values"
-                )));
-            }
-        }
-        Ok(f)
-    }
+/// Reads a kernels file for deblurring.
+///
+/// # Errors
+/// A one-line reason naming the file.
+pub fn load_kernels(path: &Path) -> Result<KernelsFile, SourceError> {
+    KernelsFile::load(path).map_err(|e| SourceError::File {
+        path: e.path,
+        reason: e.reason,
+    })
 }
 
 /// Which half of a kernels-file sample to use.
@@ -264,6 +200,9 @@ mod tests {
             cxx: Some(s),
             cyy: Some(s),
             cor: Some(0.0),
+            row: None,
+            col: None,
+            ml: None,
             kernel: None,
         }
     }
@@ -277,7 +216,9 @@ mod tests {
             focal_mm: None,
             f_number: None,
             oversample: 3,
+            identity: None,
             samples: vec![sample(0.0, 0.0, 1.0), sample(100.0, 0.0, 2.0)],
+            failed: Vec::new(),
         };
         let src = ScatteredKernels {
             neighbours: 2,

@@ -18,6 +18,7 @@
 //! k ⊛ box(1/s) ≈ PSF ⊛ box(1): its variance is short by 1/(12 s²) px² per axis, which
 //! the Gaussian fit adds back.
 
+pub mod file;
 mod solve;
 
 use crate::chart::{self, ChartSpec};
@@ -126,7 +127,8 @@ pub struct SquareKernels {
     pub row: usize,
     pub col: usize,
     pub centre: [f64; 2],
-    pub estimates: Vec<Result<KernelEstimate, KernelFailure>>,
+    /// One per channel of the capture, in [`channels_of`] order.
+    pub estimates: Vec<(Channel, Result<KernelEstimate, KernelFailure>)>,
 }
 
 /// Every square of a shot.
@@ -472,5 +474,65 @@ fn solve_kernel(
         kernel,
         iterations: solution.iterations,
         residual: solution.relative_residual,
+    })
+}
+
+/// Every aligned square × channel of a shot, in parallel. A RAW capture's two green
+/// planes are one channel here: the solver observes every plane of the channel, so G1
+/// and G2 pool into one G kernel per square.
+///
+/// # Errors
+/// Invalid parameters, or the job was cancelled.
+pub fn estimate_shot(
+    capture: &Capture,
+    detection: &crate::detect::Detection,
+    spec: &ChartSpec,
+    params: &KernelParams,
+    job: &crate::job::JobContext,
+) -> Result<ShotKernels, KernelError> {
+    use rayon::prelude::*;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    validate(params)?;
+    let channels = channels_of(capture);
+    let squares: Vec<SquareGeometry> = detection
+        .ok_squares()
+        .map(|s| SquareGeometry {
+            row: s.row,
+            col: s.col,
+            image_from_chart: s.image_from_chart,
+        })
+        .collect();
+    let units: Vec<(usize, Channel)> = (0..squares.len())
+        .flat_map(|i| channels.iter().map(move |&c| (i, c)))
+        .collect();
+    let total = units.len();
+    let done = AtomicUsize::new(0);
+    job.report("kernels", 0, total);
+    type Estimate = (Channel, Result<KernelEstimate, KernelFailure>);
+    let results: Result<Vec<Estimate>, crate::job::Cancelled> = units
+        .par_iter()
+        .map(|&(i, ch)| {
+            job.check()?;
+            let r = estimate_square_geometry(capture, &squares[i], spec, params, ch);
+            let n = done.fetch_add(1, Ordering::Relaxed) + 1;
+            job.report("kernels", n, total);
+            Ok((ch, r))
+        })
+        .collect();
+    let mut results = results?.into_iter();
+    let squares = squares
+        .iter()
+        .map(|sq| SquareKernels {
+            row: sq.row,
+            col: sq.col,
+            centre: square_centre(sq),
+            estimates: results.by_ref().take(channels.len()).collect(),
+        })
+        .collect();
+    Ok(ShotKernels {
+        width: capture.width,
+        height: capture.height,
+        oversample: params.oversample,
+        squares,
     })
 }
