@@ -123,25 +123,68 @@ fn every_view_on_the_demo_session() {
     );
     h.snapshot("studio_square_inspector");
 
-    for (label, view, name) in [
-        ("Kernel field", View::KernelField, "studio_kernel_field"),
-        ("Sweeps", View::Sweeps, "studio_sweeps"),
-        ("Models", View::Models, "studio_models"),
-        ("Deblur", View::Deblur, "studio_deblur"),
-    ] {
-        h.get_by_label(label).click();
-        h.run_steps(3);
-        assert_eq!(h.state().view, view);
-        h.snapshot(name);
+    // Kernels on every detected shot, by clicking; the field shows the measured fits.
+    h.get_by_label("Kernels").click();
+    let n_shots = DemoSpec::small().settings.len();
+    step_until(&mut h, "kernels", Duration::from_secs(600), |a| {
+        a.measured.len() == n_shots && a.jobs.running.is_empty()
+    });
+    let spec = DemoSpec::small().chart();
+    let session = h.state().session.clone().expect("session");
+    for (i, m) in &h.state().measured {
+        // Every square and channel is measured or reported with its reason, and
+        // nearly all are measured on clean simulated shots.
+        let file = lensblur::kernel::file::KernelsFile::load(&session.result_path(*i, "kernels"))
+            .expect("kernels file written");
+        assert_eq!(
+            file.samples.len() + file.failed.len(),
+            3 * spec.cols * spec.rows
+        );
+        assert!(file.failed.iter().all(|f| !f.reason.is_empty()));
+        assert!(
+            m.len() * 100 >= 97 * 3 * spec.cols * spec.rows,
+            "{} measured",
+            m.len()
+        );
     }
     h.get_by_label("Kernel field").click();
+    h.run_steps(3);
+    assert_eq!(h.state().view, View::KernelField);
+    h.snapshot("studio_kernel_field");
+
+    // Calibrate: cross-validation chooses α and β, the profile is written.
+    h.get_by_label("Models").click();
     h.run_steps(2);
+    h.get_by_label("Calibrate").click();
+    step_until(&mut h, "calibration", Duration::from_secs(300), |a| {
+        a.profile.is_some() && a.jobs.running.is_empty()
+    });
+    assert!(h.state().cv.is_some(), "cross-validation ran");
+    assert!(
+        dir.path().join("profile.json").is_file(),
+        "profile saved in the session"
+    );
+    h.snapshot("studio_models");
+
+    h.get_by_label("Sweeps").click();
+    h.run_steps(3);
+    h.snapshot("studio_sweeps");
+
+    h.get_by_label("Kernel field").click();
+    h.run_steps(2);
+    h.get_by_label("Predicted").click();
+    h.run_steps(3);
+    h.snapshot("studio_kernel_field_predicted");
     h.get_by_label("Ground truth").click();
     h.run_steps(2);
     h.get_by_label("Compare with a second unit").click();
     h.run_steps(3);
     assert!(h.state().compare_units);
     h.snapshot("studio_kernel_field_compare");
+
+    h.get_by_label("Deblur").click();
+    h.run_steps(3);
+    h.snapshot("studio_deblur");
 
     // The cached demo opens at once on the next launch.
     drop(h);

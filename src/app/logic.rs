@@ -3,6 +3,7 @@
 use super::jobs::JobEvent;
 use super::{Command, JobOutput, ShotPreview, StudioApp};
 use crate::detect::{DetectFile, DetectParams, Detection};
+use crate::kernel::file::KernelsFile;
 use crate::plane::{Capture, Channel, ChannelPlane, Plane};
 use crate::session::{Session, StageStatus};
 use std::path::{Path, PathBuf};
@@ -72,6 +73,26 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                     } else {
                         app.profile = Some((path, profile));
                     }
+                }
+                JobOutput::KernelsMeasured { index, result } => {
+                    let status = match &result {
+                        Ok((samples, failed)) => StageStatus::Done {
+                            summary: format!("{} kernels, {failed} failed", samples.len()),
+                        },
+                        Err(reason) => StageStatus::Failed {
+                            reason: reason.clone(),
+                        },
+                    };
+                    if let Some(shot) = app.session.as_mut().and_then(|s| s.shots.get_mut(index)) {
+                        shot.kernels = status;
+                    }
+                    match result {
+                        Ok((samples, _)) => {
+                            app.measured.insert(index, samples);
+                        }
+                        Err(e) => app.error(e),
+                    }
+                    save(app);
                 }
                 JobOutput::Detected { index, result } => {
                     let status = match &result {
@@ -174,9 +195,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
             }
         }
         Command::RunDetect(which) => run_detect(app, which),
-        Command::RunKernels(_) => {
-            app.info("kernel estimation is not available in this build yet: the kernel stage has not been merged");
-        }
+        Command::RunKernels(which) => run_kernels(app, which),
         Command::RunCalibrate => run_calibrate(app),
         Command::SetFieldSource(f) => app.field_source = f,
         Command::OpenPhotoDialog => {
@@ -623,4 +642,126 @@ fn run_calibrate(app: &mut StudioApp) {
     if let Err(e) = r {
         app.error(e);
     }
+}
+
+/// The samples the studio shows, from a kernels file.
+pub(super) fn measured_samples(file: &KernelsFile) -> Vec<super::MeasuredSample> {
+    file.samples
+        .iter()
+        .filter_map(|s| {
+            Some(super::MeasuredSample {
+                x: s.x,
+                y: s.y,
+                channel: s.channel,
+                gaussian: crate::psf::Gaussian2 {
+                    sigma_x: s.cxx?,
+                    sigma_y: s.cyy?,
+                    rho: s.cor?,
+                },
+                kernel: s.kernel_at(file.oversample),
+            })
+        })
+        .collect()
+}
+
+/// Kernels of the chosen shots (those detected), one shot after another, each shot's
+/// squares in parallel; results written beside the session as kernels files.
+fn run_kernels(app: &mut StudioApp, which: Option<usize>) {
+    if app.jobs.is_running("kernels") {
+        app.info("kernel estimation is already running");
+        return;
+    }
+    let Some(session) = app.session.as_ref() else {
+        return;
+    };
+    let indices: Vec<usize> = targets(app, which, |i| app.measured.contains_key(&i))
+        .into_iter()
+        .filter(|i| app.detections.contains_key(i))
+        .collect();
+    if indices.is_empty() {
+        app.info("no detected shot without kernels: run Detect (Ctrl+D) first");
+        return;
+    }
+    let spec = session.chart.clone();
+    let params = crate::kernel::KernelParams {
+        oversample: session.settings.oversample,
+        weighting: if session.settings.weight_all_subpixels {
+            crate::kernel::Weighting::Uniform
+        } else {
+            crate::kernel::Weighting::PixelCentres
+        },
+        ..Default::default()
+    };
+    type Work = (
+        usize,
+        PathBuf,
+        PathBuf,
+        Option<Arc<Capture>>,
+        Arc<Detection>,
+        Option<crate::plane::LensSetting>,
+    );
+    let work: Vec<Work> = indices
+        .iter()
+        .filter_map(|&i| {
+            Some((
+                i,
+                session.shot_path(i),
+                session.result_path(i, "kernels"),
+                app.previews.get(&i).map(|p| Arc::clone(&p.capture)),
+                Arc::clone(app.detections.get(&i)?),
+                session.shots[i].setting(),
+            ))
+        })
+        .collect();
+    let r = app.jobs.spawn("kernels", move |ctx, out| {
+        for (index, shot, result_path, capture, det, setting) in work {
+            ctx.check().map_err(|e| e.to_string())?;
+            let capture = match capture {
+                Some(c) => c,
+                None => match load_capture(&shot) {
+                    Ok(c) => Arc::new(c),
+                    Err(e) => {
+                        out.emit(JobOutput::KernelsMeasured {
+                            index,
+                            result: Err(e),
+                        });
+                        continue;
+                    }
+                },
+            };
+            let result = match crate::kernel::estimate_shot(&capture, &det, &spec, &params, ctx) {
+                Ok(k) => {
+                    let file = KernelsFile::from_shot(
+                        &k,
+                        setting.map(|s| s.focal_mm).or(capture.setting_focal_mm),
+                        setting.map(|s| s.f_number).or(capture.setting_f_number),
+                        Some(capture.identity.clone()),
+                        true,
+                    );
+                    write_result(&result_path, &file)
+                        .map(|()| (measured_samples(&file), file.failed.len()))
+                }
+                Err(crate::kernel::KernelError::Cancelled(c)) => return Err(c.to_string()),
+                Err(e) => Err(format!("{}: {e}", shot.display())),
+            };
+            out.emit(JobOutput::KernelsMeasured { index, result });
+        }
+        Ok(())
+    });
+    if let Err(e) = r {
+        app.error(e);
+    }
+}
+
+/// Kernels a reopened session already has on disk.
+pub(super) fn read_measured(
+    session: &Session,
+) -> std::collections::BTreeMap<usize, Vec<super::MeasuredSample>> {
+    (0..session.shots.len())
+        .filter(|&i| session.shots[i].kernels.is_done())
+        .filter_map(|i| {
+            let file = KernelsFile::load(&session.result_path(i, "kernels")).ok()?;
+            Some((i, measured_samples(&file)))
+        })
+        .collect()
 }

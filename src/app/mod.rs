@@ -100,6 +100,11 @@ pub enum JobOutput {
         path: PathBuf,
         capture: Arc<Capture>,
     },
+    /// A shot's kernels finished (or failed).
+    KernelsMeasured {
+        index: usize,
+        result: Result<(Vec<MeasuredSample>, usize), String>,
+    },
     /// Calibration finished: the measurements it used, the profile and the
     /// cross-validation report (absent when α, β were fixed).
     Calibrated {
@@ -370,7 +375,7 @@ impl StudioApp {
         self.previews.clear();
         self.loading.clear();
         self.detections = logic::read_detections(&s);
-        self.measured.clear();
+        self.measured = logic::read_measured(&s);
         self.dataset = None;
         self.cv = None;
         self.profile = None;

@@ -880,7 +880,7 @@ fn nearest(values: &[f64], v: f64) -> Option<f64> {
 }
 
 fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
-    use egui_plot::{Legend, Line, LineStyle, Plot, PlotPoints, Points};
+    use egui_plot::{Line, LineStyle, Plot, PlotPoints, Points};
     ui.heading("Sweeps");
     let is_demo = app.session.as_ref().is_some_and(|s| s.is_demo);
     let lens = VirtualLens::demo();
@@ -899,13 +899,21 @@ fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     };
     setting_sliders_ui(app, ui, &lens);
     let (w, h) = sensor_size(app);
-    let locations: [(&str, f64, f64); 5] = [
-        ("centre", 0.5, 0.5),
-        ("top-left", 0.1, 0.1),
-        ("top-right", 0.9, 0.1),
-        ("bottom-left", 0.1, 0.9),
-        ("bottom-right", 0.9, 0.9),
+    let locations: [(&str, f64, f64, Color32); 5] = [
+        ("centre", 0.5, 0.5, Color32::from_rgb(240, 200, 60)),
+        ("top-left", 0.1, 0.1, Color32::from_rgb(90, 170, 255)),
+        ("top-right", 0.9, 0.1, Color32::from_rgb(240, 100, 90)),
+        ("bottom-left", 0.1, 0.9, Color32::from_rgb(120, 210, 120)),
+        ("bottom-right", 0.9, 0.9, Color32::from_rgb(200, 120, 230)),
     ];
+    // One colour per location across the six plots, named once here rather than in
+    // six legends that would cover the curves.
+    ui.horizontal(|ui| {
+        ui.label("Locations:");
+        for (loc, _, _, c) in locations {
+            ui.colored_label(c, format!("● {loc}"));
+        }
+    });
     let ch = app.channel;
     let (focals, apertures) = app
         .dataset
@@ -966,10 +974,9 @@ fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                         .height(plot_h)
                         .x_axis_label(x_label)
                         .y_axis_label(format!("{name}: {unit}"))
-                        .legend(Legend::default())
                         .allow_scroll(false)
                         .show(ui, |plot| {
-                            for (loc, fx, fy) in locations {
+                            for (loc, fx, fy, color) in locations {
                                 let (x, y) = (fx * (w as f64 - 1.0), fy * (h as f64 - 1.0));
                                 if let Some(ds) = &app.dataset {
                                     let mut pts = Vec::new();
@@ -1029,6 +1036,7 @@ fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                                         .collect();
                                     plot.line(
                                         Line::new(format!("truth {loc}"), PlotPoints::from(pts))
+                                            .color(color.gamma_multiply(0.7))
                                             .style(LineStyle::dashed_loose())
                                             .width(1.0),
                                     );
@@ -1046,7 +1054,7 @@ fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ui.heading("Models");
     ui.horizontal(|ui| {
         if ui
-            .button("Calibrate")
+            .button("Run calibration")
             .on_hover_text("Fit global and local models over every shot with kernels; cross-validation picks α and β (Ctrl+M)")
             .clicked()
         {
