@@ -911,7 +911,7 @@ fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         ui.label("Locations:");
         for (loc, _, _, c) in locations {
-            ui.colored_label(c, format!("● {loc}"));
+            ui.colored_label(c, format!("— {loc}"));
         }
     });
     let ch = app.channel;
