@@ -27,9 +27,12 @@ xvfb-run -a -s "-screen 0 1400x900x24" bash -c '
     sleep 0.25
   done
   if [ -n "${LENSBLUR_AUTORUN:-}" ]; then
-    # Let the autorun jobs start and finish (or 120 s), logging frame times.
-    for _ in $(seq 1 480); do
-      grep -q "frame times while jobs ran" "$LOG" && break
+    # Let every autorun stage run and finish (at most 10 minutes): each logs its
+    # frame times when it ends.
+    stages=$(echo "$LENSBLUR_AUTORUN" | tr "," "\n" | grep -c .)
+    for _ in $(seq 1 2400); do
+      [ "$(grep -c "frame times while jobs ran" "$LOG")" -ge "$stages" ] && break
+      kill -0 $pid 2>/dev/null || break
       sleep 0.25
     done
   fi

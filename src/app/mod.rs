@@ -419,13 +419,15 @@ impl StudioApp {
                     self.options.started.elapsed().as_secs_f32()
                 );
             }
-            for stage in std::mem::take(&mut self.options.autorun) {
-                match stage.as_str() {
-                    "detect" => self.commands.push(Command::RunDetect(None)),
-                    "kernels" => self.commands.push(Command::RunKernels(None)),
-                    "calibrate" => self.commands.push(Command::RunCalibrate),
-                    other => self.error(format!("LENSBLUR_AUTORUN: unknown stage '{other}'")),
-                }
+        }
+        // Autorun stages one after another: each starts once the previous job ended.
+        if self.ready_logged && self.jobs.running.is_empty() && !self.options.autorun.is_empty() {
+            let stage = self.options.autorun.remove(0);
+            match stage.as_str() {
+                "detect" => self.commands.push(Command::RunDetect(None)),
+                "kernels" => self.commands.push(Command::RunKernels(None)),
+                "calibrate" => self.commands.push(Command::RunCalibrate),
+                other => self.error(format!("LENSBLUR_AUTORUN: unknown stage '{other}'")),
             }
         }
     }
