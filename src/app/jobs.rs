@@ -121,7 +121,10 @@ impl<T: Send + 'static> Jobs<T> {
         std::thread::Builder::new()
             .name(format!("job-{id}-{name}"))
             .spawn(move || {
-                let result = work(&worker_ctx, &emitter);
+                let result = match job_pool() {
+                    Some(pool) => pool.install(|| work(&worker_ctx, &emitter)),
+                    None => work(&worker_ctx, &emitter),
+                };
                 let result = if worker_ctx.is_cancelled() && result.is_err() {
                     Err("cancelled".into())
                 } else {
@@ -171,4 +174,21 @@ impl<T: Send + 'static> Jobs<T> {
             h.cancel();
         }
     }
+}
+
+/// The thread pool jobs compute on: one core fewer than the machine has (at least one),
+/// so the UI thread (and, under a software renderer, the rasteriser) always has a core
+/// and frames keep coming while kernels are estimated. `None` if it cannot be built,
+/// in which case jobs use rayon's global pool.
+fn job_pool() -> Option<&'static rayon::ThreadPool> {
+    static POOL: std::sync::OnceLock<Option<rayon::ThreadPool>> = std::sync::OnceLock::new();
+    POOL.get_or_init(|| {
+        let cores = std::thread::available_parallelism().map_or(2, std::num::NonZeroUsize::get);
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(cores.saturating_sub(1).max(1))
+            .thread_name(|i| format!("job-worker-{i}"))
+            .build()
+            .ok()
+    })
+    .as_ref()
 }

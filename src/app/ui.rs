@@ -1241,7 +1241,9 @@ fn detection_overlay(
     clicked: Option<[f32; 2]>,
 ) -> Option<(usize, usize)> {
     let mut hit = None;
-    let zoomed_in = view.points_per_px > 0.6;
+    // Circles only once a square spans enough screen to show them; at fit zoom on a
+    // large chart they would be thousands of tiny polylines per frame.
+    let zoomed_in = view.points_per_px > 1.2;
     for sq in &det.squares {
         let pts: Vec<Pos2> = sq
             .corners
