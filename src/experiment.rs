@@ -5,6 +5,7 @@
 
 use crate::deblur::fft::Fft2;
 use crate::deblur::solve::{Method, deconvolve_block};
+use crate::gaussian::{FitParams, fit_gaussian};
 use crate::job::{Cancelled, JobContext};
 use crate::metrics::{SsimParams, ssim_f64};
 use crate::plane::{Channel, LensSetting, Plane};
@@ -174,104 +175,119 @@ pub fn with_pixel_box(k: &Kernel) -> Kernel {
     out
 }
 
-/// (robust, ML) Gaussians of a kernel: ML from its moments; robust by least squares on
-/// the sampled kernel values (which the bright core dominates, not a faint tail),
-/// started from ML and refined by Nelder–Mead over (ln σx, ln σy, atanh ρ).
+/// (robust, ML) Gaussians of a kernel by the pipeline's own fit ([`fit_gaussian`]), so
+/// the experiment judges the Gaussians calibration really produces. A kernel the fit
+/// rejects falls back to its moments for both.
 #[must_use]
 pub fn fit_gaussians(k: &Kernel) -> (Gaussian2, Gaussian2) {
-    let m = k.moments();
-    let ml = Gaussian2::from_covariance(m.var_x, m.var_y, m.cov_xy);
-    let c = (k.size / 2) as f64;
-    let s = k.oversample as f64;
-    let cell = 1.0 / (s * s);
-    let cost = |p: &[f64; 3]| -> f64 {
-        let g = Gaussian2 {
-            sigma_x: p[0].exp(),
-            sigma_y: p[1].exp(),
-            rho: p[2].tanh(),
-        };
-        let mut e = 0.0;
-        for j in 0..k.size {
-            for i in 0..k.size {
-                let d = g.density((i as f64 - c) / s - m.mean_x, (j as f64 - c) / s - m.mean_y)
-                    * cell
-                    - k.at(i, j);
-                e += d * d;
-            }
-        }
-        e
-    };
-    let start = [
-        ml.sigma_x.max(0.05).ln(),
-        ml.sigma_y.max(0.05).ln(),
-        ml.rho.clamp(-0.95, 0.95).atanh(),
-    ];
-    let p = nelder_mead(&cost, start, 0.2, 200);
-    (
-        Gaussian2 {
-            sigma_x: p[0].exp(),
-            sigma_y: p[1].exp(),
-            rho: p[2].tanh(),
-        },
-        ml,
-    )
-}
-
-fn nelder_mead(
-    f: &dyn Fn(&[f64; 3]) -> f64,
-    start: [f64; 3],
-    step: f64,
-    iterations: usize,
-) -> [f64; 3] {
-    let mut pts: Vec<([f64; 3], f64)> = (0..4)
-        .map(|i| {
-            let mut p = start;
-            if i > 0 {
-                p[i - 1] += step;
-            }
-            (p, f(&p))
-        })
-        .collect();
-    let comb = |a: &[f64; 3], b: &[f64; 3], t: f64| -> [f64; 3] {
-        [
-            a[0] + t * (b[0] - a[0]),
-            a[1] + t * (b[1] - a[1]),
-            a[2] + t * (b[2] - a[2]),
-        ]
-    };
-    for _ in 0..iterations {
-        pts.sort_by(|a, b| a.1.total_cmp(&b.1));
-        let mut cen = [0.0; 3];
-        for (p, _) in &pts[..3] {
-            for d in 0..3 {
-                cen[d] += p[d] / 3.0;
-            }
-        }
-        let worst = pts[3];
-        let refl = comb(&cen, &worst.0, -1.0);
-        let fr = f(&refl);
-        if fr < pts[0].1 {
-            let exp = comb(&cen, &worst.0, -2.0);
-            let fe = f(&exp);
-            pts[3] = if fe < fr { (exp, fe) } else { (refl, fr) };
-        } else if fr < pts[2].1 {
-            pts[3] = (refl, fr);
-        } else {
-            let con = comb(&cen, &worst.0, 0.5);
-            let fc = f(&con);
-            if fc < worst.1 {
-                pts[3] = (con, fc);
-            } else {
-                let best = pts[0].0;
-                for p in pts.iter_mut().skip(1) {
-                    let q = comb(&best, &p.0, 0.5);
-                    *p = (q, f(&q));
-                }
-            }
+    match fit_gaussian(k, &FitParams::default()) {
+        Ok(f) => (f.robust, f.ml),
+        Err(_) => {
+            let m = k.moments();
+            let g = Gaussian2::from_covariance(m.var_x, m.var_y, m.cov_xy);
+            (g, g)
         }
     }
-    pts.sort_by(|a, b| a.1.total_cmp(&b.1));
-    pts[0].0
+}
+
+/// Kernels measured the way calibration measures them: simulated chart shots of the
+/// virtual lens (PSF `shape`) at settings spread over its range, squares detected and
+/// aligned, each square's 3× kernel and robust/ML Gaussians estimated. Squares are
+/// taken spread over each shot until `count` kernels are collected.
+///
+/// # Errors
+/// The simulator or the detection failed on a shot (a message), or cancellation.
+pub fn measured_kernels(
+    count: usize,
+    shape: PsfShape,
+    seed: u64,
+    job: &JobContext,
+) -> Result<Vec<ExperimentKernel>, String> {
+    use crate::chart::ChartSpec;
+    use crate::kernel::{KernelParams, SquareGeometry, estimate_square_geometry};
+    use crate::simulate::{CaptureParams, Pose, simulate_shot};
+    let mut lens = VirtualLens::demo();
+    lens.shape = shape;
+    let spec = ChartSpec {
+        cols: 12,
+        rows: 8,
+        ..ChartSpec::default()
+    };
+    let (w, h) = (640, 427);
+    let params = KernelParams::default();
+    let mut rng = Pcg64::seed_from_u64(seed);
+    let mut out: Vec<ExperimentKernel> = Vec::with_capacity(count);
+    let mut shot = 0u64;
+    while out.len() < count {
+        if shot > 64 {
+            return Err(format!(
+                "only {} kernels could be measured on {shot} shots",
+                out.len()
+            ));
+        }
+        let setting = LensSetting {
+            focal_mm: rng.random_range(lens.focal_range_mm[0]..lens.focal_range_mm[1]),
+            f_number: rng.random_range(lens.f_number_range[0]..lens.f_number_range[1]),
+        };
+        let mut cp = CaptureParams::new(w, h, setting);
+        cp.bayer = false;
+        cp.seed = seed.wrapping_add(shot);
+        cp.pose = Pose {
+            rotation_deg: rng.random_range(-1.5..1.5),
+            fill: 0.86,
+            ..Pose::default()
+        };
+        shot += 1;
+        let sim = simulate_shot(&spec, &lens, &cp, job).map_err(|e| e.to_string())?;
+        let det = crate::detect::detect(
+            &sim.capture,
+            &spec,
+            &crate::detect::DetectParams::default(),
+            job,
+        )
+        .map_err(|e| format!("simulated shot {shot}: {e}"))?;
+        let squares: Vec<SquareGeometry> = det
+            .ok_squares()
+            .map(|s| SquareGeometry {
+                row: s.row,
+                col: s.col,
+                image_from_chart: s.image_from_chart,
+            })
+            .collect();
+        let want = count - out.len();
+        // Spread the squares taken over the frame, one channel each in turn.
+        let stride = (squares.len() / want.max(1)).max(1);
+        let picks: Vec<(usize, Channel)> = squares
+            .iter()
+            .enumerate()
+            .step_by(stride)
+            .take(want)
+            .map(|(i, _)| (i, [Channel::R, Channel::G, Channel::B][i % 3]))
+            .collect();
+        let part: Vec<ExperimentKernel> = picks
+            .par_iter()
+            .filter_map(|&(i, ch)| {
+                if job.is_cancelled() {
+                    return None;
+                }
+                let e =
+                    estimate_square_geometry(&sim.capture, &squares[i], &spec, &params, ch).ok()?;
+                // The fits are pixel-level (they add the 1/(12 s²) px² of the 3× cells
+                // the kernel lacks); compared with the kernel itself they must not.
+                let cell = -1.0 / (12.0 * (params.oversample * params.oversample) as f64);
+                Some(ExperimentKernel {
+                    kernel: e.kernel,
+                    robust: e.fit.robust.convolved_variance(cell, cell, 0.0),
+                    ml: e.fit.ml.convolved_variance(cell, cell, 0.0),
+                })
+            })
+            .collect();
+        job.check().map_err(|e| e.to_string())?;
+        out.extend(part);
+        job.report("measuring kernels", out.len().min(count), count);
+    }
+    out.truncate(count);
+    Ok(out)
 }
 
 /// Experiment settings.

@@ -109,16 +109,18 @@ impl Fft2 {
         buf
     }
 
-    /// Spectra of the forward differences x(i+1) − x(i) along x and y.
+    /// Spectra of the forward differences x(i+1) − x(i) along x and y, as circular
+    /// convolutions: (d ∗ x)(i) = Σ d(m) x(i − m), so the +1 tap sits at m = −1 (the
+    /// last index), matching the spatial `grad_x`/`grad_y` the solvers pair it with.
     #[must_use]
     pub fn gradient_otfs(&self) -> (Vec<Complex64>, Vec<Complex64>) {
         let (w, h) = (self.width, self.height);
         let mut dx = vec![Complex64::new(0.0, 0.0); w * h];
         let mut dy = dx.clone();
         dx[0].re = -1.0;
-        dx[1 % w].re += 1.0;
+        dx[(w - 1) % w].re += 1.0;
         dy[0].re = -1.0;
-        dy[(1 % h) * w].re += 1.0;
+        dy[((h - 1) % h) * w].re += 1.0;
         self.forward(&mut dx);
         self.forward(&mut dy);
         (dx, dy)
