@@ -221,6 +221,8 @@ pub struct ViewerState {
 pub struct FrameLog {
     last: Option<Instant>,
     pub busy_intervals_ms: Vec<f32>,
+    /// Names of the jobs that ran while these frames were drawn.
+    pub busy_jobs: std::collections::BTreeSet<String>,
 }
 
 impl FrameLog {
@@ -450,6 +452,9 @@ impl eframe::App for StudioApp {
             }
         }
         if !self.jobs.running.is_empty() {
+            for j in &self.jobs.running {
+                self.frames.busy_jobs.insert(j.name.clone());
+            }
             if let Some(last) = self.frames.last {
                 self.frames
                     .busy_intervals_ms
@@ -460,10 +465,12 @@ impl eframe::App for StudioApp {
             if self.options.log_frame_times && !self.frames.busy_intervals_ms.is_empty() {
                 if let Some((n, med, p95, max)) = self.frames.stats() {
                     eprintln!(
-                        "frame times while jobs ran: {n} frames, median {med:.1} ms, p95 {p95:.1} ms, max {max:.1} ms"
+                        "frame times while jobs ran ({}): {n} frames, median {med:.1} ms, p95 {p95:.1} ms, max {max:.1} ms",
+                        self.frames.busy_jobs.iter().cloned().collect::<Vec<_>>().join(", ")
                     );
                 }
                 self.frames.busy_intervals_ms.clear();
+                self.frames.busy_jobs.clear();
             }
             self.frames.last = None;
         }
