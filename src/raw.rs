@@ -132,3 +132,166 @@ fn load_image(path: &Path, options: &LoadOptions) -> Result<Capture, LoadError> 
         is_raw: false,
     })
 }
+
+/// Full-resolution linear R, G, B (or one Y) planes of a capture: a CFA capture is
+/// demosaiced bilinearly (each missing sample the mean of its channel's nearest
+/// neighbours), so a deblurred RAW is written as linear camera RGB.
+#[must_use]
+pub fn full_planes(capture: &Capture) -> Vec<(Channel, Plane)> {
+    let (w, h) = (capture.width, capture.height);
+    let mut out = Vec::new();
+    for ch in [Channel::R, Channel::G, Channel::B, Channel::Y] {
+        let planes: Vec<&ChannelPlane> =
+            capture.planes.iter().filter(|p| p.channel == ch).collect();
+        if planes.is_empty() {
+            continue;
+        }
+        let mut sum = vec![0.0f32; w * h];
+        let mut known = vec![false; w * h];
+        for cp in &planes {
+            for j in 0..cp.plane.height {
+                for i in 0..cp.plane.width {
+                    let (x, y) = (cp.step * i + cp.offset_x, cp.step * j + cp.offset_y);
+                    if x < w && y < h {
+                        sum[y * w + x] = cp.plane.get(i, j);
+                        known[y * w + x] = true;
+                    }
+                }
+            }
+        }
+        let mut plane = Plane::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                let k = y * w + x;
+                plane.data[k] = if known[k] {
+                    sum[k]
+                } else {
+                    let (mut s, mut n) = (0.0f32, 0u32);
+                    for (dx, dy) in [
+                        (-1, 0),
+                        (1, 0),
+                        (0, -1),
+                        (0, 1),
+                        (-1, -1),
+                        (1, -1),
+                        (-1, 1),
+                        (1, 1),
+                    ] {
+                        let (xx, yy) = (x as i64 + dx, y as i64 + dy);
+                        if xx >= 0 && yy >= 0 && (xx as usize) < w && (yy as usize) < h {
+                            let q = yy as usize * w + xx as usize;
+                            if known[q] {
+                                s += sum[q];
+                                n += 1;
+                            }
+                        }
+                    }
+                    if n > 0 { s / n as f32 } else { 0.0 }
+                };
+            }
+        }
+        out.push((ch, plane));
+    }
+    out
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("{}: cannot write: {reason}", path.display())]
+pub struct SaveError {
+    pub path: PathBuf,
+    pub reason: String,
+}
+
+/// Writes linear planes (R, G, B or Y; black 0, white 1) as a 16-bit PNG or TIFF, the
+/// format chosen by the extension; with `srgb`, as an 8-bit sRGB-encoded preview.
+///
+/// # Errors
+/// An unknown extension, planes of the wrong size, or an I/O failure.
+pub fn save_planes(path: &Path, planes: &[(Channel, Plane)], srgb: bool) -> Result<(), SaveError> {
+    let err = |reason: String| SaveError {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let format = match ext.as_str() {
+        "png" => image::ImageFormat::Png,
+        "tif" | "tiff" => image::ImageFormat::Tiff,
+        other => {
+            return Err(err(format!(
+                "unknown image extension '{other}' (png, tif, tiff)"
+            )));
+        }
+    };
+    let Some((_, first)) = planes.first() else {
+        return Err(err("no image planes".into()));
+    };
+    let (w, h) = (first.width, first.height);
+    if planes.iter().any(|(_, p)| p.width != w || p.height != h) {
+        return Err(err("planes differ in size".into()));
+    }
+    let get = |c: Channel| planes.iter().find(|(ch, _)| *ch == c).map(|(_, p)| p);
+    let rgb: Vec<&Plane> = match (get(Channel::R), get(Channel::G), get(Channel::B)) {
+        (Some(r), Some(g), Some(b)) => vec![r, g, b],
+        _ => vec![first],
+    };
+    let encode = |v: f32| -> f32 {
+        let v = v.clamp(0.0, 1.0);
+        if !srgb {
+            v
+        } else if v <= 0.003_130_8 {
+            12.92 * v
+        } else {
+            1.055 * v.powf(1.0 / 2.4) - 0.055
+        }
+    };
+    let (w32, h32) = (
+        u32::try_from(w).map_err(|_| err("too wide".into()))?,
+        u32::try_from(h).map_err(|_| err("too tall".into()))?,
+    );
+    let img: image::DynamicImage = if srgb {
+        let data: Vec<u8> = (0..w * h)
+            .flat_map(|i| {
+                rgb.iter()
+                    .map(move |p| (encode(p.data[i]) * 255.0).round() as u8)
+            })
+            .collect();
+        if rgb.len() == 3 {
+            image::RgbImage::from_raw(w32, h32, data).map(image::DynamicImage::ImageRgb8)
+        } else {
+            image::GrayImage::from_raw(w32, h32, data).map(image::DynamicImage::ImageLuma8)
+        }
+        .ok_or_else(|| err("image buffer size".into()))?
+    } else {
+        let data: Vec<u16> = (0..w * h)
+            .flat_map(|i| {
+                rgb.iter()
+                    .map(move |p| (encode(p.data[i]) * 65535.0).round() as u16)
+            })
+            .collect();
+        if rgb.len() == 3 {
+            image::ImageBuffer::<image::Rgb<u16>, _>::from_raw(w32, h32, data)
+                .map(image::DynamicImage::ImageRgb16)
+        } else {
+            image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w32, h32, data)
+                .map(image::DynamicImage::ImageLuma16)
+        }
+        .ok_or_else(|| err("image buffer size".into()))?
+    };
+    let mut bytes = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut bytes), format)
+        .map_err(|e| err(e.to_string()))?;
+    // Atomic: a temporary file beside the target, then rename.
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
+    let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
+    std::fs::write(&tmp, &bytes).map_err(|e| err(e.to_string()))?;
+    std::fs::rename(&tmp, path).map_err(|e| err(e.to_string()))
+}

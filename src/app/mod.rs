@@ -466,7 +466,12 @@ impl eframe::App for StudioApp {
                 if let Some((n, med, p95, max)) = self.frames.stats() {
                     eprintln!(
                         "frame times while jobs ran ({}): {n} frames, median {med:.1} ms, p95 {p95:.1} ms, max {max:.1} ms",
-                        self.frames.busy_jobs.iter().cloned().collect::<Vec<_>>().join(", ")
+                        self.frames
+                            .busy_jobs
+                            .iter()
+                            .cloned()
+                            .collect::<Vec<_>>()
+                            .join(", ")
                     );
                 }
                 self.frames.busy_intervals_ms.clear();

@@ -1,8 +1,163 @@
-//! `lensblur deblur` (being built).
+//! `lensblur deblur PHOTO --out OUT.{tiff,png} (--profile P.json | --kernels K.json)
+//! [--focal F --aperture A] [--method hqs|irls|wiener]`: remove the lens blur with the
+//! kernels a profile predicts at the photo's settings, or a kernels file's.
+
+use super::common::progress_job;
+use anyhow::{Context, Result, bail};
+use lensblur::deblur::source::{Prefer, ScatteredKernels, load_kernels};
+use lensblur::deblur::{DeblurOptions, KernelSource, Method, ProfileKernels, deblur_capture};
+use lensblur::plane::LensSetting;
+use lensblur::profile::Profile;
+use lensblur::raw::{LoadOptions, full_planes, load_capture, save_planes};
+use std::path::{Path, PathBuf};
 
 #[derive(clap::Args, Default)]
-pub struct Args {}
+pub struct Args {
+    /// The photo: a RAW file, or a linear 16-bit PNG/TIFF (8-bit images are sRGB-decoded).
+    pub photo: PathBuf,
+    /// Where to write the result (.tiff/.tif or .png, 16-bit linear). A RAW photo also
+    /// gets an 8-bit sRGB preview beside it (`<name>.preview.png`).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// A lens profile (lensblur calibrate): kernels predicted at the photo's settings.
+    #[arg(long, conflicts_with = "kernels", required_unless_present = "kernels")]
+    pub profile: Option<PathBuf>,
+    /// A kernels file (lensblur kernels, or any lensblur.kernels/1 file).
+    #[arg(long)]
+    pub kernels: Option<PathBuf>,
+    /// Focal length in mm, when EXIF lacks it or is wrong.
+    #[arg(long)]
+    pub focal: Option<f64>,
+    /// Aperture as an f-number, when EXIF lacks it or is wrong.
+    #[arg(long)]
+    pub aperture: Option<f64>,
+    /// hqs (fast, hyper-Laplacian prior), irls (Levin et al.), or wiener (preview).
+    #[arg(long, default_value = "hqs")]
+    pub method: String,
+    /// From a kernels file holding both: use the non-parametric kernels or the Gaussians.
+    #[arg(long, value_enum, default_value = "kernels")]
+    pub prefer: PreferArg,
+    /// Use a profile made for another camera or lens unit anyway.
+    #[arg(long)]
+    pub force: bool,
+}
 
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("'deblur' is not built yet")
+#[derive(clap::ValueEnum, Clone, Copy, Default, PartialEq, Eq)]
+pub enum PreferArg {
+    #[default]
+    Kernels,
+    Gaussians,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let Some(method) = Method::from_name(&args.method) else {
+        bail!(
+            "--method must be hqs, irls or wiener (got '{}')",
+            args.method
+        );
+    };
+    for (name, v) in [("--focal", args.focal), ("--aperture", args.aperture)] {
+        if let Some(v) = v
+            && !(v.is_finite() && v > 0.0)
+        {
+            bail!("{name} must be a positive number (got {v})");
+        }
+    }
+    // Refuse an output we cannot write before the work, not after it.
+    let ext = args
+        .out
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    if !matches!(ext.as_str(), "png" | "tif" | "tiff") {
+        bail!(
+            "{}: the output must be .tiff, .tif or .png (16-bit linear)",
+            args.out.display()
+        );
+    }
+    let capture = load_capture(&args.photo, &LoadOptions::default())?;
+    let source: Box<dyn KernelSource> = match (&args.profile, &args.kernels) {
+        (Some(p), _) => {
+            let profile = Profile::load(p)?;
+            let (Some(focal_mm), Some(f_number)) = (
+                args.focal.or(capture.setting_focal_mm),
+                args.aperture.or(capture.setting_f_number),
+            ) else {
+                bail!(
+                    "{}: focal length or aperture unknown (not in EXIF): give --focal and --aperture",
+                    args.photo.display()
+                );
+            };
+            if (profile.norm.width, profile.norm.height) != (capture.width, capture.height) {
+                bail!(
+                    "{}: the photo is {} × {} but the profile {} is for a {} × {} sensor (another camera?)",
+                    args.photo.display(),
+                    capture.width,
+                    capture.height,
+                    p.display(),
+                    profile.norm.width,
+                    profile.norm.height
+                );
+            }
+            for w in profile
+                .check_identity(&capture.identity, args.force)
+                .with_context(|| format!("{} and {}", args.photo.display(), p.display()))?
+            {
+                eprintln!("lensblur: warning: {w}");
+            }
+            let setting = LensSetting { focal_mm, f_number };
+            profile
+                .check_setting(setting)
+                .with_context(|| format!("{}: {}", args.photo.display(), p.display()))?;
+            Box::new(ProfileKernels { profile, setting })
+        }
+        (None, Some(k)) => {
+            let file = load_kernels(k)?;
+            if (file.width, file.height) != (capture.width, capture.height) {
+                bail!(
+                    "{}: the photo is {} × {} but {} was measured on {} × {}",
+                    args.photo.display(),
+                    capture.width,
+                    capture.height,
+                    k.display(),
+                    file.width,
+                    file.height
+                );
+            }
+            let prefer = match args.prefer {
+                PreferArg::Kernels => Prefer::default(),
+                PreferArg::Gaussians => Prefer::Gaussian,
+            };
+            Box::new(ScatteredKernels::new(file, prefer))
+        }
+        (None, None) => bail!("give --profile or --kernels"),
+    };
+    let job = progress_job();
+    let opts = DeblurOptions {
+        method,
+        ..DeblurOptions::default()
+    };
+    let out = deblur_capture(&capture, source.as_ref(), &opts, &job)
+        .with_context(|| args.photo.display().to_string())?;
+    let planes = full_planes(&out);
+    save_planes(&args.out, &planes, false)?;
+    if capture.is_raw {
+        let preview = preview_path(&args.out);
+        save_planes(&preview, &planes, true)?;
+        eprintln!("{}: preview {}", args.out.display(), preview.display());
+    }
+    eprintln!(
+        "{}: deblurred ({}) to {}",
+        args.photo.display(),
+        method.name(),
+        args.out.display()
+    );
+    Ok(())
+}
+
+fn preview_path(out: &Path) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map_or_else(|| "out".into(), |s| s.to_string_lossy().into_owned());
+    out.with_file_name(format!("{stem}.preview.png"))
 }

@@ -11,7 +11,9 @@ pub mod solve;
 pub mod source;
 
 pub use solve::{HqsParams, IrlsParams, Method, WienerParams};
-pub use source::{ConstantKernel, KernelSource, KernelsFile, ScatteredKernels, SourceError};
+pub use source::{
+    ConstantKernel, KernelSource, KernelsFile, ProfileKernels, ScatteredKernels, SourceError,
+};
 
 use crate::job::{Cancelled, JobContext};
 use crate::plane::{Capture, ChannelPlane, Plane};

@@ -188,6 +188,29 @@ impl KernelSource for ScatteredKernels {
     }
 }
 
+/// The Gaussians a lens profile predicts at one focal length and aperture: each tile
+/// gets the pixel-level Gaussian of its centre, sampled at 3×. A channel the profile
+/// lacks (a monochrome photo, say) takes green's.
+pub struct ProfileKernels {
+    pub profile: crate::profile::Profile,
+    pub setting: crate::plane::LensSetting,
+}
+
+impl KernelSource for ProfileKernels {
+    fn kernel_at(&self, channel: Channel, x: f64, y: f64) -> Result<Kernel, SourceError> {
+        let have = self.profile.channels();
+        let ch = if have.contains(&channel) {
+            channel
+        } else {
+            Channel::G
+        };
+        self.profile
+            .predict(ch, x, y, self.setting)
+            .map(|g| g.kernel(3))
+            .map_err(|e| SourceError::Other(e.to_string()))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
