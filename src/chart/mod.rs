@@ -11,6 +11,8 @@
 //! affine map to the unit circle (affine maps keep area ratios) and the exact
 //! polygon–disc intersection area.
 
+pub mod export;
+
 use crate::geometry::Homography;
 use crate::plane::Plane;
 use nalgebra::Matrix3;
