@@ -46,7 +46,434 @@ pub struct LoadOptions {
 /// Loads a shot or photo: RAW formats through the RAW decoder, PNG/TIFF/JPEG through
 /// `image`. Focal length and f-number are filled from EXIF where the file has them.
 pub fn load_capture(path: &Path, options: &LoadOptions) -> Result<Capture, LoadError> {
-    load_image(path, options)
+    let head = read_head(path)?;
+    let is_png = head.starts_with(b"\x89PNG");
+    let is_jpeg = head.starts_with(&[0xFF, 0xD8]);
+    let is_tiff = head.starts_with(b"II*\0") || head.starts_with(b"MM\0*");
+    let mut capture = if is_png || is_jpeg {
+        load_image(path, options)?
+    } else if is_tiff {
+        let bytes = std::fs::read(path).map_err(|e| LoadError::Unreadable {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+        let ifd = tiff_ifd0(&bytes).map_err(|reason| LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason,
+        })?;
+        if ifd.contains_key(&TAG_DNG_VERSION)
+            || ifd
+                .get(&TAG_PHOTOMETRIC)
+                .is_some_and(|v| v.first() == Some(&32803.0))
+        {
+            load_raw(path, Some((&bytes, &ifd)))?
+        } else {
+            load_image(path, options)?
+        }
+    } else {
+        // Every other camera format goes to the RAW decoder, which names what it cannot
+        // read.
+        load_raw(path, None)?
+    };
+    fill_exif(path, &mut capture);
+    Ok(capture)
+}
+
+fn read_head(path: &Path) -> Result<Vec<u8>, LoadError> {
+    use std::io::Read;
+    let mut f = std::fs::File::open(path).map_err(|e| LoadError::Unreadable {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })?;
+    let mut head = vec![0u8; 16];
+    let n = f.read(&mut head).map_err(|e| LoadError::Unreadable {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })?;
+    if n == 0 {
+        return Err(LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: "the file is empty".into(),
+        });
+    }
+    head.truncate(n);
+    Ok(head)
+}
+
+const TAG_PHOTOMETRIC: u16 = 262;
+const TAG_DNG_VERSION: u16 = 50706;
+
+/// A TIFF directory's tags as numbers (RATIONALs as quotients), with the byte order.
+type Ifd = std::collections::HashMap<u16, Vec<f64>>;
+
+/// The first directory of a TIFF (where our DNGs and many others keep the raw image
+/// and the EXIF settings). Bounds are checked: a truncated file is an error.
+fn tiff_ifd0(b: &[u8]) -> Result<Ifd, String> {
+    let le = match b.get(0..2) {
+        Some(b"II") => true,
+        Some(b"MM") => false,
+        _ => return Err("not a TIFF".into()),
+    };
+    let u16_at = |o: usize| -> Result<u16, String> {
+        let s = b.get(o..o + 2).ok_or("truncated TIFF")?;
+        Ok(if le {
+            u16::from_le_bytes([s[0], s[1]])
+        } else {
+            u16::from_be_bytes([s[0], s[1]])
+        })
+    };
+    let u32_at = |o: usize| -> Result<u32, String> {
+        let s = b.get(o..o + 4).ok_or("truncated TIFF")?;
+        let a = [s[0], s[1], s[2], s[3]];
+        Ok(if le {
+            u32::from_le_bytes(a)
+        } else {
+            u32::from_be_bytes(a)
+        })
+    };
+    let ifd_off = u32_at(4)? as usize;
+    let n = u16_at(ifd_off)? as usize;
+    let mut out = Ifd::new();
+    for e in 0..n {
+        let at = ifd_off + 2 + 12 * e;
+        let tag = u16_at(at)?;
+        let typ = u16_at(at + 2)?;
+        let count = u32_at(at + 4)? as usize;
+        let size = match typ {
+            1 | 2 | 6 | 7 => 1,
+            3 | 8 => 2,
+            4 | 9 | 11 => 4,
+            5 | 10 | 12 => 8,
+            _ => continue,
+        };
+        if count > 1 << 24 {
+            return Err(format!("tag {tag}: absurd count {count}"));
+        }
+        let data = if size * count <= 4 {
+            at + 8
+        } else {
+            u32_at(at + 8)? as usize
+        };
+        if b.len() < data + size * count {
+            return Err(format!("truncated TIFF (tag {tag} points past the end)"));
+        }
+        let vals: Result<Vec<f64>, String> = (0..count)
+            .map(|k| {
+                let o = data + k * size;
+                Ok(match typ {
+                    1 | 2 | 7 => f64::from(b[o]),
+                    6 => f64::from(b[o] as i8),
+                    3 => f64::from(u16_at(o)?),
+                    8 => f64::from(u16_at(o)? as i16),
+                    4 => f64::from(u32_at(o)?),
+                    9 => f64::from(u32_at(o)? as i32),
+                    5 => f64::from(u32_at(o)?) / f64::from(u32_at(o + 4)?.max(1)),
+                    10 => f64::from(u32_at(o)? as i32) / f64::from((u32_at(o + 4)? as i32).max(1)),
+                    _ => f64::NAN,
+                })
+            })
+            .collect();
+        out.insert(tag, vals?);
+    }
+    Ok(out)
+}
+
+/// A RAW file: rawloader first; an uncompressed tiled DNG (which rawloader refuses) by
+/// our own reader of its first directory.
+fn load_raw(path: &Path, tiff: Option<(&[u8], &Ifd)>) -> Result<Capture, LoadError> {
+    let decoded = {
+        let _quiet = QuietPanics::new();
+        std::panic::catch_unwind(|| rawloader::decode_file(path))
+    };
+    match decoded {
+        Ok(Ok(img)) => from_rawloader(path, &img),
+        Ok(Err(e)) => {
+            if let Some((bytes, ifd)) = tiff
+                && ifd.contains_key(&TAG_TILE_OFFSETS)
+            {
+                return read_tiled_dng(path, bytes, ifd);
+            }
+            Err(LoadError::Corrupt {
+                path: path.to_path_buf(),
+                reason: format!("RAW decoder: {}", one_line(&e.to_string())),
+            })
+        }
+        Err(_) => Err(LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: "the RAW decoder failed on this file".into(),
+        }),
+    }
+}
+
+const TAG_TILE_OFFSETS: u16 = 324;
+
+type PanicHook = Box<dyn Fn(&std::panic::PanicHookInfo<'_>) + Sync + Send + 'static>;
+
+/// The panic hook saved while any decode runs, and how many decodes run.
+static QUIET: std::sync::Mutex<(usize, Option<PanicHook>)> = std::sync::Mutex::new((0, None));
+
+/// While alive, panics print nothing. rawloader turns its decoders' panics into errors
+/// but prints each one on the way; a malformed file must cost the user one line, not
+/// hundreds. Counted, so decodes on several threads restore the original hook only when
+/// the last one ends (a plain take/set pair per call would leave the silent hook in
+/// place when two overlap).
+struct QuietPanics;
+
+impl QuietPanics {
+    fn new() -> Self {
+        let mut q = QUIET
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if q.0 == 0 {
+            q.1 = Some(std::panic::take_hook());
+            std::panic::set_hook(Box::new(|_| {}));
+        }
+        q.0 += 1;
+        Self
+    }
+}
+
+impl Drop for QuietPanics {
+    fn drop(&mut self) {
+        let mut q = QUIET
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        q.0 -= 1;
+        if q.0 == 0
+            && let Some(hook) = q.1.take()
+        {
+            std::panic::set_hook(hook);
+        }
+    }
+}
+
+/// The decoder's message as one line: its first line, without the error type's wrapper
+/// (it appends an address to report samples to on a second line).
+fn one_line(message: &str) -> String {
+    let first = message.lines().next().unwrap_or_default();
+    let bare = first.strip_prefix("RawLoaderError: ").unwrap_or(first);
+    bare.trim_matches('"').trim().to_string()
+}
+
+fn cfa_channel(c: usize) -> Option<Channel> {
+    match c {
+        0 => Some(Channel::R),
+        1 => Some(Channel::G),
+        2 => Some(Channel::B),
+        _ => None,
+    }
+}
+
+/// Normalised CFA planes: one per position of the 2 × 2 pattern, black subtracted,
+/// divided by white − black (the same arithmetic the simulator uses, so a round trip is
+/// exact).
+fn cfa_capture(
+    path: &Path,
+    values: &[u16],
+    (w, h): (usize, usize),
+    color_at: &dyn Fn(usize, usize) -> usize,
+    black: &dyn Fn(usize, usize) -> f32,
+    white: f32,
+) -> Result<Capture, LoadError> {
+    check_size(path, w, h)?;
+    if values.len() < w * h {
+        return Err(LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: format!("{} samples for a {w} × {h} sensor", values.len()),
+        });
+    }
+    let mut planes = Vec::with_capacity(4);
+    for (ox, oy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+        let Some(channel) = cfa_channel(color_at(ox, oy)) else {
+            return Err(LoadError::Corrupt {
+                path: path.to_path_buf(),
+                reason: "unsupported CFA colour (only RGB Bayer patterns)".into(),
+            });
+        };
+        let black_f = black(ox, oy);
+        let range = (white - black_f).max(1.0);
+        let pw = (w + 1 - ox) / 2;
+        let ph = (h + 1 - oy) / 2;
+        let plane = Plane::from_fn(pw, ph, |i, j| {
+            (f32::from(values[(2 * j + oy) * w + 2 * i + ox]) - black_f) / range
+        });
+        planes.push(ChannelPlane {
+            channel,
+            plane,
+            step: 2,
+            offset_x: ox,
+            offset_y: oy,
+        });
+    }
+    Ok(Capture {
+        width: w,
+        height: h,
+        planes,
+        setting_focal_mm: None,
+        setting_f_number: None,
+        identity: Default::default(),
+        is_raw: true,
+    })
+}
+
+fn from_rawloader(path: &Path, img: &rawloader::RawImage) -> Result<Capture, LoadError> {
+    if img.cpp != 1 {
+        return Err(LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: format!("{} samples per pixel: not a CFA RAW", img.cpp),
+        });
+    }
+    let rawloader::RawImageData::Integer(data) = &img.data else {
+        return Err(LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: "floating-point RAW data is not supported".into(),
+        });
+    };
+    if data.len() < img.width * img.height {
+        return Err(LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: "fewer samples than the sensor has pixels (truncated?)".into(),
+        });
+    }
+    // The active area: crops are [top, right, bottom, left].
+    let [top, right, bottom, left] = img.crops;
+    let (w, h) = (
+        img.width.saturating_sub(left + right),
+        img.height.saturating_sub(top + bottom),
+    );
+    check_size(path, w, h)?;
+    let mut values = Vec::with_capacity(w * h);
+    for y in 0..h {
+        let row = (y + top) * img.width + left;
+        values.extend_from_slice(&data[row..row + w]);
+    }
+    let color_at = |x: usize, y: usize| img.cfa.color_at(y + top, x + left);
+    let black = |x: usize, y: usize| f32::from(img.blacklevels[color_at(x, y).min(3)]);
+    let white = f32::from(img.whitelevels[0]);
+    let mut c = cfa_capture(path, &values, (w, h), &color_at, &black, white)?;
+    c.identity.make = Some(img.clean_make.clone()).filter(|s| !s.is_empty());
+    c.identity.model = Some(img.clean_model.clone()).filter(|s| !s.is_empty());
+    Ok(c)
+}
+
+/// An uncompressed, tiled, 16-bit CFA DNG whose raw image is in the first directory.
+fn read_tiled_dng(path: &Path, b: &[u8], ifd: &Ifd) -> Result<Capture, LoadError> {
+    let err = |reason: String| LoadError::Corrupt {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let one = |tag: u16| -> Result<f64, LoadError> {
+        ifd.get(&tag)
+            .and_then(|v| v.first().copied())
+            .ok_or_else(|| err(format!("tiled DNG without tag {tag}")))
+    };
+    if one(259)? != 1.0 {
+        return Err(err(
+            "compressed tiled DNG: only uncompressed tiles are read".into(),
+        ));
+    }
+    if one(258)? != 16.0 {
+        return Err(err("only 16-bit tiled DNGs are read".into()));
+    }
+    let (w, h) = (one(256)? as usize, one(257)? as usize);
+    check_size(path, w, h)?;
+    let (tw, th) = (one(322)? as usize, one(323)? as usize);
+    if tw == 0 || th == 0 || tw > 65536 || th > 65536 {
+        return Err(err(format!("absurd tile size {tw} × {th}")));
+    }
+    let offsets = ifd.get(&TAG_TILE_OFFSETS).cloned().unwrap_or_default();
+    let (across, down) = (w.div_ceil(tw), h.div_ceil(th));
+    if offsets.len() < across * down {
+        return Err(err(format!(
+            "{} tiles for a {across} × {down} grid",
+            offsets.len()
+        )));
+    }
+    let le = b.starts_with(b"II");
+    let mut values = vec![0u16; w * h];
+    for ty in 0..down {
+        for tx in 0..across {
+            let base = offsets[ty * across + tx] as usize;
+            if b.len() < base + 2 * tw * th {
+                return Err(err("truncated: a tile lies past the end of the file".into()));
+            }
+            for y in 0..th.min(h - ty * th) {
+                for x in 0..tw.min(w - tx * tw) {
+                    let o = base + 2 * (y * tw + x);
+                    let v = if le {
+                        u16::from_le_bytes([b[o], b[o + 1]])
+                    } else {
+                        u16::from_be_bytes([b[o], b[o + 1]])
+                    };
+                    values[(ty * th + y) * w + tx * tw + x] = v;
+                }
+            }
+        }
+    }
+    let pattern = ifd
+        .get(&33422)
+        .cloned()
+        .unwrap_or_else(|| vec![0.0, 1.0, 1.0, 2.0]);
+    if pattern.len() != 4 {
+        return Err(err("only 2 × 2 CFA patterns are read".into()));
+    }
+    let color_at = |x: usize, y: usize| pattern[(y % 2) * 2 + x % 2] as usize;
+    let blacks = ifd.get(&50714).cloned().unwrap_or_else(|| vec![0.0]);
+    let black = |x: usize, y: usize| {
+        let k = (y % 2) * 2 + x % 2;
+        blacks.get(k).or(blacks.first()).copied().unwrap_or(0.0) as f32
+    };
+    let white = ifd
+        .get(&50717)
+        .and_then(|v| v.first().copied())
+        .unwrap_or(65535.0) as f32;
+    cfa_capture(path, &values, (w, h), &color_at, &black, white)
+}
+
+/// Focal length, f-number and identity from EXIF, by tag number: DNGs often keep
+/// these in IFD0, where they are not the EXIF-context tags a lookup by name expects.
+fn fill_exif(path: &Path, capture: &mut Capture) {
+    let Ok(file) = std::fs::File::open(path) else {
+        return;
+    };
+    let mut reader = std::io::BufReader::new(file);
+    let Ok(exif) = exif::Reader::new().read_from_container(&mut reader) else {
+        return;
+    };
+    for f in exif.fields() {
+        let number = f.tag.number();
+        let rational = match &f.value {
+            exif::Value::Rational(v) => v
+                .first()
+                .map(|r| f64::from(r.num) / f64::from(r.denom.max(1))),
+            exif::Value::Short(v) => v.first().map(|&x| f64::from(x)),
+            exif::Value::Long(v) => v.first().map(|&x| f64::from(x)),
+            _ => None,
+        }
+        .filter(|v| v.is_finite() && *v > 0.0);
+        let text = match &f.value {
+            exif::Value::Ascii(v) => v
+                .first()
+                .map(|s| {
+                    String::from_utf8_lossy(s)
+                        .trim_end_matches('\0')
+                        .trim()
+                        .to_owned()
+                })
+                .filter(|s| !s.is_empty()),
+            _ => None,
+        };
+        match number {
+            37386 => capture.setting_focal_mm = capture.setting_focal_mm.or(rational),
+            33437 => capture.setting_f_number = capture.setting_f_number.or(rational),
+            271 => capture.identity.make = text.or(capture.identity.make.take()),
+            272 => capture.identity.model = text.or(capture.identity.model.take()),
+            42033 => capture.identity.body_serial = text,
+            42036 => capture.identity.lens_model = text,
+            42037 => capture.identity.lens_serial = text,
+            _ => {}
+        }
+    }
 }
 
 fn check_size(path: &Path, width: usize, height: usize) -> Result<(), LoadError> {

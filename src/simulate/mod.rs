@@ -2,6 +2,7 @@
 //! and the studio's demo session with exact ground truth.
 
 pub mod capture;
+pub mod dng;
 pub mod lens;
 
 pub use capture::{

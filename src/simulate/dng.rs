@@ -1,0 +1,227 @@
+//! A minimal valid DNG of a simulated Bayer shot: 16-bit uncompressed RGGB in strips
+//! (or tiles), the levels, the colour tags a DNG reader needs, and the lens setting as
+//! EXIF tags in IFD0 — what many real writers do.
+
+use crate::plane::LensSetting;
+use std::path::Path;
+
+/// What goes into the DNG besides the samples.
+#[derive(Clone, Debug)]
+pub struct DngInfo {
+    pub make: String,
+    pub model: String,
+    pub black: u16,
+    pub white: u16,
+    pub setting: Option<LensSetting>,
+    /// Tiles of this side instead of strips (a multiple of 16).
+    pub tile: Option<usize>,
+}
+
+enum Val {
+    Byte(Vec<u8>),
+    Ascii(String),
+    Short(Vec<u16>),
+    Long(Vec<u32>),
+    Rational(Vec<(u32, u32)>),
+    SRational(Vec<(i32, i32)>),
+}
+
+impl Val {
+    fn type_count(&self) -> (u16, u32) {
+        match self {
+            Val::Byte(v) => (1, v.len() as u32),
+            Val::Ascii(s) => (2, s.len() as u32 + 1),
+            Val::Short(v) => (3, v.len() as u32),
+            Val::Long(v) => (4, v.len() as u32),
+            Val::Rational(v) => (5, v.len() as u32),
+            Val::SRational(v) => (10, v.len() as u32),
+        }
+    }
+    fn bytes(&self) -> Vec<u8> {
+        let mut b = Vec::new();
+        match self {
+            Val::Byte(v) => b.extend_from_slice(v),
+            Val::Ascii(s) => {
+                b.extend_from_slice(s.as_bytes());
+                b.push(0);
+            }
+            Val::Short(v) => v.iter().for_each(|x| b.extend_from_slice(&x.to_le_bytes())),
+            Val::Long(v) => v.iter().for_each(|x| b.extend_from_slice(&x.to_le_bytes())),
+            Val::Rational(v) => v.iter().for_each(|(n, d)| {
+                b.extend_from_slice(&n.to_le_bytes());
+                b.extend_from_slice(&d.to_le_bytes());
+            }),
+            Val::SRational(v) => v.iter().for_each(|(n, d)| {
+                b.extend_from_slice(&n.to_le_bytes());
+                b.extend_from_slice(&d.to_le_bytes());
+            }),
+        }
+        b
+    }
+}
+
+fn rational(v: f64) -> (u32, u32) {
+    (
+        (v * 1000.0).round().clamp(0.0, u32::MAX as f64) as u32,
+        1000,
+    )
+}
+
+/// The DNG file's bytes for a `width × height` RGGB mosaic (row-major, black level
+/// included).
+///
+/// # Panics
+/// Never for sizes the simulator accepts; sizes past 4 GiB of samples would not fit a
+/// TIFF and are refused by the caller.
+#[must_use]
+pub fn dng_bytes(cfa: &[u16], width: usize, height: usize, info: &DngInfo) -> Vec<u8> {
+    let (w, h) = (width as u32, height as u32);
+    // Image data first (after the 8-byte header), then the directory and its values.
+    let mut data: Vec<u8> = Vec::with_capacity(cfa.len() * 2);
+    let mut offsets = Vec::new();
+    let mut counts = Vec::new();
+    let base = 8u32;
+    match info.tile {
+        Some(t) => {
+            for ty in 0..height.div_ceil(t) {
+                for tx in 0..width.div_ceil(t) {
+                    offsets.push(base + data.len() as u32);
+                    for y in 0..t {
+                        for x in 0..t {
+                            let (sx, sy) = (tx * t + x, ty * t + y);
+                            let v = if sx < width && sy < height {
+                                cfa[sy * width + sx]
+                            } else {
+                                0
+                            };
+                            data.extend_from_slice(&v.to_le_bytes());
+                        }
+                    }
+                    counts.push((2 * t * t) as u32);
+                }
+            }
+        }
+        None => {
+            // Strips of 64 rows keep any one read small.
+            for y0 in (0..height).step_by(64) {
+                offsets.push(base + data.len() as u32);
+                let rows = 64.min(height - y0);
+                for v in &cfa[y0 * width..(y0 + rows) * width] {
+                    data.extend_from_slice(&v.to_le_bytes());
+                }
+                counts.push((2 * rows * width) as u32);
+            }
+        }
+    }
+    let mut tags: Vec<(u16, Val)> = vec![
+        (254, Val::Long(vec![0])),
+        (256, Val::Long(vec![w])),
+        (257, Val::Long(vec![h])),
+        (258, Val::Short(vec![16])),
+        (259, Val::Short(vec![1])),
+        (262, Val::Short(vec![32803])),
+        (271, Val::Ascii(info.make.clone())),
+        (272, Val::Ascii(info.model.clone())),
+        (274, Val::Short(vec![1])),
+        (277, Val::Short(vec![1])),
+        (284, Val::Short(vec![1])),
+        (33421, Val::Short(vec![2, 2])),
+        (33422, Val::Byte(vec![0, 1, 1, 2])),
+        (50706, Val::Byte(vec![1, 4, 0, 0])),
+        (50707, Val::Byte(vec![1, 1, 0, 0])),
+        (50708, Val::Ascii(format!("{} {}", info.make, info.model))),
+        (50710, Val::Byte(vec![0, 1, 2])),
+        (50711, Val::Short(vec![1])),
+        (50713, Val::Short(vec![1, 1])),
+        (50714, Val::Long(vec![u32::from(info.black)])),
+        (50717, Val::Long(vec![u32::from(info.white)])),
+        // Camera RGB is taken as linear sRGB primaries: XYZ → sRGB, ×10000.
+        (
+            50721,
+            Val::SRational(
+                [32406, -15372, -4986, -9689, 18758, 415, 557, -2040, 10570]
+                    .iter()
+                    .map(|&v| (v, 10000))
+                    .collect(),
+            ),
+        ),
+        (
+            50728,
+            Val::Rational(vec![(820, 1000), (1000, 1000), (740, 1000)]),
+        ),
+        (50778, Val::Short(vec![21])),
+    ];
+    match info.tile {
+        Some(t) => {
+            tags.push((322, Val::Long(vec![t as u32])));
+            tags.push((323, Val::Long(vec![t as u32])));
+            tags.push((324, Val::Long(offsets)));
+            tags.push((325, Val::Long(counts)));
+        }
+        None => {
+            tags.push((273, Val::Long(offsets)));
+            tags.push((278, Val::Long(vec![64])));
+            tags.push((279, Val::Long(counts)));
+        }
+    }
+    if let Some(s) = info.setting {
+        tags.push((33437, Val::Rational(vec![rational(s.f_number)])));
+        tags.push((37386, Val::Rational(vec![rational(s.focal_mm)])));
+    }
+    tags.sort_by_key(|(t, _)| *t);
+    let ifd_off = base + data.len() as u32;
+    let ifd_len = 2 + 12 * tags.len() as u32 + 4;
+    let mut extra: Vec<u8> = Vec::new();
+    let mut ifd: Vec<u8> = Vec::new();
+    ifd.extend_from_slice(&(tags.len() as u16).to_le_bytes());
+    for (tag, val) in &tags {
+        let (typ, count) = val.type_count();
+        let bytes = val.bytes();
+        ifd.extend_from_slice(&tag.to_le_bytes());
+        ifd.extend_from_slice(&typ.to_le_bytes());
+        ifd.extend_from_slice(&count.to_le_bytes());
+        if bytes.len() <= 4 {
+            let mut v = bytes.clone();
+            v.resize(4, 0);
+            ifd.extend_from_slice(&v);
+        } else {
+            let off = ifd_off + ifd_len + extra.len() as u32;
+            ifd.extend_from_slice(&off.to_le_bytes());
+            extra.extend_from_slice(&bytes);
+            if extra.len() % 2 == 1 {
+                extra.push(0);
+            }
+        }
+    }
+    ifd.extend_from_slice(&0u32.to_le_bytes());
+    let mut out = Vec::with_capacity(8 + data.len() + ifd.len() + extra.len());
+    out.extend_from_slice(b"II*\0");
+    out.extend_from_slice(&ifd_off.to_le_bytes());
+    out.extend_from_slice(&data);
+    out.extend_from_slice(&ifd);
+    out.extend_from_slice(&extra);
+    out
+}
+
+/// Writes the DNG atomically (temporary file, then rename).
+///
+/// # Errors
+/// I/O failures, or a mosaic too large for a TIFF.
+pub fn write_dng(
+    path: &Path,
+    cfa: &[u16],
+    width: usize,
+    height: usize,
+    info: &DngInfo,
+) -> std::io::Result<()> {
+    if cfa.len() != width * height || cfa.len() > (u32::MAX as usize - 1_000_000) / 2 {
+        return Err(std::io::Error::other(format!(
+            "{}: a {width} × {height} mosaic does not fit a DNG",
+            path.display()
+        )));
+    }
+    let bytes = dng_bytes(cfa, width, height, info);
+    let tmp = path.with_extension("dng.tmp");
+    std::fs::write(&tmp, bytes)?;
+    std::fs::rename(&tmp, path)
+}
