@@ -61,7 +61,7 @@ impl Default for DetectParams {
             min_relative_response: 0.05,
             margin_px: 6.0,
             initial_sigma_px: 1.0,
-            levels: 1,
+            levels: 2,
             coarse_sigma_px: 1.5,
             max_iterations: 30,
             tolerance_px: 1e-3,
