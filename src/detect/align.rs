@@ -10,7 +10,7 @@ use super::DetectParams;
 use super::filter::gaussian_blur;
 use crate::chart::{ChartSpec, rasterize};
 use crate::geometry::Homography;
-use crate::plane::Capture;
+use crate::plane::{Capture, Channel};
 use nalgebra::{DMatrix, DVector, Matrix3};
 
 /// What the refinement of one square gives.
@@ -22,6 +22,8 @@ pub struct Aligned {
     pub white_level: f64,
     /// Mean estimated Gaussian σ of the square's blur beyond the pixel area, sensor px.
     pub sigma_px: f64,
+    /// The same per colour channel (the mean over its planes).
+    pub sigma_by_channel: Vec<(Channel, f64)>,
 }
 
 struct Sample {
@@ -485,11 +487,25 @@ pub fn align_square(
         ));
     }
     let sigma_px = st.var.iter().map(|v| v.sqrt()).sum::<f64>() / np as f64;
+    let mut sigma_by_channel: Vec<(Channel, f64)> = Vec::new();
+    for ch in crate::kernel::channels_of(capture) {
+        let sigmas: Vec<f64> = capture
+            .planes
+            .iter()
+            .zip(&st.var)
+            .filter(|(p, _)| p.channel == ch)
+            .map(|(_, v)| v.sqrt())
+            .collect();
+        if !sigmas.is_empty() {
+            sigma_by_channel.push((ch, sigmas.iter().sum::<f64>() / sigmas.len() as f64));
+        }
+    }
     Ok(Aligned {
         image_from_chart: st.h,
         residual_rms: (cost / n.max(1) as f64).sqrt(),
         black_level: black_sum / np as f64,
         white_level: white_sum / np as f64,
         sigma_px,
+        sigma_by_channel,
     })
 }

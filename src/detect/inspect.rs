@@ -158,6 +158,7 @@ mod tests {
             black_level: 0.1,
             white_level: 0.9,
             sigma_px: 1.2,
+            sigma_by_channel: vec![(Channel::Y, 1.2)],
         };
         let ins = inspect_square(&capture, &square, &spec, Channel::Y).expect("inside");
         assert!(ins.observed.width >= 30 && ins.observed.height >= 30);

@@ -101,6 +101,8 @@ pub struct SquareAlignment {
     pub white_level: f64,
     /// Estimated Gaussian blur σ beyond the pixel area (mean over planes), px.
     pub sigma_px: f64,
+    /// The same per colour channel; empty for a square that was not aligned.
+    pub sigma_by_channel: Vec<(crate::plane::Channel, f64)>,
 }
 
 /// Every square of the chart, found or skipped, and the global chart pose.
@@ -256,6 +258,7 @@ fn square(
         black_level: f64::NAN,
         white_level: f64::NAN,
         sigma_px: f64::NAN,
+        sigma_by_channel: Vec::new(),
     };
     match align::align_square(capture, spec, col, row, &bootstrap, levels, params) {
         Ok(a) => {
@@ -266,6 +269,7 @@ fn square(
             out.black_level = a.black_level;
             out.white_level = a.white_level;
             out.sigma_px = a.sigma_px;
+            out.sigma_by_channel = a.sigma_by_channel;
         }
         Err(reason) => out.reason = Some(reason),
     }
@@ -344,6 +348,7 @@ impl Detection {
                 black_level: f64::NAN,
                 white_level: f64::NAN,
                 sigma_px: f64::NAN,
+                sigma_by_channel: Vec::new(),
             })
             .collect();
         let global = squares
