@@ -2,9 +2,7 @@
 //! photo. Field: every 64 px of a 3872 × 2592 (10 MP) sensor, three channels.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use lensblur::model::{
-    GlobalModel, LocalModel, LocalOptions, SampleNoise, simulated_dataset, spaced,
-};
+use lensblur::model::{GlobalModel, LocalModel, LocalOptions, SimulatedSession, spaced};
 use lensblur::plane::LensSetting;
 use lensblur::profile::Profile;
 use lensblur::simulate::VirtualLens;
@@ -21,16 +19,11 @@ fn bench(c: &mut Criterion) {
             });
         }
     }
-    let ds = simulated_dataset(
-        &VirtualLens::demo(),
-        w,
-        h,
-        (24, 16),
-        &settings,
-        1,
-        &SampleNoise::default(),
-        11,
-    );
+    let ds = SimulatedSession {
+        seed: 11,
+        ..SimulatedSession::new(w, h)
+    }
+    .dataset(&VirtualLens::demo(), &settings);
     let global = GlobalModel::fit(&ds, 8, 3).expect("fit");
     let local = LocalModel::fit(&ds, 1, 3, &LocalOptions::default()).expect("fit");
     let dir = tempfile::tempdir().expect("tempdir");

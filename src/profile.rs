@@ -117,6 +117,10 @@ struct ProfileFile {
     height: usize,
     focal_range_mm: [f64; 2],
     f_number_range: [f64; 2],
+    /// Bounding box [x0, y0, x1, y1] of the measured squares; outside it predictions
+    /// extrapolate linearly from its border.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    sampled_extent_px: Option<[f64; 4]>,
     /// How f and a are normalised, for readers of the file.
     #[serde(default)]
     normalisation: String,
@@ -300,7 +304,8 @@ impl Profile {
             height: self.norm.height,
             focal_range_mm: self.norm.focal_range_mm,
             f_number_range: self.norm.f_number_range,
-            normalisation: "Legendre product basis; x, y: 2x/(W-1)-1, 2y/(H-1)-1 (local: (x-cx)/radius); f linear over focal_range_mm; a linear in ln(f-number) over f_number_range; a setting that does not vary has no terms".into(),
+            sampled_extent_px: self.norm.sampled_extent_px,
+            normalisation: "Legendre product basis; x, y: 2x/(W-1)-1, 2y/(H-1)-1 (local: (x-cx)/radius); f linear over focal_range_mm; a linear in ln(f-number) over f_number_range; a setting that does not vary has no terms; outside sampled_extent_px, linear extrapolation from its border".into(),
             calibrated_settings: self.calibrated_settings.clone(),
             preferred: self.preferred,
             global: self.global.as_ref().map(|g| StoredGlobal {
@@ -421,15 +426,24 @@ impl Profile {
                 "calibrated ranges are not positive intervals".into(),
             ));
         }
+        if let Some(e) = file.sampled_extent_px
+            && !(e.iter().all(|v| v.is_finite()) && e[0] <= e[2] && e[1] <= e[3])
+        {
+            return Err(invalid("sampled extent is not a box".into()));
+        }
         let norm = Normalisation {
             width: file.width,
             height: file.height,
             focal_range_mm: file.focal_range_mm,
             f_number_range: file.f_number_range,
+            sampled_extent_px: file.sampled_extent_px,
         };
         let check_order = |a: usize, b: usize| {
-            if a.max(b) > 15 {
-                Err(invalid(format!("model order α = {a}, β = {b} above 15")))
+            if a.max(b) > crate::model::MAX_ORDER {
+                Err(invalid(format!(
+                    "model order α = {a}, β = {b} above {}",
+                    crate::model::MAX_ORDER
+                )))
             } else {
                 Ok(())
             }
@@ -761,14 +775,8 @@ pub fn calibrate(
     if let Some(b) = opts.beta {
         ds.check_beta(b)?;
     }
-    if let Some(a) = opts.alpha
-        && a.max(opts.beta.unwrap_or(0)) > 15
-    {
-        return Err(ModelError::TooFewSamples {
-            model: format!("order {a} (at most 15)"),
-            samples: 0,
-            terms: 0,
-        });
+    if let Some(a) = opts.alpha {
+        crate::model::check_order(a, opts.beta.unwrap_or(0))?;
     }
     let want_global = opts.families != Families::Local;
     let want_local = opts.families != Families::Global;
@@ -801,14 +809,6 @@ pub fn calibrate(
         None
     };
     job.report("fitting", 2, 2);
-    let preferred = report.as_ref().map_or(
-        if want_local {
-            ModelKind::Local
-        } else {
-            ModelKind::Global
-        },
-        Profile::preferred_from,
-    );
     let mut settings: Vec<LensSetting> = ds
         .shots
         .iter()
@@ -825,7 +825,47 @@ pub fn calibrate(
     settings.dedup_by(|a, b| {
         (a.focal_mm - b.focal_mm).abs() < 1e-6 && (a.f_number - b.f_number).abs() < 1e-6
     });
-    let cv = report.as_ref().map(CvSummary::from_report);
+    let cv = match &report {
+        Some(r) => Some(CvSummary::from_report(r)),
+        // Fixed orders: still report how well they cross-validate, where there are
+        // shots to hold out.
+        None if ds.shots.len() >= 2 => {
+            let fixed = |kind: ModelKind, (a, b): (usize, usize)| {
+                crate::crossval::cross_validate_fixed(ds, kind, a, b, &opts.cv).map(|r| r.0)
+            };
+            let global_cv = if want_global {
+                Some(fixed(ModelKind::Global, g_ab)?)
+            } else {
+                None
+            };
+            job.check()?;
+            let local_cv = if want_local {
+                Some(fixed(ModelKind::Local, l_ab)?)
+            } else {
+                None
+            };
+            Some(CvSummary {
+                folds: crate::crossval::assign_folds(
+                    ds,
+                    opts.cv.folds,
+                    opts.cv.hold_out,
+                    opts.cv.seed,
+                )
+                .1,
+                ranges: crate::crossval::param_ranges(ds),
+                global: global_cv,
+                local: local_cv,
+            })
+        }
+        None => None,
+    };
+    // The family that cross-validates better; without cross-validation, the local
+    // model where there is one (the smaller error in the paper's tests).
+    let preferred = match cv.as_ref().map(|c| (&c.global, &c.local)) {
+        Some((Some(g), Some(l))) if g.mean_pct < l.mean_pct => ModelKind::Global,
+        _ if want_local => ModelKind::Local,
+        _ => ModelKind::Global,
+    };
     let profile = Profile::new(
         ds.identity.clone(),
         chart,

@@ -8,7 +8,7 @@
 use super::common::{load_chart, progress_job, write_json};
 use anyhow::{Context, Result, bail};
 use lensblur::chart::ChartSpec;
-use lensblur::crossval::CvOptions;
+use lensblur::crossval::{CvOptions, HoldOut};
 use lensblur::detect::{DetectParams, detect};
 use lensblur::kernel::file::KernelsFile;
 use lensblur::kernel::{KernelParams, estimate_shot};
@@ -196,9 +196,31 @@ pub struct Args {
     /// Local model radius in pixels (default: 3× the largest imaged square).
     #[arg(long)]
     pub radius_px: Option<f64>,
+    /// What a cross-validation fold holds out.
+    #[arg(long, value_enum, default_value = "shot")]
+    pub hold_out: HoldOutArg,
     /// Also write the cross-validation report here.
     #[arg(long)]
     pub cv_out: Option<PathBuf>,
+}
+
+/// What a cross-validation fold holds out.
+#[derive(clap::ValueEnum, Clone, Copy, Default, PartialEq, Eq)]
+pub enum HoldOutArg {
+    /// Whole shots, each on its own (the paper's holdout).
+    #[default]
+    Shot,
+    /// Every shot of a setting together: each fold predicts unseen settings.
+    Setting,
+}
+
+impl From<HoldOutArg> for HoldOut {
+    fn from(h: HoldOutArg) -> Self {
+        match h {
+            HoldOutArg::Shot => HoldOut::Shot,
+            HoldOutArg::Setting => HoldOut::Setting,
+        }
+    }
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Default, PartialEq, Eq)]
@@ -228,6 +250,7 @@ pub fn run(args: Args) -> Result<()> {
         beta: args.beta,
         cv: CvOptions {
             folds: args.folds,
+            hold_out: args.hold_out.into(),
             local: LocalOptions {
                 radius_px: args.radius_px,
                 ..LocalOptions::default()
