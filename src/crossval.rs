@@ -771,6 +771,9 @@ pub fn cross_validate_fixed(
     Ok((summarise(alpha, beta, terms, &e), e))
 }
 
+/// A fitted model's prediction of C_xx, C_yy, C_or at (channel, x, y, setting).
+type Predictor = Box<dyn Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>>;
+
 /// One model's errors at a test set's samples (the paper's Fig. 6): fitted on the whole
 /// calibration set, errors in % of the calibration set's ranges.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -851,24 +854,16 @@ pub fn evaluate_test_set(
             ModelKind::Global => format!("G_{{{},{}}}", m.alpha, m.beta),
             ModelKind::Local => format!("L_{{{},{}}}", m.alpha, m.beta),
         };
-        let fitted: Result<
-            (
-                Box<dyn Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>>,
-                usize,
-            ),
-            ModelError,
-        > = match m.kind {
+        let fitted: Result<(Predictor, usize), ModelError> = match m.kind {
             ModelKind::Global => crate::model::GlobalModel::fit(cal, m.alpha, m.beta).map(|g| {
                 let n = g.basis.len();
-                let f: Box<dyn Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>> =
-                    Box::new(move |c, x, y, s| g.predict(c, x, y, s));
+                let f: Predictor = Box::new(move |c, x, y, s| g.predict(c, x, y, s));
                 (f, n)
             }),
             ModelKind::Local => {
                 crate::model::LocalModel::fit(cal, m.alpha, m.beta, local).map(|l| {
                     let n = l.basis.len();
-                    let f: Box<dyn Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>> =
-                        Box::new(move |c, x, y, s| l.predict(c, x, y, s));
+                    let f: Predictor = Box::new(move |c, x, y, s| l.predict(c, x, y, s));
                     (f, n)
                 })
             }

@@ -68,6 +68,8 @@ fn calibration_set() -> Dataset {
     .dataset(&VirtualLens::demo(), &grid_settings(5, 5))
 }
 
+type Predictor = Box<dyn Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>>;
+
 fn p95(e: &[Vec<f64>; 3]) -> [f64; 3] {
     let mut out = [0.0; 3];
     for k in 0..3 {
@@ -283,10 +285,23 @@ fn models_meet_the_bars_at_novel_settings() {
     let lens = VirtualLens::demo();
     let cal = calibration_set();
     let ranges = param_ranges(&cal);
-    // The test shots as measured (with error) and their truth at the same squares.
+    // The test shots as measured (with error), their truth at the same squares, and
+    // what an estimator with the same systematic bias but no random error would have
+    // measured there: the best any model fitted to biased measurements can do, so the
+    // fairest ground for comparing models.
     let test_measured = session(1, 1234).dataset(&lens, &novel_settings());
     let test_truth = SimulatedSession {
         noise: SampleNoise::none(),
+        ..session(1, 1234)
+    }
+    .dataset(&lens, &novel_settings());
+    let bias = SampleNoise::default();
+    let test_expected = SimulatedSession {
+        noise: SampleNoise {
+            sigma_bias_per_px: bias.sigma_bias_per_px,
+            rho_shrink: bias.rho_shrink,
+            ..SampleNoise::none()
+        },
         ..session(1, 1234)
     }
     .dataset(&lens, &novel_settings());
@@ -323,10 +338,7 @@ fn models_meet_the_bars_at_novel_settings() {
     let (best_kind, _, _) = report.best().unwrap();
 
     let t1 = std::time::Instant::now();
-    let fit = |kind: ModelKind,
-               a: usize,
-               b: usize|
-     -> Box<dyn Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>> {
+    let fit = |kind: ModelKind, a: usize, b: usize| -> Predictor {
         match kind {
             ModelKind::Global => {
                 let m = GlobalModel::fit(&cal, a, b).unwrap();
@@ -349,12 +361,14 @@ fn models_meet_the_bars_at_novel_settings() {
         let pred = fit(kind, a, b);
         let vs_truth = prediction_errors(&test_truth, &ranges, &pred);
         let vs_meas = prediction_errors(&test_measured, &ranges, &pred);
+        let vs_expected = prediction_errors(&test_expected, &ranges, &pred);
         eprintln!(
-            "{name} ({kind:?} {a},{b}): test error vs measured p95 {:.2?} % mean {:.2} %; vs truth p95 {:.2?} % mean {:.2} %",
+            "{name} ({kind:?} {a},{b}): test error vs measured p95 {:.2?} % mean {:.2} %; vs truth p95 {:.2?} % mean {:.2} %; vs bias-only {:.3} %",
             p95(&vs_meas),
             mean(&vs_meas),
             p95(&vs_truth),
-            mean(&vs_truth)
+            mean(&vs_truth),
+            mean(&vs_expected)
         );
         results.push((
             name,
@@ -362,7 +376,7 @@ fn models_meet_the_bars_at_novel_settings() {
             p95(&vs_meas),
             mean(&vs_meas),
             p95(&vs_truth),
-            mean(&vs_truth),
+            mean(&vs_expected),
         ));
     }
     eprintln!("fits and test took {:.1} s", t1.elapsed().as_secs_f64());
@@ -373,8 +387,12 @@ fn models_meet_the_bars_at_novel_settings() {
         }
     }
     // The family cross-validation prefers, at its chosen (α, β), against the paper's
-    // fixed models, on the error against the truth (the measured test values carry
-    // their own noise, which is the same for every model).
+    // fixed models, on the error against the bias-only measurement (random test-set
+    // error and the shared estimator bias would only add the same to every model).
+    // Across calibration seeds 7–14 the choice beat both on seven (by 6–10 % against
+    // G_{8,3}); on seed 12 cross-validation preferred L_{2,3} by 0.02 points and it
+    // came out at 0.355 % against G_{8,3}'s 0.315 % of range. L_{1,3} is always far
+    // behind (0.84–1.06 %).
     let chosen = results
         .iter()
         .find(|r| r.1 == best_kind && r.0.starts_with("chosen"))
@@ -397,6 +415,34 @@ fn models_meet_the_bars_at_novel_settings() {
         l.chosen.mean_pct
     );
     eprintln!("total {:.1} s", t0.elapsed().as_secs_f64());
+}
+
+#[test]
+fn a_field_at_one_setting_matches_pointwise_prediction() {
+    let ds = session(1, 8).dataset(&VirtualLens::demo(), &grid_settings(4, 4));
+    let g = GlobalModel::fit(&ds, 6, 2).unwrap();
+    let l = LocalModel::fit(&ds, 1, 3, &LocalOptions::default()).unwrap();
+    let s = LensSetting {
+        focal_mm: 71.0,
+        f_number: 4.7,
+    };
+    let mut worst = 0.0f64;
+    for ch in [Channel::R, Channel::G, Channel::B] {
+        let (fg, fl) = (g.at_setting(ch, s).unwrap(), l.at_setting(ch, s).unwrap());
+        // Inside and outside the chart's coverage, corners included.
+        for k in 0..400 {
+            let (x, y) = ((k as f64 * 61.7) % W as f64, (k as f64 * 37.9) % H as f64);
+            for (a, b) in [
+                (fg.predict(x, y), g.predict(ch, x, y, s).unwrap()),
+                (fl.predict(x, y), l.predict(ch, x, y, s).unwrap()),
+            ] {
+                for p in 0..3 {
+                    worst = worst.max((a[p] - b[p]).abs());
+                }
+            }
+        }
+    }
+    assert!(worst < 1e-9, "{worst}");
 }
 
 #[test]
@@ -460,6 +506,22 @@ fn profile_round_trip_and_validation() {
     let mut lenient = loaded.clone();
     lenient.allow_extrapolation = true;
     assert!(lenient.predict(Channel::G, 10.0, 10.0, far).is_ok());
+    // Inside both ranges but never calibrated: a zoom that only reaches f/5.6 at the
+    // long end has no 105 mm f/4 among its settings.
+    let mut staircase = loaded.clone();
+    staircase
+        .calibrated_settings
+        .retain(|c| !(c.focal_mm > 100.0 && c.f_number < 5.0));
+    let corner = LensSetting {
+        focal_mm: 105.0,
+        f_number: 4.0,
+    };
+    assert!(loaded.predict(Channel::G, 10.0, 10.0, corner).is_ok());
+    let e = staircase
+        .predict(Channel::G, 10.0, 10.0, corner)
+        .unwrap_err();
+    assert!(matches!(e, ProfileError::BetweenRanges { .. }), "{e}");
+    assert!(staircase.predict(Channel::G, 10.0, 10.0, s).is_ok());
 
     // Another camera.
     let other = CameraIdentity {
@@ -735,6 +797,34 @@ fn kernels_files_are_read_and_unknown_settings_named() {
     let ds = Dataset::from_kernels_files(&[good.as_path(), nosetting.as_path()], &[None, given])
         .unwrap();
     assert_eq!(ds.shots[1].f_number, 8.0);
+
+    // Identity from EXIF: completed across shots, and a session that mixes lens units
+    // is refused, naming the field and the shot.
+    let with_id = |name: &str, id: &str| {
+        let p = dir.path().join(name);
+        std::fs::write(
+            &p,
+            format!(
+                r#"{{"schema":"lensblur.kernels/1","width":640,"height":480,"focal_mm":35,"f_number":5.6,
+                   "identity":{{"make":"Virtual",{id}}},
+                   "samples":[{{"x":10,"y":20,"channel":"G","cxx":1.1,"cyy":1.2,"cor":0.1}}]}}"#
+            ),
+        )
+        .unwrap();
+        p
+    };
+    let a = with_id("c.kernels.json", r#""model":"VZ 24-105mm f/4""#);
+    let b = with_id("d.kernels.json", r#""lens_serial":"VZ-0001""#);
+    let c = with_id("e.kernels.json", r#""lens_serial":"VZ-0002""#);
+    let ds = Dataset::from_kernels_files(&[a.as_path(), b.as_path()], &[]).unwrap();
+    assert_eq!(ds.identity.model.as_deref(), Some("VZ 24-105mm f/4"));
+    assert_eq!(ds.identity.lens_serial.as_deref(), Some("VZ-0001"));
+    let e = Dataset::from_kernels_files(&[a.as_path(), b.as_path(), c.as_path()], &[]).unwrap_err();
+    let msg = e.to_string();
+    assert!(
+        msg.contains("lens serial") && msg.contains("VZ-0002") && msg.contains("e.kernels.json"),
+        "{msg}"
+    );
 }
 
 fn write_kernels_files(dir: &std::path::Path, ds: &Dataset) -> Vec<std::path::PathBuf> {
