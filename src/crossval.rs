@@ -1,7 +1,10 @@
 //! Cross-validation and model selection (DESIGN.md §1.7).
 //!
 //! Whole shots are held out (the paper's holdout-10: each fold holds about 10 % of the
-//! shots, assigned by a fixed seeded shuffle so runs are repeatable). The error of a
+//! shots, assigned by a fixed seeded shuffle so runs are repeatable); optionally every
+//! shot of a setting together ([`HoldOut::Setting`]), which on the simulated 5 × 5 × 2
+//! session chose models that predicted novel settings worse (smaller α, mostly), so it
+//! is not the default. The error of a
 //! parameter is |predicted − measured| / range × 100 %, where the range is the width of
 //! the 0.5–99.5 percentile interval of that parameter over the whole dataset, all
 //! channels pooled. Selection is two-staged: α with β = N − 1, then β with that α.

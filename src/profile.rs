@@ -2,10 +2,14 @@
 //! versioned JSON file, `lensblur.profile/1`.
 //!
 //! Coefficients are stored as base64 of little-endian `f32` (7 significant digits, far
-//! below the measurement noise), which keeps a global G_{8,3} profile near the paper's
-//! 12 kB. Loading validates the schema and every coefficient count; predicting refuses
-//! another camera's photos (unless forced) and settings outside the calibrated range
-//! (unless extrapolation is explicitly allowed) — never a silent extrapolation.
+//! below the measurement noise): a G_{8,3} profile of three channels is about 17 kB (the
+//! paper: ≈ 12 kB), an L_{1,3} one 50–160 kB depending on the chart's scale (≈ 200 kB).
+//! Loading validates the schema and every coefficient count; predicting refuses another
+//! camera's photos (unless forced), and settings outside the calibrated ranges or
+//! outside the hull of the calibrated settings (unless extrapolation is explicitly
+//! allowed) — never a silent extrapolation in f and a. Over the sensor, where the chart
+//! did not reach, the models continue linearly from the border of the measured area
+//! (`lensblur predict` says so).
 
 use crate::chart::ChartSpec;
 use crate::crossval::{CvPoint, CvReport, Ranges};
