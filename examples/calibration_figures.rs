@@ -431,7 +431,7 @@ fn main() -> Result<()> {
         measured.push((plan.name.clone(), k, t));
     }
     if args.save_shots {
-        write_manifests(&args.out.join("shots"), &plans, n_cal)?;
+        write_manifests(&args.out.join("shots"), &chart, &plans, n_cal)?;
     }
     let (cal, cal_truth) = datasets(&measured[..n_cal])?;
     let (test, test_truth) = datasets(&measured[n_cal..])?;
@@ -645,9 +645,10 @@ fn main() -> Result<()> {
 }
 
 /// Manifests of the saved DNG shots: the calibration set and the test set.
-fn write_manifests(dir: &Path, plans: &[ShotPlan], n_cal: usize) -> Result<()> {
+fn write_manifests(dir: &Path, chart: &ChartSpec, plans: &[ShotPlan], n_cal: usize) -> Result<()> {
     let manifest = |plans: &[ShotPlan]| {
         serde_json::json!({
+            "chart": chart,
             "shots": plans.iter().map(|p| serde_json::json!({
                 "path": format!("{}.dng", p.name),
                 "focal_mm": p.setting.focal_mm,
