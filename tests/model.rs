@@ -1081,6 +1081,29 @@ fn command_line_calibrate_crossval_predict_sweeps() {
             .any(|s| s["measured"].as_array().unwrap().len() == 3)
     );
 
+    // A photo whose setting neither the manifest nor its EXIF knows is refused before
+    // it is measured, naming it.
+    let photo = dir.path().join("no_exif.png");
+    image::GrayImage::from_pixel(64, 48, image::Luma([128u8]))
+        .save(&photo)
+        .unwrap();
+    let manifest = d("manifest.json");
+    std::fs::write(
+        &manifest,
+        r#"{"shots": [{"path": "no_exif.png", "focal_mm": 35}]}"#,
+    )
+    .unwrap();
+    let out = std::process::Command::new(exe)
+        .args(["calibrate", "--manifest", &manifest, "--out", &d("p2.json")])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let msg = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        msg.contains("no_exif.png") && msg.contains("no f-number") && msg.lines().count() == 1,
+        "{msg}"
+    );
+
     // β too large for a 3 × 3 session.
     let mut args = vec![
         "calibrate",
