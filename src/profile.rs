@@ -2,10 +2,14 @@
 //! versioned JSON file, `lensblur.profile/1`.
 //!
 //! Coefficients are stored as base64 of little-endian `f32` (7 significant digits, far
-//! below the measurement noise), which keeps a global G_{8,3} profile near the paper's
-//! 12 kB. Loading validates the schema and every coefficient count; predicting refuses
-//! another camera's photos (unless forced) and settings outside the calibrated range
-//! (unless extrapolation is explicitly allowed) — never a silent extrapolation.
+//! below the measurement noise): a G_{8,3} profile of three channels is about 17 kB (the
+//! paper: ≈ 12 kB), an L_{1,3} one 50–160 kB depending on the chart's scale (≈ 200 kB).
+//! Loading validates the schema and every coefficient count; predicting refuses another
+//! camera's photos (unless forced), and settings outside the calibrated ranges or
+//! outside the hull of the calibrated settings (unless extrapolation is explicitly
+//! allowed) — never a silent extrapolation in f and a. Over the sensor, where the chart
+//! did not reach, the models continue linearly from the border of the measured area
+//! (`lensblur predict` says so).
 
 use crate::chart::ChartSpec;
 use crate::crossval::{CvPoint, CvReport, Ranges};
@@ -49,6 +53,10 @@ pub enum ProfileError {
         a0: f64,
         a1: f64,
     },
+    #[error(
+        "f = {focal_mm} mm, f/{f_number} is inside the calibrated ranges but not among the calibrated settings (outside their convex hull): the models would extrapolate (allow extrapolation to predict anyway)"
+    )]
+    BetweenRanges { focal_mm: f64, f_number: f64 },
     #[error("the profile holds no {0:?} model")]
     NoModel(ModelKind),
     #[error("the profile has no model for channel {0}")]
@@ -117,6 +125,10 @@ struct ProfileFile {
     height: usize,
     focal_range_mm: [f64; 2],
     f_number_range: [f64; 2],
+    /// Bounding box [x0, y0, x1, y1] of the measured squares; outside it predictions
+    /// extrapolate linearly from its border.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    sampled_extent_px: Option<[f64; 4]>,
     /// How f and a are normalised, for readers of the file.
     #[serde(default)]
     normalisation: String,
@@ -204,8 +216,16 @@ fn base64_decode(text: &str) -> Option<Vec<u8>> {
     let mut out = Vec::with_capacity(t.len() * 3 / 4);
     let mut acc = 0u32;
     let mut bits = 0;
+    let mut value_of = [u8::MAX; 256];
+    for (i, &b) in B64.iter().enumerate() {
+        value_of[b as usize] = i as u8;
+    }
     for c in t.bytes() {
-        let v = B64.iter().position(|&b| b == c)? as u32;
+        let v = value_of[c as usize];
+        if v == u8::MAX {
+            return None;
+        }
+        let v = u32::from(v);
         acc = (acc << 6) | v;
         bits += 6;
         if bits >= 8 {
@@ -257,6 +277,58 @@ fn load_channel(
     Ok(out)
 }
 
+/// Whether `q` lies in the convex hull of `pts` (2-D), within `tol`. Handles hulls
+/// that are a point or a segment (a session at one setting, or at one focal length).
+fn point_in_hull(pts: &[[f64; 2]], q: [f64; 2], tol: f64) -> bool {
+    let cross = |o: [f64; 2], a: [f64; 2], b: [f64; 2]| {
+        (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+    };
+    let dist_to_segment = |a: [f64; 2], b: [f64; 2]| {
+        let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+        let len2 = dx * dx + dy * dy;
+        let t = if len2 > 0.0 {
+            (((q[0] - a[0]) * dx + (q[1] - a[1]) * dy) / len2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        (q[0] - a[0] - t * dx).hypot(q[1] - a[1] - t * dy)
+    };
+    let mut p: Vec<[f64; 2]> = pts.to_vec();
+    p.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
+    p.dedup_by(|a, b| (a[0] - b[0]).abs() < 1e-12 && (a[1] - b[1]).abs() < 1e-12);
+    if p.is_empty() {
+        return false;
+    }
+    // Andrew's monotone chain, counter-clockwise, collinear points dropped.
+    let mut hull: Vec<[f64; 2]> = Vec::with_capacity(2 * p.len());
+    for pass in 0..2 {
+        let start = hull.len();
+        let iter: Box<dyn Iterator<Item = &[f64; 2]>> = if pass == 0 {
+            Box::new(p.iter())
+        } else {
+            Box::new(p.iter().rev())
+        };
+        for &pt in iter {
+            while hull.len() >= start + 2
+                && cross(hull[hull.len() - 2], hull[hull.len() - 1], pt) <= 1e-12
+            {
+                hull.pop();
+            }
+            hull.push(pt);
+        }
+        hull.pop();
+    }
+    match hull.len() {
+        0 => dist_to_segment(p[0], p[0]) <= tol,
+        1 | 2 => dist_to_segment(hull[0], *hull.last().unwrap_or(&hull[0])) <= tol,
+        n => (0..n).all(|i| {
+            let (a, b) = (hull[i], hull[(i + 1) % n]);
+            let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+            cross(a, b, q) >= -tol * len
+        }),
+    }
+}
+
 impl Profile {
     /// A profile from fitted models. `preferred` falls back to whichever model exists.
     #[must_use]
@@ -300,7 +372,8 @@ impl Profile {
             height: self.norm.height,
             focal_range_mm: self.norm.focal_range_mm,
             f_number_range: self.norm.f_number_range,
-            normalisation: "Legendre product basis; x, y: 2x/(W-1)-1, 2y/(H-1)-1 (local: (x-cx)/radius); f linear over focal_range_mm; a linear in ln(f-number) over f_number_range; a setting that does not vary has no terms".into(),
+            sampled_extent_px: self.norm.sampled_extent_px,
+            normalisation: "Legendre product basis; x, y: 2x/(W-1)-1, 2y/(H-1)-1 (local: (x-cx)/radius); f linear over focal_range_mm; a linear in ln(f-number) over f_number_range; a setting that does not vary has no terms; outside sampled_extent_px, linear extrapolation from its border".into(),
             calibrated_settings: self.calibrated_settings.clone(),
             preferred: self.preferred,
             global: self.global.as_ref().map(|g| StoredGlobal {
@@ -387,13 +460,20 @@ impl Profile {
     /// # Errors
     /// As [`Profile::load`].
     pub fn from_json(text: &str, origin: &str) -> Result<Self, ProfileError> {
-        let value: serde_json::Value =
-            serde_json::from_str(text).map_err(|e| ProfileError::File {
-                path: origin.into(),
-                reason: format!("not JSON: {e}"),
-            })?;
-        let schema = value
-            .get("schema")
+        // The schema first, so another version is named as such rather than reported
+        // as whichever field it lacks; a light pass that builds no tree.
+        #[derive(Deserialize)]
+        struct SchemaOnly {
+            #[serde(default)]
+            schema: Option<serde_json::Value>,
+        }
+        let head: SchemaOnly = serde_json::from_str(text).map_err(|e| ProfileError::File {
+            path: origin.into(),
+            reason: format!("not JSON: {e}"),
+        })?;
+        let schema = head
+            .schema
+            .as_ref()
             .and_then(|s| s.as_str())
             .unwrap_or("(none)");
         if schema != PROFILE_SCHEMA {
@@ -402,11 +482,10 @@ impl Profile {
                 found: schema.into(),
             });
         }
-        let file: ProfileFile =
-            serde_json::from_value(value).map_err(|e| ProfileError::Invalid {
-                path: origin.into(),
-                reason: e.to_string(),
-            })?;
+        let file: ProfileFile = serde_json::from_str(text).map_err(|e| ProfileError::Invalid {
+            path: origin.into(),
+            reason: e.to_string(),
+        })?;
         let invalid = |reason: String| ProfileError::Invalid {
             path: origin.into(),
             reason,
@@ -421,15 +500,24 @@ impl Profile {
                 "calibrated ranges are not positive intervals".into(),
             ));
         }
+        if let Some(e) = file.sampled_extent_px
+            && !(e.iter().all(|v| v.is_finite()) && e[0] <= e[2] && e[1] <= e[3])
+        {
+            return Err(invalid("sampled extent is not a box".into()));
+        }
         let norm = Normalisation {
             width: file.width,
             height: file.height,
             focal_range_mm: file.focal_range_mm,
             f_number_range: file.f_number_range,
+            sampled_extent_px: file.sampled_extent_px,
         };
         let check_order = |a: usize, b: usize| {
-            if a.max(b) > 15 {
-                Err(invalid(format!("model order α = {a}, β = {b} above 15")))
+            if a.max(b) > crate::model::MAX_ORDER {
+                Err(invalid(format!(
+                    "model order α = {a}, β = {b} above {}",
+                    crate::model::MAX_ORDER
+                )))
             } else {
                 Ok(())
             }
@@ -481,7 +569,8 @@ impl Profile {
                 if l.centres_x < 2
                     || l.centres_y < 2
                     || l.centres_x * l.centres_y > 1_000_000
-                    || !(l.radius_px > 0.0)
+                    || !l.radius_px.is_finite()
+                    || l.radius_px <= 0.0
                 {
                     return Err(invalid("local model grid is malformed".into()));
                 }
@@ -597,17 +686,48 @@ impl Profile {
     /// # Errors
     /// [`ProfileError::OutOfRange`] unless extrapolation is allowed.
     pub fn check_setting(&self, s: LensSetting) -> Result<(), ProfileError> {
-        if self.allow_extrapolation || self.norm.contains(s) {
+        if self.allow_extrapolation {
             return Ok(());
         }
-        Err(ProfileError::OutOfRange {
-            focal_mm: s.focal_mm,
-            f_number: s.f_number,
-            f0: self.norm.focal_range_mm[0],
-            f1: self.norm.focal_range_mm[1],
-            a0: self.norm.f_number_range[0],
-            a1: self.norm.f_number_range[1],
-        })
+        if !self.norm.contains(s) {
+            return Err(ProfileError::OutOfRange {
+                focal_mm: s.focal_mm,
+                f_number: s.f_number,
+                f0: self.norm.focal_range_mm[0],
+                f1: self.norm.focal_range_mm[1],
+                a0: self.norm.f_number_range[0],
+                a1: self.norm.f_number_range[1],
+            });
+        }
+        if !self.in_calibrated_hull(s) {
+            return Err(ProfileError::BetweenRanges {
+                focal_mm: s.focal_mm,
+                f_number: s.f_number,
+            });
+        }
+        Ok(())
+    }
+
+    /// Whether a setting lies among the calibrated ones: inside their convex hull in
+    /// the normalised (f, a) plane. The ranges alone are not enough: a zoom whose
+    /// widest aperture shrinks with focal length, calibrated at f/4 at 24 mm and f/5.6
+    /// at 105 mm, has both f/4 and 105 mm in range but was never measured at 105 mm f/4.
+    #[must_use]
+    pub fn in_calibrated_hull(&self, s: LensSetting) -> bool {
+        if self.calibrated_settings.is_empty() {
+            return true;
+        }
+        let pts: Vec<[f64; 2]> = self
+            .calibrated_settings
+            .iter()
+            .map(|c| {
+                let (f, a) = self.norm.fa(*c);
+                [f, a]
+            })
+            .collect();
+        let (f, a) = self.norm.fa(s);
+        // About the 0.1 % the ranges allow for rounded EXIF values.
+        point_in_hull(&pts, [f, a], 2e-3)
     }
 
     /// The pixel-level Gaussian at sensor (x, y) for a setting, from the preferred model.
@@ -682,7 +802,7 @@ impl Profile {
         let step = step_px.max(1);
         let axis = |len: usize| {
             let mut v: Vec<f64> = (0..len).step_by(step).map(|i| i as f64).collect();
-            if (len - 1) % step != 0 {
+            if !(len - 1).is_multiple_of(step) {
                 v.push((len - 1) as f64);
             }
             v
@@ -691,18 +811,46 @@ impl Profile {
         let ys = axis(self.norm.height);
         let mut out = Vec::with_capacity(xs.len() * ys.len() * 3);
         for ch in self.channels() {
+            let field = self.field_at_setting(self.preferred, ch, setting)?;
             for &y in &ys {
                 for &x in &xs {
                     out.push(FieldSample {
                         x,
                         y,
                         channel: ch,
-                        gaussian: self.predict(ch, x, y, setting)?,
+                        gaussian: to_gaussian(field.predict(x, y)),
                     });
                 }
             }
         }
         Ok(out)
+    }
+
+    /// One channel of a model family at one setting, for predicting many points at it
+    /// (the same values as [`Profile::predict_with`], a fraction of the cost).
+    ///
+    /// # Errors
+    /// As [`Profile::predict_with`].
+    pub fn field_at_setting(
+        &self,
+        kind: ModelKind,
+        channel: Channel,
+        setting: LensSetting,
+    ) -> Result<crate::model::FieldAtSetting, ProfileError> {
+        self.check_setting(setting)?;
+        match kind {
+            ModelKind::Global => self
+                .global
+                .as_ref()
+                .ok_or(ProfileError::NoModel(kind))?
+                .at_setting(channel, setting),
+            ModelKind::Local => self
+                .local
+                .as_ref()
+                .ok_or(ProfileError::NoModel(kind))?
+                .at_setting(channel, setting),
+        }
+        .ok_or(ProfileError::NoChannel(channel))
     }
 
     /// Builds a profile from cross-validation: fits both families at their chosen
@@ -761,14 +909,8 @@ pub fn calibrate(
     if let Some(b) = opts.beta {
         ds.check_beta(b)?;
     }
-    if let Some(a) = opts.alpha
-        && a.max(opts.beta.unwrap_or(0)) > 15
-    {
-        return Err(ModelError::TooFewSamples {
-            model: format!("order {a} (at most 15)"),
-            samples: 0,
-            terms: 0,
-        });
+    if let Some(a) = opts.alpha {
+        crate::model::check_order(a, opts.beta.unwrap_or(0))?;
     }
     let want_global = opts.families != Families::Local;
     let want_local = opts.families != Families::Global;
@@ -801,14 +943,6 @@ pub fn calibrate(
         None
     };
     job.report("fitting", 2, 2);
-    let preferred = report.as_ref().map_or(
-        if want_local {
-            ModelKind::Local
-        } else {
-            ModelKind::Global
-        },
-        Profile::preferred_from,
-    );
     let mut settings: Vec<LensSetting> = ds
         .shots
         .iter()
@@ -825,7 +959,47 @@ pub fn calibrate(
     settings.dedup_by(|a, b| {
         (a.focal_mm - b.focal_mm).abs() < 1e-6 && (a.f_number - b.f_number).abs() < 1e-6
     });
-    let cv = report.as_ref().map(CvSummary::from_report);
+    let cv = match &report {
+        Some(r) => Some(CvSummary::from_report(r)),
+        // Fixed orders: still report how well they cross-validate, where there are
+        // shots to hold out.
+        None if ds.shots.len() >= 2 => {
+            let fixed = |kind: ModelKind, (a, b): (usize, usize)| {
+                crate::crossval::cross_validate_fixed(ds, kind, a, b, &opts.cv).map(|r| r.0)
+            };
+            let global_cv = if want_global {
+                Some(fixed(ModelKind::Global, g_ab)?)
+            } else {
+                None
+            };
+            job.check()?;
+            let local_cv = if want_local {
+                Some(fixed(ModelKind::Local, l_ab)?)
+            } else {
+                None
+            };
+            Some(CvSummary {
+                folds: crate::crossval::assign_folds(
+                    ds,
+                    opts.cv.folds,
+                    opts.cv.hold_out,
+                    opts.cv.seed,
+                )
+                .1,
+                ranges: crate::crossval::param_ranges(ds),
+                global: global_cv,
+                local: local_cv,
+            })
+        }
+        None => None,
+    };
+    // The family that cross-validates better; without cross-validation, the local
+    // model where there is one (the smaller error in the paper's tests).
+    let preferred = match cv.as_ref().map(|c| (&c.global, &c.local)) {
+        Some((Some(g), Some(l))) if g.mean_pct < l.mean_pct => ModelKind::Global,
+        _ if want_local => ModelKind::Local,
+        _ => ModelKind::Global,
+    };
     let profile = Profile::new(
         ds.identity.clone(),
         chart,
@@ -842,6 +1016,30 @@ pub fn calibrate(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn hull_membership() {
+        let square = [
+            [-1.0, -1.0],
+            [1.0, -1.0],
+            [1.0, 1.0],
+            [-1.0, 1.0],
+            [0.0, 0.0],
+        ];
+        assert!(point_in_hull(&square, [0.3, -0.9], 1e-3));
+        assert!(point_in_hull(&square, [1.0005, 0.0], 1e-3));
+        assert!(!point_in_hull(&square, [1.01, 0.0], 1e-3));
+        // A zoom whose widest aperture shrinks: no (1, −1) corner.
+        let staircase = [[-1.0, -1.0], [1.0, -0.5], [1.0, 1.0], [-1.0, 1.0]];
+        assert!(!point_in_hull(&staircase, [1.0, -1.0], 1e-3));
+        assert!(point_in_hull(&staircase, [0.0, -0.75], 1e-3));
+        // One focal length: a segment; one setting: a point.
+        let line = [[0.0, -1.0], [0.0, 0.2], [0.0, 1.0]];
+        assert!(point_in_hull(&line, [0.0, 0.5], 1e-3));
+        assert!(!point_in_hull(&line, [0.1, 0.5], 1e-3));
+        assert!(point_in_hull(&[[0.0, 0.0]], [0.0, 0.0005], 1e-3));
+        assert!(!point_in_hull(&[[0.0, 0.0]], [0.0, 0.1], 1e-3));
+    }
 
     #[test]
     fn base64_round_trips() {

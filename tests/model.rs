@@ -1,18 +1,19 @@
 //! Blur models, cross-validation and profiles against the virtual lens's truth.
 //!
 //! The datasets here are built directly from the lens truth (pixel-level Gaussians at
-//! the squares' centres of a posed 24×16 chart, with measurement noise like real kernel
-//! estimates), which keeps these tests fast; full-pipeline figures come from real
-//! simulated shots.
+//! the square centres of a posed 24×16 chart) plus measurement error shaped like the
+//! measured chain's ([`SampleNoise`]: independent and heavy-tailed per square, smooth
+//! per shot), which keeps these tests to seconds. The same figures on kernels measured
+//! from simulated shots come from `examples/calibration_figures.rs`.
 
 use lensblur::crossval::{
-    CvOptions, cross_validate, cross_validate_fixed, param_ranges, percentile_sorted,
+    CvOptions, HoldOut, cross_validate, cross_validate_fixed, param_ranges, percentile_sorted,
     prediction_errors,
 };
 use lensblur::job::JobContext;
 use lensblur::model::{
     CentreGrid, Dataset, GlobalModel, LocalModel, LocalOptions, ModelError, ModelKind, SampleNoise,
-    simulated_dataset, spaced, terms,
+    SimulatedSession, local_coords, spaced, terms,
 };
 use lensblur::plane::{CameraIdentity, Channel, LensSetting};
 use lensblur::profile::{CalibrateOptions, Families, Profile, ProfileError, calibrate};
@@ -50,44 +51,101 @@ fn novel_settings() -> Vec<LensSetting> {
     out
 }
 
-/// The paper sampled the blur at alternating squares; so do we, which halves the work.
-fn alternate_squares(mut ds: Dataset) -> Dataset {
-    let (sx, sy) = (W as f64 / 24.0, H as f64 / 16.0);
-    ds.samples
-        .retain(|s| ((s.x / sx).floor() as i64 + (s.y / sy).floor() as i64) % 2 == 0);
-    ds
+fn session(shots_per_setting: usize, seed: u64) -> SimulatedSession {
+    SimulatedSession {
+        shots_per_setting,
+        seed,
+        ..SimulatedSession::new(W, H)
+    }
 }
 
+/// 5 × 5 settings, two shots each; like the paper, every other square is sampled.
 fn calibration_set() -> Dataset {
-    let ds = simulated_dataset(
-        &VirtualLens::demo(),
-        W,
-        H,
-        (24, 16),
-        &grid_settings(5, 5),
-        2,
-        &SampleNoise::default(),
-        7,
-    );
-    alternate_squares(ds)
+    SimulatedSession {
+        alternate_squares: true,
+        ..session(2, 7)
+    }
+    .dataset(&VirtualLens::demo(), &grid_settings(5, 5))
 }
 
-fn truth_set(settings: &[LensSetting]) -> Dataset {
-    let noise = SampleNoise {
-        sigma_rel: 0.0,
-        rho_abs: 0.0,
-        ..SampleNoise::default()
+type Predictor = Box<dyn Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>>;
+
+fn p95(e: &[Vec<f64>; 3]) -> [f64; 3] {
+    let mut out = [0.0; 3];
+    for k in 0..3 {
+        let mut s = e[k].clone();
+        s.sort_by(f64::total_cmp);
+        out[k] = percentile_sorted(&s, 95.0);
+    }
+    out
+}
+
+fn mean(e: &[Vec<f64>; 3]) -> f64 {
+    e.iter()
+        .map(|v| v.iter().sum::<f64>() / v.len() as f64)
+        .sum::<f64>()
+        / 3.0
+}
+
+#[test]
+fn sample_noise_is_no_smaller_than_the_measured_chains() {
+    // The same seed draws the same poses and random numbers; only their scale differs.
+    let lens = VirtualLens::demo();
+    let settings = grid_settings(3, 3);
+    let noisy = session(1, 5).dataset(&lens, &settings);
+    let exact = SimulatedSession {
+        noise: SampleNoise::none(),
+        ..session(1, 5)
+    }
+    .dataset(&lens, &settings);
+    assert_eq!(noisy.samples.len(), exact.samples.len());
+    let mut sigma = Vec::new();
+    let mut rho = Vec::new();
+    for (n, e) in noisy.samples.iter().zip(&exact.samples) {
+        assert_eq!((n.x, n.y, n.channel), (e.x, e.y, e.channel));
+        sigma.push((n.gaussian.sigma_x / e.gaussian.sigma_x - 1.0).abs());
+        sigma.push((n.gaussian.sigma_y / e.gaussian.sigma_y - 1.0).abs());
+        rho.push((n.gaussian.rho - e.gaussian.rho).abs());
+    }
+    sigma.sort_by(f64::total_cmp);
+    rho.sort_by(f64::total_cmp);
+    let (s50, s95) = (
+        percentile_sorted(&sigma, 50.0),
+        percentile_sorted(&sigma, 95.0),
+    );
+    let (r50, r95) = (percentile_sorted(&rho, 50.0), percentile_sorted(&rho, 95.0));
+    eprintln!(
+        "simulated measurement error: σ median {s50:.4} p95 {s95:.4}; ρ median {r50:.4} p95 {r95:.4}"
+    );
+    // Kernels measured on simulated shots: σ ≈ 0.5–1 % median, 2–3 % p95; ρ ≈
+    // 0.003–0.006 median. The stand-in must be at least that bad.
+    assert!(s50 >= 0.01 && s95 >= 0.03, "σ: {s50} {s95}");
+    assert!(r50 >= 0.006, "ρ: {r50}");
+
+    // The per-shot part is shared within a shot: a shot's mean σ error is its field's
+    // constant, RMS 1 % / √2 by design (the independent part averages out over ~1000
+    // samples). 100 shots pin the RMS to about ±10 %.
+    let settings = grid_settings(10, 10);
+    let noisy = session(1, 5).dataset(&lens, &settings);
+    let exact = SimulatedSession {
+        noise: SampleNoise::none(),
+        ..session(1, 5)
+    }
+    .dataset(&lens, &settings);
+    let shot_mean = |shot: usize| {
+        let (mut acc, mut n) = (0.0, 0.0);
+        for (a, b) in noisy.samples.iter().zip(&exact.samples) {
+            if a.shot == shot {
+                acc += a.gaussian.sigma_x / b.gaussian.sigma_x - 1.0;
+                n += 1.0;
+            }
+        }
+        acc / n
     };
-    simulated_dataset(
-        &VirtualLens::demo(),
-        W,
-        H,
-        (24, 16),
-        settings,
-        1,
-        &noise,
-        99,
-    )
+    let means: Vec<f64> = (0..noisy.shots.len()).map(shot_mean).collect();
+    let spread = (means.iter().map(|m| m * m).sum::<f64>() / means.len() as f64).sqrt();
+    eprintln!("RMS of per-shot mean σ error: {spread:.4}");
+    assert!((0.005..0.009).contains(&spread), "{spread}");
 }
 
 #[test]
@@ -132,31 +190,82 @@ fn local_blend_is_a_partition_of_unity_without_seams() {
         let s: f64 = grid.blend(x, y).iter().map(|b| b.1).sum();
         assert!((s - 1.0).abs() < 1e-12);
     }
-    let ds = simulated_dataset(
-        &VirtualLens::demo(),
-        W,
-        H,
-        (24, 16),
-        &grid_settings(3, 3),
-        1,
-        &SampleNoise::default(),
-        3,
-    );
+    let ds = session(1, 3).dataset(&VirtualLens::demo(), &grid_settings(3, 3));
     let model = LocalModel::fit(&ds, 1, 2, &LocalOptions::default()).unwrap();
     let s = LensSetting {
         focal_mm: 50.0,
         f_number: 5.6,
     };
-    // Walk a diagonal line in 0.05 px steps across many cell borders: the field must
-    // change no faster than its smooth slope anywhere.
+    let (_, per_centre) = model.channels.iter().find(|c| c.0 == Channel::G).unwrap();
+    // What a field that took the nearest centre's polynomial would predict.
+    let nearest = |x: f64, y: f64| {
+        let idx = (0..model.grid.len())
+            .min_by(|&a, &b| {
+                let (ca, cb) = (model.grid.centre(a), model.grid.centre(b));
+                (ca[0] - x)
+                    .hypot(ca[1] - y)
+                    .total_cmp(&(cb[0] - x).hypot(cb[1] - y))
+            })
+            .unwrap();
+        model.basis.eval3(
+            local_coords(&model.grid, &model.norm, idx, x, y, s.focal_mm, s.f_number),
+            &per_centre[idx],
+        )
+    };
+    // Cross every cell border and every nearest-centre border (half-way between centres)
+    // along a row and a column: the jump over ±1e-6 px must be of the order of the
+    // slope times 2e-6 px, where a seam would jump by the fits' disagreement.
+    let eps = 1e-6;
+    let jump = |f: &dyn Fn(f64, f64) -> [f64; 3], (x0, y0): (f64, f64), (x1, y1): (f64, f64)| {
+        let (a, b) = (f(x0, y0), f(x1, y1));
+        (0..3).map(|k| (a[k] - b[k]).abs()).fold(0.0, f64::max)
+    };
+    let blended = |x: f64, y: f64| model.predict(Channel::G, x, y, s).unwrap();
+    let (sx, sy) = (
+        (W - 1) as f64 / (model.grid.nx - 1) as f64,
+        (H - 1) as f64 / (model.grid.ny - 1) as f64,
+    );
+    let (mut worst_blend, mut worst_nearest) = (0.0f64, 0.0f64);
+    let y_row = 0.37 * H as f64;
+    let x_col = 0.61 * W as f64;
+    for i in 1..(2 * (model.grid.nx - 1)) {
+        let x = 0.5 * i as f64 * sx;
+        worst_blend = worst_blend.max(jump(&blended, (x - eps, y_row), (x + eps, y_row)));
+        if i % 2 == 1 {
+            worst_nearest = worst_nearest.max(jump(&nearest, (x - eps, y_row), (x + eps, y_row)));
+        }
+    }
+    for j in 1..(2 * (model.grid.ny - 1)) {
+        let y = 0.5 * j as f64 * sy;
+        worst_blend = worst_blend.max(jump(&blended, (x_col, y - eps), (x_col, y + eps)));
+        if j % 2 == 1 {
+            worst_nearest = worst_nearest.max(jump(&nearest, (x_col, y - eps), (x_col, y + eps)));
+        }
+    }
+    eprintln!(
+        "largest jump across a border: blended {worst_blend:.2e}, nearest centre {worst_nearest:.2e}"
+    );
+    // The slope is below 1e-2 per px, so continuity allows ~2e-8; a nearest-centre field
+    // (the control) jumps by the fits' disagreement, orders of magnitude more.
+    assert!(
+        worst_blend < 1e-7,
+        "seam in the blended field: {worst_blend}"
+    );
+    assert!(
+        worst_nearest > 1e-4,
+        "control: the nearest-centre field should show seams ({worst_nearest})"
+    );
+
+    // And the blended field's slope has no kinks either: walk a diagonal in 0.05 px
+    // steps; no step may change it by more than its smooth slope allows.
     let step = 0.05;
     let mut worst = 0.0f64;
-    let mut prev = model.predict(Channel::G, 0.0, 0.0, s).unwrap();
+    let mut prev = blended(0.0, 0.0);
     let n = (W as f64 / step) as usize;
     for i in 1..n {
         let x = i as f64 * step;
         let y = x * (H as f64 - 1.0) / (W as f64 - 1.0);
-        let p = model.predict(Channel::G, x, y, s).unwrap();
+        let p = blended(x, y);
         for k in 0..3 {
             worst = worst.max((p[k] - prev[k]).abs());
         }
@@ -166,116 +275,139 @@ fn local_blend_is_a_partition_of_unity_without_seams() {
     assert!(worst < 2e-4, "seam: {worst}");
 }
 
+/// The issue's bars on a 5 × 5 × 2 calibration set and a test set at 16 novel settings:
+/// p95 error < 10 % of range for both models and every parameter, the mean
+/// cross-validation error, and the cross-validated choice no worse than G_{8,3} and
+/// L_{1,3} on the test set.
 #[test]
 fn models_meet_the_bars_at_novel_settings() {
     let t0 = std::time::Instant::now();
-    let ds = calibration_set();
-    let ranges = param_ranges(&ds);
-    let test_truth = truth_set(&novel_settings());
-    let test_measured = simulated_dataset(
-        &VirtualLens::demo(),
-        W,
-        H,
-        (24, 16),
-        &novel_settings(),
-        1,
-        &SampleNoise::default(),
-        1234,
-    );
-    let report = cross_validate(&ds, &CvOptions::default(), &JobContext::silent()).unwrap();
+    let lens = VirtualLens::demo();
+    let cal = calibration_set();
+    let ranges = param_ranges(&cal);
+    // The test shots as measured (with error), their truth at the same squares, and
+    // what an estimator with the same systematic bias but no random error would have
+    // measured there: the best any model fitted to biased measurements can do, so the
+    // fairest ground for comparing models.
+    let test_measured = session(1, 1234).dataset(&lens, &novel_settings());
+    let test_truth = SimulatedSession {
+        noise: SampleNoise::none(),
+        ..session(1, 1234)
+    }
+    .dataset(&lens, &novel_settings());
+    let bias = SampleNoise::default();
+    let test_expected = SimulatedSession {
+        noise: SampleNoise {
+            sigma_bias_per_px: bias.sigma_bias_per_px,
+            rho_shrink: bias.rho_shrink,
+            ..SampleNoise::none()
+        },
+        ..session(1, 1234)
+    }
+    .dataset(&lens, &novel_settings());
+    let report = cross_validate(&cal, &CvOptions::default(), &JobContext::silent()).unwrap();
     eprintln!(
-        "{} samples; CV took {:.1} s",
-        ds.samples.len(),
+        "{} samples, {} shots; ranges {ranges:?}; CV took {:.1} s",
+        cal.samples.len(),
+        cal.shots.len(),
         t0.elapsed().as_secs_f64()
     );
     let g = report.global.as_ref().unwrap();
     let l = report.local.as_ref().unwrap();
-    eprintln!(
-        "ranges {ranges:?}; CV took {:.1} s",
-        t0.elapsed().as_secs_f64()
-    );
-    for p in g.alpha_curve.iter().chain(&g.beta_curve) {
-        eprintln!(
-            "G_{{{},{}}} ({} terms): CV mean {:.2} %, per param {:.2?}",
-            p.alpha, p.beta, p.terms, p.mean_pct, p.mean_error_pct
-        );
-    }
-    for p in l.alpha_curve.iter().chain(&l.beta_curve) {
-        eprintln!(
-            "L_{{{},{}}} ({} terms): CV mean {:.2} %, per param {:.2?}",
-            p.alpha, p.beta, p.terms, p.mean_pct, p.mean_error_pct
-        );
-    }
-    eprintln!(
-        "chosen: G_{{{},{}}}, L_{{{},{}}}",
-        g.alpha, g.beta, l.alpha, l.beta
-    );
-    let t1 = std::time::Instant::now();
-    let (l13, _) =
-        cross_validate_fixed(&ds, ModelKind::Local, 1, 3, &CvOptions::default()).unwrap();
-    eprintln!(
-        "L_{{1,3}} CV mean {:.2} % ({:.2?})",
-        l13.mean_pct, l13.mean_error_pct
-    );
-
-    eprintln!("L_{{1,3}} CV took {:.1} s", t1.elapsed().as_secs_f64());
-    let t1 = std::time::Instant::now();
-    let chosen_g = GlobalModel::fit(&ds, g.alpha, g.beta).unwrap();
-    let chosen_l = LocalModel::fit(&ds, l.alpha, l.beta, &LocalOptions::default()).unwrap();
-    let g83 = GlobalModel::fit(&ds, 8, 3).unwrap();
-    let l13m = LocalModel::fit(&ds, 1, 3, &LocalOptions::default()).unwrap();
-    eprintln!("fits took {:.1} s", t1.elapsed().as_secs_f64());
-    let p95 = |e: &[Vec<f64>; 3]| {
-        let mut out = [0.0; 3];
-        for k in 0..3 {
-            let mut s = e[k].clone();
-            s.sort_by(f64::total_cmp);
-            out[k] = percentile_sorted(&s, 95.0);
+    for (name, sel) in [("G", g), ("L", l)] {
+        for p in sel.alpha_curve.iter().chain(&sel.beta_curve) {
+            eprintln!(
+                "{name}_{{{},{}}} ({} terms): CV mean {:.2} %, per param {:.2?}, p95 {:.2?}",
+                p.alpha, p.beta, p.terms, p.mean_pct, p.mean_error_pct, p.p95_error_pct
+            );
         }
-        out
+    }
+    let (l13_cv, _) =
+        cross_validate_fixed(&cal, ModelKind::Local, 1, 3, &CvOptions::default()).unwrap();
+    eprintln!(
+        "chosen G_{{{},{}}} (CV {:.2} %), L_{{{},{}}} (CV {:.2} %); L_{{1,3}} CV mean {:.2} % {:.2?} (paper: 3.4–4.0 %)",
+        g.alpha,
+        g.beta,
+        g.chosen.mean_pct,
+        l.alpha,
+        l.beta,
+        l.chosen.mean_pct,
+        l13_cv.mean_pct,
+        l13_cv.mean_error_pct
+    );
+    let (best_kind, _, _) = report.best().unwrap();
+
+    let t1 = std::time::Instant::now();
+    let fit = |kind: ModelKind, a: usize, b: usize| -> Predictor {
+        match kind {
+            ModelKind::Global => {
+                let m = GlobalModel::fit(&cal, a, b).unwrap();
+                Box::new(move |c, x, y, s| m.predict(c, x, y, s))
+            }
+            ModelKind::Local => {
+                let m = LocalModel::fit(&cal, a, b, &LocalOptions::default()).unwrap();
+                Box::new(move |c, x, y, s| m.predict(c, x, y, s))
+            }
+        }
     };
-    let mean = |e: &[Vec<f64>; 3]| {
-        e.iter()
-            .map(|v| v.iter().sum::<f64>() / v.len() as f64)
-            .sum::<f64>()
-            / 3.0
-    };
-    let mut results = Vec::new();
-    type Pred<'a> = &'a dyn Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>;
-    let preds: [(&str, Pred); 4] = [
-        ("chosen global", &|c, x, y, s| chosen_g.predict(c, x, y, s)),
-        ("chosen local", &|c, x, y, s| chosen_l.predict(c, x, y, s)),
-        ("G_{8,3}", &|c, x, y, s| g83.predict(c, x, y, s)),
-        ("L_{1,3}", &|c, x, y, s| l13m.predict(c, x, y, s)),
+    let models = [
+        ("chosen global", ModelKind::Global, g.alpha, g.beta),
+        ("chosen local", ModelKind::Local, l.alpha, l.beta),
+        ("G_{8,3}", ModelKind::Global, 8, 3),
+        ("L_{1,3}", ModelKind::Local, 1, 3),
     ];
-    for (name, pred) in preds {
-        let vs_truth = prediction_errors(&test_truth, &ranges, pred);
-        let vs_meas = prediction_errors(&test_measured, &ranges, pred);
+    let mut results = Vec::new();
+    for (name, kind, a, b) in models {
+        let pred = fit(kind, a, b);
+        let vs_truth = prediction_errors(&test_truth, &ranges, &pred);
+        let vs_meas = prediction_errors(&test_measured, &ranges, &pred);
+        let vs_expected = prediction_errors(&test_expected, &ranges, &pred);
         eprintln!(
-            "{name}: test error vs truth p95 {:.2?} % mean {:.2} %; vs measured p95 {:.2?} % mean {:.2} %",
+            "{name} ({kind:?} {a},{b}): test error vs measured p95 {:.2?} % mean {:.2} %; vs truth p95 {:.2?} % mean {:.2} %; vs bias-only {:.3} %",
+            p95(&vs_meas),
+            mean(&vs_meas),
             p95(&vs_truth),
             mean(&vs_truth),
-            p95(&vs_meas),
-            mean(&vs_meas)
+            mean(&vs_expected)
         );
-        results.push((name, p95(&vs_truth), mean(&vs_truth), p95(&vs_meas)));
+        results.push((
+            name,
+            kind,
+            p95(&vs_meas),
+            mean(&vs_meas),
+            p95(&vs_truth),
+            mean(&vs_expected),
+        ));
     }
-    for (name, truth95, _, meas95) in &results {
+    eprintln!("fits and test took {:.1} s", t1.elapsed().as_secs_f64());
+    for (name, _, meas95, _, truth95, _) in &results {
         for k in 0..3 {
-            assert!(truth95[k] < 10.0, "{name}: p95 error vs truth {truth95:?}");
             assert!(meas95[k] < 10.0, "{name}: p95 error vs measured {meas95:?}");
+            assert!(truth95[k] < 10.0, "{name}: p95 error vs truth {truth95:?}");
         }
     }
-    // The cross-validated choice does no worse on the test set than the paper's fixed
-    // models (2 % slack for the noise in a finite test set).
-    let best_chosen = results[0].2.min(results[1].2);
-    let best_fixed = results[2].2.min(results[3].2);
-    assert!(
-        best_chosen <= best_fixed * 1.02,
-        "chosen {best_chosen} vs fixed {best_fixed}"
-    );
-    // With 2 % σ noise the CV error cannot fall below the noise floor, and a good model
-    // stays near it.
+    // The family cross-validation prefers, at its chosen (α, β), against the paper's
+    // fixed models, on the error against the bias-only measurement (random test-set
+    // error and the shared estimator bias would only add the same to every model).
+    // Across calibration seeds 7–14 the choice beat both on seven (by 6–10 % against
+    // G_{8,3}); on seed 12 cross-validation preferred L_{2,3} by 0.02 points and it
+    // came out at 0.355 % against G_{8,3}'s 0.315 % of range. L_{1,3} is always far
+    // behind (0.84–1.06 %).
+    let chosen = results
+        .iter()
+        .find(|r| r.1 == best_kind && r.0.starts_with("chosen"))
+        .unwrap();
+    for fixed in &results[2..] {
+        assert!(
+            chosen.5 <= fixed.5,
+            "{} ({:.3} %) is worse than {} ({:.3} %) on the test set",
+            chosen.0,
+            chosen.5,
+            fixed.0,
+            fixed.5
+        );
+    }
+    // Cross-validation errors sit near the measurement noise (the paper: 3.4–4.0 %).
     assert!(
         g.chosen.mean_pct < 5.0 && l.chosen.mean_pct < 5.0,
         "{} {}",
@@ -286,17 +418,36 @@ fn models_meet_the_bars_at_novel_settings() {
 }
 
 #[test]
+fn a_field_at_one_setting_matches_pointwise_prediction() {
+    let ds = session(1, 8).dataset(&VirtualLens::demo(), &grid_settings(4, 4));
+    let g = GlobalModel::fit(&ds, 6, 2).unwrap();
+    let l = LocalModel::fit(&ds, 1, 3, &LocalOptions::default()).unwrap();
+    let s = LensSetting {
+        focal_mm: 71.0,
+        f_number: 4.7,
+    };
+    let mut worst = 0.0f64;
+    for ch in [Channel::R, Channel::G, Channel::B] {
+        let (fg, fl) = (g.at_setting(ch, s).unwrap(), l.at_setting(ch, s).unwrap());
+        // Inside and outside the chart's coverage, corners included.
+        for k in 0..400 {
+            let (x, y) = ((k as f64 * 61.7) % W as f64, (k as f64 * 37.9) % H as f64);
+            for (a, b) in [
+                (fg.predict(x, y), g.predict(ch, x, y, s).unwrap()),
+                (fl.predict(x, y), l.predict(ch, x, y, s).unwrap()),
+            ] {
+                for p in 0..3 {
+                    worst = worst.max((a[p] - b[p]).abs());
+                }
+            }
+        }
+    }
+    assert!(worst < 1e-9, "{worst}");
+}
+
+#[test]
 fn profile_round_trip_and_validation() {
-    let ds = simulated_dataset(
-        &VirtualLens::demo(),
-        W,
-        H,
-        (24, 16),
-        &grid_settings(4, 4),
-        1,
-        &SampleNoise::default(),
-        5,
-    );
+    let ds = session(1, 5).dataset(&VirtualLens::demo(), &grid_settings(4, 4));
     let opts = CalibrateOptions {
         families: Families::Both,
         alpha: Some(1),
@@ -355,6 +506,22 @@ fn profile_round_trip_and_validation() {
     let mut lenient = loaded.clone();
     lenient.allow_extrapolation = true;
     assert!(lenient.predict(Channel::G, 10.0, 10.0, far).is_ok());
+    // Inside both ranges but never calibrated: a zoom that only reaches f/5.6 at the
+    // long end has no 105 mm f/4 among its settings.
+    let mut staircase = loaded.clone();
+    staircase
+        .calibrated_settings
+        .retain(|c| !(c.focal_mm > 100.0 && c.f_number < 5.0));
+    let corner = LensSetting {
+        focal_mm: 105.0,
+        f_number: 4.0,
+    };
+    assert!(loaded.predict(Channel::G, 10.0, 10.0, corner).is_ok());
+    let e = staircase
+        .predict(Channel::G, 10.0, 10.0, corner)
+        .unwrap_err();
+    assert!(matches!(e, ProfileError::BetweenRanges { .. }), "{e}");
+    assert!(staircase.predict(Channel::G, 10.0, 10.0, s).is_ok());
 
     // Another camera.
     let other = CameraIdentity {
@@ -388,25 +555,47 @@ fn profile_round_trip_and_validation() {
     // The field every 64 px.
     let field = loaded.predict_field(s, 64).unwrap();
     assert_eq!(field.len(), 3 * 39 * 26);
+
+    // The chart covered only part of the sensor: the extent survives the round trip,
+    // and beyond it the field continues linearly (continuous at the border, no
+    // polynomial blow-up at the corners).
+    let e = loaded.norm.sampled_extent_px.unwrap();
+    let saved = profile.norm.sampled_extent_px.unwrap();
+    assert!(
+        (0..4).all(|k| (e[k] - saved[k]).abs() < 1e-9),
+        "{e:?} {saved:?}"
+    );
+    assert!(e[0] > 50.0 && e[2] < W as f64 - 50.0, "{e:?}");
+    let lens = VirtualLens::demo();
+    for kind in [ModelKind::Global, ModelKind::Local] {
+        let at = |x: f64, y: f64| loaded.predict_with(kind, Channel::R, x, y, s).unwrap();
+        let (a, b) = (at(e[0] + 1e-6, 700.0), at(e[0] - 1e-6, 700.0));
+        assert!(
+            (a.sigma_x - b.sigma_x).abs() < 1e-6,
+            "{kind:?}: {a:?} {b:?}"
+        );
+        let corner = at(0.0, 0.0);
+        let truth = lens
+            .gaussian_at(Channel::R, 0.0, 0.0, W, H, s)
+            .convolved_variance(1.0 / 12.0, 1.0 / 12.0, 0.0);
+        eprintln!("{kind:?} at the corner (0, 0): {corner:?}, truth {truth:?}");
+        assert!(
+            (corner.sigma_x / truth.sigma_x - 1.0).abs() < 0.25,
+            "{kind:?}: {corner:?} vs {truth:?}"
+        );
+    }
 }
 
 #[test]
 fn degenerate_sessions() {
     let lens = VirtualLens::demo();
-    let noise = SampleNoise::default();
     // One setting only: a spatial model; β = 1 is refused with the counts.
-    let one = simulated_dataset(
+    let one = session(2, 1).dataset(
         &lens,
-        W,
-        H,
-        (24, 16),
         &[LensSetting {
             focal_mm: 50.0,
             f_number: 5.6,
         }],
-        2,
-        &noise,
-        1,
     );
     assert_eq!(one.setting_resolution(), 1);
     let m = GlobalModel::fit(&one, 6, 0).unwrap();
@@ -462,12 +651,12 @@ fn degenerate_sessions() {
             f_number: a,
         })
         .collect();
-    let fixed_f = simulated_dataset(&lens, W, H, (24, 16), &settings, 1, &noise, 2);
+    let fixed_f = session(1, 2).dataset(&lens, &settings);
     assert_eq!(fixed_f.setting_resolution(), 4);
     let m = GlobalModel::fit(&fixed_f, 3, 3).unwrap();
     assert!(m.basis.terms().iter().all(|t| t[2] == 0) && m.basis.terms().iter().any(|t| t[3] == 3));
     // Too few settings for β.
-    let two = simulated_dataset(&lens, W, H, (24, 16), &grid_settings(2, 3), 1, &noise, 4);
+    let two = session(1, 4).dataset(&lens, &grid_settings(2, 3));
     let e = LocalModel::fit(&two, 1, 2, &LocalOptions::default()).unwrap_err();
     let msg = e.to_string();
     assert!(
@@ -476,22 +665,101 @@ fn degenerate_sessions() {
     );
 
     // Cross-validation of a single shot is refused with the count.
-    let single = simulated_dataset(
+    let single = session(1, 1).dataset(
         &lens,
-        W,
-        H,
-        (24, 16),
         &[LensSetting {
             focal_mm: 50.0,
             f_number: 5.6,
         }],
-        1,
-        &noise,
-        1,
     );
     assert!(matches!(
         cross_validate(&single, &CvOptions::default(), &JobContext::silent()),
         Err(ModelError::TooFewShots { shots: 1 })
+    ));
+    // ... and so is calibrating it without orders, with the way out in the message;
+    // with them it is a spatial-only profile.
+    let e = calibrate(
+        &single,
+        None,
+        &CalibrateOptions::default(),
+        &JobContext::silent(),
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("--alpha"), "{e}");
+    let (p, _) = calibrate(
+        &single,
+        None,
+        &CalibrateOptions {
+            alpha: Some(4),
+            families: Families::Global,
+            ..CalibrateOptions::default()
+        },
+        &JobContext::silent(),
+    )
+    .unwrap();
+    let g = p.global.as_ref().unwrap();
+    assert_eq!((g.alpha, g.beta), (4, 0));
+
+    // One setting, two shots: cross-validation over α alone (β = 0), by shot even when
+    // asked to hold out settings (there is only one).
+    let cv = cross_validate(
+        &one,
+        &CvOptions {
+            hold_out: HoldOut::Setting,
+            local_alphas: vec![1],
+            global_alphas: vec![2, 4],
+            ..CvOptions::default()
+        },
+        &JobContext::silent(),
+    )
+    .unwrap();
+    assert_eq!(cv.folds, 2);
+    let sel = cv.global.as_ref().unwrap();
+    assert_eq!(sel.beta_curve.len(), 1);
+    assert!(sel.chosen.mean_pct.is_finite() && sel.chosen.mean_pct < 10.0);
+
+    // Settings that cannot determine the terms in f and a: three shots on a diagonal
+    // have N_f = N_a = 3, yet β = 2 has six such terms.
+    let diagonal: Vec<LensSetting> = [(24.0, 4.0), (50.0, 5.6), (105.0, 10.0)]
+        .iter()
+        .map(|&(f, a)| LensSetting {
+            focal_mm: f,
+            f_number: a,
+        })
+        .collect();
+    let diag = session(1, 6).dataset(&lens, &diagonal);
+    assert_eq!(diag.setting_resolution(), 3);
+    let e = GlobalModel::fit(&diag, 4, 2).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            ModelError::SettingsTooSparse {
+                beta: 2,
+                terms: 6,
+                settings: 3
+            }
+        ),
+        "{e}"
+    );
+    // β = 1 (1, f, a) is determined by three settings off a line.
+    assert!(GlobalModel::fit(&diag, 4, 1).is_ok());
+    // Cross-validation keeps β to what the settings determine.
+    let cv = cross_validate(
+        &diag,
+        &CvOptions {
+            local_alphas: vec![],
+            global_alphas: vec![2],
+            ..CvOptions::default()
+        },
+        &JobContext::silent(),
+    )
+    .unwrap();
+    assert_eq!(cv.global.as_ref().unwrap().beta_curve.len(), 2);
+
+    // Orders the basis cannot evaluate are refused, not a panic.
+    assert!(matches!(
+        GlobalModel::fit(&one, 16, 0),
+        Err(ModelError::OrderTooHigh { alpha: 16, .. })
     ));
 }
 
@@ -529,6 +797,34 @@ fn kernels_files_are_read_and_unknown_settings_named() {
     let ds = Dataset::from_kernels_files(&[good.as_path(), nosetting.as_path()], &[None, given])
         .unwrap();
     assert_eq!(ds.shots[1].f_number, 8.0);
+
+    // Identity from EXIF: completed across shots, and a session that mixes lens units
+    // is refused, naming the field and the shot.
+    let with_id = |name: &str, id: &str| {
+        let p = dir.path().join(name);
+        std::fs::write(
+            &p,
+            format!(
+                r#"{{"schema":"lensblur.kernels/1","width":640,"height":480,"focal_mm":35,"f_number":5.6,
+                   "identity":{{"make":"Virtual",{id}}},
+                   "samples":[{{"x":10,"y":20,"channel":"G","cxx":1.1,"cyy":1.2,"cor":0.1}}]}}"#
+            ),
+        )
+        .unwrap();
+        p
+    };
+    let a = with_id("c.kernels.json", r#""model":"VZ 24-105mm f/4""#);
+    let b = with_id("d.kernels.json", r#""lens_serial":"VZ-0001""#);
+    let c = with_id("e.kernels.json", r#""lens_serial":"VZ-0002""#);
+    let ds = Dataset::from_kernels_files(&[a.as_path(), b.as_path()], &[]).unwrap();
+    assert_eq!(ds.identity.model.as_deref(), Some("VZ 24-105mm f/4"));
+    assert_eq!(ds.identity.lens_serial.as_deref(), Some("VZ-0001"));
+    let e = Dataset::from_kernels_files(&[a.as_path(), b.as_path(), c.as_path()], &[]).unwrap_err();
+    let msg = e.to_string();
+    assert!(
+        msg.contains("lens serial") && msg.contains("VZ-0002") && msg.contains("e.kernels.json"),
+        "{msg}"
+    );
 }
 
 fn write_kernels_files(dir: &std::path::Path, ds: &Dataset) -> Vec<std::path::PathBuf> {
@@ -556,16 +852,11 @@ fn write_kernels_files(dir: &std::path::Path, ds: &Dataset) -> Vec<std::path::Pa
 fn command_line_calibrate_crossval_predict_sweeps() {
     let exe = env!("CARGO_BIN_EXE_lensblur");
     let (w, h) = (960, 640);
-    let ds = simulated_dataset(
-        &VirtualLens::demo(),
-        w,
-        h,
-        (24, 16),
-        &grid_settings(3, 3),
-        1,
-        &SampleNoise::default(),
-        21,
-    );
+    let ds = SimulatedSession {
+        seed: 21,
+        ..SimulatedSession::new(w, h)
+    }
+    .dataset(&VirtualLens::demo(), &grid_settings(3, 3));
     let dir = tempfile::tempdir().unwrap();
     let kernels = write_kernels_files(dir.path(), &ds);
     let run = |args: &[&str]| {
@@ -656,6 +947,71 @@ fn command_line_calibrate_crossval_predict_sweeps() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("outside the calibrated range"));
 
+    // A point off the sensor is refused; one beyond the chart's coverage is predicted
+    // with a warning.
+    std::fs::write(&pts, "[[-5, 100]]").unwrap();
+    let out = std::process::Command::new(exe)
+        .args([
+            "predict",
+            "--profile",
+            &profile,
+            "--focal",
+            "50",
+            "--aperture",
+            "5.6",
+            "--points",
+            &pts,
+            "--out",
+            &pred,
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("outside the profile's 960×640 sensor"));
+    std::fs::write(&pts, "[[0, 0], [480, 320]]").unwrap();
+    let log = run(&[
+        "predict",
+        "--profile",
+        &profile,
+        "--focal",
+        "50",
+        "--aperture",
+        "5.6",
+        "--points",
+        &pts,
+        "--out",
+        &pred,
+    ]);
+    assert!(
+        log.contains("1 of 2 points lie outside the area the chart covered"),
+        "{log}"
+    );
+
+    // Cross-validation curves (Fig. 5) and, with a test session at novel settings, the
+    // test errors (Fig. 6).
+    let test = SimulatedSession {
+        seed: 22,
+        ..SimulatedSession::new(w, h)
+    }
+    .dataset(
+        &VirtualLens::demo(),
+        &[
+            LensSetting {
+                focal_mm: 35.0,
+                f_number: 4.8,
+            },
+            LensSetting {
+                focal_mm: 80.0,
+                f_number: 7.1,
+            },
+        ],
+    );
+    let test_dir = dir.path().join("test");
+    std::fs::create_dir_all(&test_dir).unwrap();
+    let tks: Vec<String> = write_kernels_files(&test_dir, &test)
+        .iter()
+        .map(|p| p.to_string_lossy().into_owned())
+        .collect();
     let cvo = d("cv2.json");
     let mut args = vec![
         "crossval",
@@ -667,13 +1023,36 @@ fn command_line_calibrate_crossval_predict_sweeps() {
         "--kernels",
     ];
     args.extend(ks.iter().map(String::as_str));
-    run(&args);
+    args.push("--test-kernels");
+    args.extend(tks.iter().map(String::as_str));
+    let log = run(&args);
+    eprintln!("{log}");
     assert!(
         std::fs::read_to_string(format!("{cvo}.curves.csv"))
             .unwrap()
             .lines()
             .count()
             > 4
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&cvo).unwrap()).unwrap();
+    let models = v["test"]["models"].as_array().unwrap();
+    // The two chosen models and the paper's G_{8,1} and L_{1,1}; β = 3 needs N ≥ 4.
+    assert_eq!(models.len(), 4, "{}", v["test"]);
+    for m in models.iter().filter(|m| m["label"] == "chosen") {
+        for k in 0..3 {
+            assert!(m["p95_error_pct"][k].as_f64().unwrap() < 10.0, "{m}");
+        }
+    }
+    assert_eq!(v["test"]["skipped"].as_array().unwrap().len(), 2);
+    let test_csv = std::fs::read_to_string(format!("{cvo}.test.csv")).unwrap();
+    assert_eq!(test_csv.lines().count(), 5, "{test_csv}");
+    assert_eq!(
+        std::fs::read_to_string(format!("{cvo}.test_cdf.csv"))
+            .unwrap()
+            .lines()
+            .count(),
+        1 + 4 * 101
     );
     let sw = d("sweeps.json");
     let mut args = vec![
@@ -700,6 +1079,29 @@ fn command_line_calibrate_crossval_predict_sweeps() {
         series
             .iter()
             .any(|s| s["measured"].as_array().unwrap().len() == 3)
+    );
+
+    // A photo whose setting neither the manifest nor its EXIF knows is refused before
+    // it is measured, naming it.
+    let photo = dir.path().join("no_exif.png");
+    image::GrayImage::from_pixel(64, 48, image::Luma([128u8]))
+        .save(&photo)
+        .unwrap();
+    let manifest = d("manifest.json");
+    std::fs::write(
+        &manifest,
+        r#"{"shots": [{"path": "no_exif.png", "focal_mm": 35}]}"#,
+    )
+    .unwrap();
+    let out = std::process::Command::new(exe)
+        .args(["calibrate", "--manifest", &manifest, "--out", &d("p2.json")])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let msg = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        msg.contains("no_exif.png") && msg.contains("no f-number") && msg.lines().count() == 1,
+        "{msg}"
     );
 
     // β too large for a 3 × 3 session.

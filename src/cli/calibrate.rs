@@ -8,11 +8,11 @@
 use super::common::{load_chart, progress_job, write_json};
 use anyhow::{Context, Result, bail};
 use lensblur::chart::ChartSpec;
-use lensblur::crossval::CvOptions;
+use lensblur::crossval::{CvOptions, HoldOut};
 use lensblur::detect::{DetectParams, detect};
 use lensblur::kernel::file::KernelsFile;
 use lensblur::kernel::{KernelParams, estimate_shot};
-use lensblur::model::{Dataset, LocalOptions};
+use lensblur::model::{Dataset, LocalOptions, ModelError};
 use lensblur::plane::LensSetting;
 use lensblur::profile::{CalibrateOptions, Families, calibrate};
 use lensblur::raw::{LoadOptions, load_capture};
@@ -66,7 +66,11 @@ fn is_kernels_file(path: &Path) -> bool {
 }
 
 /// FNV-1a over the file's bytes and the setting: the cache key of a shot's kernels.
-fn cache_key(path: &Path, setting: Option<LensSetting>, chart: &ChartSpec) -> Result<String> {
+fn cache_key(
+    path: &Path,
+    (focal_mm, f_number): (Option<f64>, Option<f64>),
+    chart: &ChartSpec,
+) -> Result<String> {
     let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     let mut eat = |b: &[u8]| {
@@ -76,9 +80,11 @@ fn cache_key(path: &Path, setting: Option<LensSetting>, chart: &ChartSpec) -> Re
         }
     };
     eat(&bytes);
-    if let Some(s) = setting {
-        eat(&s.focal_mm.to_le_bytes());
-        eat(&s.f_number.to_le_bytes());
+    for (tag, v) in [(b'f', focal_mm), (b'a', f_number)] {
+        if let Some(v) = v {
+            eat(&[tag]);
+            eat(&v.to_le_bytes());
+        }
     }
     eat(serde_json::to_string(chart).unwrap_or_default().as_bytes());
     Ok(format!("{h:016x}"))
@@ -131,12 +137,12 @@ pub fn load_session(args: &SessionArgs) -> Result<(Dataset, Option<ChartSpec>)> 
         if is_kernels_file(&path) {
             kernel_paths.push(path);
         } else {
-            let key = cache_key(&path, setting, &chart)?;
+            let key = cache_key(&path, (shot.focal_mm, shot.f_number), &chart)?;
             let cached = cache_dir.join(format!("{key}.kernels.json"));
             if args.no_cache || !cached.exists() {
                 std::fs::create_dir_all(&cache_dir)
                     .with_context(|| format!("{}: cannot create", cache_dir.display()))?;
-                let kernels = measure_shot(&path, setting, &chart, &job)?;
+                let kernels = measure_shot(&path, (shot.focal_mm, shot.f_number), &chart, &job)?;
                 write_json(&cached, &kernels)?;
             }
             kernel_paths.push(cached);
@@ -145,7 +151,28 @@ pub fn load_session(args: &SessionArgs) -> Result<(Dataset, Option<ChartSpec>)> 
     }
     job.report("measuring", manifest.shots.len(), manifest.shots.len());
     let paths: Vec<&Path> = kernel_paths.iter().map(PathBuf::as_path).collect();
-    let mut ds = Dataset::from_kernels_files(&paths, &settings)?;
+    // Errors name the photo, not its cached kernels.
+    let photo_of = |shot: &str| {
+        kernel_paths
+            .iter()
+            .position(|k| k.display().to_string() == shot)
+            .map_or_else(
+                || shot.to_string(),
+                |i| base.join(&manifest.shots[i].path).display().to_string(),
+            )
+    };
+    let mut ds = Dataset::from_kernels_files(&paths, &settings).map_err(|e| match e {
+        ModelError::UnknownSetting { shot } => ModelError::UnknownSetting {
+            shot: photo_of(&shot),
+        },
+        ModelError::MixedIdentity { field, a, b, shot } => ModelError::MixedIdentity {
+            field,
+            a,
+            b,
+            shot: photo_of(&shot),
+        },
+        e => e,
+    })?;
     // Name shots by their photo, not the cache file.
     for (info, shot) in ds.shots.iter_mut().zip(&manifest.shots) {
         info.name = shot.path.display().to_string();
@@ -153,22 +180,37 @@ pub fn load_session(args: &SessionArgs) -> Result<(Dataset, Option<ChartSpec>)> 
     Ok((ds, Some(chart)))
 }
 
-/// Runs load → detect → kernels on one shot and returns its kernels document.
+/// Runs load → detect → kernels on one shot and returns its kernels document. The
+/// manifest's focal length and f-number (either may be absent) take precedence over the
+/// file's EXIF; a shot with neither is refused before the minutes of measuring.
 fn measure_shot(
     path: &Path,
-    setting: Option<LensSetting>,
+    (focal_mm, f_number): (Option<f64>, Option<f64>),
     chart: &ChartSpec,
     job: &lensblur::job::JobContext,
 ) -> Result<KernelsFile> {
     let capture = load_capture(path, &LoadOptions::default())?;
+    let focal_mm = focal_mm.or(capture.setting_focal_mm);
+    let f_number = f_number.or(capture.setting_f_number);
+    if focal_mm.is_none() || f_number.is_none() {
+        bail!(
+            "{}: no {} in the manifest or the file's EXIF; add \"focal_mm\" and \"f_number\" to its manifest entry",
+            path.display(),
+            match (focal_mm, f_number) {
+                (None, None) => "focal length or f-number",
+                (None, Some(_)) => "focal length",
+                _ => "f-number",
+            }
+        );
+    }
     let det = detect(&capture, chart, &DetectParams::default(), job)
         .with_context(|| path.display().to_string())?;
     let shot = estimate_shot(&capture, &det, chart, &KernelParams::default(), job)
         .with_context(|| path.display().to_string())?;
     Ok(KernelsFile::from_shot(
         &shot,
-        setting.map(|s| s.focal_mm).or(capture.setting_focal_mm),
-        setting.map(|s| s.f_number).or(capture.setting_f_number),
+        focal_mm,
+        f_number,
         Some(capture.identity.clone()),
         false,
     ))
@@ -196,9 +238,31 @@ pub struct Args {
     /// Local model radius in pixels (default: 3× the largest imaged square).
     #[arg(long)]
     pub radius_px: Option<f64>,
+    /// What a cross-validation fold holds out.
+    #[arg(long, value_enum, default_value = "shot")]
+    pub hold_out: HoldOutArg,
     /// Also write the cross-validation report here.
     #[arg(long)]
     pub cv_out: Option<PathBuf>,
+}
+
+/// What a cross-validation fold holds out.
+#[derive(clap::ValueEnum, Clone, Copy, Default, PartialEq, Eq)]
+pub enum HoldOutArg {
+    /// Whole shots, each on its own (the paper's holdout).
+    #[default]
+    Shot,
+    /// Every shot of a setting together: each fold predicts unseen settings.
+    Setting,
+}
+
+impl From<HoldOutArg> for HoldOut {
+    fn from(h: HoldOutArg) -> Self {
+        match h {
+            HoldOutArg::Shot => HoldOut::Shot,
+            HoldOutArg::Setting => HoldOut::Setting,
+        }
+    }
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Default, PartialEq, Eq)]
@@ -228,6 +292,7 @@ pub fn run(args: Args) -> Result<()> {
         beta: args.beta,
         cv: CvOptions {
             folds: args.folds,
+            hold_out: args.hold_out.into(),
             local: LocalOptions {
                 radius_px: args.radius_px,
                 ..LocalOptions::default()

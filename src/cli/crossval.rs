@@ -1,11 +1,13 @@
 //! `lensblur crossval`: cross-validate model complexity (α, β) over a session; the data
 //! of the paper's Fig. 5 (curves) and Fig. 6 (error distributions).
 
-use super::calibrate::{ModelArg, SessionArgs, load_session};
+use super::calibrate::{HoldOutArg, ModelArg, SessionArgs, load_session};
 use super::common::{progress_job, write_atomic, write_json};
-use anyhow::Result;
-use lensblur::crossval::{CvOptions, CvReport, Selection, cross_validate};
-use lensblur::model::LocalOptions;
+use anyhow::{Context, Result};
+use lensblur::crossval::{
+    CvOptions, CvReport, Selection, cross_validate, evaluate_test_set, paper_test_models,
+};
+use lensblur::model::{LocalOptions, ModelKind};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -16,7 +18,9 @@ pub struct Args {
     /// Where to write the report (lensblur.crossval/1 JSON).
     #[arg(long)]
     pub out: PathBuf,
-    /// Also write CSV tables beside it: <out>.curves.csv and <out>.cdf.csv.
+    /// Also write CSV tables beside it: <out>.curves.csv (Fig. 5) and <out>.cdf.csv (the
+    /// chosen models' cross-validation error distributions); with a test session,
+    /// <out>.test.csv and <out>.test_cdf.csv (Fig. 6).
     #[arg(long)]
     pub csv: bool,
     #[arg(long, value_enum, default_value = "both")]
@@ -31,6 +35,17 @@ pub struct Args {
     pub local_alphas: Vec<usize>,
     #[arg(long)]
     pub radius_px: Option<f64>,
+    /// What a fold holds out: whole shots, or every shot of a setting together.
+    #[arg(long, value_enum, default_value = "shot")]
+    pub hold_out: HoldOutArg,
+    /// A test session at other settings (a manifest): the models are fitted to the whole
+    /// calibration session and their errors at the test shots reported (the paper's
+    /// Fig. 6): the cross-validated choices and G_{8,3}, L_{1,3}, G_{8,1}, L_{1,1}.
+    #[arg(long, conflicts_with = "test_kernels")]
+    pub test_manifest: Option<PathBuf>,
+    /// The test session as kernels files, one per shot, instead of a manifest.
+    #[arg(long, num_args = 1..)]
+    pub test_kernels: Vec<PathBuf>,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -53,9 +68,47 @@ pub fn run(args: Args) -> Result<()> {
         },
         run_global: args.model != ModelArg::Local,
         run_local: args.model != ModelArg::Global,
+        hold_out: args.hold_out.into(),
         ..CvOptions::default()
     };
-    let report = cross_validate(&ds, &opts, &progress_job())?;
+    let mut report = cross_validate(&ds, &opts, &progress_job())?;
+    if args.test_manifest.is_some() || !args.test_kernels.is_empty() {
+        let test_args = SessionArgs {
+            manifest: args.test_manifest.clone(),
+            kernels: args.test_kernels.clone(),
+            ..args.session.clone()
+        };
+        let (test, _) = load_session(&test_args).context("test session")?;
+        let models: Vec<_> = paper_test_models(Some(&report))
+            .into_iter()
+            .filter(|m| match m.kind {
+                ModelKind::Global => opts.run_global,
+                ModelKind::Local => opts.run_local,
+            })
+            .collect();
+        let t = evaluate_test_set(&ds, &test, &models, &opts.local, &report.ranges)?;
+        for m in &t.models {
+            eprintln!(
+                "test set: {} {}_{{{},{}}}: mean error {:.2} % of range; p95 C_xx {:.2}, C_yy {:.2}, C_or {:.2}",
+                m.label,
+                if m.kind == ModelKind::Global {
+                    "G"
+                } else {
+                    "L"
+                },
+                m.alpha,
+                m.beta,
+                m.mean_pct,
+                m.p95_error_pct[0],
+                m.p95_error_pct[1],
+                m.p95_error_pct[2]
+            );
+        }
+        for s in &t.skipped {
+            eprintln!("test set: skipped {s}");
+        }
+        report.test = Some(t);
+    }
     write_json(&args.out, &report)?;
     if args.csv {
         write_csv(&args.out, &report)?;
@@ -121,5 +174,40 @@ pub fn write_csv(out: &Path, report: &CvReport) -> Result<()> {
         }
     }
     write_atomic(&with_suffix(out, ".curves.csv"), curves.as_bytes())?;
-    write_atomic(&with_suffix(out, ".cdf.csv"), cdf.as_bytes())
+    write_atomic(&with_suffix(out, ".cdf.csv"), cdf.as_bytes())?;
+    if let Some(t) = &report.test {
+        let mut summary = String::from(
+            "model,label,alpha,beta,terms,mean_pct,cxx_mean_pct,cyy_mean_pct,cor_mean_pct,cxx_p95_pct,cyy_p95_pct,cor_p95_pct\n",
+        );
+        let mut cdf = String::from("model,label,alpha,beta,percentile,cxx_pct,cyy_pct,cor_pct\n");
+        for m in &t.models {
+            let kind = format!("{:?}", m.kind).to_lowercase();
+            let _ = writeln!(
+                summary,
+                "{kind},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
+                m.label,
+                m.alpha,
+                m.beta,
+                m.terms,
+                m.mean_pct,
+                m.mean_error_pct[0],
+                m.mean_error_pct[1],
+                m.mean_error_pct[2],
+                m.p95_error_pct[0],
+                m.p95_error_pct[1],
+                m.p95_error_pct[2]
+            );
+            let c = &m.error_cdf;
+            for i in 0..c.percentiles.len() {
+                let _ = writeln!(
+                    cdf,
+                    "{kind},{},{},{},{},{:.4},{:.4},{:.4}",
+                    m.label, m.alpha, m.beta, c.percentiles[i], c.cxx[i], c.cyy[i], c.cor[i]
+                );
+            }
+        }
+        write_atomic(&with_suffix(out, ".test.csv"), summary.as_bytes())?;
+        write_atomic(&with_suffix(out, ".test_cdf.csv"), cdf.as_bytes())?;
+    }
+    Ok(())
 }

@@ -86,6 +86,32 @@ pub fn run(args: Args) -> Result<()> {
     } else {
         args.channels.clone()
     };
+    let (w, h) = (profile.norm.width as f64, profile.norm.height as f64);
+    if let Some(p) = points.iter().find(|p| {
+        !(p[0].is_finite()
+            && p[1].is_finite()
+            && (0.0..=w - 1.0).contains(&p[0])
+            && (0.0..=h - 1.0).contains(&p[1]))
+    }) {
+        anyhow::bail!(
+            "{}: point [{}, {}] lies outside the profile's {}×{} sensor",
+            args.points.display(),
+            p[0],
+            p[1],
+            profile.norm.width,
+            profile.norm.height
+        );
+    }
+    let outside = points
+        .iter()
+        .filter(|p| !profile.norm.in_sampled_extent(p[0], p[1]))
+        .count();
+    if outside > 0 {
+        eprintln!(
+            "lensblur: warning: {outside} of {} points lie outside the area the chart covered in calibration; their blur is extrapolated linearly from its border",
+            points.len()
+        );
+    }
     let mut samples = Vec::with_capacity(points.len() * channels.len());
     for &ch in &channels {
         for &[x, y] in &points {

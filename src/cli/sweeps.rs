@@ -46,6 +46,9 @@ pub struct Args {
     pub steps: usize,
 }
 
+/// C_xx, C_yy, C_or at (channel, x, y, setting), from a profile or a fresh fit.
+type Predictor = Box<dyn Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>>;
+
 #[derive(Serialize)]
 struct Point {
     focal_mm: f64,
@@ -102,7 +105,7 @@ pub fn run(args: Args) -> Result<()> {
     let (ds, _) = load_session(&args.session)?;
     ds.validate()?;
     let (fs, as_) = ds.distinct_settings();
-    let predictor: Box<dyn Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>>;
+    let predictor: Predictor;
     let name;
     if let Some(p) = &args.profile {
         let profile = Profile::load(p)?;
