@@ -4,7 +4,7 @@
 //! and compare by the SSIM error ratio of Eq. 1, (SSIM_non + 2) / (SSIM_gau + 2).
 
 use crate::deblur::fft::Fft2;
-use crate::deblur::solve::{Method, deconvolve_block};
+use crate::deblur::solve::{Deconvolver, Method};
 use crate::gaussian::{FitParams, fit_gaussian};
 use crate::job::{Cancelled, JobContext};
 use crate::metrics::{SsimParams, ssim_f64};
@@ -147,7 +147,7 @@ pub fn simulated_kernels(count: usize, oversample: usize) -> Vec<ExperimentKerne
 #[must_use]
 pub fn with_pixel_box(k: &Kernel) -> Kernel {
     let os = k.oversample;
-    let n = k.size + os - 1 + usize::from(os % 2 == 0);
+    let n = k.size + os - 1 + usize::from(os.is_multiple_of(2));
     let size = n | 1;
     let off = (size - k.size) / 2;
     let half = os as isize / 2;
@@ -380,6 +380,7 @@ pub fn gaussian_approx(
         ("synthetic", hard_edges(n, n, opts.seed + 1)),
     ];
     let fft = Fft2::new(n, n);
+    let proto = Deconvolver::new(n, n);
     let total = kernels.len() * images.len();
     let done = AtomicUsize::new(0);
     let params = SsimParams::default();
@@ -389,51 +390,47 @@ pub fn gaussian_approx(
         let part: Vec<RatioRow> = kernels
             .par_iter()
             .enumerate()
-            .map(|(idx, ek)| -> Result<RatioRow, Cancelled> {
-                job.check()?;
-                let k1 = ek.kernel.resampled(1);
-                // The image is periodic here, so a circular blur is the exact model and
-                // the comparison measures only the kernel's shape.
-                let mut blurry = fft.convolve(&sharp, &k1);
-                let mut rng =
-                    Pcg64::seed_from_u64(opts.seed ^ (idx as u64).wrapping_mul(0x9e37_79b9));
-                if opts.noise_sigma > 0.0
-                    && let Ok(noise) = Normal::new(0.0, opts.noise_sigma)
-                {
-                    for v in &mut blurry {
-                        *v += noise.sample(&mut rng);
+            .map_init(
+                || (fft.clone(), proto.clone(), vec![0.0; n * n]),
+                |(fft, dec, x), (idx, ek)| -> Result<RatioRow, Cancelled> {
+                    job.check()?;
+                    let k1 = ek.kernel.resampled(1);
+                    // The image is periodic here, so a circular blur is the exact model
+                    // and the comparison measures only the kernel's shape.
+                    let mut blurry = fft.convolve(&sharp, &k1);
+                    let mut rng =
+                        Pcg64::seed_from_u64(opts.seed ^ (idx as u64).wrapping_mul(0x9e37_79b9));
+                    if opts.noise_sigma > 0.0
+                        && let Ok(noise) = Normal::new(0.0, opts.noise_sigma)
+                    {
+                        for v in &mut blurry {
+                            *v += noise.sample(&mut rng);
+                        }
                     }
-                }
-                let s = |x: &[f64]| ssim_f64(x, &sharp, n, n, &params);
-                let x_non = deconvolve_block(&fft, &blurry, &k1, &opts.method);
-                let x_rob = deconvolve_block(
-                    &fft,
-                    &blurry,
-                    &gaussian_kernel_1x(&ek.robust, ek.kernel.oversample),
-                    &opts.method,
-                );
-                let x_ml = deconvolve_block(
-                    &fft,
-                    &blurry,
-                    &gaussian_kernel_1x(&ek.ml, ek.kernel.oversample),
-                    &opts.method,
-                );
-                let (sn, sr, sm) = (s(&x_non), s(&x_rob), s(&x_ml));
-                let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-                job.report("experiment", d, total);
-                Ok(RatioRow {
-                    image: (*name).to_owned(),
-                    kernel_index: idx,
-                    robust: ek.robust,
-                    ml: ek.ml,
-                    ssim_blurry: s(&blurry),
-                    ssim_nonparametric: sn,
-                    ssim_robust: sr,
-                    ssim_ml: sm,
-                    ratio_robust: (sn + 2.0) / (sr + 2.0),
-                    ratio_ml: (sn + 2.0) / (sm + 2.0),
-                })
-            })
+                    let s = |x: &[f64]| ssim_f64(x, &sharp, n, n, &params);
+                    let mut ssim_with = |k: &Kernel| {
+                        dec.deconvolve(&blurry, k, &opts.method, x);
+                        s(x)
+                    };
+                    let sn = ssim_with(&k1);
+                    let sr = ssim_with(&gaussian_kernel_1x(&ek.robust, ek.kernel.oversample));
+                    let sm = ssim_with(&gaussian_kernel_1x(&ek.ml, ek.kernel.oversample));
+                    let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+                    job.report("experiment", d, total);
+                    Ok(RatioRow {
+                        image: (*name).to_owned(),
+                        kernel_index: idx,
+                        robust: ek.robust,
+                        ml: ek.ml,
+                        ssim_blurry: s(&blurry),
+                        ssim_nonparametric: sn,
+                        ssim_robust: sr,
+                        ssim_ml: sm,
+                        ratio_robust: (sn + 2.0) / (sr + 2.0),
+                        ratio_ml: (sn + 2.0) / (sm + 2.0),
+                    })
+                },
+            )
             .collect::<Result<_, _>>()?;
         rows.extend(part);
     }
