@@ -4,7 +4,8 @@
 use super::common::{progress_job, write_atomic, write_json};
 use anyhow::{Context, Result, bail};
 use lensblur::experiment::{
-    ExperimentOptions, cdf_csv, gaussian_approx, measured_kernels, simulated_kernels,
+    ExperimentOptions, MeasureOptions, cdf_csv, gaussian_approx, measured_kernels,
+    simulated_kernels,
 };
 use lensblur::simulate::PsfShape;
 use std::path::PathBuf;
@@ -100,8 +101,14 @@ fn gaussian_approx_cmd(a: GaussianApproxArgs) -> Result<()> {
         ShapeArg::Comet => PsfShape::Comet,
     };
     let kernels = match a.source {
-        SourceArg::Measured => measured_kernels(a.kernels, shape, a.seed, &job)
-            .map_err(|e| anyhow::anyhow!("measuring kernels: {e}"))?,
+        SourceArg::Measured => {
+            let m = measured_kernels(&MeasureOptions::new(a.kernels, shape, a.seed), &job)
+                .context("measuring kernels on simulated calibration shots")?;
+            for s in &m.skipped_shots {
+                eprintln!("lensblur: warning: skipped {s}");
+            }
+            m.kernels
+        }
         SourceArg::Analytic => simulated_kernels(a.kernels, 3),
     };
     let opts = ExperimentOptions {
