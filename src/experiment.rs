@@ -204,11 +204,16 @@ pub struct MeasureOptions {
     /// Chart squares across and down.
     pub cols: usize,
     pub rows: usize,
+    /// How the kernel estimate weights the up-sampled observation. The paper's kernels
+    /// for deblurring, those of its Fig. 2, are estimated with W = I
+    /// ([`Weighting::Uniform`](crate::kernel::Weighting::Uniform)), "to account for the
+    /// interpolant when deblurring".
+    pub weighting: crate::kernel::Weighting,
 }
 
 impl MeasureOptions {
     /// `count` kernels of the demo lens in `shape`, on 640 × 427 shots of a 12 × 8 chart
-    /// (squares about 45 px wide).
+    /// (squares about 45 px wide), estimated with W = I as the paper's.
     #[must_use]
     pub fn new(count: usize, shape: PsfShape, seed: u64) -> Self {
         Self {
@@ -219,6 +224,7 @@ impl MeasureOptions {
             height: 427,
             cols: 12,
             rows: 8,
+            weighting: crate::kernel::Weighting::Uniform,
         }
     }
 }
@@ -270,7 +276,10 @@ pub fn measured_kernels(
         rows: opts.rows,
         ..ChartSpec::default()
     };
-    let params = KernelParams::default();
+    let params = KernelParams {
+        weighting: opts.weighting,
+        ..KernelParams::default()
+    };
     let mut rng = Pcg64::seed_from_u64(opts.seed);
     let mut out: Vec<ExperimentKernel> = Vec::with_capacity(count);
     let mut skipped_shots: Vec<String> = Vec::new();
