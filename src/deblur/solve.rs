@@ -467,6 +467,11 @@ fn shared_lut(beta: f64, alpha: f64) -> std::sync::Arc<ShrinkLut> {
     }
     let lut = Arc::new(ShrinkLut::new(beta, alpha));
     if let Ok(mut m) = cache.lock() {
+        // A default solve uses six tables; a studio slider sweeping α or β must not
+        // grow the cache without bound (each table is 128 kB).
+        if m.len() >= 64 {
+            m.clear();
+        }
         m.insert(key, Arc::clone(&lut));
     }
     lut
