@@ -24,6 +24,7 @@ use crate::psf::Kernel;
 use fft::fast_size;
 use rayon::prelude::*;
 use solve::Deconvolver;
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 #[derive(Debug, thiserror::Error)]
@@ -351,6 +352,23 @@ fn read_block(
     }
 }
 
+/// What one tile's solve needs: the deconvolver and its input and output blocks.
+struct Workspace {
+    dec: Deconvolver,
+    block: Vec<f64>,
+    x: Vec<f64>,
+}
+
+impl Workspace {
+    fn new(bw: usize, bh: usize) -> Self {
+        Self {
+            dec: Deconvolver::new(bw, bh),
+            block: vec![0.0; bw * bh],
+            x: vec![0.0; bw * bh],
+        }
+    }
+}
+
 /// A tile's result: its window-weighted pixels over the window's extent.
 struct TilePatch {
     x0: isize,
@@ -372,51 +390,64 @@ fn deblur_plane_on_grid(
         return Err(DeblurError::Empty);
     }
     let (bw, bh) = (grid.x.block, grid.y.block);
-    let proto = Deconvolver::new(bw, bh);
     let max_kernel = 2 * grid.x.margin_before.min(grid.y.margin_before) + 1;
     let windows_x: Vec<Vec<f64>> = (0..grid.x.count).map(|t| grid.x.window(t)).collect();
     let windows_y: Vec<Vec<f64>> = (0..grid.y.count).map(|t| grid.y.window(t)).collect();
     let total = grid.tiles();
     let done = AtomicUsize::new(0);
+    // Solver workspaces (plans and buffers, megabytes each) live for the whole plane:
+    // a task takes one, or makes the first few, and gives it back.
+    let pool: Mutex<Vec<Workspace>> = Mutex::new(Vec::new());
+    let take = || {
+        pool.lock()
+            .ok()
+            .and_then(|mut p| p.pop())
+            .unwrap_or_else(|| Workspace::new(bw, bh))
+    };
+    let give = |ws: Workspace| {
+        if let Ok(mut p) = pool.lock() {
+            p.push(ws);
+        }
+    };
     let mut out = Plane::new(w, h);
     // One row of tiles at a time: memory holds one strip of patches, never the whole
     // plane's, and the sum into `out` runs in a fixed order (deterministic output).
     for (ty, wy) in windows_y.iter().enumerate() {
         let patches: Vec<TilePatch> = (0..grid.x.count)
             .into_par_iter()
-            .map_init(
-                || (proto.clone(), vec![0.0; bw * bh], vec![0.0; bw * bh]),
-                |(dec, block, x), tx| -> Result<TilePatch, DeblurError> {
-                    job.check()?;
-                    let k = cropped(kernel_at(grid.x.centre(tx), grid.y.centre(ty))?, max_kernel);
-                    read_block(
-                        plane,
-                        grid.x.block_start(tx),
-                        grid.y.block_start(ty),
-                        bw,
-                        bh,
-                        block,
-                    );
-                    dec.deconvolve_tapered(block, &k, grid.taper, method, x);
-                    let wx = &windows_x[tx];
-                    let (pw, ph) = (wx.len(), wy.len());
-                    let (mx, my) = (grid.x.margin_before, grid.y.margin_before);
-                    let mut data = Vec::with_capacity(pw * ph);
-                    for (j, &wyv) in wy.iter().enumerate() {
-                        let row = &x[(j + my) * bw + mx..(j + my) * bw + mx + pw];
-                        data.extend(row.iter().zip(wx).map(|(v, wxv)| (v * wxv * wyv) as f32));
-                    }
-                    let n = done.fetch_add(1, Ordering::Relaxed) + 1;
-                    job.report("deblur", n, total);
-                    Ok(TilePatch {
-                        x0: grid.x.window_start(tx),
-                        y0: grid.y.window_start(ty),
-                        width: pw,
-                        height: ph,
-                        data,
-                    })
-                },
-            )
+            .map(|tx| -> Result<TilePatch, DeblurError> {
+                job.check()?;
+                let k = cropped(kernel_at(grid.x.centre(tx), grid.y.centre(ty))?, max_kernel);
+                let mut ws = take();
+                let Workspace { dec, block, x } = &mut ws;
+                read_block(
+                    plane,
+                    grid.x.block_start(tx),
+                    grid.y.block_start(ty),
+                    bw,
+                    bh,
+                    block,
+                );
+                dec.deconvolve_tapered(block, &k, grid.taper, method, x);
+                let wx = &windows_x[tx];
+                let (pw, ph) = (wx.len(), wy.len());
+                let (mx, my) = (grid.x.margin_before, grid.y.margin_before);
+                let mut data = Vec::with_capacity(pw * ph);
+                for (j, &wyv) in wy.iter().enumerate() {
+                    let row = &x[(j + my) * bw + mx..(j + my) * bw + mx + pw];
+                    data.extend(row.iter().zip(wx).map(|(v, wxv)| (v * wxv * wyv) as f32));
+                }
+                give(ws);
+                let n = done.fetch_add(1, Ordering::Relaxed) + 1;
+                job.report("deblur", n, total);
+                Ok(TilePatch {
+                    x0: grid.x.window_start(tx),
+                    y0: grid.y.window_start(ty),
+                    width: pw,
+                    height: ph,
+                    data,
+                })
+            })
             .collect::<Result<_, _>>()?;
         for p in &patches {
             for j in 0..p.height {
