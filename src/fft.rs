@@ -19,7 +19,7 @@ pub fn good_size(n: usize) -> usize {
     loop {
         let mut r = m;
         for p in [2, 3, 5] {
-            while r % p == 0 {
+            while r.is_multiple_of(p) {
                 r /= p;
             }
         }
@@ -175,7 +175,7 @@ impl Fft2 {
             // A real signal's DC (and Nyquist, for even m) bins are real; rounding in the
             // products leaves tiny imaginary parts that the inverse must not see.
             self.row_spec[0].im = 0.0;
-            if m % 2 == 0 {
+            if m.is_multiple_of(2) {
                 self.row_spec[half - 1].im = 0.0;
             }
             let _ = self.row_inverse.process_with_scratch(

@@ -17,6 +17,7 @@ pub mod gaussian;
 pub mod geometry;
 pub mod job;
 pub mod kernel;
+pub mod manifest;
 pub mod metrics;
 pub mod model;
 pub mod plane;

@@ -9,10 +9,9 @@
 use lensblur::chart::{self, ChartSpec};
 use lensblur::fft::convolve_full;
 use lensblur::geometry::Homography;
-use lensblur::kernel::{KernelParams, SquareGeometry, Weighting, estimate_square_geometry};
+use lensblur::kernel::{KernelParams, SquareGeometry, estimate_square_geometry};
 use lensblur::plane::{Capture, Channel, ChannelPlane, Plane};
 use lensblur::psf::{Gaussian2, Kernel};
-use lensblur::simulate::{PsfShape, VirtualLens};
 use nalgebra::Matrix3;
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal};

@@ -17,10 +17,13 @@ const PT_PER_MM: f64 = 72.0 / 25.4;
 /// Largest PNG we write, in pixels: past this a DPI was mistyped.
 const MAX_PNG_PIXELS: f64 = 400e6;
 
-/// The black shapes of the chart in chart units: squares, and the circles that are
-/// black (those inside white squares). White circles inside black squares are drawn
-/// over the squares in white.
-fn shapes(spec: &ChartSpec) -> (Vec<(usize, usize)>, Vec<([f64; 2], bool)>) {
+/// A circle's centre in chart units and whether it is black.
+type Circle = ([f64; 2], bool);
+
+/// The black shapes of the chart in chart units: squares (column, row), and the circles
+/// with their colour (black inside white squares; white circles inside black squares
+/// are drawn over the squares in white).
+fn shapes(spec: &ChartSpec) -> (Vec<(usize, usize)>, Vec<Circle>) {
     let mut squares = Vec::new();
     let mut circles = Vec::new();
     for row in 0..spec.rows {

@@ -163,7 +163,7 @@ impl ChartSpec {
     /// True when square (col, row) is black.
     #[must_use]
     pub fn is_black(&self, col: usize, row: usize) -> bool {
-        ((col + row) % 2 == 0) == self.black_top_left
+        (col + row).is_multiple_of(2) == self.black_top_left
     }
 
     /// Corners of square (col, row) in chart units, in chart order: top-left,
@@ -276,8 +276,9 @@ fn rasterize_serial(
     let Some(chart_from_image) = image_from_chart.inverse() else {
         return Plane::filled(width, height, background);
     };
-    for row in 0..spec.rows {
-        for col in 0..spec.cols {
+    let (cols, rows) = visible_cells(spec, &chart_from_image, width, height);
+    for row in rows {
+        for col in cols.clone() {
             let black = spec.is_black(col, row);
             if black {
                 let q = project_quad(image_from_chart, &spec.square_corners(col, row));
@@ -290,7 +291,6 @@ fn rasterize_serial(
                     &mut acc,
                     width,
                     height,
-                    image_from_chart,
                     &chart_from_image,
                     centre,
                     spec.circle_radius,
@@ -306,37 +306,136 @@ fn rasterize_serial(
     }
 }
 
+/// The chart squares (columns, rows) that can touch the window: the window's corners
+/// mapped to the chart bound what it sees, as long as the horizon (where the projective
+/// map sends points to infinity) stays out of the window; otherwise every square.
+fn visible_cells(
+    spec: &ChartSpec,
+    chart_from_image: &Homography,
+    width: usize,
+    height: usize,
+) -> (std::ops::Range<usize>, std::ops::Range<usize>) {
+    let all = (0..spec.cols, 0..spec.rows);
+    let (w, h) = (width as f64 - 0.5, height as f64 - 0.5);
+    let m = &chart_from_image.0;
+    let mut lo = [f64::INFINITY; 2];
+    let mut hi = [f64::NEG_INFINITY; 2];
+    let mut sign = 0.0f64;
+    for p in [[-0.5, -0.5], [w, -0.5], [w, h], [-0.5, h]] {
+        let z = m[(2, 0)] * p[0] + m[(2, 1)] * p[1] + m[(2, 2)];
+        if sign == 0.0 {
+            sign = z.signum();
+        }
+        if !(z.abs() > 1e-12) || z.signum() != sign {
+            return all;
+        }
+        let c = chart_from_image.apply(p);
+        for k in 0..2 {
+            lo[k] = lo[k].min(c[k]);
+            hi[k] = hi[k].max(c[k]);
+        }
+    }
+    let span = |lo: f64, hi: f64, n: usize| -> std::ops::Range<usize> {
+        if !(lo.is_finite() && hi.is_finite()) {
+            return 0..n;
+        }
+        let a = lo.floor().clamp(0.0, n as f64) as usize;
+        let b = (hi.floor() + 1.0).clamp(0.0, n as f64) as usize;
+        a..b.max(a)
+    };
+    (span(lo[0], hi[0], spec.cols), span(lo[1], hi[1], spec.rows))
+}
+
 fn project_quad(h: &Homography, q: &[[f64; 2]; 4]) -> [[f64; 2]; 4] {
     [h.apply(q[0]), h.apply(q[1]), h.apply(q[2]), h.apply(q[3])]
 }
 
-fn bbox(points: &[[f64; 2]], width: usize, height: usize) -> Option<(usize, usize, usize, usize)> {
-    let (mut x0, mut y0, mut x1, mut y1) = (
-        f64::INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::NEG_INFINITY,
-    );
-    for p in points {
-        if !p[0].is_finite() || !p[1].is_finite() {
-            return Some((0, 0, width.saturating_sub(1), height.saturating_sub(1)));
-        }
-        x0 = x0.min(p[0]);
-        y0 = y0.min(p[1]);
-        x1 = x1.max(p[0]);
-        y1 = y1.max(p[1]);
-    }
-    let lo_x = (x0 + 0.5).floor().max(0.0);
-    let lo_y = (y0 + 0.5).floor().max(0.0);
-    let hi_x = (x1 + 0.5).ceil().min(width as f64 - 1.0);
-    let hi_y = (y1 + 0.5).ceil().min(height as f64 - 1.0);
-    if hi_x < lo_x || hi_y < lo_y || width == 0 || height == 0 {
-        return None;
-    }
-    Some((lo_x as usize, lo_y as usize, hi_x as usize, hi_y as usize))
+/// Pixels of row `y` that a convex shape touches, and those it covers whole, from the
+/// shape's horizontal chords at the row's top and bottom edges and its extreme points
+/// within the row. `any` is the x-extent of the shape within the row; `full` the
+/// x-interval inside the shape all the way from top to bottom (empty when a chord is
+/// missing). By convexity a pixel whose x-extent lies in `full` is covered whole.
+struct RowSpan {
+    any: (f64, f64),
+    full: (f64, f64),
 }
 
-/// Adds `sign ×` the exact area of each pixel covered by the convex quad.
+impl RowSpan {
+    fn new(top: Option<(f64, f64)>, bottom: Option<(f64, f64)>, inside: &[f64]) -> Option<Self> {
+        let mut lo = f64::INFINITY;
+        let mut hi = f64::NEG_INFINITY;
+        for c in [top, bottom].into_iter().flatten() {
+            lo = lo.min(c.0);
+            hi = hi.max(c.1);
+        }
+        for &x in inside {
+            lo = lo.min(x);
+            hi = hi.max(x);
+        }
+        if !(lo <= hi) {
+            return None;
+        }
+        let full = match (top, bottom) {
+            (Some(t), Some(b)) => (t.0.max(b.0), t.1.min(b.1)),
+            _ => (f64::INFINITY, f64::NEG_INFINITY),
+        };
+        Some(Self {
+            any: (lo, hi),
+            full,
+        })
+    }
+
+    /// Pixel columns touched, clipped to the image.
+    fn columns(&self, width: usize) -> std::ops::RangeInclusive<usize> {
+        let a = (self.any.0 + 0.5).floor().max(0.0);
+        let b = (self.any.1 + 0.5).floor().min(width as f64 - 1.0);
+        if b < a {
+            #[allow(clippy::reversed_empty_ranges)]
+            return 1..=0;
+        }
+        a as usize..=b as usize
+    }
+
+    fn covers(&self, x: usize) -> bool {
+        let x = x as f64;
+        x - 0.5 >= self.full.0 && x + 0.5 <= self.full.1
+    }
+}
+
+/// Rows `[y0, y1]` of the image a shape spanning `[top, bottom]` touches.
+fn rows_touched(top: f64, bottom: f64, height: usize) -> Option<(usize, usize)> {
+    if !(top.is_finite() && bottom.is_finite()) || height == 0 {
+        return None;
+    }
+    let a = (top + 0.5).floor().max(0.0);
+    let b = (bottom + 0.5).floor().min(height as f64 - 1.0);
+    (b >= a).then_some((a as usize, b as usize))
+}
+
+/// The x-interval where the horizontal line at `t` meets the convex polygon.
+fn polygon_chord(poly: &[[f64; 2]; 4], t: f64) -> Option<(f64, f64)> {
+    let mut lo = f64::INFINITY;
+    let mut hi = f64::NEG_INFINITY;
+    for i in 0..4 {
+        let (a, b) = (poly[i], poly[(i + 1) % 4]);
+        let (ylo, yhi) = (a[1].min(b[1]), a[1].max(b[1]));
+        if t < ylo || t > yhi {
+            continue;
+        }
+        if yhi > ylo {
+            let x = a[0] + (t - a[1]) * (b[0] - a[0]) / (b[1] - a[1]);
+            lo = lo.min(x);
+            hi = hi.max(x);
+        } else {
+            lo = lo.min(a[0].min(b[0]));
+            hi = hi.max(a[0].max(b[0]));
+        }
+    }
+    (lo <= hi).then_some((lo, hi))
+}
+
+/// Adds `sign ×` the exact area of each pixel covered by the convex quad: whole pixels
+/// by their row spans, boundary pixels by polygon clipping.
 fn add_quad_coverage(
     acc: &mut [f64],
     width: usize,
@@ -344,51 +443,45 @@ fn add_quad_coverage(
     quad: &[[f64; 2]; 4],
     sign: f64,
 ) {
-    let Some((x0, y0, x1, y1)) = bbox(quad, width, height) else {
+    if quad.iter().any(|p| !(p[0].is_finite() && p[1].is_finite())) {
         return;
-    };
+    }
     // Orient counter-clockwise in a y-up sense (positive shoelace area) so "inside" is
     // the left of every edge.
     let mut q = *quad;
     if shoelace(&q) < 0.0 {
         q.reverse();
     }
-    let edges: Vec<([f64; 2], [f64; 2])> = (0..4).map(|i| (q[i], q[(i + 1) % 4])).collect();
+    let edges: [([f64; 2], [f64; 2]); 4] = std::array::from_fn(|i| (q[i], q[(i + 1) % 4]));
+    let top = q.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min);
+    let bottom = q.iter().map(|p| p[1]).fold(f64::NEG_INFINITY, f64::max);
+    let Some((y0, y1)) = rows_touched(top, bottom, height) else {
+        return;
+    };
     for y in y0..=y1 {
-        for x in x0..=x1 {
-            let (fx, fy) = (x as f64, y as f64);
-            let corners = [
-                [fx - 0.5, fy - 0.5],
-                [fx + 0.5, fy - 0.5],
-                [fx + 0.5, fy + 0.5],
-                [fx - 0.5, fy + 0.5],
-            ];
-            let mut all_inside = true;
-            let mut outside = false;
-            for (a, b) in &edges {
-                let mut n_in = 0;
-                for c in &corners {
-                    if cross(*a, *b, *c) >= 0.0 {
-                        n_in += 1;
-                    }
-                }
-                if n_in == 0 {
-                    outside = true;
-                    break;
-                }
-                if n_in < 4 {
-                    all_inside = false;
-                }
-            }
-            if outside {
+        let (yt, yb) = (y as f64 - 0.5, y as f64 + 0.5);
+        let inside: Vec<f64> = q
+            .iter()
+            .filter(|p| p[1] > yt && p[1] < yb)
+            .map(|p| p[0])
+            .collect();
+        let Some(span) = RowSpan::new(polygon_chord(&q, yt), polygon_chord(&q, yb), &inside) else {
+            continue;
+        };
+        let row = &mut acc[y * width..(y + 1) * width];
+        for x in span.columns(width) {
+            if span.covers(x) {
+                row[x] += sign;
                 continue;
             }
-            let area = if all_inside {
-                1.0
-            } else {
-                clip_area(&corners, &edges)
-            };
-            acc[y * width + x] += sign * area;
+            let fx = x as f64;
+            let corners = [
+                [fx - 0.5, yt],
+                [fx + 0.5, yt],
+                [fx + 0.5, yb],
+                [fx - 0.5, yb],
+            ];
+            row[x] += sign * clip_area(&corners, &edges);
         }
     }
 }
@@ -440,104 +533,151 @@ fn clip_area(square: &[[f64; 2]; 4], edges: &[([f64; 2], [f64; 2])]) -> f64 {
     shoelace(&poly).abs()
 }
 
-/// Adds `sign ×` the exact area of each pixel covered by the image of the chart circle.
-#[allow(clippy::too_many_arguments)]
+/// The image of a chart circle: the ellipse (p − c)ᵀ M (p − c) = 1, with the affine map
+/// T (Tᵀ T = M) that takes it to the unit disc.
+struct Ellipse {
+    centre: [f64; 2],
+    m11: f64,
+    m12: f64,
+    m22: f64,
+    /// T = [[l11, l21], [0, l22]].
+    l11: f64,
+    l21: f64,
+    l22: f64,
+}
+
+impl Ellipse {
+    /// `None` when the circle's image is not an ellipse (it crosses the horizon).
+    fn of_circle(chart_from_image: &Homography, centre: [f64; 2], radius: f64) -> Option<Self> {
+        // Conic of the circle in chart coordinates: [x y 1] C [x y 1]ᵀ = 0; in the
+        // image, C' = H⁻ᵀ C H⁻¹.
+        let (cx, cy, r) = (centre[0], centre[1], radius);
+        let c = Matrix3::new(
+            1.0,
+            0.0,
+            -cx,
+            0.0,
+            1.0,
+            -cy,
+            -cx,
+            -cy,
+            cx * cx + cy * cy - r * r,
+        );
+        let hinv = chart_from_image.0;
+        let ci = hinv.transpose() * c * hinv;
+        // A x² + 2B xy + C y² + 2D x + 2E y + F = 0.
+        let (a, b, cc, d, e, f) = (
+            ci[(0, 0)],
+            ci[(0, 1)],
+            ci[(1, 1)],
+            ci[(0, 2)],
+            ci[(1, 2)],
+            ci[(2, 2)],
+        );
+        let det2 = a * cc - b * b;
+        if det2.abs() < 1e-300 {
+            return None;
+        }
+        let ex = (b * e - cc * d) / det2;
+        let ey = (b * d - a * e) / det2;
+        let k = -(a * ex * ex + 2.0 * b * ex * ey + cc * ey * ey + 2.0 * d * ex + 2.0 * e * ey + f);
+        if k.abs() < 1e-300 {
+            return None;
+        }
+        let (m11, m12, m22) = (a / k, b / k, cc / k);
+        if !(m11 > 0.0 && m11 * m22 - m12 * m12 > 0.0) {
+            return None;
+        }
+        let l11 = m11.sqrt();
+        let l21 = m12 / l11;
+        let l22 = (m22 - l21 * l21).sqrt();
+        Some(Self {
+            centre: [ex, ey],
+            m11,
+            m12,
+            m22,
+            l11,
+            l21,
+            l22,
+        })
+    }
+
+    /// Exact area of pixel (x, y) inside the ellipse: affine maps keep area ratios, so
+    /// it is the pixel's image under T intersected with the unit disc, over det T.
+    fn pixel_area(&self, x: f64, y: f64) -> f64 {
+        let to_unit = |p: [f64; 2]| -> [f64; 2] {
+            let (u, v) = (p[0] - self.centre[0], p[1] - self.centre[1]);
+            [self.l11 * u + self.l21 * v, self.l22 * v]
+        };
+        let corners = [
+            to_unit([x - 0.5, y - 0.5]),
+            to_unit([x + 0.5, y - 0.5]),
+            to_unit([x + 0.5, y + 0.5]),
+            to_unit([x - 0.5, y + 0.5]),
+        ];
+        polygon_unit_disc_area(&corners) / (self.l11 * self.l22)
+    }
+
+    /// The x-interval where the horizontal line at `t` meets the ellipse.
+    fn chord(&self, t: f64) -> Option<(f64, f64)> {
+        let v = t - self.centre[1];
+        let disc = self.m12 * self.m12 * v * v - self.m11 * (self.m22 * v * v - 1.0);
+        if disc < 0.0 {
+            return None;
+        }
+        let s = disc.sqrt();
+        let ex = self.centre[0];
+        Some((
+            ex + (-self.m12 * v - s) / self.m11,
+            ex + (-self.m12 * v + s) / self.m11,
+        ))
+    }
+}
+
+/// Adds `sign ×` the exact area of each pixel covered by the image of the chart circle:
+/// whole pixels by their row spans, boundary pixels exactly.
 fn add_circle_coverage(
     acc: &mut [f64],
     width: usize,
     height: usize,
-    image_from_chart: &Homography,
     chart_from_image: &Homography,
     centre: [f64; 2],
     radius: f64,
     sign: f64,
 ) {
-    // Conic of the circle in chart coordinates: [x y 1] C [x y 1]ᵀ = 0; in the image,
-    // C' = H⁻ᵀ C H⁻¹.
-    let (cx, cy, r) = (centre[0], centre[1], radius);
-    let c = Matrix3::new(
-        1.0,
-        0.0,
-        -cx,
-        0.0,
-        1.0,
-        -cy,
-        -cx,
-        -cy,
-        cx * cx + cy * cy - r * r,
-    );
-    let hinv = chart_from_image.0;
-    let ci = hinv.transpose() * c * hinv;
-    // Ellipse: A x² + 2B xy + C y² + 2D x + 2E y + F = 0.
-    let (a, b, cc, d, e, f) = (
-        ci[(0, 0)],
-        ci[(0, 1)],
-        ci[(1, 1)],
-        ci[(0, 2)],
-        ci[(1, 2)],
-        ci[(2, 2)],
-    );
-    let det2 = a * cc - b * b;
-    if det2.abs() < 1e-300 {
+    let Some(el) = Ellipse::of_circle(chart_from_image, centre, radius) else {
         return;
-    }
-    // Centre, then the quadratic form M with (p − c)ᵀ M (p − c) = 1.
-    let ex = (b * e - cc * d) / det2;
-    let ey = (b * d - a * e) / det2;
-    let k = -(a * ex * ex + 2.0 * b * ex * ey + cc * ey * ey + 2.0 * d * ex + 2.0 * e * ey + f);
-    if k.abs() < 1e-300 {
-        return;
-    }
-    let (m11, m12, m22) = (a / k, b / k, cc / k);
-    if !(m11 > 0.0 && m11 * m22 - m12 * m12 > 0.0) {
-        return; // not an ellipse: the circle crosses the horizon; nothing sensible to draw
-    }
-    // Affine T with Tᵀ T = M (Cholesky), mapping the ellipse to the unit circle.
-    let l11 = m11.sqrt();
-    let l21 = m12 / l11;
-    let l22 = (m22 - l21 * l21).sqrt();
-    // T = Lᵀ = [[l11, l21], [0, l22]].
-    let det_t = l11 * l22;
-    let to_unit = |p: [f64; 2]| -> [f64; 2] {
-        let (u, v) = (p[0] - ex, p[1] - ey);
-        [l11 * u + l21 * v, l22 * v]
     };
-    // Bounding box of the ellipse: half-widths sqrt(M⁻¹ diagonal).
-    let inv_det = 1.0 / (m11 * m22 - m12 * m12);
-    let hw = (m22 * inv_det).sqrt();
-    let hh = (m11 * inv_det).sqrt();
-    let _ = image_from_chart;
-    let Some((x0, y0, x1, y1)) = bbox(&[[ex - hw, ey - hh], [ex + hw, ey + hh]], width, height)
-    else {
+    let [ex, ey] = el.centre;
+    // Half-widths of the bounding box: sqrt of M⁻¹'s diagonal; the leftmost and
+    // rightmost points sit at v = ∓(M12/M22)·hw from the centre.
+    let inv_det = 1.0 / (el.m11 * el.m22 - el.m12 * el.m12);
+    let hw = (el.m22 * inv_det).sqrt();
+    let hh = (el.m11 * inv_det).sqrt();
+    let v_extreme = el.m12 / el.m22 * hw;
+    let Some((y0, y1)) = rows_touched(ey - hh, ey + hh, height) else {
         return;
     };
     for y in y0..=y1 {
-        for x in x0..=x1 {
-            let (fx, fy) = (x as f64, y as f64);
-            let corners = [
-                to_unit([fx - 0.5, fy - 0.5]),
-                to_unit([fx + 0.5, fy - 0.5]),
-                to_unit([fx + 0.5, fy + 0.5]),
-                to_unit([fx - 0.5, fy + 0.5]),
-            ];
-            let inside = corners.iter().all(|p| p[0] * p[0] + p[1] * p[1] <= 1.0);
-            let area_unit = if inside {
-                shoelace(&corners).abs()
-            } else {
-                let mid = [
-                    0.25 * (corners[0][0] + corners[1][0] + corners[2][0] + corners[3][0]),
-                    0.25 * (corners[0][1] + corners[1][1] + corners[2][1] + corners[3][1]),
-                ];
-                let reach = corners
-                    .iter()
-                    .map(|p| ((p[0] - mid[0]).powi(2) + (p[1] - mid[1]).powi(2)).sqrt())
-                    .fold(0.0, f64::max);
-                if (mid[0] * mid[0] + mid[1] * mid[1]).sqrt() - reach >= 1.0 {
-                    continue;
-                }
-                polygon_unit_disc_area(&corners)
-            };
-            acc[y * width + x] += sign * area_unit / det_t;
+        let (yt, yb) = (y as f64 - 0.5, y as f64 + 0.5);
+        let mut inside = Vec::with_capacity(2);
+        if ey + v_extreme > yt && ey + v_extreme < yb {
+            inside.push(ex - hw);
+        }
+        if ey - v_extreme > yt && ey - v_extreme < yb {
+            inside.push(ex + hw);
+        }
+        let Some(span) = RowSpan::new(el.chord(yt), el.chord(yb), &inside) else {
+            continue;
+        };
+        let row = &mut acc[y * width..(y + 1) * width];
+        for x in span.columns(width) {
+            row[x] += sign
+                * if span.covers(x) {
+                    1.0
+                } else {
+                    el.pixel_area(x as f64, y as f64)
+                };
         }
     }
 }
@@ -654,24 +794,104 @@ mod tests {
         // Now count only the circles inside the first black square.
         let crop_white: f64 = {
             let q = project_quad(&h, &spec.square_corners(0, 0));
-            let (x0, y0, x1, y1) = bbox(&q, 140, 130).unwrap();
-            let mut s = 0.0;
             let mut mask = vec![0.0; 140 * 130];
             add_quad_coverage(&mut mask, 140, 130, &q, 1.0);
-            for y in y0..=y1 {
-                for x in x0..=x1 {
-                    s += mask[y * 140 + x] * 0.0
-                        + f64::from(img.get(x, y))
-                            * if mask[y * 140 + x] >= 1.0 { 1.0 } else { 0.0 };
-                }
-            }
-            s
+            mask.iter()
+                .zip(&img.data)
+                .filter(|(m, _)| **m >= 1.0)
+                .map(|(_, v)| f64::from(*v))
+                .sum()
         };
         assert!(
             (crop_white - 5.0 * circle).abs() < 1e-4 * 5.0 * circle,
             "{crop_white} vs {}",
             5.0 * circle
         );
+    }
+
+    /// Every pixel of the shape's bounding box by exact clipping: the reference that the
+    /// row-span rasteriser must equal.
+    fn brute_quad(width: usize, height: usize, quad: &[[f64; 2]; 4]) -> Vec<f64> {
+        let mut q = *quad;
+        if shoelace(&q) < 0.0 {
+            q.reverse();
+        }
+        let edges: Vec<([f64; 2], [f64; 2])> = (0..4).map(|i| (q[i], q[(i + 1) % 4])).collect();
+        let mut out = vec![0.0; width * height];
+        for y in 0..height {
+            for x in 0..width {
+                let (fx, fy) = (x as f64, y as f64);
+                let px = [
+                    [fx - 0.5, fy - 0.5],
+                    [fx + 0.5, fy - 0.5],
+                    [fx + 0.5, fy + 0.5],
+                    [fx - 0.5, fy + 0.5],
+                ];
+                out[y * width + x] = clip_area(&px, &edges);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn row_spans_equal_clipping_every_pixel() {
+        let (w, h) = (90, 80);
+        let poses = [
+            pose(),
+            Homography::from_row_major([23.0, -9.0, 41.0, 7.5, 21.0, 12.0, 3e-3, -2e-3, 1.0]),
+            Homography::from_row_major([0.0, 30.0, 60.0, -30.0, 0.0, 70.0, 0.0, 0.0, 1.0]),
+        ];
+        for hm in &poses {
+            // A square straddling the image border, and one with a vertex inside a row.
+            for corners in [
+                [[-1.0, -1.0], [1.3, -0.7], [1.1, 1.9], [-0.8, 1.2]],
+                [[0.1, 0.37], [2.0, 0.5], [1.7, 2.2], [0.05, 1.6]],
+            ] {
+                let q = project_quad(hm, &corners);
+                let mut fast = vec![0.0; w * h];
+                add_quad_coverage(&mut fast, w, h, &q, 1.0);
+                let slow = brute_quad(w, h, &q);
+                let worst = fast
+                    .iter()
+                    .zip(&slow)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max);
+                assert!(worst < 1e-12, "quad differs by {worst}");
+            }
+            // Circles of several sizes and places, against the exact area of every pixel.
+            let inv = hm.inverse().unwrap();
+            for (centre, radius) in [
+                ([0.5, 0.5], 0.1),
+                ([1.2, 0.9], 0.45),
+                ([0.3, 1.4], 0.02),
+                ([-0.1, 0.2], 0.3),
+            ] {
+                let mut fast = vec![0.0; w * h];
+                add_circle_coverage(&mut fast, w, h, &inv, centre, radius, 1.0);
+                let el = Ellipse::of_circle(&inv, centre, radius).unwrap();
+                let mut worst = 0.0f64;
+                for y in 0..h {
+                    for x in 0..w {
+                        let exact = el.pixel_area(x as f64, y as f64);
+                        worst = worst.max((fast[y * w + x] - exact).abs());
+                    }
+                }
+                assert!(worst < 1e-12, "circle differs by {worst}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_square_sums_to_its_exact_area_within_a_ten_thousandth_of_a_pixel() {
+        let hm =
+            Homography::from_row_major([31.0, 2.5, 17.3, -1.7, 29.2, 21.9, 2.1e-3, -1.4e-3, 1.0]);
+        let q = project_quad(&hm, &[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]);
+        let (w, h) = (80, 70);
+        let mut acc = vec![0.0; w * h];
+        add_quad_coverage(&mut acc, w, h, &q, 1.0);
+        let total: f64 = acc.iter().sum();
+        let exact = shoelace(&q).abs();
+        assert!((total - exact).abs() < 1e-4, "{total} vs {exact}");
     }
 
     #[test]
@@ -731,6 +951,35 @@ mod tests {
             .map(|(a, b)| (a - b).abs())
             .fold(0.0f32, f32::max);
         assert!(worst < 1e-5, "bands differ by {worst}");
+    }
+
+    #[test]
+    fn a_crop_equals_the_same_pixels_of_the_whole() {
+        // Rasterising a window (which culls the squares it cannot see) gives the same
+        // pixels as rasterising everything, wherever the window is.
+        let spec = ChartSpec::default();
+        let h = Homography::from_row_major([25.0, 0.8, 20.0, -0.6, 24.5, 30.0, 1e-4, -2e-4, 1.0]);
+        let (w, ht) = (700, 520);
+        let whole = rasterize_serial(&spec, &h, w, ht, 0.4);
+        for (x0, y0, cw, ch) in [
+            (0, 0, 60, 50),
+            (333, 217, 41, 37),
+            (640, 470, 60, 50),
+            (-20, 100, 50, 40),
+        ] {
+            let crop_from_image = Homography::translation(-(x0 as f64), -(y0 as f64));
+            let crop = rasterize_serial(&spec, &crop_from_image.compose(&h), cw, ch, 0.4);
+            for y in 0..ch {
+                for x in 0..cw {
+                    let (gx, gy) = (x as i64 + x0, y as i64 + y0);
+                    if gx < 0 || gy < 0 || gx >= w as i64 || gy >= ht as i64 {
+                        continue;
+                    }
+                    let d = (crop.get(x, y) - whole.get(gx as usize, gy as usize)).abs();
+                    assert!(d < 1e-6, "({gx},{gy}) differs by {d}");
+                }
+            }
+        }
     }
 
     #[test]

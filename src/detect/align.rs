@@ -169,33 +169,37 @@ fn evaluate(
     let rw = (rect.x1 - rect.x0 + 1 + 2 * pad) as usize;
     let rh = (rect.y1 - rect.y0 + 1 + 2 * pad) as usize;
     let local = Homography::translation(-(rx0 as f64), -(ry0 as f64)).compose(&st.h);
-    let sharp: Vec<f64> = rasterize(spec, &local, rw, rh, 1.0)
-        .data
-        .iter()
-        .map(|&v| f64::from(v))
-        .collect();
-    let mut templ: Vec<Option<Vec<f64>>> = vec![None; np];
+    let sharp = rasterize(spec, &local, rw, rh, 1.0).data;
+    let mut templ: Vec<Option<Vec<f32>>> = vec![None; np];
     for s in smp {
         if templ[s.plane].is_none() {
             let sigma = (st.var[s.plane] + extra_var).max(1e-4).sqrt();
             templ[s.plane] = Some(gaussian_blur(&sharp, rw, rh, sigma));
         }
     }
-    let mut jtj = DMatrix::<f64>::zeros(n, n);
-    let mut jtr = DVector::<f64>::zeros(n);
+    // Per plane: the 11 × 11 normal equations of (8 warp parameters, variance, offset,
+    // gain), upper triangle only, in fixed-size arrays; scattered once at the end.
+    const P: usize = 11;
+    let mut acc_jtj = vec![[0.0f64; P * P]; np];
+    let mut acc_jtr = vec![[0.0f64; P]; np];
     let mut cost = 0.0;
-    let mut j = [0.0f64; 11];
-    let mut idx = [0usize; 11];
+    let mut j = [0.0f64; P];
     for s in smp {
         let Some(t) = templ[s.plane].as_ref() else {
             continue;
         };
         let (xi, yi) = ((s.x - rx0) as usize, (s.y - ry0) as usize);
         let c = yi * rw + xi;
-        let t0 = t[c];
-        let tx = 0.5 * (t[c + 1] - t[c - 1]);
-        let ty = 0.5 * (t[c + rw] - t[c - rw]);
-        let lap = t[c + 1] + t[c - 1] + t[c + rw] + t[c - rw] - 4.0 * t0;
+        let t0 = f64::from(t[c]);
+        let (l, r_, u_, d_) = (
+            f64::from(t[c - 1]),
+            f64::from(t[c + 1]),
+            f64::from(t[c - rw]),
+            f64::from(t[c + rw]),
+        );
+        let tx = 0.5 * (r_ - l);
+        let ty = 0.5 * (d_ - u_);
+        let lap = r_ + l + d_ + u_ - 4.0 * t0;
         let k = s.plane;
         let (a, b) = (st.a[k], st.b[k]);
         let r = s.value - (a + b * t0);
@@ -204,10 +208,22 @@ fn evaluate(
             (s.x as f64 - centre[0]) / scale,
             (s.y as f64 - centre[1]) / scale,
         );
+        let k_jtr = &mut acc_jtr[k];
+        if tx == 0.0 && ty == 0.0 && lap == 0.0 {
+            // Beyond the blur's reach of every edge the template is exactly flat: only
+            // the offset and gain see this pixel.
+            let m = &mut acc_jtj[k];
+            k_jtr[9] += r;
+            k_jtr[10] += t0 * r;
+            m[9 * P + 9] += 1.0;
+            m[9 * P + 10] += t0;
+            m[10 * P + 10] += t0 * t0;
+            continue;
+        }
         // Moving the template by d (image px) changes it by −∇T·d.
         let gx = -b * tx * scale;
         let gy = -b * ty * scale;
-        j[..8].copy_from_slice(&[
+        j = [
             gx * u,
             gx * v,
             gx,
@@ -216,17 +232,33 @@ fn evaluate(
             gy,
             -(gx * u * u + gy * u * v),
             -(gx * u * v + gy * v * v),
-        ]);
-        j[8] = 0.5 * b * lap;
-        j[9] = 1.0;
-        j[10] = t0;
-        for (m, slot) in idx.iter_mut().enumerate() {
-            *slot = if m < 8 { m } else { 8 + 3 * k + (m - 8) };
+            0.5 * b * lap,
+            1.0,
+            t0,
+        ];
+        let m = &mut acc_jtj[k];
+        for p in 0..P {
+            let jp = j[p];
+            k_jtr[p] += jp * r;
+            for q in p..P {
+                m[p * P + q] += jp * j[q];
+            }
         }
-        for p in 0..11 {
-            jtr[idx[p]] += j[p] * r;
-            for q in 0..11 {
-                jtj[(idx[p], idx[q])] += j[p] * j[q];
+    }
+    let _ = j;
+    let mut jtj = DMatrix::<f64>::zeros(n, n);
+    let mut jtr = DVector::<f64>::zeros(n);
+    let slot = |k: usize, m: usize| if m < 8 { m } else { 8 + 3 * k + (m - 8) };
+    for k in 0..np {
+        for p in 0..P {
+            jtr[slot(k, p)] += acc_jtr[k][p];
+            for q in p..P {
+                let v = acc_jtj[k][p * P + q];
+                let (sp, sq) = (slot(k, p), slot(k, q));
+                jtj[(sp, sq)] += v;
+                if sp != sq {
+                    jtj[(sq, sp)] += v;
+                }
             }
         }
     }
@@ -257,7 +289,13 @@ fn apply_step(st: &State, d: &DVector<f64>, centre: [f64; 2], scale: f64) -> Sta
     State {
         h,
         var: (0..np)
-            .map(|k| (st.var[k] + d[8 + 3 * k]).clamp(0.01, 64.0))
+            // The blur is the one strongly nonlinear parameter: a step may at most halve
+            // or double it, or a first step from a poor guess overshoots to nothing.
+            .map(|k| {
+                (st.var[k] + d[8 + 3 * k])
+                    .clamp(0.5 * st.var[k], 2.0 * st.var[k])
+                    .clamp(0.01, 64.0)
+            })
             .collect(),
         a: (0..np).map(|k| st.a[k] + d[9 + 3 * k]).collect(),
         b: (0..np).map(|k| st.b[k] + d[10 + 3 * k]).collect(),
@@ -284,6 +322,7 @@ pub fn align_square(
     col: usize,
     row: usize,
     bootstrap: &Homography,
+    levels: usize,
     params: &DetectParams,
 ) -> Result<Aligned, String> {
     let quad = spec.square_corners(col, row);
@@ -330,19 +369,18 @@ pub fn align_square(
     let mut a = vec![0.0; np];
     let mut b = vec![1.0; np];
     let (mut black_sum, mut white_sum) = (0.0, 0.0);
-    for k in 0..np {
-        let inside: Vec<f64> = fine
-            .iter()
-            .filter(|s| s.plane == k)
-            .filter(|s| {
-                let c = chart_from_image.apply([s.x as f64, s.y as f64]);
-                c[0] >= col as f64 - wide_m
-                    && c[0] <= col as f64 + 1.0 + wide_m
-                    && c[1] >= row as f64 - wide_m
-                    && c[1] <= row as f64 + 1.0 + wide_m
-            })
-            .map(|s| s.value)
-            .collect();
+    let mut per_plane: Vec<Vec<f64>> = vec![Vec::new(); np];
+    for s in &fine {
+        let c = chart_from_image.apply([s.x as f64, s.y as f64]);
+        if c[0] >= col as f64 - wide_m
+            && c[0] <= col as f64 + 1.0 + wide_m
+            && c[1] >= row as f64 - wide_m
+            && c[1] <= row as f64 + 1.0 + wide_m
+        {
+            per_plane[s.plane].push(s.value);
+        }
+    }
+    for (k, inside) in per_plane.iter().enumerate() {
         let saturated = inside
             .iter()
             .filter(|&&v| v >= params.saturation_level)
@@ -355,7 +393,7 @@ pub fn align_square(
                 params.saturation_level
             ));
         }
-        let (lo, hi) = histogram_peaks(&inside).ok_or("too few pixels")?;
+        let (lo, hi) = histogram_peaks(inside).ok_or("too few pixels")?;
         if hi - lo < params.min_contrast {
             return Err(format!(
                 "too dark (contrast {:.3} below {})",
@@ -376,9 +414,8 @@ pub fn align_square(
         a,
         b,
     };
-    let mut total_iters = 0usize;
     let mut last_eval: Option<(f64, usize)> = None;
-    for level in (0..params.levels).rev() {
+    for level in (0..levels.max(1)).rev() {
         let extra_sigma = if level == 0 {
             0.0
         } else {
@@ -400,7 +437,6 @@ pub fn align_square(
         let mut lambda = 1e-4;
         let mut converged = false;
         for _ in 0..params.max_iterations {
-            total_iters += 1;
             let mut damped = ev.jtj.clone();
             for d in 0..damped.nrows() {
                 damped[(d, d)] += lambda * ev.jtj[(d, d)].max(1e-12);
@@ -422,7 +458,9 @@ pub fn align_square(
                 }
             } else {
                 lambda *= 10.0;
-                if lambda > 1e6 {
+                // A step too small to matter that does not lower the cost: the cost is
+                // at its minimum to within the noise of its evaluation.
+                if shift < tol || lambda > 1e6 {
                     // No descent left: at the minimum to within numerical noise.
                     converged = true;
                     break;
@@ -439,7 +477,6 @@ pub fn align_square(
             last_eval = Some((ev.cost, smp.len()));
         }
     }
-    let _ = total_iters;
     let (cost, n) = last_eval.ok_or("no alignment level ran")?;
     if max_corner_shift(&st.h, bootstrap, &quad) > params.max_refine_shift_px {
         return Err(format!(

@@ -72,14 +72,14 @@ pub fn find_junctions(s: &Smoothed, ring_radius_px: f64, min_rel_response: f64) 
             resp[y * w + x] = ixy * ixy - ixx * iyy;
         }
     }
-    let mut sorted: Vec<f64> = resp.iter().copied().filter(|v| *v > 0.0).collect();
-    if sorted.is_empty() {
+    let mut positive: Vec<f64> = resp.iter().copied().filter(|v| *v > 0.0).collect();
+    if positive.is_empty() {
         return Vec::new();
     }
-    sorted.sort_by(f64::total_cmp);
     // The junctions are a tiny fraction of the pixels: scale the threshold by a high
     // quantile so it adapts to contrast and blur.
-    let q = sorted[((sorted.len() as f64 * 0.9995) as usize).min(sorted.len() - 1)];
+    let at = ((positive.len() as f64 * 0.9995) as usize).min(positive.len() - 1);
+    let q = *positive.select_nth_unstable_by(at, f64::total_cmp).1;
     let thr = min_rel_response * q;
     let nms = 3i64;
     let border = (ring_radius_px.ceil() as usize + 2).max(4);
@@ -262,6 +262,27 @@ impl Buckets {
     }
 }
 
+/// Median distance from a junction to its nearest neighbour (over at most 400 of them).
+fn nearest_spacing(pts: &[Junction]) -> f64 {
+    let stride = (pts.len() / 400).max(1);
+    let mut d: Vec<f64> = pts
+        .iter()
+        .step_by(stride)
+        .map(|p| {
+            pts.iter()
+                .map(|q| norm(sub(q.pos, p.pos)))
+                .filter(|&d| d > 1e-9)
+                .fold(f64::INFINITY, f64::min)
+        })
+        .filter(|d| d.is_finite())
+        .collect();
+    if d.is_empty() {
+        return 8.0;
+    }
+    let mid = d.len() / 2;
+    *d.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
 fn sub(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
     [a[0] - b[0], a[1] - b[1]]
 }
@@ -335,7 +356,10 @@ pub fn build_lattice(
     if pts.len() < 9 {
         return Err(LatticeError::NotFound);
     }
-    let buckets = Buckets::new(pts, 8.0);
+    // Bucket cells of about the search radius, so a neighbour query looks at a few
+    // cells whatever the square size: the median distance to the nearest junction
+    // estimates the corner spacing.
+    let buckets = Buckets::new(pts, (0.3 * nearest_spacing(pts)).max(4.0));
     // Saddles also form between the circles and the square edges, in lattices of their
     // own; grow lattices from several seeds and axis hypotheses and keep the one whose
     // edges separate dark from light squares in the checkerboard's alternation.
@@ -373,6 +397,8 @@ pub fn build_lattice(
                 .map(|d| (norm(d), d))
                 .collect();
             v.sort_by(|a, b| a.0.total_cmp(&b.0));
+            // The adjacent corner is among the nearest few in each direction (others
+            // there are saddles between circles, or corners further along).
             v.into_iter().take(8).map(|x| x.1).collect()
         };
         for ex in cone(0.0) {
@@ -402,9 +428,6 @@ pub fn build_lattice(
                 }
             }
         }
-    }
-    if std::env::var_os("LB_DEBUG").is_some() {
-        eprintln!("lattice: best {} nodes score {best_score}", best.len());
     }
     if best.len() < 9 {
         if too_large.0 >= 9 && too_large.0 > 2 * best.len() {
@@ -464,12 +487,6 @@ pub fn build_lattice(
         }
     }
     let (imin, imax, jmin, jmax) = extent(&best);
-    if std::env::var_os("LB_DEBUG").is_some() {
-        eprintln!(
-            "lattice after fill: {} nodes, extent {imin}..{imax} × {jmin}..{jmax}",
-            best.len()
-        );
-    }
     let (ni, nj) = ((imax - imin + 1) as usize, (jmax - jmin + 1) as usize);
     if ni < 3 || nj < 3 || best.len() * 2 < ni * nj {
         return Err(LatticeError::NotFound);
@@ -602,48 +619,66 @@ fn extent(g: &HashMap<(i64, i64), usize>) -> (i64, i64, i64, i64) {
     (imin, imax, jmin, jmax)
 }
 
-/// How well a lattice's edges separate alternating dark and light squares: the sum over
-/// lattice edges of the contrast across the edge, signed by the checkerboard parity.
-/// Large only for the lattice of true square corners.
+/// How many of a lattice's edges are edges of the checkerboard, less those that are not.
+///
+/// An edge between two neighbouring square corners is a straight boundary with dark on
+/// one side and light on the other all along it, and its sign alternates with the
+/// checkerboard's parity. Lattices that skip corners (twice or three times the square)
+/// run across squares of both colours, so the contrast flips along their edges;
+/// lattices of saddles between circles and square edges, or diagonal ones, have edges
+/// with no consistent contrast. Counting (rather than weighting by length) keeps every
+/// super-lattice below the true one.
 fn lattice_score(g: &HashMap<(i64, i64), usize>, pts: &[Junction], s: &Smoothed) -> f64 {
-    let mut total = 0.0;
-    let mut total_abs = 0.0;
+    let mut signed = [0usize; 2];
+    let mut bad = 0usize;
     for (&(i, j), &k) in g {
         let p = pts[k].pos;
-        let sign = if (i + j).rem_euclid(2) == 0 {
-            1.0
-        } else {
-            -1.0
-        };
-        // Edge to (i+1, j): square (i, j) lies on its +y side; edge to (i, j+1): square
-        // (i, j) lies on its +x side.
-        for (key, rot) in [((i + 1, j), [-1.0, 1.0]), ((i, j + 1), [1.0, -1.0])] {
+        let parity = (i + j).rem_euclid(2) == 0;
+        for key in [(i + 1, j), (i, j + 1)] {
             let Some(&q) = g.get(&key) else { continue };
-            let d = sub(pts[q].pos, p);
-            let mid = [p[0] + 0.5 * d[0], p[1] + 0.5 * d[1]];
-            // Perpendicular pointing into square (i, j).
-            let n = if rot[0] < 0.0 {
-                [-d[1], d[0]]
-            } else {
-                [d[1], -d[0]]
-            };
-            let a = s.sample(mid[0] + 0.15 * n[0], mid[1] + 0.15 * n[1]);
-            let b = s.sample(mid[0] - 0.15 * n[0], mid[1] - 0.15 * n[1]);
-            if let (Some(a), Some(b)) = (a, b) {
-                // Weighted by the edge's squared length: the true corners' lattice
-                // covers the chart with the fewest, longest edges, while saddles between
-                // circles chain into finer lattices over the same area.
-                let area = d[0] * d[0] + d[1] * d[1];
-                total += sign * (a - b) * area;
-                total_abs += (a - b).abs() * area;
+            match edge_contrast(s, p, pts[q].pos) {
+                // Square (i, j) lies on the +y side of the edge to (i+1, j) and on the −x
+                // side of the edge to (i, j+1) (as seen along the edge): flip one so both
+                // edge kinds report the colour of square (i, j).
+                Some(c) => {
+                    let positive = (c > 0.0) == (key.0 == i + 1);
+                    signed[usize::from(positive == parity)] += 1;
+                }
+                None => bad += 1,
             }
         }
     }
-    // Lattices mixing true corners with other saddles have edges of either sign.
-    let consistency = if total_abs > 0.0 {
-        total.abs() / total_abs
+    let good = signed[0].max(signed[1]);
+    good as f64 - (signed[0].min(signed[1]) + bad) as f64
+}
+
+/// The contrast across the segment p → q (image on its left minus its right, as seen
+/// walking from p to q in image coordinates with y down), when it is the same sign and
+/// of similar size all along the segment; `None` otherwise.
+fn edge_contrast(s: &Smoothed, p: [f64; 2], q: [f64; 2]) -> Option<f64> {
+    let d = sub(q, p);
+    let len = norm(d);
+    if len < 4.0 {
+        return None;
+    }
+    // Close enough to the edge to stay clear of the circles (which start 0.15 of a
+    // square inside), far enough to see past the blur.
+    let off = (0.08 * len).max(1.5);
+    let n = [-d[1] / len * off, d[0] / len * off];
+    let mut lo = f64::INFINITY;
+    let mut hi = f64::NEG_INFINITY;
+    for t in [0.2, 0.35, 0.5, 0.65, 0.8] {
+        let m = add(p, [t * d[0], t * d[1]]);
+        let c = s.sample(m[0] - n[0], m[1] - n[1])? - s.sample(m[0] + n[0], m[1] + n[1])?;
+        lo = lo.min(c);
+        hi = hi.max(c);
+    }
+    let (weak, strong) = if hi <= 0.0 {
+        (-hi, -lo)
+    } else if lo >= 0.0 {
+        (lo, hi)
     } else {
-        0.0
+        return None;
     };
-    total.abs() * consistency.powi(8)
+    (strong > 1e-3 && weak > 0.35 * strong).then_some(if hi <= 0.0 { lo } else { hi })
 }

@@ -64,7 +64,7 @@ impl Default for DetectParams {
             levels: 2,
             coarse_sigma_px: 1.5,
             max_iterations: 30,
-            tolerance_px: 2e-4,
+            tolerance_px: 1e-3,
             max_refine_shift_px: 3.0,
             saturation_level: 0.995,
             max_saturated_fraction: 0.01,
@@ -188,11 +188,11 @@ pub fn detect(
     })
 }
 
-/// Bootstrap position of chart corner (c, r): its junction when found, else a local
-/// homography over nearby junctions, else the global one.
-fn corner_estimate(lattice: &grid::Lattice, c: usize, r: usize) -> [f64; 2] {
+/// Bootstrap position of chart corner (c, r): its junction when found (then `true`),
+/// else a local homography over nearby junctions, else the global one.
+fn corner_estimate(lattice: &grid::Lattice, c: usize, r: usize) -> ([f64; 2], bool) {
     if let Some(p) = lattice.corners.get(&(c, r)) {
-        return *p;
+        return (*p, true);
     }
     let (ci, ri) = (c as i64, r as i64);
     let mut from = Vec::new();
@@ -212,9 +212,9 @@ fn corner_estimate(lattice: &grid::Lattice, c: usize, r: usize) -> [f64; 2] {
     if from.len() >= 6
         && let Some(h) = Homography::from_correspondences(&from, &to)
     {
-        return h.apply([c as f64, r as f64]);
+        return (h.apply([c as f64, r as f64]), false);
     }
-    lattice.image_from_chart.apply([c as f64, r as f64])
+    (lattice.image_from_chart.apply([c as f64, r as f64]), false)
 }
 
 fn square(
@@ -226,12 +226,21 @@ fn square(
     params: &DetectParams,
 ) -> SquareAlignment {
     let chart = spec.square_corners(col, row);
-    let boot: [[f64; 2]; 4] = [
+    let estimates = [
         corner_estimate(lattice, col, row),
         corner_estimate(lattice, col + 1, row),
         corner_estimate(lattice, col + 1, row + 1),
         corner_estimate(lattice, col, row + 1),
     ];
+    let boot: [[f64; 2]; 4] = estimates.map(|e| e.0);
+    // Corners localised at their junctions are within a few hundredths of a pixel: the
+    // fine level starts inside its basin, and a coarse level (whose extra blur biases
+    // the blur estimate it hands on) only costs time. Predicted corners need it.
+    let levels = if estimates.iter().all(|e| e.1) {
+        1
+    } else {
+        params.levels
+    };
     let bootstrap =
         Homography::from_correspondences(&chart, &boot).unwrap_or(lattice.image_from_chart);
     let mut out = SquareAlignment {
@@ -248,7 +257,7 @@ fn square(
         white_level: f64::NAN,
         sigma_px: f64::NAN,
     };
-    match align::align_square(capture, spec, col, row, &bootstrap, params) {
+    match align::align_square(capture, spec, col, row, &bootstrap, levels, params) {
         Ok(a) => {
             out.status = SquareStatus::Ok;
             out.corners = chart.map(|p| a.image_from_chart.apply(p));

@@ -165,7 +165,7 @@ pub fn channels_of(capture: &Capture) -> Vec<Channel> {
 /// # Errors
 /// A description of the first invalid parameter.
 pub fn validate(params: &KernelParams) -> Result<(), KernelError> {
-    if params.oversample == 0 || params.oversample % 2 == 0 || params.oversample > 9 {
+    if params.oversample == 0 || params.oversample.is_multiple_of(2) || params.oversample > 9 {
         return Err(KernelError::Params(format!(
             "oversample must be odd, 1–9 (got {})",
             params.oversample

@@ -271,6 +271,9 @@ pub struct SimulatedShot {
     pub truth: ShotTruth,
     /// The noiseless, unquantised blurred image per channel (R, G, B), white paper = 1.
     pub clean: Vec<(Channel, Plane)>,
+    /// Raw value of zero light and of saturation, as in `cfa`.
+    pub black_level: u16,
+    pub white_level: u16,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -320,7 +323,7 @@ fn smooth_size(n: usize) -> usize {
     loop {
         let mut r = m;
         for p in [2, 3, 5] {
-            while r % p == 0 {
+            while r.is_multiple_of(p) {
                 r /= p;
             }
         }
@@ -586,6 +589,8 @@ pub fn simulate_shot(
         cfa,
         truth,
         clean,
+        black_level: params.black_level,
+        white_level: params.white_level,
     })
 }
 
@@ -635,10 +640,10 @@ fn sensor_readout(
                 0.0
             };
         }
-        if let Some(n) = &read {
-            if params.noise.read_noise_e > 0.0 {
-                e += n.sample(&mut rng);
-            }
+        if let Some(n) = &read
+            && params.noise.read_noise_e > 0.0
+        {
+            e += n.sample(&mut rng);
         }
         let dn = black + e / full_well * range;
         dn.round().clamp(0.0, f64::from(params.white_level)) as u16

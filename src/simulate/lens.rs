@@ -109,6 +109,86 @@ impl VirtualLens {
         l
     }
 
+    /// Reads a lens description (the JSON form of this struct) and checks it.
+    ///
+    /// # Errors
+    /// Unreadable file, malformed JSON, or a lens [`VirtualLens::validate`] refuses.
+    pub fn load(path: &std::path::Path) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+        let lens: Self = serde_json::from_str(&text)
+            .map_err(|e| format!("{}: not a lens description: {e}", path.display()))?;
+        lens.validate()
+            .map_err(|e| format!("{}: {e}", path.display()))?;
+        Ok(lens)
+    }
+
+    /// Checks that the lens can be simulated: increasing positive ranges, a field for
+    /// every colour, finite positive scales, |ρ amplitude| < 1.
+    ///
+    /// # Errors
+    /// A description of the first problem.
+    pub fn validate(&self) -> Result<(), String> {
+        let [f0, f1] = self.focal_range_mm;
+        let [a0, a1] = self.f_number_range;
+        if !(f0.is_finite() && f1.is_finite() && f0 > 0.0 && f1 >= f0) {
+            return Err(format!("focal range {f0}–{f1} mm is not a positive range"));
+        }
+        if !(a0.is_finite() && a1.is_finite() && a0 > 0.0 && a1 >= a0) {
+            return Err(format!("f-number range {a0}–{a1} is not a positive range"));
+        }
+        for ch in [Channel::R, Channel::G, Channel::B] {
+            let Some(c) = self.channels.iter().find(|c| c.channel == ch) else {
+                return Err(format!("no field for channel {ch}"));
+            };
+            if !(c.scale.is_finite() && c.scale > 0.0 && c.scale < 20.0) {
+                return Err(format!("channel {ch}: scale {} out of (0, 20)", c.scale));
+            }
+            if !(c.rho_amp.is_finite() && c.rho_amp.abs() < 1.0) {
+                return Err(format!("channel {ch}: |rho_amp| must be below 1"));
+            }
+            if !(c.aniso.is_finite() && c.aniso.abs() < 0.9) {
+                return Err(format!("channel {ch}: |aniso| must be below 0.9"));
+            }
+            if !(c.sweet_spot.iter().all(|v| v.is_finite()) && c.rho_phase.is_finite()) {
+                return Err(format!("channel {ch}: non-finite coefficients"));
+            }
+        }
+        Ok(())
+    }
+
+    /// The settings a `nf × na` calibration grid takes over this lens's range: focal
+    /// lengths evenly spaced, apertures evenly spaced in stops (log f-number).
+    #[must_use]
+    pub fn setting_grid(&self, nf: usize, na: usize) -> Vec<LensSetting> {
+        let spread = |lo: f64, hi: f64, n: usize, log: bool| -> Vec<f64> {
+            (0..n)
+                .map(|i| {
+                    let t = if n > 1 {
+                        i as f64 / (n - 1) as f64
+                    } else {
+                        0.5
+                    };
+                    if log {
+                        (lo.ln() + t * (hi.ln() - lo.ln())).exp()
+                    } else {
+                        lo + t * (hi - lo)
+                    }
+                })
+                .collect()
+        };
+        let fs = spread(self.focal_range_mm[0], self.focal_range_mm[1], nf, false);
+        let as_ = spread(self.f_number_range[0], self.f_number_range[1], na, true);
+        fs.iter()
+            .flat_map(|&f| {
+                as_.iter().map(move |&a| LensSetting {
+                    focal_mm: f,
+                    f_number: a,
+                })
+            })
+            .collect()
+    }
+
     fn field(&self, channel: Channel) -> &ChannelField {
         let wanted = if channel == Channel::Y {
             Channel::G

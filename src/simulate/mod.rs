@@ -3,10 +3,12 @@
 
 pub mod capture;
 pub mod dng;
+pub mod files;
 pub mod lens;
 
 pub use capture::{
     CaptureParams, NoiseModel, Pose, PsfField, ShotTruth, SimulateError, SimulatedShot,
     SquareTruth, capture_from_raw, simulate_shot,
 };
+pub use files::{ShotFormat, write_shot};
 pub use lens::{PsfShape, VirtualLens};

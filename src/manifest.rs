@@ -1,0 +1,138 @@
+//! The session manifest (DESIGN.md §3): the chart that was printed and the shots with
+//! their settings. Scripts write it by hand, the simulator writes it for its shots, and
+//! every command that works on a session reads it.
+
+use crate::chart::ChartSpec;
+use crate::plane::LensSetting;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The chart of a manifest: the spec inline, or a path to a spec file relative to the
+/// manifest.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum ChartRef {
+    Spec(ChartSpec),
+    Path(PathBuf),
+}
+
+/// One shot: its file (relative to the manifest) and, where EXIF lacks them, its
+/// settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ManifestShot {
+    pub path: PathBuf,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub focal_mm: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub f_number: Option<f64>,
+}
+
+impl ManifestShot {
+    /// Both settings, when the manifest gives both.
+    #[must_use]
+    pub fn setting(&self) -> Option<LensSetting> {
+        Some(LensSetting {
+            focal_mm: self.focal_mm?,
+            f_number: self.f_number?,
+        })
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub chart: Option<ChartRef>,
+    pub shots: Vec<ManifestShot>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ManifestError {
+    #[error("{}: cannot read: {source}", path.display())]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{}: not a session manifest: {reason}", path.display())]
+    Parse { path: PathBuf, reason: String },
+    #[error("{}: cannot write: {source}", path.display())]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+impl Manifest {
+    /// Reads a manifest; the chart reference is resolved by [`Manifest::chart_spec`].
+    ///
+    /// # Errors
+    /// Unreadable file, malformed JSON, or no shots.
+    pub fn load(path: &Path) -> Result<Self, ManifestError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ManifestError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let m: Manifest = serde_json::from_str(&text).map_err(|e| ManifestError::Parse {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+        if m.shots.is_empty() {
+            return Err(ManifestError::Parse {
+                path: path.to_path_buf(),
+                reason: "it lists no shots".into(),
+            });
+        }
+        Ok(m)
+    }
+
+    /// The chart: inline, from the referenced file (relative to `base`, the manifest's
+    /// folder), or the default one.
+    ///
+    /// # Errors
+    /// The referenced chart file cannot be read or is not a valid spec.
+    pub fn chart_spec(&self, base: &Path) -> Result<ChartSpec, crate::chart::ChartError> {
+        match &self.chart {
+            None => Ok(ChartSpec::default()),
+            Some(ChartRef::Spec(c)) => {
+                c.validate()?;
+                Ok(c.clone())
+            }
+            Some(ChartRef::Path(p)) => ChartSpec::load(&resolve(base, p)),
+        }
+    }
+
+    /// Writes the manifest as pretty JSON, atomically.
+    ///
+    /// # Errors
+    /// The file cannot be written.
+    pub fn save(&self, path: &Path) -> Result<(), ManifestError> {
+        let text = serde_json::to_vec_pretty(self).map_err(|e| ManifestError::Write {
+            path: path.to_path_buf(),
+            source: std::io::Error::other(e),
+        })?;
+        crate::simulate::files::write_atomic(path, &text).map_err(|source| ManifestError::Write {
+            path: path.to_path_buf(),
+            source,
+        })
+    }
+}
+
+/// A path as the manifest means it: relative paths are relative to the manifest's
+/// folder.
+#[must_use]
+pub fn resolve(base: &Path, p: &Path) -> PathBuf {
+    if p.is_absolute() {
+        p.to_path_buf()
+    } else {
+        base.join(p)
+    }
+}
+
+/// The folder a manifest's relative paths start from.
+#[must_use]
+pub fn base_of(manifest_path: &Path) -> PathBuf {
+    manifest_path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+        .to_path_buf()
+}
