@@ -646,11 +646,13 @@ fn gaussian_approximation_experiment() {
 
 #[test]
 fn measuring_kernels_stops_fast_when_no_shot_yields_any() {
-    // Squares of a few pixels: detection cannot find the chart on any shot. The run
-    // must give up after a few shots with the reason, not shoot on.
+    // A chart of 2-pixel squares: no shot can yield a kernel. The run must give up
+    // after a few shots with the reason, not shoot on.
     let opts = MeasureOptions {
         width: 96,
         height: 64,
+        cols: 40,
+        rows: 27,
         ..MeasureOptions::new(10, PsfShape::Gaussian, 1)
     };
     match measured_kernels(&opts, &JobContext::silent()) {
@@ -659,7 +661,12 @@ fn measuring_kernels_stops_fast_when_no_shot_yields_any() {
             assert_eq!(failed, MAX_FAILED_SHOTS_IN_A_ROW);
             assert!(last.contains("shot 3"), "{last}");
         }
-        other => panic!("expected NoKernels, got {other:?}"),
+        Err(e) => panic!("expected NoKernels, got {e}"),
+        Ok(m) => panic!(
+            "expected NoKernels, got {} kernels ({} shots skipped)",
+            m.kernels.len(),
+            m.skipped_shots.len()
+        ),
     }
 }
 
