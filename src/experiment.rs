@@ -4,7 +4,7 @@
 //! and compare by the SSIM error ratio of Eq. 1, (SSIM_non + 2) / (SSIM_gau + 2).
 
 use crate::deblur::fft::Fft2;
-use crate::deblur::solve::{Method, deconvolve_block};
+use crate::deblur::solve::{Deconvolver, Method};
 use crate::gaussian::{FitParams, fit_gaussian};
 use crate::job::{Cancelled, JobContext};
 use crate::metrics::{SsimParams, ssim_f64};
@@ -147,7 +147,7 @@ pub fn simulated_kernels(count: usize, oversample: usize) -> Vec<ExperimentKerne
 #[must_use]
 pub fn with_pixel_box(k: &Kernel) -> Kernel {
     let os = k.oversample;
-    let n = k.size + os - 1 + usize::from(os % 2 == 0);
+    let n = k.size + os - 1 + usize::from(os.is_multiple_of(2));
     let size = n | 1;
     let off = (size - k.size) / 2;
     let half = os as isize / 2;
@@ -190,62 +190,148 @@ pub fn fit_gaussians(k: &Kernel) -> (Gaussian2, Gaussian2) {
     }
 }
 
+/// How [`measured_kernels`] shoots its simulated calibration session.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MeasureOptions {
+    /// How many kernels to collect.
+    pub count: usize,
+    /// PSF shape of the virtual lens.
+    pub shape: PsfShape,
+    pub seed: u64,
+    /// Shot size, sensor pixels.
+    pub width: usize,
+    pub height: usize,
+    /// Chart squares across and down.
+    pub cols: usize,
+    pub rows: usize,
+    /// How the kernel estimate weights the up-sampled observation. The paper's kernels
+    /// for deblurring, those of its Fig. 2, are estimated with W = I
+    /// ([`Weighting::Uniform`](crate::kernel::Weighting::Uniform)), "to account for the
+    /// interpolant when deblurring".
+    pub weighting: crate::kernel::Weighting,
+}
+
+impl MeasureOptions {
+    /// `count` kernels of the demo lens in `shape`, on 640 × 427 shots of a 12 × 8 chart
+    /// (squares about 45 px wide), estimated with W = I as the paper's.
+    #[must_use]
+    pub fn new(count: usize, shape: PsfShape, seed: u64) -> Self {
+        Self {
+            count,
+            shape,
+            seed,
+            width: 640,
+            height: 427,
+            cols: 12,
+            rows: 8,
+            weighting: crate::kernel::Weighting::Uniform,
+        }
+    }
+}
+
+/// Why kernels could not be measured on the simulated session.
+#[derive(Debug, thiserror::Error)]
+pub enum MeasureError {
+    #[error(transparent)]
+    Cancelled(#[from] Cancelled),
+    #[error("simulating shot {shot}: {reason}")]
+    Simulate { shot: usize, reason: String },
+    #[error("{failed} shots in a row gave no kernel; the last, {last}")]
+    NoKernels { failed: usize, last: String },
+}
+
+/// Kernels measured on a simulated session, and the shots that gave none.
+#[derive(Clone, Debug)]
+pub struct MeasuredKernels {
+    pub kernels: Vec<ExperimentKernel>,
+    /// One line per shot that yielded no kernel (its setting and why).
+    pub skipped_shots: Vec<String>,
+}
+
+/// Shots in a row that may yield no kernel before the session is abandoned: the odd
+/// shot a pose defeats is skipped, but a pipeline that fails on every shot stops the
+/// run within seconds instead of shooting on.
+pub const MAX_FAILED_SHOTS_IN_A_ROW: usize = 3;
+
 /// Kernels measured the way calibration measures them: simulated chart shots of the
-/// virtual lens (PSF `shape`) at settings spread over its range, squares detected and
-/// aligned, each square's 3× kernel and robust/ML Gaussians estimated. Squares are
-/// taken spread over each shot until `count` kernels are collected.
+/// virtual lens at settings spread over its range, squares detected and aligned, each
+/// square's 3× kernel and robust/ML Gaussians estimated. Squares are taken spread over
+/// each shot until `count` kernels are collected.
 ///
 /// # Errors
-/// The simulator or the detection failed on a shot (a message), or cancellation.
+/// [`MeasureError`]: [`MAX_FAILED_SHOTS_IN_A_ROW`] shots in a row gave no kernel (the
+/// last one's reason, with the count), the simulator failed, or cancellation.
 pub fn measured_kernels(
-    count: usize,
-    shape: PsfShape,
-    seed: u64,
+    opts: &MeasureOptions,
     job: &JobContext,
-) -> Result<Vec<ExperimentKernel>, String> {
+) -> Result<MeasuredKernels, MeasureError> {
     use crate::chart::ChartSpec;
     use crate::kernel::{KernelParams, SquareGeometry, estimate_square_geometry};
     use crate::simulate::{CaptureParams, Pose, simulate_shot};
+    let count = opts.count;
     let mut lens = VirtualLens::demo();
-    lens.shape = shape;
+    lens.shape = opts.shape;
     let spec = ChartSpec {
-        cols: 12,
-        rows: 8,
+        cols: opts.cols,
+        rows: opts.rows,
         ..ChartSpec::default()
     };
-    let (w, h) = (640, 427);
-    let params = KernelParams::default();
-    let mut rng = Pcg64::seed_from_u64(seed);
+    let params = KernelParams {
+        weighting: opts.weighting,
+        ..KernelParams::default()
+    };
+    let mut rng = Pcg64::seed_from_u64(opts.seed);
     let mut out: Vec<ExperimentKernel> = Vec::with_capacity(count);
-    let mut shot = 0u64;
+    let mut skipped_shots: Vec<String> = Vec::new();
+    let mut failed_in_a_row = 0usize;
+    let mut shot = 0usize;
     while out.len() < count {
-        if shot > 64 {
-            return Err(format!(
-                "only {} kernels could be measured on {shot} shots",
-                out.len()
-            ));
-        }
+        job.check()?;
         let setting = LensSetting {
             focal_mm: rng.random_range(lens.focal_range_mm[0]..lens.focal_range_mm[1]),
             f_number: rng.random_range(lens.f_number_range[0]..lens.f_number_range[1]),
         };
-        let mut cp = CaptureParams::new(w, h, setting);
+        let mut cp = CaptureParams::new(opts.width, opts.height, setting);
         cp.bayer = false;
-        cp.seed = seed.wrapping_add(shot);
+        cp.seed = opts.seed.wrapping_add(shot as u64);
         cp.pose = Pose {
             rotation_deg: rng.random_range(-1.5..1.5),
             fill: 0.86,
             ..Pose::default()
         };
         shot += 1;
-        let sim = simulate_shot(&spec, &lens, &cp, job).map_err(|e| e.to_string())?;
-        let det = crate::detect::detect(
+        let mut skip = |reason: String| -> Result<(), MeasureError> {
+            let line = format!(
+                "shot {shot} (f = {:.1} mm, f/{:.1}): {reason}",
+                setting.focal_mm, setting.f_number
+            );
+            failed_in_a_row += 1;
+            if failed_in_a_row >= MAX_FAILED_SHOTS_IN_A_ROW {
+                return Err(MeasureError::NoKernels {
+                    failed: failed_in_a_row,
+                    last: line,
+                });
+            }
+            skipped_shots.push(line);
+            Ok(())
+        };
+        let sim = simulate_shot(&spec, &lens, &cp, job).map_err(|e| MeasureError::Simulate {
+            shot,
+            reason: e.to_string(),
+        })?;
+        let det = match crate::detect::detect(
             &sim.capture,
             &spec,
             &crate::detect::DetectParams::default(),
             job,
-        )
-        .map_err(|e| format!("simulated shot {shot}: {e}"))?;
+        ) {
+            Ok(d) => d,
+            Err(e) => {
+                job.check()?;
+                skip(format!("detection: {e}"))?;
+                continue;
+            }
+        };
         let squares: Vec<SquareGeometry> = det
             .ok_squares()
             .map(|s| SquareGeometry {
@@ -254,6 +340,14 @@ pub fn measured_kernels(
                 image_from_chart: s.image_from_chart,
             })
             .collect();
+        if squares.is_empty() {
+            skip(format!(
+                "detection kept none of {} squares ({})",
+                det.squares.len(),
+                skip_reasons(det.squares.iter().filter_map(|s| s.reason.as_deref()))
+            ))?;
+            continue;
+        }
         let want = count - out.len();
         // Spread the squares taken over the frame, one channel each in turn.
         let stride = (squares.len() / want.max(1)).max(1);
@@ -264,30 +358,68 @@ pub fn measured_kernels(
             .take(want)
             .map(|(i, _)| (i, [Channel::R, Channel::G, Channel::B][i % 3]))
             .collect();
-        let part: Vec<ExperimentKernel> = picks
+        let results: Vec<Result<ExperimentKernel, String>> = picks
             .par_iter()
-            .filter_map(|&(i, ch)| {
-                if job.is_cancelled() {
-                    return None;
-                }
-                let e =
-                    estimate_square_geometry(&sim.capture, &squares[i], &spec, &params, ch).ok()?;
+            .map(|&(i, ch)| {
+                job.check().map_err(|e| e.to_string())?;
+                let e = estimate_square_geometry(&sim.capture, &squares[i], &spec, &params, ch)
+                    .map_err(|f| f.to_string())?;
                 // The fits are pixel-level (they add the 1/(12 s²) px² of the 3× cells
                 // the kernel lacks); compared with the kernel itself they must not.
                 let cell = -1.0 / (12.0 * (params.oversample * params.oversample) as f64);
-                Some(ExperimentKernel {
+                Ok(ExperimentKernel {
                     kernel: e.kernel,
                     robust: e.fit.robust.convolved_variance(cell, cell, 0.0),
                     ml: e.fit.ml.convolved_variance(cell, cell, 0.0),
                 })
             })
             .collect();
-        job.check().map_err(|e| e.to_string())?;
-        out.extend(part);
+        job.check()?;
+        let before = out.len();
+        let mut failures = Vec::new();
+        for r in results {
+            match r {
+                Ok(k) => out.push(k),
+                Err(reason) => failures.push(reason),
+            }
+        }
+        if out.len() == before {
+            skip(format!(
+                "no kernel from {} aligned squares ({})",
+                picks.len(),
+                skip_reasons(failures.iter().map(String::as_str))
+            ))?;
+            continue;
+        }
+        failed_in_a_row = 0;
         job.report("measuring kernels", out.len().min(count), count);
     }
     out.truncate(count);
-    Ok(out)
+    Ok(MeasuredKernels {
+        kernels: out,
+        skipped_shots,
+    })
+}
+
+/// The distinct reasons among `reasons`, most frequent first, with their counts.
+fn skip_reasons<'a>(reasons: impl Iterator<Item = &'a str>) -> String {
+    let mut counts: Vec<(&str, usize)> = Vec::new();
+    for r in reasons {
+        match counts.iter_mut().find(|(s, _)| *s == r) {
+            Some(c) => c.1 += 1,
+            None => counts.push((r, 1)),
+        }
+    }
+    counts.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(b.0)));
+    if counts.is_empty() {
+        return "no reason given".into();
+    }
+    counts
+        .iter()
+        .take(3)
+        .map(|(r, n)| format!("{n}× {r}"))
+        .collect::<Vec<_>>()
+        .join("; ")
 }
 
 /// Experiment settings.
@@ -380,6 +512,7 @@ pub fn gaussian_approx(
         ("synthetic", hard_edges(n, n, opts.seed + 1)),
     ];
     let fft = Fft2::new(n, n);
+    let proto = Deconvolver::new(n, n);
     let total = kernels.len() * images.len();
     let done = AtomicUsize::new(0);
     let params = SsimParams::default();
@@ -389,51 +522,47 @@ pub fn gaussian_approx(
         let part: Vec<RatioRow> = kernels
             .par_iter()
             .enumerate()
-            .map(|(idx, ek)| -> Result<RatioRow, Cancelled> {
-                job.check()?;
-                let k1 = ek.kernel.resampled(1);
-                // The image is periodic here, so a circular blur is the exact model and
-                // the comparison measures only the kernel's shape.
-                let mut blurry = fft.convolve(&sharp, &k1);
-                let mut rng =
-                    Pcg64::seed_from_u64(opts.seed ^ (idx as u64).wrapping_mul(0x9e37_79b9));
-                if opts.noise_sigma > 0.0
-                    && let Ok(noise) = Normal::new(0.0, opts.noise_sigma)
-                {
-                    for v in &mut blurry {
-                        *v += noise.sample(&mut rng);
+            .map_init(
+                || (fft.clone(), proto.clone(), vec![0.0; n * n]),
+                |(fft, dec, x), (idx, ek)| -> Result<RatioRow, Cancelled> {
+                    job.check()?;
+                    let k1 = ek.kernel.resampled(1);
+                    // The image is periodic here, so a circular blur is the exact model
+                    // and the comparison measures only the kernel's shape.
+                    let mut blurry = fft.convolve(&sharp, &k1);
+                    let mut rng =
+                        Pcg64::seed_from_u64(opts.seed ^ (idx as u64).wrapping_mul(0x9e37_79b9));
+                    if opts.noise_sigma > 0.0
+                        && let Ok(noise) = Normal::new(0.0, opts.noise_sigma)
+                    {
+                        for v in &mut blurry {
+                            *v += noise.sample(&mut rng);
+                        }
                     }
-                }
-                let s = |x: &[f64]| ssim_f64(x, &sharp, n, n, &params);
-                let x_non = deconvolve_block(&fft, &blurry, &k1, &opts.method);
-                let x_rob = deconvolve_block(
-                    &fft,
-                    &blurry,
-                    &gaussian_kernel_1x(&ek.robust, ek.kernel.oversample),
-                    &opts.method,
-                );
-                let x_ml = deconvolve_block(
-                    &fft,
-                    &blurry,
-                    &gaussian_kernel_1x(&ek.ml, ek.kernel.oversample),
-                    &opts.method,
-                );
-                let (sn, sr, sm) = (s(&x_non), s(&x_rob), s(&x_ml));
-                let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-                job.report("experiment", d, total);
-                Ok(RatioRow {
-                    image: (*name).to_owned(),
-                    kernel_index: idx,
-                    robust: ek.robust,
-                    ml: ek.ml,
-                    ssim_blurry: s(&blurry),
-                    ssim_nonparametric: sn,
-                    ssim_robust: sr,
-                    ssim_ml: sm,
-                    ratio_robust: (sn + 2.0) / (sr + 2.0),
-                    ratio_ml: (sn + 2.0) / (sm + 2.0),
-                })
-            })
+                    let s = |x: &[f64]| ssim_f64(x, &sharp, n, n, &params);
+                    let mut ssim_with = |k: &Kernel| {
+                        dec.deconvolve(&blurry, k, &opts.method, x);
+                        s(x)
+                    };
+                    let sn = ssim_with(&k1);
+                    let sr = ssim_with(&gaussian_kernel_1x(&ek.robust, ek.kernel.oversample));
+                    let sm = ssim_with(&gaussian_kernel_1x(&ek.ml, ek.kernel.oversample));
+                    let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+                    job.report("experiment", d, total);
+                    Ok(RatioRow {
+                        image: (*name).to_owned(),
+                        kernel_index: idx,
+                        robust: ek.robust,
+                        ml: ek.ml,
+                        ssim_blurry: s(&blurry),
+                        ssim_nonparametric: sn,
+                        ssim_robust: sr,
+                        ssim_ml: sm,
+                        ratio_robust: (sn + 2.0) / (sr + 2.0),
+                        ratio_ml: (sn + 2.0) / (sm + 2.0),
+                    })
+                },
+            )
             .collect::<Result<_, _>>()?;
         rows.extend(part);
     }

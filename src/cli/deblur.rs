@@ -40,6 +40,9 @@ pub struct Args {
     /// Use a profile made for another camera or lens unit anyway.
     #[arg(long)]
     pub force: bool,
+    /// Use a profile at a focal length or aperture outside its calibrated range.
+    #[arg(long)]
+    pub allow_extrapolation: bool,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Default, PartialEq, Eq)]
@@ -75,14 +78,33 @@ pub fn run(args: Args) -> Result<()> {
             args.out.display()
         );
     }
+    let out_dir = args
+        .out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    if !out_dir.is_dir() {
+        bail!(
+            "{}: the folder {} does not exist",
+            args.out.display(),
+            out_dir.display()
+        );
+    }
+    if same_file(&args.photo, &args.out) {
+        bail!(
+            "{}: the output would overwrite the photo",
+            args.out.display()
+        );
+    }
     let capture = load_capture(&args.photo, &LoadOptions::default())?;
+    let photo_setting = (
+        args.focal.or(capture.setting_focal_mm),
+        args.aperture.or(capture.setting_f_number),
+    );
     let source: Box<dyn KernelSource> = match (&args.profile, &args.kernels) {
         (Some(p), _) => {
-            let profile = Profile::load(p)?;
-            let (Some(focal_mm), Some(f_number)) = (
-                args.focal.or(capture.setting_focal_mm),
-                args.aperture.or(capture.setting_f_number),
-            ) else {
+            let mut profile = Profile::load(p)?;
+            let (Some(focal_mm), Some(f_number)) = photo_setting else {
                 bail!(
                     "{}: focal length or aperture unknown (not in EXIF): give --focal and --aperture",
                     args.photo.display()
@@ -99,16 +121,24 @@ pub fn run(args: Args) -> Result<()> {
                     profile.norm.height
                 );
             }
-            for w in profile
+            // Every check before any warning: a refused photo gets its one-line reason
+            // and nothing else.
+            let identity_warnings = profile
                 .check_identity(&capture.identity, args.force)
-                .with_context(|| format!("{} and {}", args.photo.display(), p.display()))?
-            {
-                eprintln!("lensblur: warning: {w}");
-            }
+                .with_context(|| format!("{} and {}", args.photo.display(), p.display()))?;
             let setting = LensSetting { focal_mm, f_number };
+            profile.allow_extrapolation = args.allow_extrapolation;
             profile
                 .check_setting(setting)
                 .with_context(|| format!("{}: {}", args.photo.display(), p.display()))?;
+            if !identity_warnings.is_empty() {
+                eprintln!("lensblur: warning: {}", identity_warnings.join("; "));
+            }
+            if !profile.norm.contains(setting) {
+                eprintln!(
+                    "lensblur: warning: f = {focal_mm} mm, f/{f_number} is outside the calibrated range; extrapolating"
+                );
+            }
             Box::new(ProfileKernels { profile, setting })
         }
         (None, Some(k)) => {
@@ -124,11 +154,24 @@ pub fn run(args: Args) -> Result<()> {
                     file.height
                 );
             }
+            if let ((Some(pf), Some(pa)), Some(kf), Some(ka)) =
+                (photo_setting, file.focal_mm, file.f_number)
+                && ((pf - kf).abs() > 1e-6 * kf.abs() || (pa - ka).abs() > 1e-6 * ka.abs())
+            {
+                eprintln!(
+                    "lensblur: warning: {} was measured at f = {kf} mm, f/{ka} but the photo is at f = {pf} mm, f/{pa}",
+                    k.display()
+                );
+            }
             let prefer = match args.prefer {
                 PreferArg::Kernels => Prefer::default(),
                 PreferArg::Gaussians => Prefer::Gaussian,
             };
-            Box::new(ScatteredKernels::new(file, prefer))
+            Box::new(ScatteredKernels::checked(
+                file,
+                prefer,
+                &k.display().to_string(),
+            )?)
         }
         (None, None) => bail!("give --profile or --kernels"),
     };
@@ -153,6 +196,14 @@ pub fn run(args: Args) -> Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// Whether two paths name one existing file.
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    }
 }
 
 fn preview_path(out: &Path) -> PathBuf {

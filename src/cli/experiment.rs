@@ -4,8 +4,10 @@
 use super::common::{progress_job, write_atomic, write_json};
 use anyhow::{Context, Result, bail};
 use lensblur::experiment::{
-    ExperimentOptions, cdf_csv, gaussian_approx, measured_kernels, simulated_kernels,
+    ExperimentOptions, MeasureOptions, cdf_csv, gaussian_approx, measured_kernels,
+    simulated_kernels,
 };
+use lensblur::kernel::Weighting;
 use lensblur::simulate::PsfShape;
 use std::path::PathBuf;
 
@@ -48,8 +50,18 @@ pub struct GaussianApproxArgs {
     /// PSF shape of the virtual lens (measured source).
     #[arg(long, value_enum, default_value = "gaussian")]
     pub shape: ShapeArg,
+    /// Kernel estimate weighting (measured source): uniform is the paper's W = I, which
+    /// it uses for the kernels it deblurs with; pixel-centres is calibration's default.
+    #[arg(long, value_enum, default_value = "uniform")]
+    pub weighting: WeightingArg,
     #[arg(long, default_value_t = 7)]
     pub seed: u64,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq)]
+pub enum WeightingArg {
+    Uniform,
+    PixelCentres,
 }
 
 impl Default for GaussianApproxArgs {
@@ -60,6 +72,7 @@ impl Default for GaussianApproxArgs {
             size: 160,
             source: SourceArg::Measured,
             shape: ShapeArg::Gaussian,
+            weighting: WeightingArg::Uniform,
             seed: 7,
         }
     }
@@ -100,8 +113,21 @@ fn gaussian_approx_cmd(a: GaussianApproxArgs) -> Result<()> {
         ShapeArg::Comet => PsfShape::Comet,
     };
     let kernels = match a.source {
-        SourceArg::Measured => measured_kernels(a.kernels, shape, a.seed, &job)
-            .map_err(|e| anyhow::anyhow!("measuring kernels: {e}"))?,
+        SourceArg::Measured => {
+            let opts = MeasureOptions {
+                weighting: match a.weighting {
+                    WeightingArg::Uniform => Weighting::Uniform,
+                    WeightingArg::PixelCentres => Weighting::PixelCentres,
+                },
+                ..MeasureOptions::new(a.kernels, shape, a.seed)
+            };
+            let m = measured_kernels(&opts, &job)
+                .context("measuring kernels on simulated calibration shots")?;
+            for s in &m.skipped_shots {
+                eprintln!("lensblur: warning: skipped {s}");
+            }
+            m.kernels
+        }
         SourceArg::Analytic => simulated_kernels(a.kernels, 3),
     };
     let opts = ExperimentOptions {

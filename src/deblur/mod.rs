@@ -1,10 +1,13 @@
 //! Deblurring: non-blind deconvolution of each channel plane with the lens's spatially
 //! varying kernels (DESIGN.md §1.9).
 //!
-//! The image is cut into overlapping tiles on a 50 %-overlap grid; each tile (plus a
-//! margin) is deconvolved with the kernel at its centre and blended back with squared-sine
-//! windows, which sum to one, so no seam shows. Tiles are independent: they run in
-//! parallel and only one row of tiles is held at a time.
+//! A plane is cut into tiles sized from its kernels and its own size; each tile is
+//! deconvolved inside an FFT block (the tile plus a margin, read with reflection past
+//! the image border and edge-tapered) with the kernel at its centre, then blended with
+//! its neighbours by windows that are flat inside the tile and cross-fade over a short
+//! ramp at each shared border; the windows sum to one, so no seam shows. Tiles are
+//! independent: one row of them runs in parallel, each worker reusing its own FFT
+//! plans and buffers, and only that row's results are held before they are summed in.
 
 pub mod fft;
 pub mod solve;
@@ -18,8 +21,10 @@ pub use source::{
 use crate::job::{Cancelled, JobContext};
 use crate::plane::{Capture, ChannelPlane, Plane};
 use crate::psf::Kernel;
-use fft::{Fft2, fast_size};
+use fft::fast_size;
 use rayon::prelude::*;
+use solve::Deconvolver;
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 #[derive(Debug, thiserror::Error)]
@@ -36,66 +41,139 @@ pub enum DeblurError {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct DeblurOptions {
     pub method: Method,
-    /// Tile core size in plane pixels (even); `None` picks it from the kernel size.
-    pub tile_core: Option<usize>,
+    /// Tile step (the distance between tile centres) in plane pixels; `None` picks it
+    /// from the kernel size and the plane size ([`TileGrid::for_plane`]).
+    pub tile_step_px: Option<usize>,
 }
 
-/// The tile grid of one plane: cores of `core` pixels every `core / 2`, each read with a
-/// `margin` on every side into an FFT block of `block` pixels.
+/// One axis of the tile grid: `count` tiles, tile t owning [t·step, (t+1)·step) and
+/// blending with its neighbours over `ramp` pixels centred on each shared border;
+/// its FFT block reads `margin_before` pixels before its window and fills `block`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct TileGrid {
-    pub core: usize,
-    pub margin: usize,
+pub struct TileAxis {
+    pub len: usize,
+    pub step: usize,
+    pub count: usize,
+    pub ramp: usize,
+    pub margin_before: usize,
     pub block: usize,
 }
 
-impl TileGrid {
-    /// Tiles for kernels of at most `radius_px` plane pixels: the margin holds the
-    /// deconvolution's ringing from the block's own edges (a few kernel radii), the core
-    /// is large enough that the margin is not most of the work.
-    #[must_use]
-    pub fn for_radius(radius_px: usize, core: Option<usize>) -> Self {
-        let margin = (4 * radius_px + 8).max(16);
-        let want_core = core.unwrap_or((12 * radius_px).clamp(96, 512));
-        let block = fast_size(want_core + 2 * margin);
-        let core = (block - 2 * margin) & !1;
+impl TileAxis {
+    fn new(len: usize, step_wanted: usize, ramp: usize, margin: usize) -> Self {
+        // Even tiles, none smaller than asked: the last one is not a sliver.
+        let count = (len / step_wanted.max(1)).max(1);
+        let step = len.div_ceil(count).max(ramp).max(1);
+        let count = len.div_ceil(step).max(1);
+        let block = fast_size(step + ramp + 2 * margin);
         Self {
-            core,
-            margin,
+            len,
+            step,
+            count,
+            ramp,
+            margin_before: (block - step - ramp) / 2,
             block,
         }
     }
 
+    /// Window length: the tile's own pixels plus half a ramp on each side.
     #[must_use]
-    pub fn step(&self) -> usize {
-        self.core / 2
+    pub fn window_len(&self) -> usize {
+        self.step + self.ramp
     }
 
-    /// Core origins along an axis of `n` pixels: from −step so the first pixel sits at
-    /// a window's peak.
+    /// First pixel of tile t's window (may be negative).
     #[must_use]
-    pub fn origins(&self, n: usize) -> Vec<isize> {
-        let s = self.step() as isize;
-        let mut v = Vec::new();
-        let mut x0 = -s;
-        while x0 < n as isize {
-            v.push(x0);
-            x0 += s;
-        }
-        v
+    pub fn window_start(&self, t: usize) -> isize {
+        (t * self.step) as isize - (self.ramp / 2) as isize
     }
 
-    /// Blend window over a core: sin²(π t / core); shifted copies a half core apart sum
-    /// to exactly one.
+    /// First pixel of tile t's FFT block (may be negative: read reflected).
     #[must_use]
-    pub fn window(&self) -> Vec<f64> {
-        (0..self.core)
-            .map(|t| {
-                (std::f64::consts::PI * t as f64 / self.core as f64)
-                    .sin()
-                    .powi(2)
+    pub fn block_start(&self, t: usize) -> isize {
+        self.window_start(t) - self.margin_before as isize
+    }
+
+    /// Centre of tile t's own pixels, clamped into the axis.
+    #[must_use]
+    pub fn centre(&self, t: usize) -> f64 {
+        let c = t as f64 * self.step as f64 + (self.step as f64 - 1.0) / 2.0;
+        c.clamp(0.0, (self.len.max(1) - 1) as f64)
+    }
+
+    /// Blend window of tile t over its window: flat, with a sin² ramp where it meets a
+    /// neighbour, which that neighbour's cos² ramp mirrors so the two sum to one. The
+    /// first and last tiles stay flat toward the image border.
+    #[must_use]
+    pub fn window(&self, t: usize) -> Vec<f64> {
+        let n = self.window_len();
+        let r = self.ramp;
+        let rise = |i: usize| -> f64 {
+            (std::f64::consts::FRAC_PI_2 * (i as f64 + 0.5) / r as f64)
+                .sin()
+                .powi(2)
+        };
+        (0..n)
+            .map(|i| {
+                let mut v = 1.0;
+                if i < r && t > 0 {
+                    v *= rise(i);
+                }
+                if i + r >= n && t + 1 < self.count {
+                    v *= rise(n - 1 - i);
+                }
+                v
             })
             .collect()
+    }
+}
+
+/// The tile grid of one plane. Each tile is deconvolved in one FFT block with the
+/// kernel at its centre; its window, a partition of unity, blends it with its
+/// neighbours.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TileGrid {
+    pub x: TileAxis,
+    pub y: TileAxis,
+    /// Pixels at each block edge blended toward the blurred block (the edge taper).
+    pub taper: usize,
+}
+
+impl TileGrid {
+    /// The margin a block needs around its window for kernels of at most `radius_px`
+    /// plane pixels: the edge taper plus room for the deconvolution's response to what
+    /// remains of the block's own edges to die out before the window.
+    #[must_use]
+    pub fn margin_for(radius_px: usize) -> usize {
+        3 * radius_px + 12
+    }
+
+    /// The grid for a `width × height` plane and kernels of at most `radius_px` plane
+    /// pixels. Without a step given, tiles are about a twelfth of the longer side, so a
+    /// smooth lens field is followed closely at any image size, but never so small that
+    /// the margin is most of the work (4 kernel radii) and never beyond 512 pixels.
+    #[must_use]
+    pub fn for_plane(
+        width: usize,
+        height: usize,
+        radius_px: usize,
+        step_px: Option<usize>,
+    ) -> Self {
+        let margin = Self::margin_for(radius_px);
+        let ramp = (2 * radius_px).clamp(8, 32) & !1;
+        let step =
+            step_px.unwrap_or_else(|| (width.max(height) / 12).clamp((4 * radius_px).max(32), 512));
+        let step = step.max(ramp);
+        Self {
+            x: TileAxis::new(width, step, ramp, margin),
+            y: TileAxis::new(height, step, ramp, margin),
+            taper: (2 * radius_px + 4).min(margin),
+        }
+    }
+
+    #[must_use]
+    pub fn tiles(&self) -> usize {
+        self.x.count * self.y.count
     }
 }
 
@@ -134,51 +212,32 @@ pub fn plane_kernel(k: &Kernel, step: usize) -> Kernel {
     })
 }
 
-/// Reads a `block × block` region with top-left plane pixel (x0, y0) (may lie outside:
-/// reflected), then tapers its borders toward the kernel-blurred copy so the block is
-/// consistent with a circular blur and the solver does not ring at its edges.
-fn read_block(
-    plane: &Plane,
-    x0: isize,
-    y0: isize,
-    grid: &TileGrid,
-    fft: &Fft2,
-    k: &Kernel,
-) -> Vec<f64> {
-    let n = grid.block;
-    let mut b = vec![0.0; n * n];
-    for j in 0..n {
-        let sy = reflect(y0 + j as isize, plane.height);
-        let row = &plane.data[sy * plane.width..(sy + 1) * plane.width];
-        for i in 0..n {
-            b[j * n + i] = f64::from(row[reflect(x0 + i as isize, plane.width)]);
+/// Crops a kernel to at most `max_size` (odd) samples a side, renormalised: a kernel
+/// wider than the block's margin could hold would wrap around the block.
+fn cropped(k: Kernel, max_size: usize) -> Kernel {
+    if k.size <= max_size {
+        return k;
+    }
+    let keep = max_size | 1;
+    let keep = if keep > max_size { keep - 2 } else { keep };
+    let off = (k.size - keep) / 2;
+    let mut data = Vec::with_capacity(keep * keep);
+    for j in 0..keep {
+        for i in 0..keep {
+            data.push(k.at(i + off, j + off));
         }
     }
-    let blurred = fft.convolve(&b, k);
-    let taper = (k.size + 4).min(grid.margin);
-    let ramp = |t: usize| -> f64 {
-        let d = t.min(n - 1 - t);
-        if d >= taper {
-            1.0
-        } else {
-            (std::f64::consts::FRAC_PI_2 * d as f64 / taper as f64)
-                .sin()
-                .powi(2)
-        }
+    let mut k = Kernel {
+        size: keep,
+        oversample: k.oversample,
+        data,
     };
-    for j in 0..n {
-        let ry = ramp(j);
-        for i in 0..n {
-            let a = ry * ramp(i);
-            let idx = j * n + i;
-            b[idx] = a * b[idx] + (1.0 - a) * blurred[idx];
-        }
-    }
-    b
+    k.normalise();
+    k
 }
 
-/// Deconvolves a whole plane with one kernel (already at plane resolution, 1×) through
-/// the same tiler: the spatially invariant baseline.
+/// Deconvolves a whole plane with one kernel (at plane resolution) through the same
+/// tiler: the spatially invariant baseline.
 ///
 /// # Errors
 /// Only on cancellation.
@@ -188,14 +247,67 @@ pub fn deblur_plane_invariant(
     opts: &DeblurOptions,
     job: &JobContext,
 ) -> Result<Plane, DeblurError> {
+    if plane.width == 0 || plane.height == 0 {
+        return Err(DeblurError::Empty);
+    }
     let k = k.resampled(1);
-    deblur_plane_with(
+    let grid = TileGrid::for_plane(plane.width, plane.height, k.size / 2, opts.tile_step_px);
+    deblur_plane_on_grid(
         plane,
         &|_x: f64, _y: f64| Ok(k.clone()),
-        k.size / 2,
-        opts,
+        &grid,
+        &opts.method,
         job,
     )
+}
+
+/// The 1× plane-resolution kernel of `source` at plane pixel (i, j) of `cp`.
+fn plane_kernel_at(
+    cp: &ChannelPlane,
+    sensor_width: usize,
+    sensor_height: usize,
+    source: &dyn KernelSource,
+    i: f64,
+    j: f64,
+) -> Result<Kernel, DeblurError> {
+    let [x, y] = cp.sensor_from_plane(i, j);
+    let x = x.clamp(0.0, (sensor_width.max(1) - 1) as f64);
+    let y = y.clamp(0.0, (sensor_height.max(1) - 1) as f64);
+    Ok(plane_kernel(&source.kernel_at(cp.channel, x, y)?, cp.step))
+}
+
+/// The tile grid [`deblur_channel_plane`] uses for a plane: the largest kernel sizes
+/// the margins, found on a 5 × 5 grid of probes over the plane (lens fields are smooth,
+/// so their extremes lie on or near it).
+///
+/// # Errors
+/// An empty plane, or a source that cannot supply a kernel.
+pub fn plane_tile_grid(
+    cp: &ChannelPlane,
+    sensor_width: usize,
+    sensor_height: usize,
+    source: &dyn KernelSource,
+    opts: &DeblurOptions,
+) -> Result<TileGrid, DeblurError> {
+    let plane = &cp.plane;
+    if plane.width == 0 || plane.height == 0 {
+        return Err(DeblurError::Empty);
+    }
+    let mut radius = 1usize;
+    for b in 0..5 {
+        for a in 0..5 {
+            let i = a as f64 / 4.0 * (plane.width - 1) as f64;
+            let j = b as f64 / 4.0 * (plane.height - 1) as f64;
+            let k = plane_kernel_at(cp, sensor_width, sensor_height, source, i, j)?;
+            radius = radius.max(k.size / 2);
+        }
+    }
+    Ok(TileGrid::for_plane(
+        plane.width,
+        plane.height,
+        radius,
+        opts.tile_step_px,
+    ))
 }
 
 /// Deblurs one channel plane of a capture with the kernels of `source` (asked in sensor
@@ -211,121 +323,149 @@ pub fn deblur_channel_plane(
     opts: &DeblurOptions,
     job: &JobContext,
 ) -> Result<Plane, DeblurError> {
-    let plane = &cp.plane;
-    if plane.width == 0 || plane.height == 0 {
-        return Err(DeblurError::Empty);
-    }
-    // Largest kernel over the plane: probe centre, edges and corners.
-    let mut radius = 1usize;
-    for &(fx, fy) in &[
-        (0.5, 0.5),
-        (0.0, 0.0),
-        (1.0, 0.0),
-        (0.0, 1.0),
-        (1.0, 1.0),
-        (0.5, 0.0),
-        (0.0, 0.5),
-        (1.0, 0.5),
-        (0.5, 1.0),
-    ] {
-        let x = fx * (sensor_width.max(1) - 1) as f64;
-        let y = fy * (sensor_height.max(1) - 1) as f64;
-        let k = plane_kernel(&source.kernel_at(cp.channel, x, y)?, cp.step);
-        radius = radius.max(k.size / 2);
-    }
-    let at = |i: f64, j: f64| -> Result<Kernel, DeblurError> {
-        let [x, y] = cp.sensor_from_plane(i, j);
-        let x = x.clamp(0.0, (sensor_width.max(1) - 1) as f64);
-        let y = y.clamp(0.0, (sensor_height.max(1) - 1) as f64);
-        Ok(plane_kernel(&source.kernel_at(cp.channel, x, y)?, cp.step))
-    };
-    deblur_plane_with(plane, &at, radius, opts, job)
+    let grid = plane_tile_grid(cp, sensor_width, sensor_height, source, opts)?;
+    let at = |i: f64, j: f64| plane_kernel_at(cp, sensor_width, sensor_height, source, i, j);
+    deblur_plane_on_grid(&cp.plane, &at, &grid, &opts.method, job)
 }
 
 type KernelAt<'a> = dyn Fn(f64, f64) -> Result<Kernel, DeblurError> + Sync + 'a;
 
-fn deblur_plane_with(
+/// Reads the `block_w × block_h` region with top-left plane pixel (x0, y0), reflected
+/// where it leaves the plane.
+fn read_block(
+    plane: &Plane,
+    x0: isize,
+    y0: isize,
+    block_w: usize,
+    block_h: usize,
+    out: &mut [f64],
+) {
+    let xs: Vec<usize> = (0..block_w)
+        .map(|i| reflect(x0 + i as isize, plane.width))
+        .collect();
+    for j in 0..block_h {
+        let sy = reflect(y0 + j as isize, plane.height);
+        let row = &plane.data[sy * plane.width..(sy + 1) * plane.width];
+        for (o, &sx) in out[j * block_w..(j + 1) * block_w].iter_mut().zip(&xs) {
+            *o = f64::from(row[sx]);
+        }
+    }
+}
+
+/// What one tile's solve needs: the deconvolver and its input and output blocks.
+struct Workspace {
+    dec: Deconvolver,
+    block: Vec<f64>,
+    x: Vec<f64>,
+}
+
+impl Workspace {
+    fn new(bw: usize, bh: usize) -> Self {
+        Self {
+            dec: Deconvolver::new(bw, bh),
+            block: vec![0.0; bw * bh],
+            x: vec![0.0; bw * bh],
+        }
+    }
+}
+
+/// A tile's result: its window-weighted pixels over the window's extent.
+struct TilePatch {
+    x0: isize,
+    y0: isize,
+    width: usize,
+    height: usize,
+    data: Vec<f32>,
+}
+
+fn deblur_plane_on_grid(
     plane: &Plane,
     kernel_at: &KernelAt<'_>,
-    radius: usize,
-    opts: &DeblurOptions,
+    grid: &TileGrid,
+    method: &Method,
     job: &JobContext,
 ) -> Result<Plane, DeblurError> {
     let (w, h) = (plane.width, plane.height);
     if w == 0 || h == 0 {
         return Err(DeblurError::Empty);
     }
-    let grid = TileGrid::for_radius(radius, opts.tile_core);
-    let fft = Fft2::new(grid.block, grid.block);
-    let window = grid.window();
-    let xs = grid.origins(w);
-    let ys = grid.origins(h);
-    let total = xs.len() * ys.len();
+    let (bw, bh) = (grid.x.block, grid.y.block);
+    let max_kernel = 2 * grid.x.margin_before.min(grid.y.margin_before) + 1;
+    let windows_x: Vec<Vec<f64>> = (0..grid.x.count).map(|t| grid.x.window(t)).collect();
+    let windows_y: Vec<Vec<f64>> = (0..grid.y.count).map(|t| grid.y.window(t)).collect();
+    let total = grid.tiles();
     let done = AtomicUsize::new(0);
-    let mut out = vec![0.0f64; w * h];
-    let core = grid.core;
-    for &y0 in &ys {
-        let row: Vec<Vec<f64>> = xs
-            .par_iter()
-            .map(|&x0| -> Result<Vec<f64>, DeblurError> {
+    // Solver workspaces (plans and buffers, megabytes each) live for the whole plane:
+    // a task takes one, or makes the first few, and gives it back.
+    let pool: Mutex<Vec<Workspace>> = Mutex::new(Vec::new());
+    let take = || {
+        pool.lock()
+            .ok()
+            .and_then(|mut p| p.pop())
+            .unwrap_or_else(|| Workspace::new(bw, bh))
+    };
+    let give = |ws: Workspace| {
+        if let Ok(mut p) = pool.lock() {
+            p.push(ws);
+        }
+    };
+    let mut out = Plane::new(w, h);
+    // One row of tiles at a time: memory holds one strip of patches, never the whole
+    // plane's, and the sum into `out` runs in a fixed order (deterministic output).
+    for (ty, wy) in windows_y.iter().enumerate() {
+        let patches: Vec<TilePatch> = (0..grid.x.count)
+            .into_par_iter()
+            .map(|tx| -> Result<TilePatch, DeblurError> {
                 job.check()?;
-                let cx = (x0 as f64 + (core as f64 - 1.0) / 2.0).clamp(0.0, (w - 1) as f64);
-                let cy = (y0 as f64 + (core as f64 - 1.0) / 2.0).clamp(0.0, (h - 1) as f64);
-                let mut k = kernel_at(cx, cy)?;
-                if k.size > grid.block / 2 {
-                    // A kernel wider than the margin can hold would wrap: crop it.
-                    let keep = (grid.block / 2) | 1;
-                    let off = (k.size - keep) / 2;
-                    let mut data = Vec::with_capacity(keep * keep);
-                    for j in 0..keep {
-                        for i in 0..keep {
-                            data.push(k.at(i + off, j + off));
-                        }
-                    }
-                    k = Kernel {
-                        size: keep,
-                        oversample: 1,
-                        data,
-                    };
-                    k.normalise();
+                let k = cropped(kernel_at(grid.x.centre(tx), grid.y.centre(ty))?, max_kernel);
+                let mut ws = take();
+                let Workspace { dec, block, x } = &mut ws;
+                read_block(
+                    plane,
+                    grid.x.block_start(tx),
+                    grid.y.block_start(ty),
+                    bw,
+                    bh,
+                    block,
+                );
+                dec.deconvolve_tapered(block, &k, grid.taper, method, x);
+                let wx = &windows_x[tx];
+                let (pw, ph) = (wx.len(), wy.len());
+                let (mx, my) = (grid.x.margin_before, grid.y.margin_before);
+                let mut data = Vec::with_capacity(pw * ph);
+                for (j, &wyv) in wy.iter().enumerate() {
+                    let row = &x[(j + my) * bw + mx..(j + my) * bw + mx + pw];
+                    data.extend(row.iter().zip(wx).map(|(v, wxv)| (v * wxv * wyv) as f32));
                 }
-                let m = grid.margin as isize;
-                let block = read_block(plane, x0 - m, y0 - m, &grid, &fft, &k);
-                let x = solve::deconvolve_block(&fft, &block, &k, &opts.method);
-                let mut tile = vec![0.0; core * core];
-                for j in 0..core {
-                    for i in 0..core {
-                        tile[j * core + i] = x[(j + grid.margin) * grid.block + i + grid.margin]
-                            * window[i]
-                            * window[j];
-                    }
-                }
+                give(ws);
                 let n = done.fetch_add(1, Ordering::Relaxed) + 1;
                 job.report("deblur", n, total);
-                Ok(tile)
+                Ok(TilePatch {
+                    x0: grid.x.window_start(tx),
+                    y0: grid.y.window_start(ty),
+                    width: pw,
+                    height: ph,
+                    data,
+                })
             })
             .collect::<Result<_, _>>()?;
-        for (tile, &x0) in row.iter().zip(&xs) {
-            for j in 0..core {
-                let y = y0 + j as isize;
+        for p in &patches {
+            for j in 0..p.height {
+                let y = p.y0 + j as isize;
                 if y < 0 || y >= h as isize {
                     continue;
                 }
-                for i in 0..core {
-                    let x = x0 + i as isize;
-                    if x < 0 || x >= w as isize {
-                        continue;
+                let orow = &mut out.data[y as usize * w..(y as usize + 1) * w];
+                for (i, &v) in p.data[j * p.width..(j + 1) * p.width].iter().enumerate() {
+                    let x = p.x0 + i as isize;
+                    if x >= 0 && x < w as isize {
+                        orow[x as usize] += v;
                     }
-                    out[y as usize * w + x as usize] += tile[j * core + i];
                 }
             }
         }
     }
-    Ok(Plane {
-        width: w,
-        height: h,
-        data: out.into_iter().map(|v| v as f32).collect(),
-    })
+    Ok(out)
 }
 
 /// Deblurs every plane of a capture (each CFA plane on its own for RAW, before any
@@ -352,21 +492,39 @@ mod tests {
 
     #[test]
     fn windows_sum_to_one() {
-        let g = TileGrid::for_radius(5, Some(64));
-        let win = g.window();
-        let n = 300;
-        let mut acc = vec![0.0; n];
-        for x0 in g.origins(n) {
-            for (t, &wv) in win.iter().enumerate() {
-                let x = x0 + t as isize;
-                if (0..n as isize).contains(&x) {
-                    acc[x as usize] += wv;
+        for (len, step, ramp) in [(300, 64, 16), (97, 20, 8), (1000, 333, 32), (40, 64, 16)] {
+            let axis = TileAxis::new(len, step, ramp, 20);
+            let mut acc = vec![0.0; len];
+            for t in 0..axis.count {
+                for (i, &wv) in axis.window(t).iter().enumerate() {
+                    let x = axis.window_start(t) + i as isize;
+                    if (0..len as isize).contains(&x) {
+                        acc[x as usize] += wv;
+                    }
                 }
             }
+            for (x, v) in acc.iter().enumerate() {
+                assert!((v - 1.0).abs() < 1e-12, "len {len} step {step}: {v} at {x}");
+            }
+            // Every window sits inside its block, past the margin.
+            for t in 0..axis.count {
+                assert!(axis.margin_before >= 20);
+                assert!(axis.block >= axis.margin_before + axis.window_len() + 20);
+                assert_eq!(
+                    axis.block_start(t) + axis.margin_before as isize,
+                    axis.window_start(t)
+                );
+            }
         }
-        for v in acc {
-            assert!((v - 1.0).abs() < 1e-12, "{v}");
-        }
+    }
+
+    #[test]
+    fn tiles_follow_the_plane_and_the_kernel() {
+        let big = TileGrid::for_plane(3888, 2592, 12, None);
+        assert!(big.x.count >= 8 && big.x.step <= 512, "{big:?}");
+        let small = TileGrid::for_plane(384, 256, 10, None);
+        assert!(small.x.step >= 40, "{small:?}");
+        assert!(TileGrid::margin_for(10) > 2 * 10);
     }
 
     #[test]

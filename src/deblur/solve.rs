@@ -109,32 +109,316 @@ impl Method {
     }
 }
 
-/// Deconvolves one periodic `fft.width × fft.height` block `y` with the 1× kernel `k`.
-#[must_use]
-pub fn deconvolve_block(fft: &Fft2, y: &[f64], k: &Kernel, method: &Method) -> Vec<f64> {
-    let k1;
-    let k = if k.oversample == 1 {
-        k
-    } else {
-        k1 = k.resampled(1);
-        &k1
-    };
-    match method {
-        Method::Wiener(p) => wiener(fft, y, k, p.nsr),
-        Method::Hqs(p) => hqs(fft, y, k, p),
-        Method::Irls(p) => irls(fft, y, k, p),
+/// Deconvolves periodic blocks of one size: FFT plans, the gradient spectrum and every
+/// buffer a solve needs, allocated once and reused block after block. One per worker
+/// thread.
+#[derive(Clone, Debug)]
+pub struct Deconvolver {
+    fft: Fft2,
+    /// |D_x|² + |D_y|² per half-spectrum entry: the same for every block of this size.
+    grad_energy: Vec<f64>,
+    otf: Vec<Complex64>,
+    spec: Vec<Complex64>,
+    num: Vec<Complex64>,
+    den: Vec<f64>,
+    real_a: Vec<f64>,
+    real_b: Vec<f64>,
+    real_c: Vec<f64>,
+    row_a: Vec<f64>,
+    row_b: Vec<f64>,
+    row_c: Vec<f64>,
+}
+
+impl Deconvolver {
+    #[must_use]
+    pub fn new(width: usize, height: usize) -> Self {
+        let fft = Fft2::new(width, height);
+        let n = width * height;
+        Self {
+            grad_energy: fft.gradient_energy(),
+            otf: fft.new_spectrum(),
+            spec: fft.new_spectrum(),
+            num: fft.new_spectrum(),
+            den: vec![0.0; fft.spectrum_len()],
+            real_a: vec![0.0; n],
+            real_b: vec![0.0; n],
+            real_c: vec![0.0; n],
+            row_a: vec![0.0; width],
+            row_b: vec![0.0; width],
+            row_c: vec![0.0; width],
+            fft,
+        }
+    }
+
+    #[must_use]
+    pub fn width(&self) -> usize {
+        self.fft.width
+    }
+
+    #[must_use]
+    pub fn height(&self) -> usize {
+        self.fft.height
+    }
+
+    /// The FFT this deconvolver works with (for convolving blocks of the same size).
+    pub fn fft_mut(&mut self) -> &mut Fft2 {
+        &mut self.fft
+    }
+
+    fn set_kernel(&mut self, k: &Kernel) {
+        let k1;
+        let k = if k.oversample == 1 {
+            k
+        } else {
+            k1 = k.resampled(1);
+            &k1
+        };
+        self.fft.otf_into(k, &mut self.real_a, &mut self.otf);
+    }
+
+    /// Deconvolves the periodic block `y` (row-major, `width × height`) with the kernel
+    /// `k` (resampled to 1× if need be) into `x`.
+    ///
+    /// # Panics
+    /// On wrongly sized buffers, or a kernel larger than the block.
+    pub fn deconvolve(&mut self, y: &[f64], k: &Kernel, method: &Method, x: &mut [f64]) {
+        self.set_kernel(k);
+        self.solve(y, method, x);
+    }
+
+    /// Deconvolves a block cut from a larger image: its outer `taper_px` pixels are
+    /// first blended toward the block blurred by `k` (circularly), which makes the
+    /// block consistent with a periodic blur so the solver does not ring at its edges.
+    /// `block` is modified in place.
+    ///
+    /// # Panics
+    /// As [`Self::deconvolve`].
+    pub fn deconvolve_tapered(
+        &mut self,
+        block: &mut [f64],
+        k: &Kernel,
+        taper_px: usize,
+        method: &Method,
+        x: &mut [f64],
+    ) {
+        self.set_kernel(k);
+        let (w, h) = (self.width(), self.height());
+        let taper = taper_px.min(w / 2).min(h / 2);
+        if taper > 0 {
+            self.fft.forward(block, &mut self.spec);
+            for (s, o) in self.spec.iter_mut().zip(&self.otf) {
+                *s *= o;
+            }
+            self.fft.inverse(&mut self.spec, &mut self.real_b);
+            let ramp = |t: usize, n: usize| -> f64 {
+                let d = t.min(n - 1 - t);
+                if d >= taper {
+                    1.0
+                } else {
+                    (std::f64::consts::FRAC_PI_2 * (d as f64 + 0.5) / taper as f64)
+                        .sin()
+                        .powi(2)
+                }
+            };
+            for j in 0..h {
+                let ry = ramp(j, h);
+                let row = j * w..(j + 1) * w;
+                for (i, (b, &blurred)) in block[row.clone()]
+                    .iter_mut()
+                    .zip(&self.real_b[row])
+                    .enumerate()
+                {
+                    let a = ry * ramp(i, w);
+                    *b = a * *b + (1.0 - a) * blurred;
+                }
+            }
+        }
+        self.solve(block, method, x);
+    }
+
+    fn solve(&mut self, y: &[f64], method: &Method, x: &mut [f64]) {
+        let n = self.width() * self.height();
+        assert!(y.len() == n && x.len() == n, "block sizes");
+        match method {
+            Method::Wiener(p) => self.wiener(y, p.nsr, x),
+            Method::Hqs(p) => self.hqs(y, p, x),
+            Method::Irls(p) => self.irls(y, p, x),
+        }
+    }
+
+    fn wiener(&mut self, y: &[f64], nsr: f64, x: &mut [f64]) {
+        self.fft.forward(y, &mut self.spec);
+        for ((s, o), g) in self.spec.iter_mut().zip(&self.otf).zip(&self.grad_energy) {
+            *s = o.conj() * *s / (o.norm_sqr() + nsr * g);
+        }
+        self.fft.inverse(&mut self.spec, x);
+    }
+
+    /// Krishnan & Fergus: alternate the per-pixel shrinkage of the gradients (w-step)
+    /// with the quadratic x-step, solved exactly in the Fourier domain:
+    /// X = (λ K̄Y + β Σ D̄ W) / (λ|K|² + β Σ|D|²). Σ D̄ W is the spectrum of the
+    /// divergence Σ Dᵀw, formed in space, so each step costs one forward and one
+    /// inverse transform.
+    fn hqs(&mut self, y: &[f64], p: &HqsParams, x: &mut [f64]) {
+        let (w, h) = (self.width(), self.height());
+        self.fft.forward(y, &mut self.spec);
+        for ((num, s), o) in self.num.iter_mut().zip(&self.spec).zip(&self.otf) {
+            *num = o.conj() * s * p.lambda;
+        }
+        for (d, o) in self.den.iter_mut().zip(&self.otf) {
+            *d = p.lambda * o.norm_sqr();
+        }
+        x.copy_from_slice(y);
+        let mut beta = p.beta_start;
+        while beta <= p.beta_max * (1.0 + 1e-9) {
+            let lut = shared_lut(beta, p.alpha);
+            // w-step and divergence Dxᵀwx + Dyᵀwy in one pass over the rows, with
+            // (Dᵀg)(i) = g(i − 1) − g(i): a row's divergence needs its own shrunk
+            // gradients and the previous row's wy, which wraps to the last row's.
+            let (wx, wy, wy_prev) = (&mut self.row_a, &mut self.row_b, &mut self.row_c);
+            {
+                let (last, first) = (&x[(h - 1) * w..], &x[..w]);
+                for ((o, &a), &b) in wy_prev.iter_mut().zip(last).zip(first) {
+                    *o = lut.eval(b - a);
+                }
+            }
+            for r in 0..h {
+                let rn = if r + 1 == h { 0 } else { r + 1 };
+                let row = &x[r * w..(r + 1) * w];
+                let next = &x[rn * w..(rn + 1) * w];
+                for c in 0..w - 1 {
+                    wx[c] = lut.eval(row[c + 1] - row[c]);
+                }
+                wx[w - 1] = lut.eval(row[0] - row[w - 1]);
+                for ((o, &a), &b) in wy.iter_mut().zip(row).zip(next) {
+                    *o = lut.eval(b - a);
+                }
+                let div = &mut self.real_c[r * w..(r + 1) * w];
+                div[0] = wx[w - 1] - wx[0] + wy_prev[0] - wy[0];
+                for c in 1..w {
+                    div[c] = wx[c - 1] - wx[c] + wy_prev[c] - wy[c];
+                }
+                std::mem::swap(wy, wy_prev);
+            }
+            self.fft.forward(&self.real_c, &mut self.spec);
+            for (((s, num), den), g) in self
+                .spec
+                .iter_mut()
+                .zip(&self.num)
+                .zip(&self.den)
+                .zip(&self.grad_energy)
+            {
+                *s = (num + *s * beta) * (1.0 / (den + beta * g));
+            }
+            self.fft.inverse(&mut self.spec, x);
+            beta *= p.beta_rate;
+        }
+    }
+
+    /// Applies KᵀK + μ Σ Dᵀ W D to `v` (into `out`), W the IRLS weights.
+    fn irls_apply(&mut self, v: &[f64], wx: &[f64], wy: &[f64], mu: f64, out: &mut [f64]) {
+        let (w, h) = (self.width(), self.height());
+        self.fft.forward(v, &mut self.spec);
+        for (s, o) in self.spec.iter_mut().zip(&self.otf) {
+            *s *= o.norm_sqr();
+        }
+        self.fft.inverse(&mut self.spec, out);
+        // Weighted gradients in real_a (x) and real_b (y), then their divergence.
+        for r in 0..h {
+            let rn = if r + 1 == h { 0 } else { r + 1 };
+            for c in 0..w {
+                let cn = if c + 1 == w { 0 } else { c + 1 };
+                let i = r * w + c;
+                self.real_a[i] = wx[i] * (v[r * w + cn] - v[i]);
+                self.real_b[i] = wy[i] * (v[rn * w + c] - v[i]);
+            }
+        }
+        for r in 0..h {
+            let rp = if r == 0 { h - 1 } else { r - 1 };
+            for c in 0..w {
+                let cp = if c == 0 { w - 1 } else { c - 1 };
+                let i = r * w + c;
+                let div = self.real_a[r * w + cp] - self.real_a[i] + self.real_b[rp * w + c]
+                    - self.real_b[i];
+                out[i] += mu * div;
+            }
+        }
+    }
+
+    /// Levin et al.: minimise λ/2‖k ∗ x − y‖² + Σ|∇x|^α by reweighted least squares,
+    /// each reweighted system (KᵀK + (α/λ) Σ Dᵀ W D) x = Kᵀy solved by conjugate
+    /// gradients from the previous estimate.
+    fn irls(&mut self, y: &[f64], p: &IrlsParams, x: &mut [f64]) {
+        let (w, h) = (self.width(), self.height());
+        let n = w * h;
+        // Kᵀy.
+        self.fft.forward(y, &mut self.spec);
+        for (s, o) in self.spec.iter_mut().zip(&self.otf) {
+            *s *= o.conj();
+        }
+        let mut rhs = vec![0.0; n];
+        self.fft.inverse(&mut self.spec, &mut rhs);
+        // A mildly regularised Wiener estimate starts the iterations near the answer.
+        self.wiener(y, 0.01, x);
+        let mu = p.alpha / p.lambda;
+        let (mut wx, mut wy) = (vec![0.0; n], vec![0.0; n]);
+        let (mut r, mut d, mut ad) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        for _ in 0..p.outer {
+            let weight = |g: f64| g.abs().max(p.epsilon).powf(p.alpha - 2.0);
+            for row in 0..h {
+                let rn = if row + 1 == h { 0 } else { row + 1 };
+                for c in 0..w {
+                    let cn = if c + 1 == w { 0 } else { c + 1 };
+                    let i = row * w + c;
+                    wx[i] = weight(x[row * w + cn] - x[i]);
+                    wy[i] = weight(x[rn * w + c] - x[i]);
+                }
+            }
+            self.irls_apply(x, &wx, &wy, mu, &mut ad);
+            for i in 0..n {
+                r[i] = rhs[i] - ad[i];
+            }
+            d.copy_from_slice(&r);
+            let mut rr: f64 = r.iter().map(|v| v * v).sum();
+            for _ in 0..p.cg_iterations {
+                if rr < 1e-20 {
+                    break;
+                }
+                self.irls_apply(&d, &wx, &wy, mu, &mut ad);
+                let dad: f64 = d.iter().zip(&ad).map(|(a, b)| a * b).sum();
+                if dad <= 0.0 {
+                    break;
+                }
+                let step = rr / dad;
+                for i in 0..n {
+                    x[i] += step * d[i];
+                    r[i] -= step * ad[i];
+                }
+                let rr_new: f64 = r.iter().map(|v| v * v).sum();
+                let b = rr_new / rr;
+                rr = rr_new;
+                for i in 0..n {
+                    d[i] = r[i] + b * d[i];
+                }
+            }
+        }
     }
 }
 
-fn wiener(fft: &Fft2, y: &[f64], k: &Kernel, nsr: f64) -> Vec<f64> {
-    let otf = fft.otf(k);
-    let (dx, dy) = fft.gradient_otfs();
-    let mut s = fft.forward_real(y);
-    for i in 0..s.len() {
-        let d2 = dx[i].norm_sqr() + dy[i].norm_sqr();
-        s[i] = otf[i].conj() * s[i] / (otf[i].norm_sqr() + nsr * d2);
-    }
-    fft.inverse_real(s)
+/// Deconvolves one periodic `width × height` block `y` with the kernel `k`: a one-off
+/// convenience over [`Deconvolver`].
+#[must_use]
+pub fn deconvolve_block(
+    y: &[f64],
+    width: usize,
+    height: usize,
+    k: &Kernel,
+    method: &Method,
+) -> Vec<f64> {
+    let mut d = Deconvolver::new(width, height);
+    let mut x = vec![0.0; width * height];
+    d.deconvolve(y, k, method, &mut x);
+    x
 }
 
 /// argmin_w β/2 (w − v)² + |w|^α for α ∈ (0, 1): the larger stationary point found by
@@ -174,7 +458,8 @@ pub fn shrink_hyper_laplacian(v: f64, beta: f64, alpha: f64) -> f64 {
 fn shared_lut(beta: f64, alpha: f64) -> std::sync::Arc<ShrinkLut> {
     use std::collections::HashMap;
     use std::sync::{Arc, Mutex, OnceLock};
-    static CACHE: OnceLock<Mutex<HashMap<(u64, u64), Arc<ShrinkLut>>>> = OnceLock::new();
+    type Cache = Mutex<HashMap<(u64, u64), Arc<ShrinkLut>>>;
+    static CACHE: OnceLock<Cache> = OnceLock::new();
     let key = (beta.to_bits(), alpha.to_bits());
     let cache = CACHE.get_or_init(|| Mutex::new(HashMap::new()));
     if let Some(l) = cache.lock().ok().and_then(|m| m.get(&key).cloned()) {
@@ -182,203 +467,62 @@ fn shared_lut(beta: f64, alpha: f64) -> std::sync::Arc<ShrinkLut> {
     }
     let lut = Arc::new(ShrinkLut::new(beta, alpha));
     if let Ok(mut m) = cache.lock() {
+        // A default solve uses six tables; a studio slider sweeping α or β must not
+        // grow the cache without bound (each table is 128 kB).
+        if m.len() >= 64 {
+            m.clear();
+        }
         m.insert(key, Arc::clone(&lut));
     }
     lut
 }
 
 struct ShrinkLut {
-    step: f64,
+    inv_step: f64,
     range: f64,
-    table: Vec<f64>,
+    /// Interpolation nodes as (value, slope to the next node): one load per lookup.
+    nodes: Vec<[f64; 2]>,
+    /// Index of the last node, as a float: the lookup's bound.
+    last: f64,
     beta: f64,
     alpha: f64,
 }
 
 impl ShrinkLut {
     fn new(beta: f64, alpha: f64) -> Self {
-        let range = 1.5;
-        let n = 6000;
+        // Gradients of [0, 1] images stay well inside ±2 even while HQS overshoots;
+        // beyond, the exact solve.
+        let range = 2.0;
+        let n = 8000;
         let step = 2.0 * range / n as f64;
-        let table = (0..=n)
+        let values: Vec<f64> = (0..=n)
             .map(|i| shrink_hyper_laplacian(-range + i as f64 * step, beta, alpha))
             .collect();
+        let nodes = values.windows(2).map(|p| [p[0], p[1] - p[0]]).collect();
         Self {
-            step,
+            inv_step: 1.0 / step,
             range,
-            table,
+            nodes,
+            last: n as f64,
             beta,
             alpha,
         }
     }
 
+    #[inline]
     fn eval(&self, v: f64) -> f64 {
-        if v.abs() >= self.range {
-            return shrink_hyper_laplacian(v, self.beta, self.alpha);
-        }
-        let t = (v + self.range) / self.step;
-        let i = (t as usize).min(self.table.len() - 2);
-        let f = t - i as f64;
-        self.table[i] * (1.0 - f) + self.table[i + 1] * f
-    }
-}
-
-fn grad_x(x: &[f64], w: usize, h: usize) -> Vec<f64> {
-    let mut g = vec![0.0; w * h];
-    for r in 0..h {
-        let row = &x[r * w..(r + 1) * w];
-        for c in 0..w {
-            g[r * w + c] = row[(c + 1) % w] - row[c];
+        let t = (v + self.range) * self.inv_step;
+        // Written so NaN fails the test and takes the exact path (which maps it to 0).
+        if t >= 0.0 && t < self.last {
+            // Through i64: the conversions to and from it are single instructions on
+            // every x86-64, those of usize are not.
+            let i = t as i64;
+            let [a, slope] = self.nodes[i as usize];
+            a + slope * (t - i as f64)
+        } else {
+            shrink_hyper_laplacian(v, self.beta, self.alpha)
         }
     }
-    g
-}
-
-fn grad_y(x: &[f64], w: usize, h: usize) -> Vec<f64> {
-    let mut g = vec![0.0; w * h];
-    for r in 0..h {
-        let rn = (r + 1) % h;
-        for c in 0..w {
-            g[r * w + c] = x[rn * w + c] - x[r * w + c];
-        }
-    }
-    g
-}
-
-/// Adjoint of `grad_x`: (Dᵀg)(c) = g(c−1) − g(c).
-fn grad_x_t(g: &[f64], w: usize, h: usize) -> Vec<f64> {
-    let mut o = vec![0.0; w * h];
-    for r in 0..h {
-        for c in 0..w {
-            o[r * w + c] = g[r * w + (c + w - 1) % w] - g[r * w + c];
-        }
-    }
-    o
-}
-
-fn grad_y_t(g: &[f64], w: usize, h: usize) -> Vec<f64> {
-    let mut o = vec![0.0; w * h];
-    for r in 0..h {
-        let rp = (r + h - 1) % h;
-        for c in 0..w {
-            o[r * w + c] = g[rp * w + c] - g[r * w + c];
-        }
-    }
-    o
-}
-
-fn hqs(fft: &Fft2, y: &[f64], k: &Kernel, p: &HqsParams) -> Vec<f64> {
-    let (w, h) = (fft.width, fft.height);
-    let otf = fft.otf(k);
-    let (dx, dy) = fft.gradient_otfs();
-    let ys = fft.forward_real(y);
-    // λ K̄Y and λ|K|² are fixed across β.
-    let num_data: Vec<Complex64> = otf
-        .iter()
-        .zip(&ys)
-        .map(|(kk, yy)| kk.conj() * yy * p.lambda)
-        .collect();
-    let den_data: Vec<f64> = otf.iter().map(|kk| p.lambda * kk.norm_sqr()).collect();
-    let den_grad: Vec<f64> = dx
-        .iter()
-        .zip(&dy)
-        .map(|(a, b)| a.norm_sqr() + b.norm_sqr())
-        .collect();
-    let mut x = y.to_vec();
-    let mut beta = p.beta_start;
-    while beta <= p.beta_max * (1.0 + 1e-9) {
-        let lut = shared_lut(beta, p.alpha);
-        let wx: Vec<f64> = grad_x(&x, w, h).into_iter().map(|v| lut.eval(v)).collect();
-        let wy: Vec<f64> = grad_y(&x, w, h).into_iter().map(|v| lut.eval(v)).collect();
-        let sx = fft.forward_real(&wx);
-        let sy = fft.forward_real(&wy);
-        let mut s = vec![Complex64::new(0.0, 0.0); w * h];
-        for i in 0..s.len() {
-            let num = num_data[i] + beta * (dx[i].conj() * sx[i] + dy[i].conj() * sy[i]);
-            s[i] = num / (den_data[i] + beta * den_grad[i]);
-        }
-        x = fft.inverse_real(s);
-        beta *= p.beta_rate;
-    }
-    x
-}
-
-fn irls(fft: &Fft2, y: &[f64], k: &Kernel, p: &IrlsParams) -> Vec<f64> {
-    let (w, h) = (fft.width, fft.height);
-    let otf = fft.otf(k);
-    let k2: Vec<f64> = otf.iter().map(Complex64::norm_sqr).collect();
-    let apply_ktk = |x: &[f64]| -> Vec<f64> {
-        let mut s = fft.forward_real(x);
-        for (a, &b) in s.iter_mut().zip(&k2) {
-            *a *= b;
-        }
-        fft.inverse_real(s)
-    };
-    // Right-hand side Kᵀy.
-    let rhs = {
-        let mut s = fft.forward_real(y);
-        for (a, b) in s.iter_mut().zip(&otf) {
-            *a *= b.conj();
-        }
-        fft.inverse_real(s)
-    };
-    let mut x = wiener(fft, y, k, 0.01);
-    let mu = p.alpha / p.lambda;
-    for _ in 0..p.outer {
-        let weight = |g: Vec<f64>| -> Vec<f64> {
-            g.into_iter()
-                .map(|v| v.abs().max(p.epsilon).powf(p.alpha - 2.0))
-                .collect()
-        };
-        let wx = weight(grad_x(&x, w, h));
-        let wy = weight(grad_y(&x, w, h));
-        let apply = |v: &[f64]| -> Vec<f64> {
-            let mut out = apply_ktk(v);
-            let gx: Vec<f64> = grad_x(v, w, h)
-                .iter()
-                .zip(&wx)
-                .map(|(a, b)| a * b)
-                .collect();
-            let gy: Vec<f64> = grad_y(v, w, h)
-                .iter()
-                .zip(&wy)
-                .map(|(a, b)| a * b)
-                .collect();
-            let tx = grad_x_t(&gx, w, h);
-            let ty = grad_y_t(&gy, w, h);
-            for i in 0..out.len() {
-                out[i] += mu * (tx[i] + ty[i]);
-            }
-            out
-        };
-        // Conjugate gradients from the current estimate.
-        let ax = apply(&x);
-        let mut r: Vec<f64> = rhs.iter().zip(&ax).map(|(a, b)| a - b).collect();
-        let mut d = r.clone();
-        let mut rr: f64 = r.iter().map(|v| v * v).sum();
-        for _ in 0..p.cg_iterations {
-            if rr < 1e-20 {
-                break;
-            }
-            let ad = apply(&d);
-            let dad: f64 = d.iter().zip(&ad).map(|(a, b)| a * b).sum();
-            if dad <= 0.0 {
-                break;
-            }
-            let step = rr / dad;
-            for i in 0..x.len() {
-                x[i] += step * d[i];
-                r[i] -= step * ad[i];
-            }
-            let rr_new: f64 = r.iter().map(|v| v * v).sum();
-            let b = rr_new / rr;
-            rr = rr_new;
-            for i in 0..d.len() {
-                d[i] = r[i] + b * d[i];
-            }
-        }
-    }
-    x
 }
 
 #[cfg(test)]

@@ -54,6 +54,60 @@ pub fn load_kernels(path: &Path) -> Result<KernelsFile, SourceError> {
     })
 }
 
+/// Largest kernel radius a file may describe, sensor pixels: far past any lens blur a
+/// deconvolver can undo, and it keeps a corrupt file from sizing absurd tiles.
+pub const MAX_KERNEL_RADIUS_PX: f64 = 64.0;
+
+/// Why a kernels-file sample cannot be used, or `None`.
+fn sample_problem(
+    s: &KernelSample,
+    oversample: usize,
+    width: usize,
+    height: usize,
+) -> Option<String> {
+    let (w, h) = (width as f64, height as f64);
+    if !(s.x.is_finite() && s.y.is_finite())
+        || s.x < -w
+        || s.x > 2.0 * w
+        || s.y < -h
+        || s.y > 2.0 * h
+    {
+        return Some(format!("position ({}, {}) is off the sensor", s.x, s.y));
+    }
+    let gaussian = match (s.cxx, s.cyy) {
+        (Some(sx), Some(sy)) => {
+            let rho = s.cor.unwrap_or(0.0);
+            let ok = |v: f64| v.is_finite() && v > 0.0 && v <= MAX_KERNEL_RADIUS_PX / 4.0;
+            if !(ok(sx) && ok(sy)) {
+                return Some(format!("cxx, cyy = {sx}, {sy} must be positive σs (px)"));
+            }
+            if !(rho.is_finite() && rho.abs() < 1.0) {
+                return Some(format!("cor = {rho} must lie in (−1, 1)"));
+            }
+            true
+        }
+        (None, None) => false,
+        _ => return Some("cxx and cyy must come together".into()),
+    };
+    if let Some(k) = &s.kernel {
+        if k.size as f64 / 2.0 / oversample as f64 > MAX_KERNEL_RADIUS_PX {
+            return Some(format!(
+                "a {0} × {0} kernel at {oversample}× is wider than {MAX_KERNEL_RADIUS_PX} px",
+                k.size
+            ));
+        }
+        if k.data.iter().any(|v| !v.is_finite()) {
+            return Some("the kernel holds a non-finite value".into());
+        }
+        if k.data.iter().sum::<f64>() <= 0.0 {
+            return Some("the kernel does not sum to a positive value".into());
+        }
+    } else if !gaussian {
+        return Some("neither a Gaussian (cxx, cyy) nor a kernel".into());
+    }
+    None
+}
+
 /// Which half of a kernels-file sample to use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Prefer {
@@ -75,6 +129,7 @@ pub struct ScatteredKernels {
 }
 
 impl ScatteredKernels {
+    /// Kernels from a file the caller vouches for (see [`Self::checked`]).
     #[must_use]
     pub fn new(file: KernelsFile, prefer: Prefer) -> Self {
         Self {
@@ -82,6 +137,27 @@ impl ScatteredKernels {
             prefer,
             neighbours: 4,
         }
+    }
+
+    /// Kernels from a file read from disk: every sample must be usable, `origin` names
+    /// the file in the error.
+    ///
+    /// # Errors
+    /// No samples, or the first unusable sample and why.
+    pub fn checked(file: KernelsFile, prefer: Prefer, origin: &str) -> Result<Self, SourceError> {
+        let err = |reason: String| SourceError::File {
+            path: origin.into(),
+            reason,
+        };
+        if file.samples.is_empty() {
+            return Err(err("no kernel samples".into()));
+        }
+        for (i, s) in file.samples.iter().enumerate() {
+            if let Some(p) = sample_problem(s, file.oversample, file.width, file.height) {
+                return Err(err(format!("sample {i} ({}): {p}", s.channel)));
+            }
+        }
+        Ok(Self::new(file, prefer))
     }
 
     fn sample_kernel(&self, s: &KernelSample) -> Option<Kernel> {
