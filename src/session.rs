@@ -435,6 +435,8 @@ pub struct DemoSpec {
     pub height: usize,
     pub settings: Vec<LensSetting>,
     pub seed: u64,
+    /// The chart printed in the demo's shots.
+    pub chart: ChartSpec,
 }
 
 impl DemoSpec {
@@ -462,24 +464,34 @@ impl DemoSpec {
                 })
             })
             .collect();
+        // Fewer squares on small shots so each square still spans enough pixels to
+        // measure a kernel.
+        let mut chart = ChartSpec::default();
+        if width < 1000 {
+            chart.cols = 12;
+            chart.rows = 8;
+        }
         Self {
             width,
             height,
             settings,
             seed: 7,
+            chart,
         }
     }
 
-    /// The chart for a demo of this size: fewer squares on small shots so each square
-    /// still spans enough pixels to measure a kernel.
+    /// The same demo with a chart of `cols` × `rows` squares.
+    #[must_use]
+    pub fn with_chart(mut self, cols: usize, rows: usize) -> Self {
+        self.chart.cols = cols;
+        self.chart.rows = rows;
+        self
+    }
+
+    /// The chart printed in the demo's shots.
     #[must_use]
     pub fn chart(&self) -> ChartSpec {
-        let mut c = ChartSpec::default();
-        if self.width < 1000 {
-            c.cols = 12;
-            c.rows = 8;
-        }
-        c
+        self.chart.clone()
     }
 
     /// File name of the demo shot for a setting.

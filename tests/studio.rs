@@ -45,6 +45,8 @@ fn step_until(
         h.run_steps(1);
         std::thread::sleep(Duration::from_millis(20));
     }
+    // Where the test's time goes (shown with --nocapture).
+    eprintln!("{what}: {:.1} s", start.elapsed().as_secs_f32());
     h.run_steps(2);
 }
 
@@ -62,6 +64,14 @@ impl egui::DroppedFile for DroppedPath {
 
 fn dropped(p: &Path) -> egui::DroppedFileHandle {
     std::sync::Arc::new(DroppedPath(p.to_path_buf()))
+}
+
+/// A snapshot without the pointer: a button left hovered after a click (and the tooltip
+/// that appears once the pointer rests long enough) would depend on how many frames ran.
+fn snapshot(h: &mut Harness<'_, StudioApp>, name: &str) {
+    h.remove_cursor();
+    h.run_steps(2);
+    h.snapshot(name);
 }
 
 fn demo_ready(app: &StudioApp) -> bool {
@@ -91,7 +101,7 @@ fn every_view_on_the_demo_session() {
         dir.path().join("session.json").is_file(),
         "the demo session is cached"
     );
-    h.snapshot("studio_shot");
+    snapshot(&mut h, "studio_shot");
 
     // Detect every shot by clicking, then the overlays line up with the squares.
     h.get_by_label("Detect").click();
@@ -106,7 +116,7 @@ fn every_view_on_the_demo_session() {
             "every square of the demo chart is aligned"
         );
     }
-    h.snapshot("studio_shot_detected");
+    snapshot(&mut h, "studio_shot_detected");
 
     // Inspect one square: its crops appear beside the shot.
     h.state_mut().commands.push(Command::SelectSquare((3, 5)));
@@ -121,7 +131,7 @@ fn every_view_on_the_demo_session() {
         rms < 0.05,
         "aligned square explains the pixels: residual rms {rms}"
     );
-    h.snapshot("studio_square_inspector");
+    snapshot(&mut h, "studio_square_inspector");
 
     // Kernels on every detected shot, by clicking; the field shows the measured fits.
     h.get_by_label("Kernels").click();
@@ -150,7 +160,7 @@ fn every_view_on_the_demo_session() {
     h.get_by_label("Kernel field").click();
     h.run_steps(3);
     assert_eq!(h.state().view, View::KernelField);
-    h.snapshot("studio_kernel_field");
+    snapshot(&mut h, "studio_kernel_field");
 
     // Calibrate: cross-validation chooses α and β, the profile is written.
     h.get_by_label("Models").click();
@@ -164,27 +174,27 @@ fn every_view_on_the_demo_session() {
         dir.path().join("profile.json").is_file(),
         "profile saved in the session"
     );
-    h.snapshot("studio_models");
+    snapshot(&mut h, "studio_models");
 
     h.get_by_label("Sweeps").click();
     h.run_steps(3);
-    h.snapshot("studio_sweeps");
+    snapshot(&mut h, "studio_sweeps");
 
     h.get_by_label("Kernel field").click();
     h.run_steps(2);
     h.get_by_label("Predicted").click();
     h.run_steps(3);
-    h.snapshot("studio_kernel_field_predicted");
+    snapshot(&mut h, "studio_kernel_field_predicted");
     h.get_by_label("Ground truth").click();
     h.run_steps(2);
     h.get_by_label("Compare with a second unit").click();
     h.run_steps(3);
     assert!(h.state().compare_units);
-    h.snapshot("studio_kernel_field_compare");
+    snapshot(&mut h, "studio_kernel_field_compare");
 
     h.get_by_label("Deblur").click();
     h.run_steps(3);
-    h.snapshot("studio_deblur");
+    snapshot(&mut h, "studio_deblur");
 
     // The cached demo opens at once on the next launch.
     drop(h);
@@ -199,7 +209,11 @@ fn every_view_on_the_demo_session() {
 #[test]
 fn light_theme_and_user_session() {
     let demo = tempfile::tempdir().expect("temp dir");
-    let folder = tempfile::tempdir().expect("temp dir");
+    let parent = tempfile::tempdir().expect("temp dir");
+    // A named folder: the session takes its name from it, and the UI shows it.
+    let folder_path = parent.path().join("my session");
+    std::fs::create_dir(&folder_path).expect("session folder");
+    let folder = &folder_path;
     // A user's shot: a PNG of the chart.
     let spec = lensblur::chart::ChartSpec {
         cols: 6,
@@ -213,10 +227,10 @@ fn light_theme_and_user_session() {
     let img = image::GrayImage::from_fn(320, 240, |x, y| {
         image::Luma([(plane.get(x as usize, y as usize) * 255.0) as u8])
     });
-    let shot = folder.path().join("my_shot.png");
+    let shot = folder.join("my_shot.png");
     img.save(&shot).expect("write shot");
 
-    let mut h = new_harness(demo.path(), Some(folder.path()));
+    let mut h = new_harness(demo.path(), Some(folder));
     h.run_steps(2);
     assert!(
         h.state()
@@ -232,11 +246,10 @@ fn light_theme_and_user_session() {
     step_until(&mut h, "the dropped shot", Duration::from_secs(30), |a| {
         a.previews.len() == 1
     });
-    let saved =
-        lensblur::session::Session::open(folder.path()).expect("session saved as it changes");
+    let saved = lensblur::session::Session::open(folder).expect("session saved as it changes");
     assert_eq!(saved.shots.len(), 1);
     // A file of the wrong kind is refused with a message naming it.
-    let bad = folder.path().join("notes.txt");
+    let bad = folder.join("notes.txt");
     std::fs::write(&bad, b"x").expect("write");
     h.input_mut().dropped_files.push(dropped(&bad));
     h.run_steps(2);
@@ -246,5 +259,5 @@ fn light_theme_and_user_session() {
             .iter()
             .any(|m| m.is_error && m.text.contains("notes.txt"))
     );
-    h.snapshot("studio_user_session_light");
+    snapshot(&mut h, "studio_user_session_light");
 }

@@ -52,7 +52,7 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                         "calibrated on {} samples from {} shots; {kind} model preferred; profile saved to {}",
                         dataset.samples.len(),
                         dataset.shots.len(),
-                        path.display()
+                        app.shown_path(&path)
                     ));
                     if let Some(s) = app.session.as_mut() {
                         s.profile = Some(path.clone());
@@ -67,7 +67,7 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                     path,
                     compare,
                 } => {
-                    app.info(format!("profile {} loaded", path.display()));
+                    app.info(format!("profile {} loaded", app.shown_path(&path)));
                     if compare {
                         app.compare_profile = Some((path, profile));
                     } else {
@@ -262,7 +262,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
                 .save_file()
             {
                 match profile.save(&path) {
-                    Ok(()) => app.info(format!("profile saved to {}", path.display())),
+                    Ok(()) => app.info(format!("profile saved to {}", app.shown_path(&path))),
                     Err(e) => app.error(e.to_string()),
                 }
             }

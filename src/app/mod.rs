@@ -335,17 +335,52 @@ impl StudioApp {
     }
 
     pub fn error(&mut self, text: impl Into<String>) {
+        let text = self.shorten_paths(text.into());
         self.messages.push(Message {
             is_error: true,
-            text: text.into(),
+            text,
         });
     }
 
     pub fn info(&mut self, text: impl Into<String>) {
+        let text = self.shorten_paths(text.into());
         self.messages.push(Message {
             is_error: false,
-            text: text.into(),
+            text,
         });
+    }
+
+    /// A path as the UI shows it: relative to the session folder when it lies inside,
+    /// `~/…` under the home folder, absolute otherwise. Where the session lives is one
+    /// hover away (the session name's tooltip); repeating it in every line would crowd
+    /// the window and tie what it shows to where the folder happens to be.
+    #[must_use]
+    pub fn shown_path(&self, path: &std::path::Path) -> String {
+        if let Some(s) = &self.session {
+            if let Ok(rel) = path.strip_prefix(s.folder()) {
+                if !rel.as_os_str().is_empty() {
+                    return rel.display().to_string();
+                }
+            }
+        }
+        if let Some(home) = std::env::var_os("HOME").map(PathBuf::from) {
+            if let Ok(rel) = path.strip_prefix(&home) {
+                return format!("~/{}", rel.display());
+            }
+        }
+        path.display().to_string()
+    }
+
+    /// Messages from the core name files by their full paths; inside the session folder
+    /// the relative name says the same in less space.
+    fn shorten_paths(&self, text: String) -> String {
+        match &self.session {
+            Some(s) if !s.folder().as_os_str().is_empty() => {
+                let prefix = format!("{}{}", s.folder().display(), std::path::MAIN_SEPARATOR);
+                text.replace(&prefix, "")
+            }
+            _ => text,
+        }
     }
 
     fn open_or_make_demo(&mut self) {

@@ -201,12 +201,8 @@ fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         }
         return;
     };
-    ui.heading(&session.name);
-    ui.label(
-        egui::RichText::new(session.folder().display().to_string())
-            .small()
-            .weak(),
-    );
+    ui.heading(&session.name)
+        .on_hover_text(format!("Session folder: {}", session.folder().display()));
     if session.is_demo {
         ui.label("Demo: shots simulated from the virtual lens, whose true blur is known.");
     }
@@ -381,7 +377,7 @@ fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     };
     let shot = &session.shots[index];
     ui.horizontal(|ui| {
-        ui.heading(shot.path.display().to_string());
+        ui.heading(app.shown_path(&session.shot_path(index)));
         match shot.setting() {
             Some(s) => ui.label(format!("{:.0} mm  f/{:.1}", s.focal_mm, s.f_number)),
             None => ui.colored_label(
@@ -772,7 +768,7 @@ fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             let shot = app.selected_shot;
             let name = shot
                 .and_then(|i| app.session.as_ref()?.shots.get(i))
-                .map_or_else(String::new, |s| s.path.display().to_string());
+                .map_or_else(String::new, |s| s.stem());
             let samples = shot
                 .and_then(|i| app.measured.get(&i))
                 .map(|m| {
@@ -802,7 +798,7 @@ fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 Some((path, p)) => panels.push((
                     format!(
                         "{} — {:.0} mm f/{:.1}, channel {ch}",
-                        path.display(),
+                        app.shown_path(path),
                         s.focal_mm,
                         s.f_number
                     ),
@@ -815,7 +811,7 @@ fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
             if let Some((path, p)) = &app.compare_profile {
                 panels.push((
-                    format!("{} — channel {ch}", path.display()),
+                    format!("{} — channel {ch}", app.shown_path(path)),
                     predicted_field(p, ch, size, s),
                 ));
             }
@@ -1076,7 +1072,7 @@ fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         };
         ui.label(format!(
             "Profile {}: preferred {kind} model; global {}; local {}; calibrated {:.0}–{:.0} mm, f/{:.1}–f/{:.1}",
-            path.display(),
+            app.shown_path(path),
             orders(p.global.as_ref().map(|g| (g.alpha, g.beta))),
             orders(p.local.as_ref().map(|l| (l.alpha, l.beta))),
             p.norm.focal_range_mm[0],
@@ -1206,7 +1202,7 @@ fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             };
             ui.label(format!(
                 "{} — {}×{} — {setting}",
-                path.display(),
+                app.shown_path(path),
                 cap.width,
                 cap.height
             ));
