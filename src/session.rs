@@ -343,13 +343,24 @@ impl Session {
         }
     }
 
-    /// Where shot `index` keeps the results of `stage` ("detect", "kernels").
+    /// Where shot `index` keeps the results of `stage` ("detect", "kernels"): named by
+    /// the shot's file name and a hash of its path, not its place in the list, so
+    /// removing a shot leaves the others' results where they are.
     #[must_use]
     pub fn result_path(&self, index: usize, stage: &str) -> PathBuf {
+        let shot = &self.shots[index];
+        // FNV-1a: stable across runs and platforms (std's hasher is seeded per process).
+        let hash = shot
+            .path
+            .to_string_lossy()
+            .bytes()
+            .fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
+                (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+            });
         self.folder.join("results").join(format!(
-            "{:03}-{}.{stage}.json",
-            index,
-            self.shots[index].stem()
+            "{}-{:08x}.{stage}.json",
+            shot.stem(),
+            hash & 0xffff_ffff
         ))
     }
 
@@ -538,7 +549,12 @@ pub fn make_demo(
                 rotation_deg: 1.5 * (0.9 * t + 0.3).sin(),
                 tilt_x: 0.02 * (1.3 * t).cos(),
                 tilt_y: 0.015 * (0.7 * t + 1.0).sin(),
-                fill: 0.86,
+                // The board spans 86 % of the frame's width, or of its height when
+                // the chart is taller than the frame's aspect.
+                fill: 0.86_f64.min(
+                    0.86 * (spec.height as f64 / spec.width as f64)
+                        * (chart.cols as f64 / chart.rows as f64),
+                ),
                 shift_px: [4.0 * (t * 0.5).sin(), 3.0 * (t * 0.8).cos()],
             };
             params.bayer = false;
