@@ -98,6 +98,7 @@ impl<T: Send + 'static> Jobs<T> {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .thread_name(|i| format!("job-worker-{i}"))
+            .start_handler(|_| lower_priority())
             .build()
             .ok()
             .map(Arc::new);
@@ -142,6 +143,7 @@ impl<T: Send + 'static> Jobs<T> {
         std::thread::Builder::new()
             .name(format!("job-{id}-{name}"))
             .spawn(move || {
+                lower_priority();
                 let result = match pool.as_deref() {
                     Some(pool) => pool.install(|| work(&worker_ctx, &emitter)),
                     None => work(&worker_ctx, &emitter),
@@ -198,5 +200,16 @@ impl<T: Send + 'static> Jobs<T> {
         if let Some(h) = self.running.iter().find(|h| h.id == id) {
             h.cancel();
         }
+    }
+}
+
+/// Lowers the calling thread's scheduling priority (nice 10): jobs then take the CPU
+/// the window leaves, rather than the window waiting for a core behind them. On Linux a
+/// thread's nice value is its own. Failure only costs responsiveness, so it is ignored.
+fn lower_priority() {
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: setpriority only reads its arguments; `who` = 0 is the calling thread.
+        let _ = unsafe { libc::setpriority(libc::PRIO_PROCESS, 0, 10) };
     }
 }

@@ -356,7 +356,11 @@ pub struct KernelAtlas {
 #[derive(Default)]
 pub struct FrameLog {
     last: Option<Instant>,
+    last_report: Option<Instant>,
     pub busy_intervals_ms: Vec<f32>,
+    /// Time the app's own logic and drawing took in those frames (the rest of an
+    /// interval is egui's tessellation, the renderer and the wait for the display).
+    pub busy_app_ms: Vec<f32>,
     /// Names of the jobs that ran while these frames were drawn.
     pub busy_jobs: std::collections::BTreeSet<String>,
 }
@@ -365,13 +369,31 @@ impl FrameLog {
     /// (count, median, 95th percentile, max) of frame intervals in ms while jobs ran.
     #[must_use]
     pub fn stats(&self) -> Option<(usize, f32, f32, f32)> {
-        if self.busy_intervals_ms.is_empty() {
-            return None;
+        summary(&self.busy_intervals_ms)
+    }
+
+    /// Median of the app's own time per frame, ms.
+    #[must_use]
+    pub fn app_median_ms(&self) -> Option<f32> {
+        summary(&self.busy_app_ms).map(|s| s.1)
+    }
+}
+
+fn summary(values: &[f32]) -> Option<(usize, f32, f32, f32)> {
+    if values.is_empty() {
+        return None;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(f32::total_cmp);
+    let q = |p: f32| v[((v.len() - 1) as f32 * p).round() as usize];
+    Some((v.len(), q(0.5), q(0.95), v[v.len() - 1]))
+}
+
+impl FrameLog {
+    fn record_app_time(&mut self, busy: bool, ms: f32) {
+        if busy {
+            self.busy_app_ms.push(ms);
         }
-        let mut v = self.busy_intervals_ms.clone();
-        v.sort_by(f32::total_cmp);
-        let q = |p: f32| v[((v.len() - 1) as f32 * p).round() as usize];
-        Some((v.len(), q(0.5), q(0.95), v[v.len() - 1]))
     }
 }
 
@@ -546,7 +568,7 @@ impl StudioApp {
         let dir = self.options.demo_dir.clone();
         if dir.join(crate::session::SESSION_FILE).is_file() {
             match Session::open(&dir) {
-                Ok(s) if s.is_demo && s.shots.len() == self.options.demo_spec.settings.len() => {
+                Ok(s) if s.is_demo && s.demo_key == Some(self.options.demo_spec.key()) => {
                     self.set_session(s);
                     return;
                 }
@@ -676,25 +698,54 @@ impl eframe::App for StudioApp {
                     .push(now.duration_since(last).as_secs_f32() * 1000.0);
             }
             self.frames.last = Some(now);
+            // A running figure every 10 s, so a long job can be measured without
+            // waiting for its end.
+            let since = *self.frames.last_report.get_or_insert(now);
+            let due = now.duration_since(since).as_secs_f32() >= 10.0;
+            if self.options.log_frame_times && due {
+                if let Some((n, med, p95, max)) = self.frames.stats() {
+                    let progress: Vec<String> = self
+                        .jobs
+                        .running
+                        .iter()
+                        .map(|h| match h.progress() {
+                            Some(p) => format!("{}: {} {}/{}", h.name, p.stage, p.done, p.total),
+                            None => h.name.clone(),
+                        })
+                        .collect();
+                    eprintln!(
+                        "frame times so far while jobs run ({}): {n} frames, median {med:.1} ms, p95 {p95:.1} ms, max {max:.1} ms; the app's own drawing median {:.1} ms",
+                        progress.join("; "),
+                        self.frames.app_median_ms().unwrap_or(0.0)
+                    );
+                }
+                self.frames.last_report = Some(now);
+            }
         } else {
             if self.options.log_frame_times && !self.frames.busy_intervals_ms.is_empty() {
                 if let Some((n, med, p95, max)) = self.frames.stats() {
                     eprintln!(
-                        "frame times while jobs ran ({}): {n} frames, median {med:.1} ms, p95 {p95:.1} ms, max {max:.1} ms",
+                        "frame times while jobs ran ({}): {n} frames, median {med:.1} ms, p95 {p95:.1} ms, max {max:.1} ms; the app's own drawing median {:.1} ms",
                         self.frames
                             .busy_jobs
                             .iter()
                             .cloned()
                             .collect::<Vec<_>>()
-                            .join(", ")
+                            .join(", "),
+                        self.frames.app_median_ms().unwrap_or(0.0)
                     );
                 }
                 self.frames.busy_intervals_ms.clear();
+                self.frames.busy_app_ms.clear();
                 self.frames.busy_jobs.clear();
             }
             self.frames.last = None;
+            self.frames.last_report = None;
         }
+        let busy = !self.jobs.running.is_empty();
         ui::root_ui(self, ui);
+        self.frames
+            .record_app_time(busy, now.elapsed().as_secs_f32() * 1000.0);
         if !self.jobs.running.is_empty() {
             // Keep the progress bar moving; also what the frame-time figure measures.
             ui.ctx().request_repaint();
