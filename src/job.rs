@@ -85,6 +85,26 @@ impl JobContext {
         }
     }
 
+    /// The same job (one cancel flag) reporting each stage as `prefix` + its name: work
+    /// that runs a stage over several shots says which shot it is on.
+    #[must_use]
+    pub fn prefixed(&self, prefix: &str) -> JobContext {
+        let Some(parent) = self.sink.clone() else {
+            return self.clone();
+        };
+        let prefix = prefix.to_owned();
+        JobContext {
+            cancel: Arc::clone(&self.cancel),
+            sink: Some(Arc::new(move |p: &Progress| {
+                parent(&Progress {
+                    stage: format!("{prefix}{}", p.stage),
+                    done: p.done,
+                    total: p.total,
+                });
+            })),
+        }
+    }
+
     pub fn report(&self, stage: &str, done: usize, total: usize) {
         if let Some(sink) = &self.sink {
             sink(&Progress {
@@ -105,13 +125,29 @@ mod tests {
     fn cancel_and_progress() {
         let seen = Arc::new(Mutex::new(Vec::new()));
         let s2 = Arc::clone(&seen);
-        let job = JobContext::with_sink(move |p| s2.lock().unwrap().push(p.done));
+        let job =
+            JobContext::with_sink(move |p| s2.lock().unwrap().push((p.stage.clone(), p.done)));
         job.report("x", 1, 3);
         job.report("x", 2, 3);
-        assert_eq!(*seen.lock().unwrap(), vec![1, 2]);
+        assert_eq!(seen.lock().unwrap().len(), 2);
         assert!(job.check().is_ok());
+        let shot = job.prefixed("shot 2/3: ");
+        shot.report("detect", 5, 9);
         let clone = job.clone();
         clone.cancel();
         assert_eq!(job.check(), Err(Cancelled));
+        assert_eq!(
+            shot.check(),
+            Err(Cancelled),
+            "a prefixed context shares the flag"
+        );
+        assert_eq!(
+            *seen.lock().unwrap(),
+            vec![
+                ("x".into(), 1),
+                ("x".into(), 2),
+                ("shot 2/3: detect".into(), 5)
+            ]
+        );
     }
 }

@@ -24,5 +24,6 @@ pub mod plane;
 pub mod profile;
 pub mod psf;
 pub mod raw;
+pub mod review;
 pub mod session;
 pub mod simulate;

@@ -152,6 +152,10 @@ pub struct Session {
     /// True for the built-in demo session, whose ground truth is known.
     #[serde(default)]
     pub is_demo: bool,
+    /// For the demo: what made it ([`DemoSpec::key`]), so a cache made by another spec
+    /// or another version of the simulator is made again rather than shown.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub demo_key: Option<String>,
     #[serde(skip)]
     folder: PathBuf,
 }
@@ -194,6 +198,7 @@ impl Session {
             shots: Vec::new(),
             profile: None,
             is_demo: false,
+            demo_key: None,
             folder: folder.to_path_buf(),
         }
     }
@@ -343,13 +348,24 @@ impl Session {
         }
     }
 
-    /// Where shot `index` keeps the results of `stage` ("detect", "kernels").
+    /// Where shot `index` keeps the results of `stage` ("detect", "kernels"): named by
+    /// the shot's file name and a hash of its path, not its place in the list, so
+    /// removing a shot leaves the others' results where they are.
     #[must_use]
     pub fn result_path(&self, index: usize, stage: &str) -> PathBuf {
+        let shot = &self.shots[index];
+        // FNV-1a: stable across runs and platforms (std's hasher is seeded per process).
+        let hash = shot
+            .path
+            .to_string_lossy()
+            .bytes()
+            .fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
+                (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+            });
         self.folder.join("results").join(format!(
-            "{:03}-{}.{stage}.json",
-            index,
-            self.shots[index].stem()
+            "{}-{:08x}.{stage}.json",
+            shot.stem(),
+            hash & 0xffff_ffff
         ))
     }
 
@@ -435,14 +451,17 @@ pub struct DemoSpec {
     pub height: usize,
     pub settings: Vec<LensSetting>,
     pub seed: u64,
+    /// The chart printed in the demo's shots.
+    pub chart: ChartSpec,
 }
 
 impl DemoSpec {
-    /// What the studio makes on first launch: modest shots, a 3 × 3 grid of settings
-    /// (enough for a β = 2 model).
+    /// What the studio makes on first launch: modest shots of a 16 × 10 chart at a
+    /// 3 × 3 grid of settings (enough for a β = 2 model), small enough that every stage
+    /// runs in minutes on a laptop.
     #[must_use]
     pub fn studio() -> Self {
-        Self::grid(1200, 800, &[24.0, 50.0, 105.0], &[4.0, 5.6, 10.0])
+        Self::grid(960, 640, &[24.0, 50.0, 105.0], &[4.0, 5.6, 10.0]).with_chart(16, 10)
     }
 
     /// A small demo for tests: 600 × 400 shots at a 2 × 2 grid of settings.
@@ -462,24 +481,55 @@ impl DemoSpec {
                 })
             })
             .collect();
+        // Fewer squares on small shots so each square still spans enough pixels to
+        // measure a kernel.
+        let mut chart = ChartSpec::default();
+        if width < 1000 {
+            chart.cols = 12;
+            chart.rows = 8;
+        }
         Self {
             width,
             height,
             settings,
             seed: 7,
+            chart,
         }
     }
 
-    /// The chart for a demo of this size: fewer squares on small shots so each square
-    /// still spans enough pixels to measure a kernel.
+    /// The same demo with a chart of `cols` × `rows` squares.
+    #[must_use]
+    pub fn with_chart(mut self, cols: usize, rows: usize) -> Self {
+        self.chart.cols = cols;
+        self.chart.rows = rows;
+        self
+    }
+
+    /// The chart printed in the demo's shots.
     #[must_use]
     pub fn chart(&self) -> ChartSpec {
-        let mut c = ChartSpec::default();
-        if self.width < 1000 {
-            c.cols = 12;
-            c.rows = 8;
-        }
-        c
+        self.chart.clone()
+    }
+
+    /// Everything that decides the demo's files, and the version of the code that
+    /// simulates them: a cached demo with another key is stale.
+    #[must_use]
+    pub fn key(&self) -> String {
+        let settings: Vec<String> = self
+            .settings
+            .iter()
+            .map(|s| format!("{}@{}", s.focal_mm, s.f_number))
+            .collect();
+        format!(
+            "lensblur {} demo {}x{} chart {}x{} seed {} settings {}",
+            env!("CARGO_PKG_VERSION"),
+            self.width,
+            self.height,
+            self.chart.cols,
+            self.chart.rows,
+            self.seed,
+            settings.join(",")
+        )
     }
 
     /// File name of the demo shot for a setting.
@@ -506,10 +556,19 @@ pub fn make_demo(
         path: dir.to_path_buf(),
         source,
     })?;
+    // Shots left by an interrupted first launch are reused (see below), but only when
+    // they were made for this very spec by this version.
+    let key = spec.key();
+    let key_path = dir.join(DEMO_KEY_FILE);
+    if std::fs::read_to_string(&key_path).ok().as_deref() != Some(key.as_str()) {
+        clear_demo_files(dir)?;
+        write_atomic(&key_path, key.as_bytes())?;
+    }
     let mut session = Session::new(dir);
     session.name = "demo".into();
     session.chart = chart.clone();
     session.is_demo = true;
+    session.demo_key = Some(key);
     let total = spec.settings.len();
     job.report("simulating demo shots", 0, total);
     for (k, &setting) in spec.settings.iter().enumerate() {
@@ -526,16 +585,26 @@ pub fn make_demo(
                 rotation_deg: 1.5 * (0.9 * t + 0.3).sin(),
                 tilt_x: 0.02 * (1.3 * t).cos(),
                 tilt_y: 0.015 * (0.7 * t + 1.0).sin(),
-                fill: 0.86,
+                // The board spans 86 % of the frame's width, or of its height when
+                // the chart is taller than the frame's aspect.
+                fill: 0.86_f64.min(
+                    0.86 * (spec.height as f64 / spec.width as f64)
+                        * (chart.cols as f64 / chart.rows as f64),
+                ),
                 shift_px: [4.0 * (t * 0.5).sin(), 3.0 * (t * 0.8).cos()],
             };
             params.bayer = false;
             params.seed = spec.seed.wrapping_add(k as u64);
-            let shot =
-                simulate_shot(&chart, &lens, &params, job).map_err(|e| SessionError::Parse {
-                    path: path.clone(),
-                    reason: e.to_string(),
-                })?;
+            let shot = simulate_shot(
+                &chart,
+                &lens,
+                &params,
+                &job.prefixed(&format!("shot {} of {total}: ", k + 1)),
+            )
+            .map_err(|e| SessionError::Parse {
+                path: path.clone(),
+                reason: e.to_string(),
+            })?;
             write_rgb16_png(&path, &shot.capture)?;
             let truth = serde_json::to_vec(&shot.truth).map_err(|e| SessionError::Write {
                 path: truth_path.clone(),
@@ -554,6 +623,50 @@ pub fn make_demo(
     session.write_manifest()?;
     session.save()?;
     Ok(session)
+}
+
+/// Which spec the demo files in a folder were made for.
+const DEMO_KEY_FILE: &str = "demo.key";
+
+/// Removes what a demo folder holds (and only that): its shots and their truth, the
+/// session, manifest, profile, cross-validation and results.
+fn clear_demo_files(dir: &Path) -> Result<(), SessionError> {
+    let entries = match std::fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(source) => {
+            return Err(SessionError::Read {
+                path: dir.to_path_buf(),
+                source,
+            });
+        }
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let ours = (name.starts_with("demo_")
+            && (name.ends_with(".png") || name.ends_with(".truth.json")))
+            || [
+                SESSION_FILE,
+                "manifest.json",
+                "profile.json",
+                "crossval.json",
+                DEMO_KEY_FILE,
+            ]
+            .contains(&name.as_str());
+        let path = entry.path();
+        let removed = if ours {
+            std::fs::remove_file(&path)
+        } else if name == "results" && path.is_dir() {
+            std::fs::remove_dir_all(&path)
+        } else {
+            Ok(())
+        };
+        removed.map_err(|source| SessionError::Write {
+            path: path.clone(),
+            source,
+        })?;
+    }
+    Ok(())
 }
 
 /// A linear 16-bit RGB PNG of a capture's R, G, B planes (black 0, white 65535).
@@ -650,6 +763,32 @@ mod tests {
         assert_eq!(from_manifest.shots.len(), 1);
         assert_eq!(from_manifest.shots[0].focal_mm, Some(35.0));
         assert_eq!(from_manifest.shots[0].f_number, None);
+    }
+
+    #[test]
+    fn a_stale_demo_is_made_again() {
+        let dir = tempfile::tempdir().unwrap();
+        let job = crate::job::JobContext::silent();
+        let spec = DemoSpec::grid(160, 112, &[24.0], &[4.0]).with_chart(4, 3);
+        let s = make_demo(dir.path(), &spec, &job).unwrap();
+        assert_eq!(s.demo_key.as_deref(), Some(spec.key().as_str()));
+        let shot = s.shot_path(0);
+        let made = std::fs::metadata(&shot).unwrap().modified().unwrap();
+        // Same spec: the shot is reused.
+        make_demo(dir.path(), &spec, &job).unwrap();
+        assert_eq!(std::fs::metadata(&shot).unwrap().modified().unwrap(), made);
+        // Another spec (same file names): everything is made again, and a file that
+        // is not the demo's stays.
+        std::fs::write(dir.path().join("mine.txt"), b"keep").unwrap();
+        std::fs::create_dir_all(dir.path().join("results")).unwrap();
+        let other = DemoSpec::grid(200, 140, &[24.0], &[4.0]).with_chart(4, 3);
+        let s2 = make_demo(dir.path(), &other, &job).unwrap();
+        let cap = crate::raw::load_capture(&s2.shot_path(0), &Default::default()).unwrap();
+        assert_eq!((cap.width, cap.height), (200, 140));
+        assert!(!dir.path().join("results").exists());
+        assert!(dir.path().join("mine.txt").is_file());
+        let reopened = Session::open(dir.path()).unwrap();
+        assert_eq!(reopened.demo_key.as_deref(), Some(other.key().as_str()));
     }
 
     #[test]

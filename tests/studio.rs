@@ -1,14 +1,24 @@
 //! Snapshot tests of the studio: every view rendered on a small demo session, and the
-//! flow driven by clicks through AccessKit labels. Snapshots live in `screenshots/`
-//! (kittest.toml); `UPDATE_SNAPSHOTS=1` rewrites them.
+//! flow driven by clicks through AccessKit labels and pointer events. Snapshots live in
+//! `screenshots/` (kittest.toml); `UPDATE_SNAPSHOTS=1` rewrites them.
+//!
+//! Every test makes its own session folders under a temporary directory, so what the
+//! snapshots show depends on nothing outside the test (no cached demo, no home folder).
 #![cfg(feature = "gui")]
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use lensblur::app::{AppOptions, Command, StudioApp, View};
-use lensblur::session::DemoSpec;
+use lensblur::app::{AppOptions, Command, FieldSource, StudioApp, View};
+use lensblur::session::{DemoSpec, StageStatus};
 use std::path::Path;
 use std::time::{Duration, Instant};
+
+/// The demo the tests make: small shots of a chart of 8 × 6 squares at a 2 × 2 grid of
+/// settings (both sweeps, and cross-validation that holds a shot out and still has a
+/// setting on each side for a β = 1 model); its kernels take most of the test's time.
+fn test_demo() -> DemoSpec {
+    DemoSpec::grid(400, 280, &[24.0, 105.0], &[4.0, 10.0]).with_chart(8, 6)
+}
 
 fn new_harness(demo_dir: &Path, session: Option<&Path>) -> Harness<'static, StudioApp> {
     // Pin the software Vulkan renderer (lavapipe) so snapshots match across machines.
@@ -17,9 +27,11 @@ fn new_harness(demo_dir: &Path, session: Option<&Path>) -> Harness<'static, Stud
     let options = AppOptions {
         session: session.map(Path::to_path_buf),
         demo_dir: demo_dir.to_path_buf(),
-        demo_spec: DemoSpec::small(),
+        demo_spec: test_demo(),
         log_frame_times: false,
         autorun: Vec::new(),
+        // The test's UI thread mostly sleeps between steps: jobs may have every core.
+        job_threads: std::thread::available_parallelism().map_or(2, std::num::NonZeroUsize::get),
         started: Instant::now(),
     };
     Harness::builder()
@@ -45,6 +57,35 @@ fn step_until(
         h.run_steps(1);
         std::thread::sleep(Duration::from_millis(20));
     }
+    // Where the test's time goes (shown with --nocapture).
+    eprintln!("{what}: {:.1} s", start.elapsed().as_secs_f32());
+    h.run_steps(2);
+}
+
+fn idle(app: &StudioApp) -> bool {
+    app.jobs.running.is_empty()
+}
+
+/// A snapshot without the pointer: a button left hovered after a click (and the tooltip
+/// that appears once the pointer rests long enough) would depend on how many frames ran.
+fn snapshot(h: &mut Harness<'_, StudioApp>, name: &str) {
+    h.remove_cursor();
+    h.run_steps(2);
+    h.snapshot(name);
+}
+
+/// A primary click at a screen position, as the window would deliver it.
+fn click_at(h: &mut Harness<'_, StudioApp>, pos: egui::Pos2) {
+    h.hover_at(pos);
+    h.run_steps(1);
+    for pressed in [true, false] {
+        h.event(egui::Event::PointerButton {
+            pos,
+            button: egui::PointerButton::Primary,
+            pressed,
+            modifiers: egui::Modifiers::NONE,
+        });
+    }
     h.run_steps(2);
 }
 
@@ -68,17 +109,23 @@ fn demo_ready(app: &StudioApp) -> bool {
     app.session
         .as_ref()
         .is_some_and(|s| !s.shots.is_empty() && app.previews.len() == s.shots.len())
-        && app.jobs.running.is_empty()
+        && idle(app)
 }
 
 #[test]
 fn every_view_on_the_demo_session() {
     let dir = tempfile::tempdir().expect("temp dir");
-    let mut h = new_harness(dir.path(), None);
-    // The first frame comes before the demo exists: the panel says what is happening.
+    let demo_dir = dir.path().join("demo");
+    let spec = test_demo();
+    let n_shots = spec.settings.len();
+    let n_squares = spec.chart.cols * spec.chart.rows;
+    let mut h = new_harness(&demo_dir, None);
+    // The first frame comes before the demo exists: the panel says what is happening
+    // and the status bar shows the job's progress.
     h.run_steps(1);
     assert!(h.state().session.is_none());
     h.get_by_label_contains("Making the demo session");
+    assert!(h.state().jobs.is_running("demo session"));
     step_until(
         &mut h,
         "the demo session",
@@ -86,143 +133,271 @@ fn every_view_on_the_demo_session() {
         demo_ready,
     );
     let n = h.state().session.as_ref().map_or(0, |s| s.shots.len());
-    assert_eq!(n, DemoSpec::small().settings.len());
+    assert_eq!(n, n_shots);
     assert!(
-        dir.path().join("session.json").is_file(),
+        demo_dir.join("session.json").is_file(),
         "the demo session is cached"
     );
-    h.snapshot("studio_shot");
+    snapshot(&mut h, "studio_shot");
 
-    // Detect every shot by clicking, then the overlays line up with the squares.
+    // Detect by clicking; results arrive shot by shot, and Cancel stops the job.
+    h.get_by_label("Detect").click();
+    step_until(
+        &mut h,
+        "the first detection",
+        Duration::from_secs(120),
+        |a| !a.detections.is_empty(),
+    );
+    let cancelled_at = Instant::now();
+    h.get_by_label("Cancel").click();
+    step_until(&mut h, "the cancelled job", Duration::from_secs(20), idle);
+    assert!(
+        cancelled_at.elapsed() < Duration::from_secs(10),
+        "cancel stops the work within a square or two"
+    );
+    let kept = h.state().detections.len();
+    assert!(
+        (1..n_shots).contains(&kept),
+        "{kept} shots detected before the cancel"
+    );
+    assert!(
+        h.state()
+            .messages
+            .iter()
+            .any(|m| m.text.contains("detect: cancelled"))
+    );
+    // Detect again: only the shots without results run; every square is aligned.
     h.get_by_label("Detect").click();
     step_until(&mut h, "detection", Duration::from_secs(240), |a| {
-        a.detections.len() == DemoSpec::small().settings.len() && a.jobs.running.is_empty()
+        a.detections.len() == n_shots && idle(a)
     });
-    for d in h.state().detections.values() {
-        let spec = DemoSpec::small().chart();
-        assert_eq!(
-            d.ok_squares().count(),
-            spec.cols * spec.rows,
-            "every square of the demo chart is aligned"
+    for (i, d) in &h.state().detections {
+        let skipped: Vec<_> = d
+            .squares
+            .iter()
+            .filter(|s| s.status != lensblur::detect::SquareStatus::Ok)
+            .map(|s| (s.row, s.col, s.reason.clone()))
+            .collect();
+        assert!(
+            skipped.is_empty(),
+            "every square of the demo chart is aligned; shot {i}: {skipped:?}"
         );
+        assert_eq!(d.squares.len(), n_squares);
     }
-    h.snapshot("studio_shot_detected");
+    snapshot(&mut h, "studio_shot_detected");
 
-    // Inspect one square: its crops appear beside the shot.
-    h.state_mut().commands.push(Command::SelectSquare((3, 5)));
-    h.run_steps(3);
+    // Click a square in the viewer (fit zoom: the viewer's rect maps onto the sensor).
+    let (row, col) = (2usize, 3usize);
+    let viewer = h.get_by_label("shot viewer").rect();
+    let (centre, (w, hgt)) = {
+        let app = h.state();
+        let det = &app.detections[&0];
+        let sq = det
+            .squares
+            .iter()
+            .find(|s| (s.row, s.col) == (row, col))
+            .expect("square detected");
+        let c = lensblur::review::square_facts(sq).centre;
+        (c, (det.width as f32, det.height as f32))
+    };
+    let fit = (viewer.width() / w).min(viewer.height() / hgt);
+    let pos = viewer.center()
+        + egui::Vec2::new(
+            (centre[0] as f32 - (w - 1.0) / 2.0) * fit,
+            (centre[1] as f32 - (hgt - 1.0) / 2.0) * fit,
+        );
+    click_at(&mut h, pos);
     let rms = h
         .state()
         .inspection
         .as_ref()
+        .filter(|i| i.square == (row, col))
         .map(|i| i.crops.residual_rms)
         .expect("the inspector opens on the clicked square");
     assert!(
         rms < 0.05,
         "aligned square explains the pixels: residual rms {rms}"
     );
-    h.snapshot("studio_square_inspector");
 
-    // Kernels on every detected shot, by clicking; the field shows the measured fits.
+    // Kernels on every detected shot by clicking.
     h.get_by_label("Kernels").click();
-    let n_shots = DemoSpec::small().settings.len();
     step_until(&mut h, "kernels", Duration::from_secs(600), |a| {
-        a.measured.len() == n_shots && a.jobs.running.is_empty()
+        a.measured.len() == n_shots && a.dataset.is_some() && idle(a)
     });
-    let spec = DemoSpec::small().chart();
     let session = h.state().session.clone().expect("session");
     for (i, m) in &h.state().measured {
         // Every square and channel is measured or reported with its reason, and
         // nearly all are measured on clean simulated shots.
         let file = lensblur::kernel::file::KernelsFile::load(&session.result_path(*i, "kernels"))
             .expect("kernels file written");
-        assert_eq!(
-            file.samples.len() + file.failed.len(),
-            3 * spec.cols * spec.rows
-        );
+        assert_eq!(m.samples.len(), file.samples.len());
+        assert_eq!(file.samples.len() + file.failed.len(), 3 * n_squares);
         assert!(file.failed.iter().all(|f| !f.reason.is_empty()));
         assert!(
-            m.len() * 100 >= 97 * 3 * spec.cols * spec.rows,
+            file.samples.len() * 100 >= 97 * 3 * n_squares,
             "{} measured",
-            m.len()
+            file.samples.len()
         );
     }
+    // The inspector now shows the square's kernel and its Gaussian's numbers.
+    assert!(
+        h.state()
+            .inspection
+            .as_ref()
+            .is_some_and(|i| i.kernel.is_some())
+    );
+    h.get_by_label_contains("robust fit");
+    snapshot(&mut h, "studio_square_inspector");
+
     h.get_by_label("Kernel field").click();
     h.run_steps(3);
     assert_eq!(h.state().view, View::KernelField);
-    h.snapshot("studio_kernel_field");
+    snapshot(&mut h, "studio_kernel_field");
+    h.get_by_label("Kernel shapes").click();
+    h.run_steps(3);
+    assert!(h.state().kernel_atlas.is_some());
+    snapshot(&mut h, "studio_kernel_field_kernels");
 
-    // Calibrate: cross-validation chooses α and β, the profile is written.
+    // Measured points appear in the sweeps before any model exists.
+    h.get_by_label("Sweeps").click();
+    h.run_steps(3);
+    assert!(h.state().profile.is_none());
+
+    // Calibrate by clicking: cross-validation chooses α and β, the profile is written.
     h.get_by_label("Models").click();
     h.run_steps(2);
     h.get_by_label("Calibrate").click();
     step_until(&mut h, "calibration", Duration::from_secs(300), |a| {
-        a.profile.is_some() && a.jobs.running.is_empty()
+        a.profile.is_some() && idle(a)
     });
     assert!(h.state().cv.is_some(), "cross-validation ran");
     assert!(
-        dir.path().join("profile.json").is_file(),
-        "profile saved in the session"
+        demo_dir.join("profile.json").is_file() && demo_dir.join("crossval.json").is_file(),
+        "profile and cross-validation saved in the session"
     );
-    h.snapshot("studio_models");
+    snapshot(&mut h, "studio_models");
 
     h.get_by_label("Sweeps").click();
     h.run_steps(3);
-    h.snapshot("studio_sweeps");
+    snapshot(&mut h, "studio_sweeps");
 
+    // Predict: the profile's field at the sliders' setting.
     h.get_by_label("Kernel field").click();
     h.run_steps(2);
     h.get_by_label("Predicted").click();
     h.run_steps(3);
-    h.snapshot("studio_kernel_field_predicted");
+    assert_eq!(h.state().field_source, FieldSource::Predicted);
+    snapshot(&mut h, "studio_kernel_field_predicted");
     h.get_by_label("Ground truth").click();
     h.run_steps(2);
     h.get_by_label("Compare with a second unit").click();
     h.run_steps(3);
     assert!(h.state().compare_units);
-    h.snapshot("studio_kernel_field_compare");
+    snapshot(&mut h, "studio_kernel_field_compare");
 
+    // Deblur preview: the selected shot as the photo, a region deblurred with the
+    // predicted Gaussians and with the shot's own measured kernels.
     h.get_by_label("Deblur").click();
+    h.run_steps(2);
+    h.get_by_label("Deblur the selected shot").click();
+    step_until(
+        &mut h,
+        "the deblur preview",
+        Duration::from_secs(120),
+        |a| a.deblur.comparison.is_some() && idle(a),
+    );
+    {
+        let c = &h
+            .state()
+            .deblur
+            .comparison
+            .as_ref()
+            .expect("comparison")
+            .comparison;
+        assert!(
+            c.predicted.is_ok(),
+            "predicted: {:?}",
+            c.predicted.as_ref().err()
+        );
+        assert!(
+            c.measured.is_ok(),
+            "measured: {:?}",
+            c.measured.as_ref().err()
+        );
+    }
+    snapshot(&mut h, "studio_deblur");
+    h.get_by_label("Slider").click();
     h.run_steps(3);
-    h.snapshot("studio_deblur");
+    snapshot(&mut h, "studio_deblur_slider");
+    // Export the whole photo deblurred with the predicted Gaussians.
+    let out = dir.path().join("deblurred.tiff");
+    h.state_mut().commands.push(Command::ExportDeblur {
+        path: out.clone(),
+        result: lensblur::app::DeblurResult::Predicted,
+    });
+    step_until(&mut h, "the export", Duration::from_secs(120), |a| {
+        idle(a)
+            && a.messages
+                .iter()
+                .any(|m| m.text.contains("deblurred photo written"))
+    });
+    let written = lensblur::raw::load_capture(&out, &Default::default()).expect("export readable");
+    assert_eq!((written.width, written.height), (spec.width, spec.height));
 
-    // The cached demo opens at once on the next launch.
+    // The cached demo opens at once on the next launch, with its results.
     drop(h);
-    let mut again = new_harness(dir.path(), None);
+    let mut again = new_harness(&demo_dir, None);
     again.run_steps(1);
     assert!(
         again.state().session.is_some(),
         "cached demo session opens without remaking it"
+    );
+    step_until(
+        &mut again,
+        "the reopened session's results",
+        Duration::from_secs(60),
+        |a| {
+            a.measured.len() == n_shots
+                && a.detections.len() == n_shots
+                && a.profile.is_some()
+                && a.cv.is_some()
+                && idle(a)
+        },
     );
 }
 
 #[test]
 fn light_theme_and_user_session() {
     let demo = tempfile::tempdir().expect("temp dir");
-    let folder = tempfile::tempdir().expect("temp dir");
-    // A user's shot: a PNG of the chart.
-    let spec = lensblur::chart::ChartSpec {
-        cols: 6,
-        rows: 4,
-        ..Default::default()
-    };
-    let h_img = lensblur::geometry::Homography::from_row_major([
-        40.0, 0.0, 40.0, 0.0, 40.0, 40.0, 0.0, 0.0, 1.0,
-    ]);
-    let plane = lensblur::chart::rasterize(&spec, &h_img, 320, 240, 1.0);
-    let img = image::GrayImage::from_fn(320, 240, |x, y| {
-        image::Luma([(plane.get(x as usize, y as usize) * 255.0) as u8])
-    });
-    let shot = folder.path().join("my_shot.png");
-    img.save(&shot).expect("write shot");
+    let parent = tempfile::tempdir().expect("temp dir");
+    // A named folder: the session takes its name from it, and the UI shows it.
+    let folder = parent.path().join("my session");
+    std::fs::create_dir(&folder).expect("session folder");
+    // A user's shot: a simulated photo of a 6 × 4 chart (16-bit PNG, no EXIF), made
+    // elsewhere and copied in.
+    let made = tempfile::tempdir().expect("temp dir");
+    let shot_spec = DemoSpec::grid(320, 240, &[35.0], &[8.0]).with_chart(6, 4);
+    let spec = shot_spec.chart();
+    let made_session = lensblur::session::make_demo(
+        made.path(),
+        &shot_spec,
+        &lensblur::job::JobContext::silent(),
+    )
+    .expect("simulated shot");
+    let shot = folder.join("my_shot.png");
+    std::fs::copy(made_session.shot_path(0), &shot).expect("copy shot");
 
-    let mut h = new_harness(demo.path(), Some(folder.path()));
+    let mut h = new_harness(demo.path(), Some(&folder));
     h.run_steps(2);
     assert!(
         h.state()
             .session
             .as_ref()
             .is_some_and(|s| s.shots.is_empty())
+    );
+    assert!(
+        folder.join("session.json").is_file(),
+        "a new session is saved at once"
     );
     h.get_by_label("Light theme").click();
     h.run_steps(2);
@@ -232,11 +407,31 @@ fn light_theme_and_user_session() {
     step_until(&mut h, "the dropped shot", Duration::from_secs(30), |a| {
         a.previews.len() == 1
     });
-    let saved =
-        lensblur::session::Session::open(folder.path()).expect("session saved as it changes");
+    let saved = lensblur::session::Session::open(&folder).expect("session saved as it changes");
     assert_eq!(saved.shots.len(), 1);
+    // Settings typed for the shot are saved too.
+    h.state_mut().commands.push(Command::SetShotSetting {
+        index: 0,
+        focal_mm: Some(35.0),
+        f_number: Some(8.0),
+    });
+    h.run_steps(2);
+    let saved = lensblur::session::Session::open(&folder).expect("session");
+    assert_eq!(saved.shots[0].setting().map(|s| s.focal_mm), Some(35.0));
+    // The chart of this shot, set in the session's settings.
+    h.state_mut().commands.push(Command::ApplySettings {
+        chart: spec.clone(),
+        settings: saved.settings.clone(),
+    });
+    h.run_steps(2);
+    assert_eq!(
+        lensblur::session::Session::open(&folder)
+            .expect("session")
+            .chart,
+        spec
+    );
     // A file of the wrong kind is refused with a message naming it.
-    let bad = folder.path().join("notes.txt");
+    let bad = folder.join("notes.txt");
     std::fs::write(&bad, b"x").expect("write");
     h.input_mut().dropped_files.push(dropped(&bad));
     h.run_steps(2);
@@ -246,5 +441,36 @@ fn light_theme_and_user_session() {
             .iter()
             .any(|m| m.is_error && m.text.contains("notes.txt"))
     );
-    h.snapshot("studio_user_session_light");
+    // A shot that cannot be read: an error naming the file and the reason, no panic.
+    let broken = folder.join("broken.png");
+    std::fs::write(&broken, b"\x89PNG\r\n\x1a\n not really").expect("write");
+    h.input_mut().dropped_files.push(dropped(&broken));
+    step_until(
+        &mut h,
+        "the unreadable shot",
+        Duration::from_secs(30),
+        |a| a.unreadable.contains_key(&1) && idle(a),
+    );
+    assert!(
+        h.state()
+            .messages
+            .iter()
+            .any(|m| m.is_error && m.text.starts_with("broken.png"))
+    );
+    // Detect by its keyboard shortcut on the readable shot.
+    h.state_mut().commands.push(Command::SelectShot(0));
+    h.run_steps(2);
+    h.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::D);
+    step_until(
+        &mut h,
+        "detection of the user's shot",
+        Duration::from_secs(60),
+        |a| {
+            idle(a)
+                && a.session
+                    .as_ref()
+                    .is_some_and(|s| s.shots[0].detect != StageStatus::Pending)
+        },
+    );
+    snapshot(&mut h, "studio_user_session_light");
 }

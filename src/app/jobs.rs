@@ -14,6 +14,7 @@ pub enum JobEvent<T> {
     /// The job stopped: `Ok(())`, or the one-line reason it failed or was cancelled.
     Finished {
         job: u64,
+        name: String,
         result: Result<(), String>,
     },
 }
@@ -76,19 +77,38 @@ pub struct Jobs<T> {
     tx: SyncSender<JobEvent<T>>,
     rx: Receiver<JobEvent<T>>,
     wake: Arc<dyn Fn() + Send + Sync>,
+    /// Where jobs compute; `None` if it could not be built (rayon's global pool then).
+    pool: Option<Arc<rayon::ThreadPool>>,
 }
 
 impl<T: Send + 'static> Jobs<T> {
     /// `wake` is called from worker threads whenever there is something new to show.
-    pub fn new(wake: impl Fn() + Send + Sync + 'static) -> Self {
+    /// Jobs compute on `threads` threads; 0 means one core fewer than the machine has
+    /// (at least one), so the UI thread (and, under a software renderer, the rasteriser)
+    /// always has a core and frames keep coming while kernels are estimated.
+    pub fn new(threads: usize, wake: impl Fn() + Send + Sync + 'static) -> Self {
         // Bounded: a fast producer waits for the UI rather than queueing without limit.
         let (tx, rx) = sync_channel(64);
+        let threads = if threads == 0 {
+            let cores = std::thread::available_parallelism().map_or(2, std::num::NonZeroUsize::get);
+            cores.saturating_sub(1).max(1)
+        } else {
+            threads
+        };
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .thread_name(|i| format!("job-worker-{i}"))
+            .start_handler(|_| lower_priority())
+            .build()
+            .ok()
+            .map(Arc::new);
         Self {
             next_id: 1,
             running: Vec::new(),
             tx,
             rx,
             wake: Arc::new(wake),
+            pool,
         }
     }
 
@@ -118,10 +138,13 @@ impl<T: Send + 'static> Jobs<T> {
             wake: Arc::clone(&self.wake),
         };
         let worker_ctx = ctx.clone();
+        let pool = self.pool.clone();
+        let job_name = name.to_owned();
         std::thread::Builder::new()
             .name(format!("job-{id}-{name}"))
             .spawn(move || {
-                let result = match job_pool() {
+                lower_priority();
+                let result = match pool.as_deref() {
                     Some(pool) => pool.install(|| work(&worker_ctx, &emitter)),
                     None => work(&worker_ctx, &emitter),
                 };
@@ -130,7 +153,11 @@ impl<T: Send + 'static> Jobs<T> {
                 } else {
                     result
                 };
-                let _ = emitter.tx.send(JobEvent::Finished { job: id, result });
+                let _ = emitter.tx.send(JobEvent::Finished {
+                    job: id,
+                    name: job_name,
+                    result,
+                });
                 (emitter.wake)();
             })
             .map_err(|e| format!("cannot start job '{name}': {e}"))?;
@@ -176,19 +203,13 @@ impl<T: Send + 'static> Jobs<T> {
     }
 }
 
-/// The thread pool jobs compute on: one core fewer than the machine has (at least one),
-/// so the UI thread (and, under a software renderer, the rasteriser) always has a core
-/// and frames keep coming while kernels are estimated. `None` if it cannot be built,
-/// in which case jobs use rayon's global pool.
-fn job_pool() -> Option<&'static rayon::ThreadPool> {
-    static POOL: std::sync::OnceLock<Option<rayon::ThreadPool>> = std::sync::OnceLock::new();
-    POOL.get_or_init(|| {
-        let cores = std::thread::available_parallelism().map_or(2, std::num::NonZeroUsize::get);
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(cores.saturating_sub(1).max(1))
-            .thread_name(|i| format!("job-worker-{i}"))
-            .build()
-            .ok()
-    })
-    .as_ref()
+/// Lowers the calling thread's scheduling priority (nice 10): jobs then take the CPU
+/// the window leaves, rather than the window waiting for a core behind them. On Linux a
+/// thread's nice value is its own. Failure only costs responsiveness, so it is ignored.
+fn lower_priority() {
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: setpriority only reads its arguments; `who` = 0 is the calling thread.
+        let _ = unsafe { libc::setpriority(libc::PRIO_PROCESS, 0, 10) };
+    }
 }

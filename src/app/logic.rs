@@ -1,139 +1,247 @@
 //! Applies commands and drains finished jobs. Never draws.
 
 use super::jobs::JobEvent;
-use super::{Command, JobOutput, ShotPreview, StudioApp};
+use super::{
+    Command, ComparisonView, DeblurResult, JobOutput, KernelAtlas, Photo, ShotPreview, StudioApp,
+};
+use crate::deblur::{DeblurOptions, KernelSource, Method};
 use crate::detect::{DetectFile, DetectParams, Detection};
 use crate::kernel::file::KernelsFile;
-use crate::plane::{Capture, Channel, ChannelPlane, Plane};
+use crate::plane::{Capture, Channel, ChannelPlane, LensSetting, Plane};
 use crate::session::{Session, StageStatus};
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 pub(super) fn drain_jobs(app: &mut StudioApp) {
     for event in app.jobs.drain() {
         match event {
-            JobEvent::Output { output, .. } => match output {
-                JobOutput::DemoReady(s) => {
-                    let n = s.shots.len();
-                    app.set_session(s);
-                    app.info(format!(
-                        "demo session ready: {n} simulated shots of the virtual lens"
-                    ));
+            JobEvent::Output { output, .. } => apply_output(app, output),
+            JobEvent::Finished {
+                name,
+                result: Err(e),
+                ..
+            } => {
+                if e == "cancelled" {
+                    app.info(format!("{name}: cancelled"));
+                } else {
+                    app.error(e);
                 }
-                JobOutput::ShotLoaded { index, capture } => {
-                    let preview = make_preview(&app.ctx, index, &capture);
-                    if let Some(s) = app.session.as_mut() {
-                        if let Some(shot) = s.shots.get_mut(index) {
-                            // EXIF fills what the user has not typed.
-                            let mut changed = false;
-                            if shot.focal_mm.is_none() && capture.setting_focal_mm.is_some() {
-                                shot.focal_mm = capture.setting_focal_mm;
-                                changed = true;
-                            }
-                            if shot.f_number.is_none() && capture.setting_f_number.is_some() {
-                                shot.f_number = capture.setting_f_number;
-                                changed = true;
-                            }
-                            if changed {
-                                save(app);
-                            }
-                        }
-                    }
-                    app.previews.insert(index, preview);
+                if name == "kernels" {
+                    spawn_dataset(app);
                 }
-                JobOutput::Calibrated {
-                    dataset,
-                    profile,
-                    cv,
-                    path,
-                } => {
-                    let kind = format!("{:?}", profile.preferred).to_lowercase();
-                    app.info(format!(
-                        "calibrated on {} samples from {} shots; {kind} model preferred; profile saved to {}",
-                        dataset.samples.len(),
-                        dataset.shots.len(),
-                        path.display()
-                    ));
-                    if let Some(s) = app.session.as_mut() {
-                        s.profile = Some(path.clone());
-                    }
-                    app.dataset = Some(dataset);
-                    app.profile = Some((path, profile));
-                    app.cv = cv;
-                    save(app);
+            }
+            JobEvent::Finished {
+                name,
+                result: Ok(()),
+                ..
+            } => {
+                if name == "kernels" {
+                    spawn_dataset(app);
                 }
-                JobOutput::ProfileLoaded {
-                    profile,
-                    path,
-                    compare,
-                } => {
-                    app.info(format!("profile {} loaded", path.display()));
-                    if compare {
-                        app.compare_profile = Some((path, profile));
-                    } else {
-                        app.profile = Some((path, profile));
-                    }
-                }
-                JobOutput::KernelsMeasured { index, result } => {
-                    let status = match &result {
-                        Ok((samples, failed)) => StageStatus::Done {
-                            summary: format!("{} kernels, {failed} failed", samples.len()),
-                        },
-                        Err(reason) => StageStatus::Failed {
-                            reason: reason.clone(),
-                        },
-                    };
-                    if let Some(shot) = app.session.as_mut().and_then(|s| s.shots.get_mut(index)) {
-                        shot.kernels = status;
-                    }
-                    match result {
-                        Ok((samples, _)) => {
-                            app.measured.insert(index, samples);
-                        }
-                        Err(e) => app.error(e),
-                    }
-                    save(app);
-                }
-                JobOutput::Detected { index, result } => {
-                    let status = match &result {
-                        Ok(d) => StageStatus::Done {
-                            summary: format!(
-                                "{} of {} squares aligned",
-                                d.ok_squares().count(),
-                                d.squares.len()
-                            ),
-                        },
-                        Err(reason) => StageStatus::Failed {
-                            reason: reason.clone(),
-                        },
-                    };
-                    if let Some(shot) = app.session.as_mut().and_then(|s| s.shots.get_mut(index)) {
-                        shot.detect = status;
-                    }
-                    match result {
-                        Ok(d) => {
-                            app.detections.insert(index, d);
-                        }
-                        Err(e) => app.error(e),
-                    }
-                    save(app);
-                }
-                JobOutput::PhotoLoaded { path, capture } => {
-                    let tex = channel_texture(&app.ctx, "photo", &capture, None);
-                    app.photo = Some((path, capture, tex));
-                }
-            },
-            JobEvent::Finished { result: Err(e), .. } => app.error(e),
-            JobEvent::Finished { result: Ok(()), .. } => {}
+            }
         }
     }
 }
 
-fn save(app: &mut StudioApp) {
-    if let Some(s) = &app.session {
-        if let Err(e) = s.save() {
-            app.error(e.to_string());
+fn apply_output(app: &mut StudioApp, output: JobOutput) {
+    match output {
+        JobOutput::DemoReady(s) => {
+            let n = s.shots.len();
+            app.set_session(*s);
+            app.info(format!(
+                "demo session ready: {n} simulated shots of the virtual lens"
+            ));
         }
+        JobOutput::ShotLoaded { index, capture } => {
+            let preview = make_preview(&app.ctx, index, &capture);
+            if let Some(shot) = app.session.as_mut().and_then(|s| s.shots.get_mut(index)) {
+                // EXIF fills what the user has not typed.
+                let mut changed = false;
+                if shot.focal_mm.is_none() && capture.setting_focal_mm.is_some() {
+                    shot.focal_mm = capture.setting_focal_mm;
+                    changed = true;
+                }
+                if shot.f_number.is_none() && capture.setting_f_number.is_some() {
+                    shot.f_number = capture.setting_f_number;
+                    changed = true;
+                }
+                if changed {
+                    save(app);
+                }
+            }
+            app.previews.insert(index, preview);
+            if app.selected_shot == Some(index) {
+                update_inspection(app);
+            }
+        }
+        JobOutput::ShotUnreadable { index, reason } => {
+            app.error(reason.clone());
+            app.unreadable.insert(index, reason);
+        }
+        JobOutput::Calibrated {
+            dataset,
+            profile,
+            cv,
+            path,
+        } => {
+            let kind = format!("{:?}", profile.preferred).to_lowercase();
+            app.info(format!(
+                "calibrated on {} samples from {} shots; {kind} model preferred; profile saved to {}",
+                dataset.samples.len(),
+                dataset.shots.len(),
+                app.shown_path(&path)
+            ));
+            if let Some(s) = app.session.as_mut() {
+                s.profile = Some(
+                    path.strip_prefix(s.folder())
+                        .map_or_else(|_| path.clone(), Path::to_path_buf),
+                );
+            }
+            app.dataset = Some(dataset);
+            app.profile = Some((path, profile));
+            app.cv = cv;
+            app.deblur.comparison = None;
+            save(app);
+        }
+        JobOutput::ProfileLoaded {
+            profile,
+            path,
+            compare,
+        } => {
+            app.info(format!("profile {} loaded", app.shown_path(&path)));
+            if compare {
+                app.compare_profile = Some((path, profile));
+            } else {
+                app.profile = Some((path, profile));
+                app.deblur.comparison = None;
+            }
+        }
+        JobOutput::KernelsMeasured { index, result } => {
+            let result = result.map_err(|e| app.shorten_paths(e));
+            let status = match &result {
+                Ok(file) => StageStatus::Done {
+                    summary: format!(
+                        "{} kernels, {} failed",
+                        file.samples.len(),
+                        file.failed.len()
+                    ),
+                },
+                Err(reason) => StageStatus::Failed {
+                    reason: reason.clone(),
+                },
+            };
+            if let Some(shot) = app.session.as_mut().and_then(|s| s.shots.get_mut(index)) {
+                shot.kernels = status;
+            }
+            match result {
+                Ok(file) => {
+                    app.measured.insert(index, file);
+                    app.measured_generation += 1;
+                    update_inspection(app);
+                }
+                Err(e) => app.error(e),
+            }
+            save(app);
+        }
+        JobOutput::DatasetReady(ds) => app.dataset = ds,
+        JobOutput::ResultsRead {
+            detections,
+            measured,
+            cv,
+        } => {
+            app.detections = detections;
+            app.measured = measured;
+            app.measured_generation += 1;
+            if app.cv.is_none() {
+                app.cv = cv;
+            }
+            update_inspection(app);
+            spawn_dataset(app);
+        }
+        JobOutput::Detected { index, result } => {
+            let result = result.map_err(|e| app.shorten_paths(e));
+            let status = match &result {
+                Ok(d) => StageStatus::Done {
+                    summary: format!(
+                        "{} of {} squares aligned",
+                        d.ok_squares().count(),
+                        d.squares.len()
+                    ),
+                },
+                Err(reason) => StageStatus::Failed {
+                    reason: reason.clone(),
+                },
+            };
+            if let Some(shot) = app.session.as_mut().and_then(|s| s.shots.get_mut(index)) {
+                shot.detect = status;
+            }
+            match result {
+                Ok(d) => {
+                    app.detections.insert(index, d);
+                }
+                Err(e) => app.error(e),
+            }
+            save(app);
+        }
+        JobOutput::PhotoLoaded { path, capture } => {
+            let texture = rgb_texture(&app.ctx, "photo", &crate::raw::full_planes(&capture), None);
+            // Settings: EXIF first, then the session's record of the same file.
+            let recorded = app.session.as_ref().and_then(|s| {
+                (0..s.shots.len())
+                    .find(|&i| s.shot_path(i) == path)
+                    .map(|i| (s.shots[i].focal_mm, s.shots[i].f_number))
+            });
+            let (rf, ra) = recorded.unwrap_or((None, None));
+            let centre = [
+                (capture.width as f64 - 1.0) / 2.0,
+                (capture.height as f64 - 1.0) / 2.0,
+            ];
+            app.deblur.photo = Some(Photo {
+                path,
+                focal_mm: capture.setting_focal_mm.or(rf),
+                f_number: capture.setting_f_number.or(ra),
+                capture,
+                texture,
+            });
+            app.deblur.comparison = None;
+            apply(app, Command::DeblurAt(centre));
+        }
+        JobOutput::DeblurCompared {
+            comparison,
+            measured_from,
+        } => {
+            let textures = [
+                Some(&comparison.original),
+                comparison.predicted.as_ref().ok(),
+                comparison.measured.as_ref().ok(),
+            ];
+            // One display scale for the three crops: the original's white points, so a
+            // result that overshoots shows it rather than being stretched back.
+            let whites = crate::review::display_whites(&comparison.original);
+            let textures = textures.map(|planes| {
+                planes.and_then(|p| rgb_texture(&app.ctx, "deblur-crop", p, Some(&whites)))
+            });
+            app.deblur.comparison = Some(ComparisonView {
+                comparison,
+                measured_from,
+                textures,
+            });
+        }
+        JobOutput::DeblurExported(path) => {
+            app.info(format!(
+                "deblurred photo written to {}",
+                app.shown_path(&path)
+            ));
+        }
+    }
+}
+
+pub(super) fn save(app: &mut StudioApp) {
+    if let Some(s) = &app.session
+        && let Err(e) = s.save()
+    {
+        app.error(e.to_string());
     }
 }
 
@@ -168,21 +276,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
             }
         }
         Command::AddShots(files) => add_shots(app, &files),
-        Command::RemoveShot(i) => {
-            if let Some(s) = app.session.as_mut() {
-                if i < s.shots.len() {
-                    s.shots.remove(i);
-                    app.previews.clear();
-                    app.loading.clear();
-                    app.selected_shot = if s.shots.is_empty() {
-                        None
-                    } else {
-                        Some(i.min(s.shots.len() - 1))
-                    };
-                    save(app);
-                }
-            }
-        }
+        Command::RemoveShot(i) => remove_shot(app, i),
         Command::SetShotSetting {
             index,
             focal_mm,
@@ -192,12 +286,39 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
                 shot.focal_mm = focal_mm;
                 shot.f_number = f_number;
                 save(app);
+                spawn_dataset(app);
+            }
+        }
+        Command::ApplySettings { chart, settings } => apply_settings(app, chart, settings),
+        Command::LoadChartDialog => {
+            if let Some(path) = rfd::FileDialog::new()
+                .set_title("Load a chart spec")
+                .add_filter("chart spec", &["json"])
+                .pick_file()
+            {
+                match crate::chart::ChartSpec::load(&path) {
+                    Ok(spec) => {
+                        let settings = app
+                            .settings_edit
+                            .as_ref()
+                            .map(|e| e.1.clone())
+                            .or_else(|| app.session.as_ref().map(|s| s.settings.clone()))
+                            .unwrap_or_default();
+                        app.settings_edit = Some((spec, settings));
+                        app.info(format!(
+                            "chart spec {} read: press Apply to use it",
+                            app.shown_path(&path)
+                        ));
+                    }
+                    Err(e) => app.error(e.to_string()),
+                }
             }
         }
         Command::RunDetect(which) => run_detect(app, which),
         Command::RunKernels(which) => run_kernels(app, which),
         Command::RunCalibrate => run_calibrate(app),
         Command::SetFieldSource(f) => app.field_source = f,
+        Command::SetFieldShow(f) => app.field_show = f,
         Command::OpenPhotoDialog => {
             if let Some(p) = rfd::FileDialog::new()
                 .set_title("Open a photo to deblur")
@@ -208,13 +329,12 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
             }
         }
         Command::OpenPhoto(path) => {
-            let p2 = path.clone();
             let r = app.jobs.spawn("open photo", move |ctx, out| {
                 ctx.report("loading", 0, 1);
-                let capture = load_capture(&p2)?;
+                let capture = load_capture(&path)?;
                 ctx.report("loading", 1, 1);
                 out.emit(JobOutput::PhotoLoaded {
-                    path: p2,
+                    path,
                     capture: Arc::new(capture),
                 });
                 Ok(())
@@ -223,6 +343,40 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
                 app.error(e);
             }
         }
+        Command::SetPhotoSetting { focal_mm, f_number } => {
+            if let Some(p) = app.deblur.photo.as_mut() {
+                p.focal_mm = focal_mm;
+                p.f_number = f_number;
+            }
+        }
+        Command::DeblurAt(centre) => run_deblur_preview(app, centre),
+        Command::SetDeblurLayout(l) => app.deblur.layout = l,
+        Command::SetSliderResult(r) => app.deblur.slider_result = r,
+        Command::ExportDeblurDialog(result) => {
+            let Some(photo) = &app.deblur.photo else {
+                app.error("open a photo first");
+                return;
+            };
+            let stem = photo
+                .path
+                .file_stem()
+                .map_or_else(|| "photo".into(), |s| s.to_string_lossy().into_owned());
+            let which = match result {
+                DeblurResult::Predicted => "predicted",
+                DeblurResult::Measured => "measured",
+            };
+            let mut dialog = rfd::FileDialog::new()
+                .set_title("Export the deblurred photo (16-bit linear)")
+                .add_filter("TIFF or PNG", &["tiff", "tif", "png"])
+                .set_file_name(format!("{stem}.deblurred-{which}.tiff"));
+            if let Some(dir) = photo.path.parent() {
+                dialog = dialog.set_directory(dir);
+            }
+            if let Some(path) = dialog.save_file() {
+                apply(app, Command::ExportDeblur { path, result });
+            }
+        }
+        Command::ExportDeblur { path, result } => run_export(app, path, result),
         Command::LoadProfileDialog | Command::LoadCompareProfileDialog => {
             let compare = command == Command::LoadCompareProfileDialog;
             if let Some(path) = rfd::FileDialog::new()
@@ -258,11 +412,12 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
             };
             if let Some(path) = rfd::FileDialog::new()
                 .set_title("Save the lens profile")
+                .add_filter("lens profile", &["json"])
                 .set_file_name("profile.json")
                 .save_file()
             {
                 match profile.save(&path) {
-                    Ok(()) => app.info(format!("profile saved to {}", path.display())),
+                    Ok(()) => app.info(format!("profile saved to {}", app.shown_path(&path))),
                     Err(e) => app.error(e.to_string()),
                 }
             }
@@ -323,8 +478,93 @@ fn add_shots(app: &mut StudioApp, files: &[PathBuf]) {
     }
     if let Some(i) = added {
         app.selected_shot = Some(i);
+        app.viewer.sensor_px_per_point = None;
         save(app);
     }
+}
+
+/// Removes a shot from the session (its file and results stay on disk); every map keyed
+/// by shot index moves the later shots down by one.
+fn remove_shot(app: &mut StudioApp, i: usize) {
+    let Some(s) = app.session.as_mut() else {
+        return;
+    };
+    if i >= s.shots.len() {
+        return;
+    }
+    s.shots.remove(i);
+    let n = s.shots.len();
+    fn shift<T>(map: &mut BTreeMap<usize, T>, removed: usize) {
+        let old = std::mem::take(map);
+        *map = old
+            .into_iter()
+            .filter(|(k, _)| *k != removed)
+            .map(|(k, v)| (if k > removed { k - 1 } else { k }, v))
+            .collect();
+    }
+    shift(&mut app.previews, i);
+    shift(&mut app.unreadable, i);
+    shift(&mut app.detections, i);
+    shift(&mut app.measured, i);
+    app.loading = app
+        .loading
+        .iter()
+        .filter(|&&k| k != i)
+        .map(|&k| if k > i { k - 1 } else { k })
+        .collect();
+    app.measured_generation += 1;
+    app.selected_shot = if n == 0 { None } else { Some(i.min(n - 1)) };
+    app.selected_square = None;
+    app.inspection = None;
+    save(app);
+    spawn_dataset(app);
+}
+
+/// New chart or stage settings; results they make stale go back to pending (their
+/// files stay until the stage runs again).
+fn apply_settings(
+    app: &mut StudioApp,
+    chart: crate::chart::ChartSpec,
+    settings: crate::session::StageSettings,
+) {
+    if let Err(e) = chart.validate() {
+        app.error(format!("chart spec: {e}"));
+        return;
+    }
+    let Some(s) = app.session.as_mut() else {
+        return;
+    };
+    let chart_changed = s.chart != chart;
+    let kernels_changed = chart_changed
+        || s.settings.oversample != settings.oversample
+        || s.settings.weight_all_subpixels != settings.weight_all_subpixels;
+    s.chart = chart;
+    s.settings = settings;
+    for shot in &mut s.shots {
+        if chart_changed {
+            shot.detect = StageStatus::Pending;
+        }
+        if kernels_changed {
+            shot.kernels = StageStatus::Pending;
+        }
+    }
+    if chart_changed {
+        app.detections.clear();
+        app.selected_square = None;
+        app.inspection = None;
+    }
+    if kernels_changed {
+        app.measured.clear();
+        app.measured_generation += 1;
+        app.dataset = None;
+    }
+    app.settings_edit = None;
+    app.info(match (chart_changed, kernels_changed) {
+        (true, _) => "settings applied: detection and kernels run again with the new chart",
+        (false, true) => "settings applied: kernels run again with the new settings",
+        _ => "settings applied",
+    });
+    save(app);
 }
 
 /// Starts loading the selected shot (and then the others, for thumbnails), one at a
@@ -345,13 +585,17 @@ pub(super) fn ensure_preview(app: &mut StudioApp) {
     app.loading.insert(index);
     let r = app.jobs.spawn("load shot", move |ctx, out| {
         ctx.report("loading shot", 0, 1);
-        let capture = load_capture(&path)?;
-        ctx.check().map_err(|e| e.to_string())?;
+        match load_capture(&path) {
+            Ok(capture) => {
+                ctx.check().map_err(|e| e.to_string())?;
+                out.emit(JobOutput::ShotLoaded {
+                    index,
+                    capture: Arc::new(capture),
+                });
+            }
+            Err(reason) => out.emit(JobOutput::ShotUnreadable { index, reason }),
+        }
         ctx.report("loading shot", 1, 1);
-        out.emit(JobOutput::ShotLoaded {
-            index,
-            capture: Arc::new(capture),
-        });
         Ok(())
     });
     if let Err(e) = r {
@@ -366,7 +610,7 @@ pub(crate) fn load_capture(path: &Path) -> Result<Capture, String> {
 }
 
 /// Display value of a linear sample: sRGB-like encoding so mid-greys look right.
-fn encode(v: f32) -> u8 {
+pub(super) fn encode(v: f32) -> u8 {
     let v = v.clamp(0.0, 1.0);
     let e = if v <= 0.003_130_8 {
         12.92 * v
@@ -392,6 +636,59 @@ pub(crate) fn channel_texture(
         [plane.width, plane.height],
         plane.data.iter().map(|&v| encode(v)),
     );
+    Some(ctx.load_texture(name, img, egui::TextureOptions::NEAREST))
+}
+
+/// A colour texture of full-resolution planes (R, G, B; a lone plane as grey), each
+/// plane's linear values divided by its white (default: the planes' own display whites).
+pub(super) fn rgb_texture(
+    ctx: &egui::Context,
+    name: &str,
+    planes: &[(Channel, Plane)],
+    whites: Option<&[(Channel, f32)]>,
+) -> Option<egui::TextureHandle> {
+    let first = &planes.first()?.1;
+    let (w, h) = (first.width, first.height);
+    if w == 0 || h == 0 {
+        return None;
+    }
+    let own;
+    let whites = match whites {
+        Some(w) => w,
+        None => {
+            own = crate::review::display_whites(planes);
+            &own
+        }
+    };
+    let white_of = |c: Channel| {
+        whites
+            .iter()
+            .find(|(ch, _)| *ch == c)
+            .map_or(1.0, |(_, v)| *v)
+    };
+    let get = |c: Channel| {
+        planes
+            .iter()
+            .find(|(ch, _)| *ch == c)
+            .map(|(_, p)| (p, white_of(c)))
+    };
+    let first = (first, white_of(planes[0].0));
+    let [r, g, b] = match (get(Channel::R), get(Channel::G), get(Channel::B)) {
+        (Some(r), Some(g), Some(b)) => [r, g, b],
+        _ => [first, first, first],
+    };
+    let pixels: Vec<egui::Color32> = (0..w * h)
+        .map(|k| {
+            let v =
+                |(p, white): (&Plane, f32)| encode(p.data.get(k).copied().unwrap_or(0.0) / white);
+            egui::Color32::from_rgb(v(r), v(g), v(b))
+        })
+        .collect();
+    let img = egui::ColorImage {
+        size: [w, h],
+        source_size: egui::Vec2::new(w as f32, h as f32),
+        pixels,
+    };
     Some(ctx.load_texture(name, img, egui::TextureOptions::NEAREST))
 }
 
@@ -431,13 +728,16 @@ fn make_preview(ctx: &egui::Context, index: usize, capture: &Arc<Capture>) -> Sh
     }
 }
 
-/// Shots a stage should run on: the one asked for, or every shot without a result.
+/// Shots a stage should run on: the one asked for, or every readable shot without a
+/// result.
 fn targets(app: &StudioApp, which: Option<usize>, done: impl Fn(usize) -> bool) -> Vec<usize> {
     let n = app.session.as_ref().map_or(0, |s| s.shots.len());
     match which {
         Some(i) if i < n => vec![i],
         Some(_) => Vec::new(),
-        None => (0..n).filter(|&i| !done(i)).collect(),
+        None => (0..n)
+            .filter(|&i| !done(i) && !app.unreadable.contains_key(&i))
+            .collect(),
     }
 }
 
@@ -468,9 +768,11 @@ fn run_detect(app: &mut StudioApp, which: Option<usize>) {
             )
         })
         .collect();
+    let n = work.len();
     let r = app.jobs.spawn("detect", move |ctx, out| {
-        for (index, shot, result_path, capture) in work {
+        for (k, (index, shot, result_path, capture)) in work.into_iter().enumerate() {
             ctx.check().map_err(|e| e.to_string())?;
+            let shot_ctx = ctx.prefixed(&format!("shot {} of {n}: ", k + 1));
             let capture = match capture {
                 Some(c) => c,
                 None => match load_capture(&shot) {
@@ -484,12 +786,12 @@ fn run_detect(app: &mut StudioApp, which: Option<usize>) {
                     }
                 },
             };
-            let result = match crate::detect::detect(&capture, &spec, &DetectParams::default(), ctx)
-            {
-                Ok(d) => write_result(&result_path, &d.to_file()).map(|()| Arc::new(d)),
-                Err(crate::detect::DetectError::Cancelled(c)) => return Err(c.to_string()),
-                Err(e) => Err(format!("{}: {e}", shot.display())),
-            };
+            let result =
+                match crate::detect::detect(&capture, &spec, &DetectParams::default(), &shot_ctx) {
+                    Ok(d) => write_result(&result_path, &d.to_file()).map(|()| Arc::new(d)),
+                    Err(crate::detect::DetectError::Cancelled(c)) => return Err(c.to_string()),
+                    Err(e) => Err(format!("{}: {e}", shot.display())),
+                };
             out.emit(JobOutput::Detected { index, result });
         }
         Ok(())
@@ -509,18 +811,96 @@ fn write_result<T: serde::Serialize>(path: &Path, value: &T) -> Result<(), Strin
     std::fs::rename(&tmp, path).map_err(|e| format!("{}: {e}", path.display()))
 }
 
-/// Detections a reopened session already has on disk.
-pub(super) fn read_detections(
-    session: &Session,
-) -> std::collections::BTreeMap<usize, Arc<Detection>> {
-    (0..session.shots.len())
+/// Reads the detections, kernels and cross-validation report a session already has on
+/// disk, off the UI thread (kernels files with their arrays run to megabytes).
+pub(super) fn read_results(app: &mut StudioApp, session: &Session) {
+    let detect: Vec<(usize, PathBuf)> = (0..session.shots.len())
         .filter(|&i| session.shots[i].detect.is_done())
-        .filter_map(|i| {
-            let text = std::fs::read_to_string(session.result_path(i, "detect")).ok()?;
-            let file: DetectFile = serde_json::from_str(&text).ok()?;
-            Some((i, Arc::new(Detection::from_file(&file))))
-        })
-        .collect()
+        .map(|i| (i, session.result_path(i, "detect")))
+        .collect();
+    let kernels: Vec<(usize, PathBuf)> = (0..session.shots.len())
+        .filter(|&i| session.shots[i].kernels.is_done())
+        .map(|i| (i, session.result_path(i, "kernels")))
+        .collect();
+    let cv_path = session.folder().join(CV_FILE);
+    if detect.is_empty() && kernels.is_empty() && !cv_path.is_file() {
+        return;
+    }
+    let r = app.jobs.spawn("read results", move |ctx, out| {
+        let total = detect.len() + kernels.len();
+        let mut detections = BTreeMap::new();
+        for (k, (i, path)) in detect.into_iter().enumerate() {
+            ctx.check().map_err(|e| e.to_string())?;
+            ctx.report("reading results", k, total);
+            let text =
+                std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+            let file: DetectFile =
+                serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+            detections.insert(i, Arc::new(Detection::from_file(&file)));
+        }
+        let n_detect = detections.len();
+        let mut measured = BTreeMap::new();
+        for (k, (i, path)) in kernels.into_iter().enumerate() {
+            ctx.check().map_err(|e| e.to_string())?;
+            ctx.report("reading results", n_detect + k, total);
+            let file = KernelsFile::load(&path).map_err(|e| e.to_string())?;
+            measured.insert(i, Arc::new(file));
+        }
+        let cv = std::fs::read_to_string(&cv_path)
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok())
+            .map(Arc::new);
+        out.emit(JobOutput::ResultsRead {
+            detections,
+            measured,
+            cv,
+        });
+        Ok(())
+    });
+    if let Err(e) = r {
+        app.error(e);
+    }
+}
+
+/// The session's measured Gaussians over every shot with kernels and known settings,
+/// for the sweeps (rebuilt when kernels or settings change).
+fn spawn_dataset(app: &mut StudioApp) {
+    let Some(session) = app.session.as_ref() else {
+        return;
+    };
+    let done: Vec<usize> = (0..session.shots.len())
+        .filter(|&i| session.shots[i].kernels.is_done() && session.shots[i].setting().is_some())
+        .collect();
+    if done.is_empty() {
+        app.dataset = None;
+        return;
+    }
+    let paths: Vec<PathBuf> = done
+        .iter()
+        .map(|&i| session.result_path(i, "kernels"))
+        .collect();
+    let settings: Vec<_> = done.iter().map(|&i| session.shots[i].setting()).collect();
+    let names: Vec<String> = done.iter().map(|&i| session.shots[i].stem()).collect();
+    let r = app.jobs.spawn("gather measurements", move |_ctx, out| {
+        let refs: Vec<&Path> = paths.iter().map(PathBuf::as_path).collect();
+        let ds = crate::model::Dataset::from_kernels_files(&refs, &settings).map(|mut ds| {
+            for (info, name) in ds.shots.iter_mut().zip(names) {
+                info.name = name;
+            }
+            Arc::new(ds)
+        });
+        match ds {
+            Ok(ds) => out.emit(JobOutput::DatasetReady(Some(ds))),
+            Err(e) => {
+                out.emit(JobOutput::DatasetReady(None));
+                return Err(e.to_string());
+            }
+        }
+        Ok(())
+    });
+    if let Err(e) = r {
+        app.error(e);
+    }
 }
 
 /// Recomputes the inspector's crops for the selected shot, square and channel.
@@ -557,6 +937,8 @@ fn update_inspection(app: &mut StudioApp) {
     else {
         return;
     };
+    let facts = (square.status == crate::detect::SquareStatus::Ok)
+        .then(|| crate::review::square_facts(square));
     let tex = |name: &str, plane: &Plane, map: &dyn Fn(f32) -> u8| {
         let img = egui::ColorImage::from_gray_iter(
             [plane.width, plane.height],
@@ -579,14 +961,41 @@ fn update_inspection(app: &mut StudioApp) {
             ((0.5 + 2.0 * r / contrast).clamp(0.0, 1.0) * 255.0) as u8
         }),
     ];
+    let kernel = app
+        .measured
+        .get(&shot)
+        .and_then(|file| {
+            let s = file
+                .samples
+                .iter()
+                .find(|s| s.channel == channel && s.row == Some(sq.0) && s.col == Some(sq.1))?;
+            s.kernel_at(file.oversample)
+        })
+        .map(|k| {
+            let peak = k.data.iter().copied().fold(1e-12, f64::max);
+            let img = egui::ColorImage::from_gray_iter(
+                [k.size, k.size],
+                k.data
+                    .iter()
+                    .map(|&v| ((v / peak).clamp(0.0, 1.0) * 255.0) as u8),
+            );
+            app.ctx
+                .load_texture("inspect-kernel", img, egui::TextureOptions::NEAREST)
+        });
     app.inspection = Some(super::Inspection {
         shot,
         square: sq,
         channel,
         crops,
+        facts,
         textures,
+        kernel,
     });
 }
+
+/// The cross-validation report beside the profile, so a reopened session shows its
+/// curves without calibrating again.
+const CV_FILE: &str = "crossval.json";
 
 /// Fits the models over every shot with measured kernels and writes the profile into
 /// the session folder; cross-validation chooses α and β unless the settings fix them.
@@ -605,17 +1014,27 @@ fn run_calibrate(app: &mut StudioApp) {
         app.error("calibration needs kernels on at least two shots: run Detect (Ctrl+D) and Kernels (Ctrl+K) first");
         return;
     }
+    let missing: Vec<String> = done
+        .iter()
+        .filter(|&&i| session.shots[i].setting().is_none())
+        .map(|&i| session.shots[i].stem())
+        .collect();
+    if !missing.is_empty() {
+        app.error(format!(
+            "calibration needs the focal length and aperture of every shot: type them for {}",
+            missing.join(", ")
+        ));
+        return;
+    }
     let paths: Vec<PathBuf> = done
         .iter()
         .map(|&i| session.result_path(i, "kernels"))
         .collect();
     let settings: Vec<_> = done.iter().map(|&i| session.shots[i].setting()).collect();
-    let names: Vec<String> = done
-        .iter()
-        .map(|&i| session.shots[i].path.display().to_string())
-        .collect();
+    let names: Vec<String> = done.iter().map(|&i| session.shots[i].stem()).collect();
     let chart = session.chart.clone();
     let out_path = session.folder().join("profile.json");
+    let cv_path = session.folder().join(CV_FILE);
     let opts = crate::profile::CalibrateOptions {
         alpha: session.settings.alpha,
         beta: session.settings.beta,
@@ -631,6 +1050,13 @@ fn run_calibrate(app: &mut StudioApp) {
         let (profile, cv) = crate::profile::calibrate(&ds, Some(chart), &opts, ctx)
             .map_err(|e| format!("calibration: {e}"))?;
         profile.save(&out_path).map_err(|e| e.to_string())?;
+        match &cv {
+            Some(report) => write_result(&cv_path, report)?,
+            None => {
+                // A fixed α, β has no curves: an old report would describe another fit.
+                let _ = std::fs::remove_file(&cv_path);
+            }
+        }
         out.emit(JobOutput::Calibrated {
             dataset: Arc::new(ds),
             profile: Arc::new(profile),
@@ -642,26 +1068,6 @@ fn run_calibrate(app: &mut StudioApp) {
     if let Err(e) = r {
         app.error(e);
     }
-}
-
-/// The samples the studio shows, from a kernels file.
-pub(super) fn measured_samples(file: &KernelsFile) -> Vec<super::MeasuredSample> {
-    file.samples
-        .iter()
-        .filter_map(|s| {
-            Some(super::MeasuredSample {
-                x: s.x,
-                y: s.y,
-                channel: s.channel,
-                gaussian: crate::psf::Gaussian2 {
-                    sigma_x: s.cxx?,
-                    sigma_y: s.cyy?,
-                    rho: s.cor?,
-                },
-                kernel: s.kernel_at(file.oversample),
-            })
-        })
-        .collect()
 }
 
 /// Kernels of the chosen shots (those detected), one shot after another, each shot's
@@ -698,7 +1104,7 @@ fn run_kernels(app: &mut StudioApp, which: Option<usize>) {
         PathBuf,
         Option<Arc<Capture>>,
         Arc<Detection>,
-        Option<crate::plane::LensSetting>,
+        Option<LensSetting>,
     );
     let work: Vec<Work> = indices
         .iter()
@@ -713,9 +1119,11 @@ fn run_kernels(app: &mut StudioApp, which: Option<usize>) {
             ))
         })
         .collect();
+    let n = work.len();
     let r = app.jobs.spawn("kernels", move |ctx, out| {
-        for (index, shot, result_path, capture, det, setting) in work {
+        for (k, (index, shot, result_path, capture, det, setting)) in work.into_iter().enumerate() {
             ctx.check().map_err(|e| e.to_string())?;
+            let shot_ctx = ctx.prefixed(&format!("shot {} of {n}: ", k + 1));
             let capture = match capture {
                 Some(c) => c,
                 None => match load_capture(&shot) {
@@ -729,21 +1137,21 @@ fn run_kernels(app: &mut StudioApp, which: Option<usize>) {
                     }
                 },
             };
-            let result = match crate::kernel::estimate_shot(&capture, &det, &spec, &params, ctx) {
-                Ok(k) => {
-                    let file = KernelsFile::from_shot(
-                        &k,
-                        setting.map(|s| s.focal_mm).or(capture.setting_focal_mm),
-                        setting.map(|s| s.f_number).or(capture.setting_f_number),
-                        Some(capture.identity.clone()),
-                        true,
-                    );
-                    write_result(&result_path, &file)
-                        .map(|()| (measured_samples(&file), file.failed.len()))
-                }
-                Err(crate::kernel::KernelError::Cancelled(c)) => return Err(c.to_string()),
-                Err(e) => Err(format!("{}: {e}", shot.display())),
-            };
+            let result =
+                match crate::kernel::estimate_shot(&capture, &det, &spec, &params, &shot_ctx) {
+                    Ok(k) => {
+                        let file = KernelsFile::from_shot(
+                            &k,
+                            setting.map(|s| s.focal_mm).or(capture.setting_focal_mm),
+                            setting.map(|s| s.f_number).or(capture.setting_f_number),
+                            Some(capture.identity.clone()),
+                            true,
+                        );
+                        write_result(&result_path, &file).map(|()| Arc::new(file))
+                    }
+                    Err(crate::kernel::KernelError::Cancelled(c)) => return Err(c.to_string()),
+                    Err(e) => Err(format!("{}: {e}", shot.display())),
+                };
             out.emit(JobOutput::KernelsMeasured { index, result });
         }
         Ok(())
@@ -753,15 +1161,205 @@ fn run_kernels(app: &mut StudioApp, which: Option<usize>) {
     }
 }
 
-/// Kernels a reopened session already has on disk.
-pub(super) fn read_measured(
-    session: &Session,
-) -> std::collections::BTreeMap<usize, Vec<super::MeasuredSample>> {
-    (0..session.shots.len())
-        .filter(|&i| session.shots[i].kernels.is_done())
-        .filter_map(|i| {
-            let file = KernelsFile::load(&session.result_path(i, "kernels")).ok()?;
-            Some((i, measured_samples(&file)))
-        })
-        .collect()
+fn deblur_options(app: &StudioApp) -> DeblurOptions {
+    let method = app
+        .session
+        .as_ref()
+        .and_then(|s| Method::from_name(&s.settings.deblur_method))
+        .unwrap_or_default();
+    DeblurOptions {
+        method,
+        ..DeblurOptions::default()
+    }
+}
+
+/// The two kernel sources of the open photo: the profile's prediction and the measured
+/// kernels of the session shot at the photo's setting (each with the reason it is
+/// missing), and the name of that shot.
+type Sources = (
+    Result<crate::deblur::ProfileKernels, String>,
+    Result<crate::deblur::ScatteredKernels, String>,
+    Option<String>,
+);
+
+fn photo_sources(app: &StudioApp, photo: &Photo) -> Sources {
+    let cap = &photo.capture;
+    let setting = photo.setting();
+    let predicted = match &app.profile {
+        Some((_, p)) => crate::review::profile_source(p, cap, setting),
+        None => Err("no profile yet: Calibrate (Ctrl+M) or load one in Models".into()),
+    };
+    let found = match (app.session.as_ref(), setting) {
+        (Some(s), Some(set)) => crate::review::measured_kernels_for(s, cap.width, cap.height, set)
+            .map(|(i, path)| (s.shots[i].stem(), path)),
+        _ => None,
+    };
+    let (measured, from) = match (found, setting) {
+        (Some((name, path)), _) => (crate::review::measured_source(&path), Some(name)),
+        (None, None) => (
+            Err("focal length and aperture unknown: type them above".into()),
+            None,
+        ),
+        (None, Some(s)) => (
+            Err(format!(
+                "no shot of this session at {:.0} mm f/{:.1} has measured kernels",
+                s.focal_mm, s.f_number
+            )),
+            None,
+        ),
+    };
+    (predicted, measured, from)
+}
+
+/// Deblurs a crop of the open photo around `centre` with both sources.
+fn run_deblur_preview(app: &mut StudioApp, centre: [f64; 2]) {
+    let Some(photo) = &app.deblur.photo else {
+        return;
+    };
+    // A newer preview replaces one still running.
+    for h in &app.jobs.running {
+        if h.name == "deblur preview" {
+            h.cancel();
+        }
+    }
+    let cap = Arc::clone(&photo.capture);
+    let region = crate::review::Region::around(
+        centre[0],
+        centre[1],
+        app.deblur.crop_px,
+        cap.width,
+        cap.height,
+    );
+    let (predicted, measured, from) = photo_sources(app, photo);
+    let opts = deblur_options(app);
+    let r = app.jobs.spawn("deblur preview", move |ctx, out| {
+        let comparison = crate::review::compare_deblur(
+            &cap,
+            region,
+            predicted
+                .as_ref()
+                .map(|s| s as &dyn KernelSource)
+                .map_err(Clone::clone),
+            measured
+                .as_ref()
+                .map(|s| s as &dyn KernelSource)
+                .map_err(Clone::clone),
+            &opts,
+            ctx,
+        )
+        .map_err(|e| e.to_string())?;
+        out.emit(JobOutput::DeblurCompared {
+            comparison: Arc::new(comparison),
+            measured_from: from,
+        });
+        Ok(())
+    });
+    if let Err(e) = r {
+        app.error(e);
+    }
+}
+
+/// Deblurs the whole open photo with one source and writes it.
+fn run_export(app: &mut StudioApp, path: PathBuf, result: DeblurResult) {
+    let Some(photo) = &app.deblur.photo else {
+        app.error("open a photo first");
+        return;
+    };
+    let (predicted, measured, _) = photo_sources(app, photo);
+    let source: Result<Box<dyn KernelSource + Send>, String> = match result {
+        DeblurResult::Predicted => predicted.map(|s| Box::new(s) as Box<dyn KernelSource + Send>),
+        DeblurResult::Measured => measured.map(|s| Box::new(s) as Box<dyn KernelSource + Send>),
+    };
+    let source = match source {
+        Ok(s) => s,
+        Err(reason) => {
+            app.error(format!("cannot export with {}: {reason}", result.label()));
+            return;
+        }
+    };
+    let cap = Arc::clone(&photo.capture);
+    let opts = deblur_options(app);
+    let r = app.jobs.spawn("export", move |ctx, out| {
+        crate::review::export_deblurred(&cap, source.as_ref(), &opts, &path, ctx)?;
+        out.emit(JobOutput::DeblurExported(path));
+        Ok(())
+    });
+    if let Err(e) = r {
+        app.error(e);
+    }
+}
+
+/// The measured kernels of the selected shot and channel packed into one texture: the
+/// central ±R px of each (R = 2.5 × the largest σ of the field, so every kernel shows
+/// the same extent and shapes compare), each scaled to its own peak (σ is in the tint).
+pub(super) fn ensure_kernel_atlas(app: &mut StudioApp) {
+    let Some(shot) = app.selected_shot else {
+        app.kernel_atlas = None;
+        return;
+    };
+    let key = (shot, app.channel, app.measured_generation);
+    if app.kernel_atlas.as_ref().is_some_and(|a| a.key == key) {
+        return;
+    }
+    app.kernel_atlas = None;
+    let Some(file) = app.measured.get(&shot) else {
+        return;
+    };
+    let samples: Vec<(usize, crate::psf::Kernel)> = file
+        .samples
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| s.channel == app.channel)
+        .filter_map(|(i, s)| Some((i, s.kernel_at(file.oversample)?)))
+        .collect();
+    if samples.is_empty() {
+        return;
+    }
+    let max_sigma = file
+        .samples
+        .iter()
+        .filter(|s| s.channel == app.channel)
+        .filter_map(|s| Some(s.cxx?.max(s.cyy?)))
+        .fold(0.5, f64::max);
+    let extent_px = (2.5 * max_sigma).max(2.0);
+    let os = file.oversample.max(1);
+    let half = (extent_px * os as f64).ceil() as usize;
+    let cell = 2 * half + 1;
+    let per_row = (samples.len() as f64).sqrt().ceil().max(1.0) as usize;
+    let rows = samples.len().div_ceil(per_row);
+    let (w, h) = (per_row * cell, rows * cell);
+    let mut img = egui::ColorImage::filled([w, h], egui::Color32::TRANSPARENT);
+    let mut cells = Vec::with_capacity(samples.len());
+    for (n, (i, k)) in samples.iter().enumerate() {
+        let (cx, cy) = ((n % per_row) * cell, (n / per_row) * cell);
+        let c = (k.size / 2) as isize;
+        let peak = k.data.iter().copied().fold(1e-12, f64::max);
+        for j in 0..cell {
+            for q in 0..cell {
+                let (kx, ky) = (
+                    c + q as isize - half as isize,
+                    c + j as isize - half as isize,
+                );
+                if kx < 0 || ky < 0 || kx >= k.size as isize || ky >= k.size as isize {
+                    continue;
+                }
+                let v = (k.at(kx as usize, ky as usize) / peak).clamp(0.0, 1.0);
+                img[(cx + q, cy + j)] = egui::Color32::from_white_alpha((v * 255.0) as u8);
+            }
+        }
+        let uv = egui::Rect::from_min_size(
+            egui::Pos2::new(cx as f32 / w as f32, cy as f32 / h as f32),
+            egui::Vec2::new(cell as f32 / w as f32, cell as f32 / h as f32),
+        );
+        cells.push((*i, uv));
+    }
+    let texture = app
+        .ctx
+        .load_texture("kernel-atlas", img, egui::TextureOptions::NEAREST);
+    app.kernel_atlas = Some(KernelAtlas {
+        key,
+        texture,
+        cells,
+        extent_px: half as f64 / os as f64,
+    });
 }

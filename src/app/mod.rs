@@ -8,13 +8,19 @@ pub mod jobs;
 mod logic;
 mod ui;
 
+use crate::chart::ChartSpec;
+use crate::crossval::CvReport;
 use crate::detect::Detection;
 use crate::job::JobContext;
+use crate::kernel::file::KernelsFile;
+use crate::model::Dataset;
 use crate::plane::{Capture, Channel};
-use crate::session::{DemoSpec, Session};
+use crate::profile::Profile;
+use crate::review::DeblurComparison;
+use crate::session::{DemoSpec, Session, StageSettings};
 use jobs::Jobs;
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -49,6 +55,33 @@ impl View {
     }
 }
 
+/// Which deblurred result a slider compares with the original, or an export writes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DeblurResult {
+    /// With the Gaussians the profile predicts at the photo's setting.
+    Predicted,
+    /// With the non-parametric kernels measured on the session's shot at that setting.
+    Measured,
+}
+
+impl DeblurResult {
+    #[must_use]
+    pub fn label(self) -> &'static str {
+        match self {
+            DeblurResult::Predicted => "predicted Gaussians",
+            DeblurResult::Measured => "measured kernels",
+        }
+    }
+}
+
+/// How the Deblur view lays out its crops.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DeblurLayout {
+    SideBySide,
+    /// One crop, original left of a movable divider and a result right of it.
+    Slider,
+}
+
 /// Everything a panel can ask for; applied by `logic` after the frame is drawn.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Command {
@@ -67,12 +100,32 @@ pub enum Command {
         focal_mm: Option<f64>,
         f_number: Option<f64>,
     },
+    /// The chart and the stage settings; results they make stale are reset.
+    ApplySettings {
+        chart: ChartSpec,
+        settings: StageSettings,
+    },
+    /// Reads a chart spec file into the settings being edited.
+    LoadChartDialog,
     /// Detection on one shot, or on every shot without a result.
     RunDetect(Option<usize>),
     RunKernels(Option<usize>),
     RunCalibrate,
     OpenPhotoDialog,
     OpenPhoto(PathBuf),
+    SetPhotoSetting {
+        focal_mm: Option<f64>,
+        f_number: Option<f64>,
+    },
+    /// Deblur a crop around this sensor point with both kernel sources.
+    DeblurAt([f64; 2]),
+    SetDeblurLayout(DeblurLayout),
+    SetSliderResult(DeblurResult),
+    ExportDeblurDialog(DeblurResult),
+    ExportDeblur {
+        path: PathBuf,
+        result: DeblurResult,
+    },
     LoadProfileDialog,
     /// Load a second profile to show beside the first (two lens units).
     LoadCompareProfileDialog,
@@ -82,6 +135,7 @@ pub enum Command {
     },
     SaveProfileDialog,
     SetFieldSource(FieldSource),
+    SetFieldShow(FieldShow),
     OpenSessionDialog,
     Cancel(u64),
     CancelAll,
@@ -91,10 +145,15 @@ pub enum Command {
 
 /// What jobs hand back.
 pub enum JobOutput {
-    DemoReady(Session),
+    DemoReady(Box<Session>),
     ShotLoaded {
         index: usize,
         capture: Arc<Capture>,
+    },
+    /// A shot that cannot be read: the one-line reason names the file.
+    ShotUnreadable {
+        index: usize,
+        reason: String,
     },
     PhotoLoaded {
         path: PathBuf,
@@ -103,18 +162,26 @@ pub enum JobOutput {
     /// A shot's kernels finished (or failed).
     KernelsMeasured {
         index: usize,
-        result: Result<(Vec<MeasuredSample>, usize), String>,
+        result: Result<Arc<KernelsFile>, String>,
+    },
+    /// The session's measured Gaussians, gathered from its kernels files.
+    DatasetReady(Option<Arc<Dataset>>),
+    /// Results a reopened session already has on disk.
+    ResultsRead {
+        detections: BTreeMap<usize, Arc<Detection>>,
+        measured: BTreeMap<usize, Arc<KernelsFile>>,
+        cv: Option<Arc<CvReport>>,
     },
     /// Calibration finished: the measurements it used, the profile and the
     /// cross-validation report (absent when α, β were fixed).
     Calibrated {
-        dataset: Arc<crate::model::Dataset>,
-        profile: Arc<crate::profile::Profile>,
-        cv: Option<Arc<crate::crossval::CvReport>>,
+        dataset: Arc<Dataset>,
+        profile: Arc<Profile>,
+        cv: Option<Arc<CvReport>>,
         path: PathBuf,
     },
     ProfileLoaded {
-        profile: Arc<crate::profile::Profile>,
+        profile: Arc<Profile>,
         path: PathBuf,
         compare: bool,
     },
@@ -123,6 +190,13 @@ pub enum JobOutput {
         index: usize,
         result: Result<Arc<Detection>, String>,
     },
+    /// Deblurred crops of the open photo; `measured_from` names the shot whose kernels
+    /// were used.
+    DeblurCompared {
+        comparison: Arc<DeblurComparison>,
+        measured_from: Option<String>,
+    },
+    DeblurExported(PathBuf),
 }
 
 /// How the app starts.
@@ -139,6 +213,9 @@ pub struct AppOptions {
     /// Stages to run by themselves once the session's shots are loaded, e.g.
     /// `LENSBLUR_AUTORUN=detect,kernels` (for measuring frame times under load).
     pub autorun: Vec<String>,
+    /// Threads jobs compute on; 0: every core but one, so the UI thread (and a software
+    /// renderer) always has one.
+    pub job_threads: usize,
     /// When the process started, for the first-frame time.
     pub started: Instant,
 }
@@ -158,6 +235,7 @@ impl Default for AppOptions {
                         .collect()
                 })
                 .unwrap_or_default(),
+            job_threads: 0,
             started: Instant::now(),
         }
     }
@@ -170,17 +248,7 @@ pub struct Message {
     pub text: String,
 }
 
-/// One measured kernel's fit at its square centre (sensor px).
-#[derive(Clone, Debug)]
-pub struct MeasuredSample {
-    pub x: f64,
-    pub y: f64,
-    pub channel: Channel,
-    pub gaussian: crate::psf::Gaussian2,
-    pub kernel: Option<crate::psf::Kernel>,
-}
-
-/// Where the Kernel field view's ellipses come from.
+/// Where the Kernel field view's samples come from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FieldSource {
     /// Measured on the selected shot.
@@ -191,14 +259,25 @@ pub enum FieldSource {
     Truth,
 }
 
+/// What the Kernel field view draws at each position.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FieldShow {
+    /// The 1-σ ellipses of the Gaussians.
+    Ellipses,
+    /// The measured non-parametric kernels themselves.
+    Kernels,
+}
+
 /// The inspector's square: which one, its crops and their textures (observed,
-/// synthetic, residual).
+/// synthetic, residual), and its measured kernel's texture.
 pub struct Inspection {
     pub shot: usize,
     pub square: (usize, usize),
     pub channel: Channel,
     pub crops: crate::detect::inspect::SquareInspection,
+    pub facts: Option<crate::review::SquareFacts>,
     pub textures: [egui::TextureHandle; 3],
+    pub kernel: Option<egui::TextureHandle>,
 }
 
 /// A loaded shot and its display textures per channel.
@@ -212,15 +291,76 @@ pub struct ShotPreview {
 /// at the viewer's centre.
 #[derive(Clone, Copy, Debug)]
 pub struct ViewerState {
+    /// `None` while the shot is fitted to the viewer (it stays fitted as the viewer
+    /// resizes); set once the user zooms or pans.
     pub sensor_px_per_point: Option<f32>,
     pub centre_sensor: [f32; 2],
+    /// Overlays: square outlines, circles and corners, the global chart grid.
+    pub show_squares: bool,
+    pub show_circles: bool,
+    pub show_grid: bool,
+}
+
+/// The photo open in the Deblur view.
+pub struct Photo {
+    pub path: PathBuf,
+    pub capture: Arc<Capture>,
+    pub texture: Option<egui::TextureHandle>,
+    /// From EXIF, the session's record of the shot, or typed.
+    pub focal_mm: Option<f64>,
+    pub f_number: Option<f64>,
+}
+
+impl Photo {
+    #[must_use]
+    pub fn setting(&self) -> Option<crate::plane::LensSetting> {
+        Some(crate::plane::LensSetting {
+            focal_mm: self.focal_mm?,
+            f_number: self.f_number?,
+        })
+    }
+}
+
+/// Deblurred crops and their textures: original, predicted, measured.
+pub struct ComparisonView {
+    pub comparison: Arc<DeblurComparison>,
+    pub measured_from: Option<String>,
+    pub textures: [Option<egui::TextureHandle>; 3],
+}
+
+/// The Deblur view's state.
+pub struct DeblurState {
+    pub photo: Option<Photo>,
+    /// Side of the compared crop, sensor px.
+    pub crop_px: usize,
+    pub comparison: Option<ComparisonView>,
+    pub layout: DeblurLayout,
+    /// Divider position in the slider layout, 0 (all result) to 1 (all original).
+    pub slider: f32,
+    pub slider_result: DeblurResult,
+}
+
+/// Measured kernels of one shot and channel packed into one texture for the Kernel
+/// field view: each cell holds the central ±`extent_px` of one kernel, scaled to its
+/// peak.
+pub struct KernelAtlas {
+    pub key: (usize, Channel, usize),
+    pub texture: egui::TextureHandle,
+    /// Per sample: its index in the kernels file and its cell's UV rectangle.
+    pub cells: Vec<(usize, egui::Rect)>,
+    /// Half the side every cell shows, sensor px.
+    pub extent_px: f64,
 }
 
 /// Frame intervals while jobs run, to show the UI stays responsive.
 #[derive(Default)]
 pub struct FrameLog {
     last: Option<Instant>,
+    last_report: Option<Instant>,
     pub busy_intervals_ms: Vec<f32>,
+    /// Time the app's own logic and drawing took in those frames (the rest of an
+    /// interval is egui's tessellation, the renderer and the wait for the display).
+    pub busy_app_ms: Vec<f32>,
     /// Names of the jobs that ran while these frames were drawn.
     pub busy_jobs: std::collections::BTreeSet<String>,
 }
@@ -229,13 +369,31 @@ impl FrameLog {
     /// (count, median, 95th percentile, max) of frame intervals in ms while jobs ran.
     #[must_use]
     pub fn stats(&self) -> Option<(usize, f32, f32, f32)> {
-        if self.busy_intervals_ms.is_empty() {
-            return None;
+        summary(&self.busy_intervals_ms)
+    }
+
+    /// Median of the app's own time per frame, ms.
+    #[must_use]
+    pub fn app_median_ms(&self) -> Option<f32> {
+        summary(&self.busy_app_ms).map(|s| s.1)
+    }
+}
+
+fn summary(values: &[f32]) -> Option<(usize, f32, f32, f32)> {
+    if values.is_empty() {
+        return None;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(f32::total_cmp);
+    let q = |p: f32| v[((v.len() - 1) as f32 * p).round() as usize];
+    Some((v.len(), q(0.5), q(0.95), v[v.len() - 1]))
+}
+
+impl FrameLog {
+    fn record_app_time(&mut self, busy: bool, ms: f32) {
+        if busy {
+            self.busy_app_ms.push(ms);
         }
-        let mut v = self.busy_intervals_ms.clone();
-        v.sort_by(f32::total_cmp);
-        let q = |p: f32| v[((v.len() - 1) as f32 * p).round() as usize];
-        Some((v.len(), q(0.5), q(0.95), v[v.len() - 1]))
     }
 }
 
@@ -247,37 +405,44 @@ pub struct StudioApp {
     pub selected_shot: Option<usize>,
     pub channel: Channel,
     pub previews: BTreeMap<usize, ShotPreview>,
+    /// Shots that could not be read, with the reason.
+    pub unreadable: BTreeMap<usize, String>,
     pub messages: Vec<Message>,
     pub commands: Vec<Command>,
     pub viewer: ViewerState,
-    /// Setting for the predicted / ground-truth field.
+    /// Setting for the predicted / ground-truth field and the sweeps.
     pub field_focal_mm: f64,
     pub field_f_number: f64,
     pub compare_units: bool,
-    pub show_ellipses: bool,
-    pub photo: Option<(PathBuf, Arc<Capture>, Option<egui::TextureHandle>)>,
     /// Detection per shot index, this run's or read back from the session's results.
     pub detections: BTreeMap<usize, Arc<Detection>>,
     /// The square clicked in the Shot view: (row, col).
     pub selected_square: Option<(usize, usize)>,
-    /// Measured robust Gaussians per shot index (all channels).
-    pub measured: BTreeMap<usize, Vec<MeasuredSample>>,
-    /// The session's measured Gaussians, as calibration used them.
-    pub dataset: Option<Arc<crate::model::Dataset>>,
+    /// Measured kernels and their Gaussians per shot index (all channels).
+    pub measured: BTreeMap<usize, Arc<KernelsFile>>,
+    /// The session's measured Gaussians over every shot with kernels.
+    pub dataset: Option<Arc<Dataset>>,
     /// The lens profile in use (calibrated here or loaded) and a second one to compare.
-    pub profile: Option<(PathBuf, Arc<crate::profile::Profile>)>,
-    pub compare_profile: Option<(PathBuf, Arc<crate::profile::Profile>)>,
-    pub cv: Option<Arc<crate::crossval::CvReport>>,
+    pub profile: Option<(PathBuf, Arc<Profile>)>,
+    pub compare_profile: Option<(PathBuf, Arc<Profile>)>,
+    pub cv: Option<Arc<CvReport>>,
     /// What the Kernel field view shows.
     pub field_source: FieldSource,
+    pub field_show: FieldShow,
+    pub kernel_atlas: Option<KernelAtlas>,
     /// Crops of the clicked square for the inspector.
     pub inspection: Option<Inspection>,
+    pub deblur: DeblurState,
+    /// Settings being edited in the session panel, applied by its Apply button.
+    pub settings_edit: Option<(ChartSpec, StageSettings)>,
     pub dark: bool,
     pub frames: FrameLog,
     pub options: AppOptions,
     pub ctx: egui::Context,
     /// Shot indices whose loading has been started.
     loading: std::collections::BTreeSet<usize>,
+    /// Bumped whenever measured kernels change, so cached textures are rebuilt.
+    measured_generation: usize,
     first_frame_logged: bool,
     ready_logged: bool,
 }
@@ -290,22 +455,24 @@ impl StudioApp {
         let wake_ctx = ctx.clone();
         let mut app = Self {
             session: None,
-            jobs: Jobs::new(move || wake_ctx.request_repaint()),
+            jobs: Jobs::new(options.job_threads, move || wake_ctx.request_repaint()),
             view: View::Shot,
             selected_shot: None,
             channel: Channel::G,
             previews: BTreeMap::new(),
+            unreadable: BTreeMap::new(),
             messages: Vec::new(),
             commands: Vec::new(),
             viewer: ViewerState {
                 sensor_px_per_point: None,
                 centre_sensor: [0.0, 0.0],
+                show_squares: true,
+                show_circles: true,
+                show_grid: false,
             },
             field_focal_mm: 50.0,
             field_f_number: 5.6,
             compare_units: false,
-            show_ellipses: true,
-            photo: None,
             detections: BTreeMap::new(),
             selected_square: None,
             inspection: None,
@@ -315,18 +482,33 @@ impl StudioApp {
             compare_profile: None,
             cv: None,
             field_source: FieldSource::Measured,
+            field_show: FieldShow::Ellipses,
+            kernel_atlas: None,
+            deblur: DeblurState {
+                photo: None,
+                crop_px: 160,
+                comparison: None,
+                layout: DeblurLayout::SideBySide,
+                slider: 0.5,
+                slider_result: DeblurResult::Predicted,
+            },
+            settings_edit: None,
             dark: true,
             frames: FrameLog::default(),
             options: options.clone(),
             ctx: ctx.clone(),
             loading: std::collections::BTreeSet::new(),
+            measured_generation: 0,
             first_frame_logged: false,
             ready_logged: false,
         };
         ctx.set_theme(egui::Theme::Dark);
         match &options.session {
             Some(path) => match Session::open(path) {
-                Ok(s) => app.set_session(s),
+                Ok(s) => {
+                    app.set_session(s);
+                    logic::save(&mut app);
+                }
                 Err(e) => app.error(e.to_string()),
             },
             None => app.open_or_make_demo(),
@@ -335,24 +517,58 @@ impl StudioApp {
     }
 
     pub fn error(&mut self, text: impl Into<String>) {
+        let text = self.shorten_paths(text.into());
         self.messages.push(Message {
             is_error: true,
-            text: text.into(),
+            text,
         });
     }
 
     pub fn info(&mut self, text: impl Into<String>) {
+        let text = self.shorten_paths(text.into());
         self.messages.push(Message {
             is_error: false,
-            text: text.into(),
+            text,
         });
+    }
+
+    /// A path as the UI shows it: relative to the session folder when it lies inside,
+    /// `~/…` under the home folder, absolute otherwise. Where the session lives is one
+    /// hover away (the session name's tooltip); repeating it in every line would crowd
+    /// the window and tie what it shows to where the folder happens to be.
+    #[must_use]
+    pub fn shown_path(&self, path: &Path) -> String {
+        if let Some(s) = &self.session
+            && let Ok(rel) = path.strip_prefix(s.folder())
+            && !rel.as_os_str().is_empty()
+        {
+            return rel.display().to_string();
+        }
+        if let Some(home) = std::env::var_os("HOME").map(PathBuf::from)
+            && let Ok(rel) = path.strip_prefix(&home)
+        {
+            return format!("~/{}", rel.display());
+        }
+        path.display().to_string()
+    }
+
+    /// Messages from the core name files by their full paths; inside the session folder
+    /// the relative name says the same in less space.
+    pub(crate) fn shorten_paths(&self, text: String) -> String {
+        match &self.session {
+            Some(s) if !s.folder().as_os_str().is_empty() => {
+                let prefix = format!("{}{}", s.folder().display(), std::path::MAIN_SEPARATOR);
+                text.replace(&prefix, "")
+            }
+            _ => text,
+        }
     }
 
     fn open_or_make_demo(&mut self) {
         let dir = self.options.demo_dir.clone();
         if dir.join(crate::session::SESSION_FILE).is_file() {
             match Session::open(&dir) {
-                Ok(s) if s.is_demo && s.shots.len() == self.options.demo_spec.settings.len() => {
+                Ok(s) if s.is_demo && s.demo_key == Some(self.options.demo_spec.key()) => {
                     self.set_session(s);
                     return;
                 }
@@ -365,7 +581,7 @@ impl StudioApp {
             .jobs
             .spawn("demo session", move |ctx: &JobContext, out| {
                 let s = crate::session::make_demo(&dir, &spec, ctx).map_err(|e| e.to_string())?;
-                out.emit(JobOutput::DemoReady(s));
+                out.emit(JobOutput::DemoReady(Box::new(s)));
                 Ok(())
             });
         if let Err(e) = started {
@@ -375,12 +591,17 @@ impl StudioApp {
 
     pub(crate) fn set_session(&mut self, s: Session) {
         self.previews.clear();
+        self.unreadable.clear();
         self.loading.clear();
-        self.detections = logic::read_detections(&s);
-        self.measured = logic::read_measured(&s);
+        self.detections.clear();
+        self.measured.clear();
+        self.measured_generation += 1;
+        self.kernel_atlas = None;
         self.dataset = None;
         self.cv = None;
         self.profile = None;
+        self.settings_edit = None;
+        self.deblur.comparison = None;
         if let Some(p) = &s.profile {
             let path = if p.is_absolute() {
                 p.clone()
@@ -395,8 +616,14 @@ impl StudioApp {
             }
         }
         self.selected_square = None;
+        self.inspection = None;
         self.selected_shot = if s.shots.is_empty() { None } else { Some(0) };
         self.viewer.sensor_px_per_point = None;
+        if let Some((f, a)) = middle_setting(&s) {
+            self.field_focal_mm = f;
+            self.field_f_number = a;
+        }
+        logic::read_results(self, &s);
         self.session = Some(s);
     }
 
@@ -411,7 +638,7 @@ impl StudioApp {
         let ready = self
             .session
             .as_ref()
-            .is_some_and(|s| self.previews.len() == s.shots.len());
+            .is_some_and(|s| self.previews.len() + self.unreadable.len() == s.shots.len());
         if ready && !self.ready_logged {
             self.ready_logged = true;
             if self.options.log_frame_times {
@@ -433,6 +660,16 @@ impl StudioApp {
             }
         }
     }
+}
+
+/// The sliders' starting setting: the middle (lower middle) focal length and aperture
+/// shot, so predicted fields and sweeps open on settings that were measured.
+fn middle_setting(s: &Session) -> Option<(f64, f64)> {
+    let (f, a) = s.setting_grid();
+    Some((
+        *f.get(f.len().saturating_sub(1) / 2)?,
+        *a.get(a.len().saturating_sub(1) / 2)?,
+    ))
 }
 
 impl eframe::App for StudioApp {
@@ -461,25 +698,54 @@ impl eframe::App for StudioApp {
                     .push(now.duration_since(last).as_secs_f32() * 1000.0);
             }
             self.frames.last = Some(now);
+            // A running figure every 10 s, so a long job can be measured without
+            // waiting for its end.
+            let since = *self.frames.last_report.get_or_insert(now);
+            let due = now.duration_since(since).as_secs_f32() >= 10.0;
+            if self.options.log_frame_times && due {
+                if let Some((n, med, p95, max)) = self.frames.stats() {
+                    let progress: Vec<String> = self
+                        .jobs
+                        .running
+                        .iter()
+                        .map(|h| match h.progress() {
+                            Some(p) => format!("{}: {} {}/{}", h.name, p.stage, p.done, p.total),
+                            None => h.name.clone(),
+                        })
+                        .collect();
+                    eprintln!(
+                        "frame times so far while jobs run ({}): {n} frames, median {med:.1} ms, p95 {p95:.1} ms, max {max:.1} ms; the app's own drawing median {:.1} ms",
+                        progress.join("; "),
+                        self.frames.app_median_ms().unwrap_or(0.0)
+                    );
+                }
+                self.frames.last_report = Some(now);
+            }
         } else {
             if self.options.log_frame_times && !self.frames.busy_intervals_ms.is_empty() {
                 if let Some((n, med, p95, max)) = self.frames.stats() {
                     eprintln!(
-                        "frame times while jobs ran ({}): {n} frames, median {med:.1} ms, p95 {p95:.1} ms, max {max:.1} ms",
+                        "frame times while jobs ran ({}): {n} frames, median {med:.1} ms, p95 {p95:.1} ms, max {max:.1} ms; the app's own drawing median {:.1} ms",
                         self.frames
                             .busy_jobs
                             .iter()
                             .cloned()
                             .collect::<Vec<_>>()
-                            .join(", ")
+                            .join(", "),
+                        self.frames.app_median_ms().unwrap_or(0.0)
                     );
                 }
                 self.frames.busy_intervals_ms.clear();
+                self.frames.busy_app_ms.clear();
                 self.frames.busy_jobs.clear();
             }
             self.frames.last = None;
+            self.frames.last_report = None;
         }
+        let busy = !self.jobs.running.is_empty();
         ui::root_ui(self, ui);
+        self.frames
+            .record_app_time(busy, now.elapsed().as_secs_f32() * 1000.0);
         if !self.jobs.running.is_empty() {
             // Keep the progress bar moving; also what the frame-time figure measures.
             ui.ctx().request_repaint();
@@ -487,10 +753,10 @@ impl eframe::App for StudioApp {
     }
 
     fn on_exit(&mut self) {
-        if let Some(s) = &self.session {
-            if let Err(e) = s.save() {
-                eprintln!("lensblur: {e}");
-            }
+        if let Some(s) = &self.session
+            && let Err(e) = s.save()
+        {
+            eprintln!("lensblur: {e}");
         }
     }
 }

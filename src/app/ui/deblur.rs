@@ -1,0 +1,356 @@
+//! The Deblur view: a photo, a region of it deblurred with the Gaussians the profile
+//! predicts and with the kernels measured at the photo's setting (the paper's
+//! Fig. 7–8), side by side or with a slider, and export of the whole photo.
+
+use super::super::{Command, DeblurLayout, DeblurResult, StudioApp};
+use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
+
+pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    ui.heading("Deblur");
+    let method = app
+        .session
+        .as_ref()
+        .map_or_else(|| "hqs".to_owned(), |s| s.settings.deblur_method.clone());
+    ui.horizontal(|ui| {
+        if ui
+            .button("Open photo…")
+            .on_hover_text("A photo taken with the calibrated lens: RAW, DNG, TIFF, PNG or JPEG; its settings come from EXIF (Ctrl+P, or drop it on this view)")
+            .clicked()
+        {
+            app.commands.push(Command::OpenPhotoDialog);
+        }
+        let shot = app
+            .selected_shot
+            .and_then(|i| Some((i, app.session.as_ref()?.shot_path(i))));
+        if let Some((_, path)) = shot
+            && ui
+                .button("Deblur the selected shot")
+                .on_hover_text("Open the shot selected in the session panel as the photo: its own measured kernels are then the comparison")
+                .clicked()
+        {
+            app.commands.push(Command::OpenPhoto(path));
+        }
+        ui.separator();
+        ui.label(format!("method: {method}"))
+            .on_hover_text("Set in the session panel's Settings");
+        ui.separator();
+        for (layout, label) in [
+            (DeblurLayout::SideBySide, "Side by side"),
+            (DeblurLayout::Slider, "Slider"),
+        ] {
+            if ui
+                .selectable_label(app.deblur.layout == layout, label)
+                .clicked()
+            {
+                app.commands.push(Command::SetDeblurLayout(layout));
+            }
+        }
+        ui.separator();
+        ui.add_enabled_ui(app.deblur.photo.is_some(), |ui| {
+            ui.menu_button("Export…", |ui| {
+                for r in [DeblurResult::Predicted, DeblurResult::Measured] {
+                    if ui
+                        .button(format!("whole photo deblurred with {}", r.label()))
+                        .clicked()
+                    {
+                        app.commands.push(Command::ExportDeblurDialog(r));
+                        ui.close();
+                    }
+                }
+            })
+            .response
+            .on_hover_text("Deblur the whole photo and write it as a 16-bit linear TIFF or PNG (Ctrl+E: predicted)");
+        });
+    });
+    let Some(photo) = &app.deblur.photo else {
+        ui.label("No photo open. Open one, drop one on this view, or deblur the selected shot of the session.");
+        return;
+    };
+    let (width, height) = (photo.capture.width, photo.capture.height);
+    let shown = app.shown_path(&photo.path);
+    let mut f = photo.focal_mm.unwrap_or(0.0);
+    let mut a = photo.f_number.unwrap_or(0.0);
+    ui.horizontal(|ui| {
+        ui.label(format!("{shown} — {width} × {height} px"));
+        ui.separator();
+        let lf = ui.label("f").on_hover_text(
+            "focal length, mm: from EXIF, else the session's record of this file; drag or type",
+        );
+        let rf = ui
+            .add(
+                egui::DragValue::new(&mut f)
+                    .speed(0.5)
+                    .range(0.0..=5000.0)
+                    .custom_formatter(|v, _| {
+                        if v > 0.0 {
+                            format!("{v:.0} mm")
+                        } else {
+                            "? mm".into()
+                        }
+                    }),
+            )
+            .labelled_by(lf.id);
+        let la = ui.label("a").on_hover_text("aperture, f-number");
+        let ra = ui
+            .add(
+                egui::DragValue::new(&mut a)
+                    .speed(0.05)
+                    .range(0.0..=128.0)
+                    .custom_formatter(|v, _| {
+                        if v > 0.0 {
+                            format!("f/{v:.1}")
+                        } else {
+                            "f/?".into()
+                        }
+                    }),
+            )
+            .labelled_by(la.id);
+        if rf.drag_stopped() || ra.drag_stopped() || rf.lost_focus() || ra.lost_focus() {
+            let centre = app
+                .deblur
+                .comparison
+                .as_ref()
+                .map_or([width as f64 / 2.0, height as f64 / 2.0], |c| {
+                    c.comparison.region.centre()
+                });
+            app.commands.push(Command::SetPhotoSetting {
+                focal_mm: (f > 0.0).then_some(f),
+                f_number: (a > 0.0).then_some(a),
+            });
+            app.commands.push(Command::DeblurAt(centre));
+        } else if rf.changed() || ra.changed() {
+            app.commands.push(Command::SetPhotoSetting {
+                focal_mm: (f > 0.0).then_some(f),
+                f_number: (a > 0.0).then_some(a),
+            });
+        }
+    });
+    ui.horizontal_top(|ui| {
+        let overview_w = 280.0;
+        ui.vertical(|ui| {
+            ui.set_width(overview_w);
+            overview_ui(app, ui, overview_w);
+        });
+        ui.vertical(|ui| {
+            ui.label("Click the photo to choose the region compared below (outlined).");
+            if let Some(c) = &app.deblur.comparison {
+                let r = c.comparison.region;
+                ui.label(format!(
+                    "Region x {}–{}, y {}–{} px.",
+                    r.x0,
+                    r.x0 + r.width,
+                    r.y0,
+                    r.y0 + r.height
+                ));
+            }
+            ui.label("Predicted Gaussians: the profile's model at the photo's focal length and aperture (what deblurring any photo uses).");
+            ui.label("Measured kernels: the non-parametric kernels measured on the session's chart shot at the same setting (the paper's Fig. 7–8 comparison).");
+            if app.jobs.is_running("deblur preview") {
+                ui.label("Deblurring the region…");
+            }
+        });
+    });
+    ui.separator();
+    match (&app.deblur.comparison, app.deblur.layout) {
+        (None, _) => {
+            ui.label("Click the photo to deblur a region.");
+        }
+        (Some(_), DeblurLayout::SideBySide) => side_by_side_ui(app, ui),
+        (Some(_), DeblurLayout::Slider) => slider_ui(app, ui),
+    }
+}
+
+/// The whole photo at a small scale with the compared region outlined; a click moves
+/// the region there.
+fn overview_ui(app: &mut StudioApp, ui: &mut egui::Ui, width: f32) {
+    let Some(photo) = &app.deblur.photo else {
+        return;
+    };
+    let cap = &photo.capture;
+    let scale = width / cap.width as f32;
+    let size = Vec2::new(width, cap.height as f32 * scale);
+    let (rect, response) = ui.allocate_exact_size(size, Sense::click());
+    response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, "photo overview"));
+    let painter = ui.painter_at(rect);
+    match &photo.texture {
+        Some(t) => {
+            painter.image(
+                t.id(),
+                rect,
+                Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)),
+                Color32::WHITE,
+            );
+        }
+        None => {
+            painter.rect_filled(rect, 0.0, Color32::from_gray(40));
+        }
+    }
+    if let Some(c) = &app.deblur.comparison {
+        let r = c.comparison.region;
+        let min = rect.min + Vec2::new(r.x0 as f32, r.y0 as f32) * scale;
+        let region = Rect::from_min_size(min, Vec2::new(r.width as f32, r.height as f32) * scale);
+        painter.rect_stroke(
+            region,
+            0.0,
+            Stroke::new(2.0, Color32::from_rgb(255, 210, 0)),
+            egui::StrokeKind::Outside,
+        );
+    }
+    if response.clicked()
+        && let Some(p) = response.interact_pointer_pos()
+    {
+        let d = (p - rect.min) / scale;
+        app.commands
+            .push(Command::DeblurAt([f64::from(d.x), f64::from(d.y)]));
+    }
+}
+
+fn titles(app: &StudioApp) -> [String; 3] {
+    let setting = app
+        .deblur
+        .photo
+        .as_ref()
+        .and_then(super::super::Photo::setting)
+        .map_or_else(String::new, |s| {
+            format!(" at {:.0} mm f/{:.1}", s.focal_mm, s.f_number)
+        });
+    let from = app
+        .deblur
+        .comparison
+        .as_ref()
+        .and_then(|c| c.measured_from.clone())
+        .map_or_else(String::new, |n| format!(" (from {n})"));
+    [
+        "original".to_owned(),
+        format!("deblurred: predicted Gaussians{setting}"),
+        format!("deblurred: measured kernels{from}"),
+    ]
+}
+
+fn side_by_side_ui(app: &StudioApp, ui: &mut egui::Ui) {
+    let Some(view) = &app.deblur.comparison else {
+        return;
+    };
+    let c = &view.comparison;
+    let reasons = [None, c.predicted.as_ref().err(), c.measured.as_ref().err()];
+    let titles = titles(app);
+    let avail = ui.available_size();
+    let side = ((avail.x - 24.0) / 3.0).min(avail.y - 40.0).max(64.0);
+    ui.horizontal_top(|ui| {
+        for k in 0..3 {
+            ui.vertical(|ui| {
+                ui.set_width(side);
+                ui.add(egui::Label::new(&titles[k]).truncate());
+                match (&view.textures[k], reasons[k]) {
+                    (Some(t), _) => {
+                        let size = t.size_vec2();
+                        ui.image((t.id(), size * (side / size.x.max(size.y))));
+                    }
+                    (None, Some(reason)) => {
+                        let (rect, _) = ui.allocate_exact_size(Vec2::splat(side), Sense::hover());
+                        ui.painter().rect_stroke(
+                            rect,
+                            2.0,
+                            Stroke::new(1.0, ui.visuals().weak_text_color()),
+                            egui::StrokeKind::Inside,
+                        );
+                        ui.put(
+                            rect.shrink(8.0),
+                            egui::Label::new(
+                                egui::RichText::new(reason).color(ui.visuals().warn_fg_color),
+                            )
+                            .wrap(),
+                        );
+                    }
+                    (None, None) => {
+                        ui.label("no image");
+                    }
+                }
+            });
+        }
+    });
+}
+
+/// One crop: the original left of the divider, the chosen result right of it; drag to
+/// move the divider.
+fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    let titles = titles(app);
+    let Some(view) = &app.deblur.comparison else {
+        return;
+    };
+    ui.horizontal(|ui| {
+        ui.label("right of the divider:");
+        for (r, k) in [(DeblurResult::Predicted, 1), (DeblurResult::Measured, 2)] {
+            if ui
+                .selectable_label(app.deblur.slider_result == r, &titles[k])
+                .clicked()
+            {
+                app.commands.push(Command::SetSliderResult(r));
+            }
+        }
+    });
+    let k = match app.deblur.slider_result {
+        DeblurResult::Predicted => 1,
+        DeblurResult::Measured => 2,
+    };
+    let (Some(original), result) = (&view.textures[0], &view.textures[k]) else {
+        return;
+    };
+    let Some(result) = result else {
+        let reason = match app.deblur.slider_result {
+            DeblurResult::Predicted => view.comparison.predicted.as_ref().err(),
+            DeblurResult::Measured => view.comparison.measured.as_ref().err(),
+        };
+        ui.colored_label(
+            ui.visuals().warn_fg_color,
+            reason.map_or("no result", String::as_str),
+        );
+        return;
+    };
+    let avail = ui.available_size();
+    let size = original.size_vec2();
+    let scale = ((avail.x - 8.0) / size.x)
+        .min((avail.y - 8.0) / size.y)
+        .max(0.1);
+    let (rect, response) = ui.allocate_exact_size(size * scale, Sense::click_and_drag());
+    response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Slider, true, "divider"));
+    if (response.dragged() || response.clicked())
+        && let Some(p) = response.interact_pointer_pos()
+    {
+        app.deblur.slider = ((p.x - rect.left()) / rect.width()).clamp(0.0, 1.0);
+    }
+    let t = app.deblur.slider;
+    let split = rect.left() + t * rect.width();
+    let painter = ui.painter_at(rect);
+    painter.image(
+        original.id(),
+        Rect::from_min_max(rect.min, Pos2::new(split, rect.bottom())),
+        Rect::from_min_max(Pos2::ZERO, Pos2::new(t, 1.0)),
+        Color32::WHITE,
+    );
+    painter.image(
+        result.id(),
+        Rect::from_min_max(Pos2::new(split, rect.top()), rect.max),
+        Rect::from_min_max(Pos2::new(t, 0.0), Pos2::new(1.0, 1.0)),
+        Color32::WHITE,
+    );
+    painter.line_segment(
+        [
+            Pos2::new(split, rect.top()),
+            Pos2::new(split, rect.bottom()),
+        ],
+        Stroke::new(2.0, Color32::from_rgb(255, 210, 0)),
+    );
+    super::caption(
+        &painter,
+        rect.left_top() + Vec2::new(6.0, 6.0),
+        egui::Align2::LEFT_TOP,
+        "original".into(),
+    );
+    super::caption(
+        &painter,
+        rect.right_top() + Vec2::new(-6.0, 6.0),
+        egui::Align2::RIGHT_TOP,
+        app.deblur.slider_result.label().into(),
+    );
+}

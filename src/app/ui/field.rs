@@ -1,0 +1,393 @@
+//! The Kernel field view: measured kernels or Gaussian ellipses at their sensor
+//! positions, coloured by σ; the field a profile predicts at any setting; the demo
+//! lens's truth; two lens units side by side.
+
+use super::super::{Command, FieldShow, FieldSource, StudioApp};
+use super::{ellipse_points, setting_sliders_ui, sigma_color, sigma_legend_ui, truth_gaussian};
+use crate::plane::{Channel, LensSetting};
+use crate::psf::Gaussian2;
+use crate::simulate::VirtualLens;
+use egui::{Color32, Rect, Sense, Stroke, Vec2};
+
+/// Grid of the predicted and true fields.
+const GRID: (usize, usize) = (12, 8);
+
+/// What one panel draws.
+enum PanelContent {
+    Ellipses(Vec<(f64, f64, Gaussian2)>),
+    /// Measured kernels of the selected shot: (position, fit, atlas cell UV) each, every
+    /// cell ±`extent_px` around its kernel's centre, drawn `cell_frac` of the chart's
+    /// square pitch wide.
+    Kernels {
+        cells: Vec<(f64, f64, Gaussian2, Rect)>,
+        extent_px: f64,
+        pitch_px: f64,
+    },
+}
+
+struct Panel {
+    title: String,
+    content: Result<PanelContent, String>,
+    /// Squares where no kernel could be measured (sensor px), with the reason.
+    failed: Vec<(f64, f64, String)>,
+}
+
+fn truth_field(
+    lens: &VirtualLens,
+    ch: Channel,
+    size: (usize, usize),
+    s: LensSetting,
+) -> Vec<(f64, f64, Gaussian2)> {
+    crate::review::field_grid(size.0, size.1, GRID.0, GRID.1)
+        .into_iter()
+        .map(|[x, y]| (x, y, truth_gaussian(lens, ch, x, y, size, s)))
+        .collect()
+}
+
+/// A profile's predicted field on the grid, or why it has none at this setting.
+fn predicted_field(
+    p: &crate::profile::Profile,
+    ch: Channel,
+    size: (usize, usize),
+    s: LensSetting,
+) -> Result<Vec<(f64, f64, Gaussian2)>, String> {
+    crate::review::field_grid(size.0, size.1, GRID.0, GRID.1)
+        .into_iter()
+        .map(|[x, y]| {
+            p.predict(ch, x, y, s)
+                .map(|g| (x, y, g))
+                .map_err(|e| e.to_string())
+        })
+        .collect()
+}
+
+pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    ui.heading("Kernel field");
+    let is_demo = app.session.as_ref().is_some_and(|s| s.is_demo);
+    let lens = VirtualLens::demo();
+    ui.horizontal(|ui| {
+        for (src, label, tip) in [
+            (
+                FieldSource::Measured,
+                "Measured",
+                "The kernels measured on the selected shot and their robust Gaussian fits",
+            ),
+            (
+                FieldSource::Predicted,
+                "Predicted",
+                "The profile's prediction at the focal length and aperture of the sliders",
+            ),
+            (
+                FieldSource::Truth,
+                "Ground truth",
+                "The demo lens's exact blur (demo session only)",
+            ),
+        ] {
+            if ui
+                .selectable_label(app.field_source == src, label)
+                .on_hover_text(tip)
+                .clicked()
+            {
+                app.commands.push(Command::SetFieldSource(src));
+            }
+        }
+        ui.separator();
+        if app.field_source == FieldSource::Measured {
+            for (show, label, tip) in [
+                (
+                    FieldShow::Ellipses,
+                    "Ellipses",
+                    "The 1-σ ellipse of each kernel's Gaussian fit",
+                ),
+                (
+                    FieldShow::Kernels,
+                    "Kernel shapes",
+                    "The measured non-parametric kernels themselves, on tiles coloured by their σ",
+                ),
+            ] {
+                if ui
+                    .selectable_label(app.field_show == show, label)
+                    .on_hover_text(tip)
+                    .clicked()
+                {
+                    app.commands.push(Command::SetFieldShow(show));
+                }
+            }
+            ui.separator();
+        }
+        sigma_legend_ui(ui);
+    });
+    let s = LensSetting {
+        focal_mm: app.field_focal_mm,
+        f_number: app.field_f_number,
+    };
+    let size = super::sensor_size(app);
+    let ch = app.channel;
+    let mut panels: Vec<Panel> = Vec::new();
+    match app.field_source {
+        FieldSource::Measured => {
+            if app.field_show == FieldShow::Kernels {
+                super::super::logic::ensure_kernel_atlas(app);
+            }
+            let shot = app.selected_shot;
+            let name = shot
+                .and_then(|i| app.session.as_ref()?.shots.get(i))
+                .map_or_else(String::new, |s| {
+                    let setting = s.setting().map_or_else(String::new, |v| {
+                        format!(" ({:.0} mm f/{:.1})", v.focal_mm, v.f_number)
+                    });
+                    format!("{}{setting}", s.stem())
+                });
+            let file = shot.and_then(|i| app.measured.get(&i));
+            let content = match (file, app.field_show) {
+                (None, _) => Err(
+                    "No kernels measured on this shot yet — press Kernels (Ctrl+K) after Detect."
+                        .to_owned(),
+                ),
+                (Some(f), FieldShow::Ellipses) => Ok(PanelContent::Ellipses(
+                    f.samples
+                        .iter()
+                        .filter(|k| k.channel == ch)
+                        .filter_map(|k| {
+                            Some((
+                                k.x,
+                                k.y,
+                                Gaussian2 {
+                                    sigma_x: k.cxx?,
+                                    sigma_y: k.cyy?,
+                                    rho: k.cor?,
+                                },
+                            ))
+                        })
+                        .collect(),
+                )),
+                (Some(f), FieldShow::Kernels) => match &app.kernel_atlas {
+                    Some(atlas) => Ok(PanelContent::Kernels {
+                        cells: atlas
+                            .cells
+                            .iter()
+                            .filter_map(|&(i, uv)| {
+                                let k = f.samples.get(i)?;
+                                let g = Gaussian2 {
+                                    sigma_x: k.cxx.unwrap_or(1.0),
+                                    sigma_y: k.cyy.unwrap_or(1.0),
+                                    rho: k.cor.unwrap_or(0.0),
+                                };
+                                Some((k.x, k.y, g, uv))
+                            })
+                            .collect(),
+                        extent_px: atlas.extent_px,
+                        // Squares of the chart are about this far apart on the sensor.
+                        pitch_px: size.0 as f64
+                            / app.session.as_ref().map_or(12, |s| s.chart.cols + 2) as f64,
+                    }),
+                    None => Err("This kernels file holds Gaussians only, no kernel arrays.".into()),
+                },
+            };
+            let failed = file.map_or_else(Vec::new, |f| {
+                f.failed
+                    .iter()
+                    .filter(|k| k.channel == ch)
+                    .map(|k| (k.x, k.y, k.reason.clone()))
+                    .collect()
+            });
+            panels.push(Panel {
+                title: format!("measured on {name} — channel {ch}"),
+                content,
+                failed,
+            });
+        }
+        FieldSource::Predicted => {
+            setting_sliders_ui(app, ui, &lens);
+            ui.horizontal(|ui| {
+                if ui
+                    .button("Compare with a second profile…")
+                    .on_hover_text("Two copies of one lens model blur differently (the paper's two 17–40 mm units): load the other unit's profile")
+                    .clicked()
+                {
+                    app.commands.push(Command::LoadCompareProfileDialog);
+                }
+            });
+            match &app.profile {
+                Some((path, p)) => panels.push(Panel {
+                    title: format!(
+                        "{} — {:.0} mm f/{:.1}, channel {ch}",
+                        app.shown_path(path),
+                        s.focal_mm,
+                        s.f_number
+                    ),
+                    content: predicted_field(p, ch, size, s).map(PanelContent::Ellipses),
+                    failed: Vec::new(),
+                }),
+                None => {
+                    panels.push(Panel {
+                        title: "predicted".into(),
+                        content: Err(
+                            "No profile yet: Calibrate (Ctrl+M) or load one in Models.".into()
+                        ),
+                        failed: Vec::new(),
+                    })
+                }
+            }
+            if let Some((path, p)) = &app.compare_profile {
+                panels.push(Panel {
+                    title: format!("{} — channel {ch}", app.shown_path(path)),
+                    content: predicted_field(p, ch, size, s).map(PanelContent::Ellipses),
+                    failed: Vec::new(),
+                });
+            }
+        }
+        FieldSource::Truth => {
+            if !is_demo {
+                ui.label("Ground truth exists only for the demo session's simulated lens.");
+                return;
+            }
+            setting_sliders_ui(app, ui, &lens);
+            ui.checkbox(&mut app.compare_units, "Compare with a second unit")
+                .on_hover_text("Two copies of one lens model blur differently (the paper's two 17–40 mm units).");
+            ui.label("Ground truth of the demo's virtual lens: pixel-level Gaussians (optical blur plus the 1-px pixel integration).");
+            panels.push(Panel {
+                title: format!("{} {} — channel {ch}", lens.model, lens.serial),
+                content: Ok(PanelContent::Ellipses(truth_field(&lens, ch, size, s))),
+                failed: Vec::new(),
+            });
+            if app.compare_units {
+                let other = VirtualLens::demo_second_unit();
+                panels.push(Panel {
+                    title: format!("{} {} — channel {ch}", other.model, other.serial),
+                    content: Ok(PanelContent::Ellipses(truth_field(&other, ch, size, s))),
+                    failed: Vec::new(),
+                });
+            }
+        }
+    }
+    let avail = ui.available_size();
+    let cols = panels.len().max(1) as f32;
+    let w = ((avail.x - 16.0 * cols) / cols)
+        .min((avail.y - 48.0) * size.0 as f32 / size.1 as f32)
+        .max(100.0);
+    let panel_size = Vec2::new(w, w * size.1 as f32 / size.0 as f32);
+    // One magnification for every panel so compared fields are comparable: the largest
+    // 1-σ radius fills 45 % of a twelfth of the sensor width.
+    let max_sigma = panels
+        .iter()
+        .filter_map(|p| match &p.content {
+            Ok(PanelContent::Ellipses(v)) => Some(v.iter().map(|(_, _, g)| *g).collect::<Vec<_>>()),
+            Ok(PanelContent::Kernels { cells, .. }) => {
+                Some(cells.iter().map(|(_, _, g, _)| *g).collect())
+            }
+            Err(_) => None,
+        })
+        .flatten()
+        .map(|g| g.sigma_x.max(g.sigma_y))
+        .fold(1e-6, f64::max);
+    let scale = 0.45 * (panel_size.x / 12.0) / max_sigma as f32;
+    let atlas = app.kernel_atlas.as_ref().map(|a| a.texture.id());
+    ui.horizontal(|ui| {
+        for p in &panels {
+            ui.vertical(|ui| {
+                ui.label(&p.title);
+                match &p.content {
+                    Ok(content) => {
+                        field_panel_ui(ui, content, &p.failed, size, scale, panel_size, atlas)
+                    }
+                    Err(reason) => {
+                        ui.label(reason);
+                    }
+                }
+            });
+        }
+    });
+}
+
+/// One panel: ellipses (1 σ, coloured by σ = √(C_xx·C_yy)) or kernels (tinted by the
+/// same colour) at their sensor positions, magnified by `scale` screen points per px
+/// of σ, and red crosses where a kernel failed.
+fn field_panel_ui(
+    ui: &mut egui::Ui,
+    content: &PanelContent,
+    failed: &[(f64, f64, String)],
+    (w, h): (usize, usize),
+    scale: f32,
+    size: Vec2,
+    atlas: Option<egui::TextureId>,
+) {
+    let (rect, response) = ui.allocate_exact_size(size, Sense::hover());
+    let painter = ui.painter_at(rect);
+    painter.rect_filled(rect, 2.0, Color32::from_gray(18));
+    painter.rect_stroke(
+        rect,
+        2.0,
+        Stroke::new(1.0, ui.visuals().weak_text_color()),
+        egui::StrokeKind::Inside,
+    );
+    let points_per_px = rect.width() / w as f32;
+    let at =
+        |x: f64, y: f64| rect.min + Vec2::new(x as f32 * points_per_px, y as f32 * points_per_px);
+    let count;
+    let what;
+    match content {
+        PanelContent::Ellipses(samples) => {
+            // A light rim keeps the dark end of the palette visible on the dark panel.
+            let rim = Stroke::new(1.0, Color32::from_white_alpha(110));
+            for (x, y, g) in samples {
+                painter.add(egui::Shape::convex_polygon(
+                    ellipse_points(at(*x, *y), g, scale),
+                    sigma_color((g.sigma_x * g.sigma_y).sqrt()),
+                    rim,
+                ));
+            }
+            count = samples.len();
+            what = format!("ellipses: 1 σ, magnified {:.1}×", scale / points_per_px);
+        }
+        PanelContent::Kernels {
+            cells,
+            extent_px,
+            pitch_px,
+        } => {
+            // Each kernel fills 85 % of the pitch between squares, so neighbours never
+            // overlap: drawn white on a tile of its σ's colour, the shape reads on any
+            // colour of the palette.
+            let side = 0.85 * *pitch_px as f32 * points_per_px;
+            for (x, y, g, uv) in cells {
+                let r = Rect::from_center_size(at(*x, *y), Vec2::splat(side));
+                painter.rect_filled(r, 2.0, sigma_color((g.sigma_x * g.sigma_y).sqrt()));
+                if let Some(id) = atlas {
+                    painter.image(id, r, *uv, Color32::WHITE);
+                }
+            }
+            count = cells.len();
+            what = format!(
+                "kernels, each ±{extent_px:.1} px around its centre scaled to its peak, magnified {:.1}×",
+                side / (2.0 * *extent_px as f32 * points_per_px)
+            );
+        }
+    }
+    let red = Stroke::new(1.5, Color32::from_rgb(230, 60, 60));
+    for (x, y, _) in failed {
+        let c = at(*x, *y);
+        let d = 4.0;
+        painter.line_segment([c + Vec2::new(-d, -d), c + Vec2::new(d, d)], red);
+        painter.line_segment([c + Vec2::new(-d, d), c + Vec2::new(d, -d)], red);
+    }
+    if let Some(p) = response.hover_pos() {
+        let near = failed.iter().min_by(|a, b| {
+            let da = (at(a.0, a.1) - p).length();
+            let db = (at(b.0, b.1) - p).length();
+            da.total_cmp(&db)
+        });
+        if let Some((x, y, reason)) = near
+            && (at(*x, *y) - p).length() < 8.0
+        {
+            response.on_hover_text(format!("x {x:.0}, y {y:.0}: {reason}"));
+        }
+    }
+    let failed_note = if failed.is_empty() {
+        String::new()
+    } else {
+        format!("; {} failed (red ×, hover for the reason)", failed.len())
+    };
+    ui.label(
+        egui::RichText::new(format!("{count} {what} (sensor {w} × {h} px){failed_note}")).small(),
+    );
+}

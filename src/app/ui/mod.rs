@@ -1,0 +1,396 @@
+//! Drawing. Functions end in `_ui`; they read the app and push [`Command`]s.
+
+mod deblur;
+mod field;
+mod models;
+mod session_panel;
+mod shot;
+mod sweeps;
+
+use super::{Command, DeblurResult, StudioApp, View};
+use crate::plane::{Channel, LensSetting};
+use crate::psf::Gaussian2;
+use crate::simulate::VirtualLens;
+use egui::{Color32, Key, KeyboardShortcut, Modifiers, Pos2, Rect, Sense, Vec2};
+
+pub const TIP_CXX: &str = "C_xx: standard deviation σx of the Gaussian blur along the sensor's x axis, in full-resolution sensor pixels (includes the pixel's own 1-px integration).";
+pub const TIP_CYY: &str = "C_yy: standard deviation σy of the Gaussian blur along the sensor's y axis, in full-resolution sensor pixels.";
+pub const TIP_COR: &str = "C_or: correlation ρ = C_xy / (C_xx·C_yy) of the Gaussian, between −1 and 1; it tilts the blur ellipse.";
+pub const TIP_ALPHA: &str = "α: polynomial order of the model over the sensor position (x, y). Higher α follows finer variation across the frame but needs more squares.";
+pub const TIP_BETA: &str = "β: polynomial order of the model over focal length f and aperture a; it must stay below the number of distinct settings shot (N = min(N_f, N_a)).";
+
+/// Every keyboard shortcut, as the Shortcuts menu lists it.
+const SHORTCUTS: &[(&str, &str)] = &[
+    ("Ctrl+O", "open or create a session folder"),
+    ("Ctrl+Shift+A", "add shots"),
+    ("Ctrl+D", "detect the chart in every shot"),
+    ("Ctrl+K", "estimate kernels on every detected shot"),
+    ("Ctrl+M", "calibrate: cross-validate and fit the models"),
+    ("Ctrl+P", "open a photo to deblur"),
+    (
+        "Ctrl+E",
+        "export the photo deblurred with the predicted Gaussians",
+    ),
+    (
+        "Alt+1 … Alt+5",
+        "Shot, Kernel field, Sweeps, Models, Deblur",
+    ),
+    ("Page Up / Page Down", "previous / next shot"),
+    ("Alt+R, Alt+G, Alt+B", "red, green, blue channel"),
+    ("Ctrl+T", "light or dark theme"),
+    ("Esc", "cancel every running job"),
+];
+
+pub(super) fn root_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    shortcuts(app, ui.ctx());
+    dropped_files(app, ui.ctx());
+    egui::Panel::top("top").show(ui, |ui| top_bar_ui(app, ui));
+    egui::Panel::bottom("status").show(ui, |ui| status_ui(app, ui));
+    egui::Panel::left("session")
+        .default_size(300.0)
+        .resizable(true)
+        .show(ui, |ui| {
+            egui::ScrollArea::vertical().show(ui, |ui| session_panel::session_panel_ui(app, ui));
+        });
+    egui::CentralPanel::default().show(ui, |ui| match app.view {
+        View::Shot => shot::shot_view_ui(app, ui),
+        View::KernelField => field::kernel_field_ui(app, ui),
+        View::Sweeps => sweeps::sweeps_ui(app, ui),
+        View::Models => models::models_ui(app, ui),
+        View::Deblur => deblur::deblur_ui(app, ui),
+    });
+}
+
+fn shortcuts(app: &mut StudioApp, ctx: &egui::Context) {
+    let cmd = |k| KeyboardShortcut::new(Modifiers::COMMAND, k);
+    let alt = |k| KeyboardShortcut::new(Modifiers::ALT, k);
+    let n_shots = app.session.as_ref().map_or(0, |s| s.shots.len());
+    let mut out = Vec::new();
+    ctx.input_mut(|i| {
+        if i.consume_shortcut(&cmd(Key::O)) {
+            out.push(Command::OpenSessionDialog);
+        }
+        if i.consume_shortcut(&KeyboardShortcut::new(
+            Modifiers::COMMAND | Modifiers::SHIFT,
+            Key::A,
+        )) {
+            out.push(Command::AddShotsDialog);
+        }
+        if i.consume_shortcut(&cmd(Key::D)) {
+            out.push(Command::RunDetect(None));
+        }
+        if i.consume_shortcut(&cmd(Key::K)) {
+            out.push(Command::RunKernels(None));
+        }
+        if i.consume_shortcut(&cmd(Key::M)) {
+            out.push(Command::RunCalibrate);
+        }
+        if i.consume_shortcut(&cmd(Key::P)) {
+            out.push(Command::SelectView(View::Deblur));
+            out.push(Command::OpenPhotoDialog);
+        }
+        if i.consume_shortcut(&cmd(Key::E)) {
+            out.push(Command::ExportDeblurDialog(DeblurResult::Predicted));
+        }
+        if i.consume_shortcut(&cmd(Key::T)) {
+            out.push(Command::SetDark(!app.dark));
+        }
+        if i.consume_key(Modifiers::NONE, Key::Escape) {
+            out.push(Command::CancelAll);
+        }
+        for (k, v) in [Key::Num1, Key::Num2, Key::Num3, Key::Num4, Key::Num5]
+            .into_iter()
+            .zip(View::ALL)
+        {
+            if i.consume_shortcut(&alt(k)) {
+                out.push(Command::SelectView(v));
+            }
+        }
+        for (k, c) in [
+            (Key::R, Channel::R),
+            (Key::G, Channel::G),
+            (Key::B, Channel::B),
+        ] {
+            if i.consume_shortcut(&alt(k)) {
+                out.push(Command::SelectChannel(c));
+            }
+        }
+        if n_shots > 0 {
+            let current = app.selected_shot.unwrap_or(0);
+            if i.consume_key(Modifiers::NONE, Key::PageDown) {
+                out.push(Command::SelectShot((current + 1).min(n_shots - 1)));
+            }
+            if i.consume_key(Modifiers::NONE, Key::PageUp) {
+                out.push(Command::SelectShot(current.saturating_sub(1)));
+            }
+        }
+    });
+    app.commands.extend(out);
+}
+
+fn dropped_files(app: &mut StudioApp, ctx: &egui::Context) {
+    let files: Vec<_> = ctx.input(|i| {
+        i.raw
+            .dropped_files
+            .iter()
+            .map(|f| f.path().to_path_buf())
+            .filter(|p| !p.as_os_str().is_empty())
+            .collect()
+    });
+    if files.is_empty() {
+        return;
+    }
+    // A photo dropped on the Deblur view is opened there; anywhere else files are shots.
+    if app.view == View::Deblur
+        && let [one] = files.as_slice()
+    {
+        app.commands.push(Command::OpenPhoto(one.clone()));
+    } else {
+        app.commands.push(Command::AddShots(files));
+    }
+}
+
+fn top_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    ui.horizontal(|ui| {
+        ui.strong("lensblur studio");
+        ui.separator();
+        for (k, v) in View::ALL.into_iter().enumerate() {
+            if ui
+                .selectable_label(app.view == v, v.label())
+                .on_hover_text(format!("Alt+{}", k + 1))
+                .clicked()
+            {
+                app.commands.push(Command::SelectView(v));
+            }
+        }
+        ui.separator();
+        ui.label("Channel");
+        for c in [Channel::R, Channel::G, Channel::B] {
+            if ui
+                .selectable_label(app.channel == c, c.name())
+                .on_hover_text(format!("Alt+{}", c.name()))
+                .clicked()
+            {
+                app.commands.push(Command::SelectChannel(c));
+            }
+        }
+        ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
+            let label = if app.dark {
+                "Light theme"
+            } else {
+                "Dark theme"
+            };
+            if ui.button(label).on_hover_text("Ctrl+T").clicked() {
+                app.commands.push(Command::SetDark(!app.dark));
+            }
+            ui.menu_button("Shortcuts", |ui| {
+                egui::Grid::new("shortcuts").striped(true).show(ui, |ui| {
+                    for (keys, what) in SHORTCUTS {
+                        ui.monospace(*keys);
+                        ui.label(*what);
+                        ui.end_row();
+                    }
+                });
+            });
+            if ui
+                .button("Open session…")
+                .on_hover_text("Open or create a session folder (Ctrl+O)")
+                .clicked()
+            {
+                app.commands.push(Command::OpenSessionDialog);
+            }
+        });
+    });
+}
+
+fn status_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    for h in &app.jobs.running {
+        ui.horizontal(|ui| {
+            let (stage, frac, counts) = match h.progress() {
+                Some(p) if p.total > 0 => (
+                    p.stage.clone(),
+                    p.done as f32 / p.total as f32,
+                    format!("{} / {}", p.done, p.total),
+                ),
+                Some(p) => (p.stage.clone(), 0.0, String::new()),
+                None => ("starting".into(), 0.0, String::new()),
+            };
+            ui.label(format!("{}: {stage}", h.name));
+            ui.add(
+                egui::ProgressBar::new(frac)
+                    .desired_width(240.0)
+                    .text(counts),
+            );
+            ui.label(format!("{:.0} s", h.started.elapsed().as_secs_f32()));
+            let cancel = if h.is_cancelled() {
+                "Cancelling…"
+            } else {
+                "Cancel"
+            };
+            if ui
+                .button(cancel)
+                .on_hover_text("Stop this job (Esc stops all)")
+                .clicked()
+            {
+                app.commands.push(Command::Cancel(h.id));
+            }
+        });
+    }
+    let mut dismiss = None;
+    for (i, m) in app.messages.iter().enumerate().rev().take(4) {
+        ui.horizontal(|ui| {
+            let color = if m.is_error {
+                ui.visuals().error_fg_color
+            } else {
+                ui.visuals().text_color()
+            };
+            if ui.small_button("×").on_hover_text("Dismiss").clicked() {
+                dismiss = Some(i);
+            }
+            ui.add(egui::Label::new(egui::RichText::new(&m.text).color(color)).truncate())
+                .on_hover_text(&m.text);
+        });
+    }
+    if let Some(i) = dismiss {
+        app.commands.push(Command::DismissMessage(i));
+    }
+    if app.jobs.running.is_empty() && app.messages.is_empty() {
+        ui.label("Ready.");
+    }
+}
+
+/// An x axis whose tick labels may stand 28 points apart: egui_plot's default wants 60,
+/// which leaves a 300-point plot of f-numbers or model orders with a single label.
+fn x_axis<'a>(label: &str) -> egui_plot::AxisHints<'a> {
+    egui_plot::AxisHints::new_x()
+        .label(label.to_owned())
+        .label_spacing(28.0..=40.0)
+}
+
+/// A y axis whose tick labels may stand 16 points apart (egui_plot's default, 20, drops
+/// every label of a short plot whose range is just over a power of ten).
+fn y_axis<'a>(label: &str) -> egui_plot::AxisHints<'a> {
+    egui_plot::AxisHints::new_y()
+        .label(label.to_owned())
+        .label_spacing(16.0..=24.0)
+}
+
+/// White text on a dark box, readable over any image.
+fn caption(painter: &egui::Painter, pos: Pos2, align: egui::Align2, text: String) {
+    let galley = painter.layout_no_wrap(text, egui::FontId::proportional(12.0), Color32::WHITE);
+    let rect = align.anchor_size(pos, galley.size());
+    painter.rect_filled(rect.expand(3.0), 3.0, Color32::from_black_alpha(170));
+    painter.galley(rect.min, galley, Color32::WHITE);
+}
+
+/// Viridis-like colour for σ in px over [0.5, 3.5].
+fn sigma_color(sigma_px: f64) -> Color32 {
+    const STOPS: [[u8; 3]; 5] = [
+        [68, 1, 84],
+        [59, 82, 139],
+        [33, 145, 140],
+        [94, 201, 98],
+        [253, 231, 37],
+    ];
+    let t = ((sigma_px - 0.5) / 3.0).clamp(0.0, 1.0) * 4.0;
+    let k = (t.floor() as usize).min(3);
+    let f = (t - k as f64) as f32;
+    let [a, b] = [STOPS[k], STOPS[k + 1]];
+    let mix = |i: usize| (f32::from(a[i]) * (1.0 - f) + f32::from(b[i]) * f) as u8;
+    Color32::from_rgb(mix(0), mix(1), mix(2))
+}
+
+fn sigma_legend_ui(ui: &mut egui::Ui) {
+    ui.horizontal(|ui| {
+        ui.label("σ = √(C_xx·C_yy)")
+            .on_hover_text(format!("{TIP_CXX}\n{TIP_CYY}"));
+        ui.label("0.5 px");
+        let (rect, _) = ui.allocate_exact_size(Vec2::new(160.0, 12.0), Sense::hover());
+        let p = ui.painter_at(rect);
+        for k in 0..32 {
+            let t = k as f32 / 32.0;
+            let r = Rect::from_min_size(
+                rect.min + Vec2::new(t * rect.width(), 0.0),
+                Vec2::new(rect.width() / 32.0 + 0.5, rect.height()),
+            );
+            p.rect_filled(r, 0.0, sigma_color(0.5 + 3.0 * f64::from(t)));
+        }
+        ui.label("3.5 px");
+    });
+}
+
+/// The 1-σ ellipse of `g` scaled by `scale` screen points per px, as a closed polyline.
+fn ellipse_points(centre: Pos2, g: &Gaussian2, scale: f32) -> Vec<Pos2> {
+    let (sx, sy, r) = (g.sigma_x, g.sigma_y, g.rho.clamp(-0.999, 0.999));
+    // Cholesky factor of the covariance maps the unit circle onto the 1-σ ellipse.
+    let l21 = r * sy;
+    let l22 = sy * (1.0 - r * r).sqrt();
+    (0..=40)
+        .map(|k| {
+            let t = f64::from(k) / 40.0 * std::f64::consts::TAU;
+            let (c, s) = (t.cos(), t.sin());
+            centre + Vec2::new((sx * c) as f32, (l21 * c + l22 * s) as f32) * scale
+        })
+        .collect()
+}
+
+/// Pixel-level truth of the virtual lens: the optical Gaussian plus the 1-px box.
+fn truth_gaussian(
+    lens: &VirtualLens,
+    ch: Channel,
+    x: f64,
+    y: f64,
+    size: (usize, usize),
+    s: LensSetting,
+) -> Gaussian2 {
+    crate::review::truth_pixel_gaussian(lens, ch, (x, y), size, s)
+}
+
+/// The sensor the views draw on: the selected shot's, else the demo's.
+fn sensor_size(app: &StudioApp) -> (usize, usize) {
+    if let Some(p) = app.selected_shot.and_then(|i| app.previews.get(&i)) {
+        return (p.capture.width, p.capture.height);
+    }
+    if let Some(d) = app.dataset.as_ref() {
+        return (d.width, d.height);
+    }
+    (app.options.demo_spec.width, app.options.demo_spec.height)
+}
+
+/// Focal length and aperture ranges the sliders span: the profile's calibrated ones,
+/// else the session's, else the demo lens's.
+fn setting_ranges(app: &StudioApp, lens: &VirtualLens) -> ([f64; 2], [f64; 2]) {
+    if let Some((_, p)) = &app.profile {
+        return (p.norm.focal_range_mm, p.norm.f_number_range);
+    }
+    if let Some(s) = &app.session {
+        let (f, a) = s.setting_grid();
+        if let (Some(f0), Some(f1), Some(a0), Some(a1)) = (f.first(), f.last(), a.first(), a.last())
+            && f1 > f0
+            && a1 > a0
+        {
+            return ([*f0, *f1], [*a0, *a1]);
+        }
+    }
+    (lens.focal_range_mm, lens.f_number_range)
+}
+
+fn setting_sliders_ui(app: &mut StudioApp, ui: &mut egui::Ui, lens: &VirtualLens) {
+    let (f_range, a_range) = setting_ranges(app, lens);
+    ui.horizontal(|ui| {
+        ui.add(
+            egui::Slider::new(&mut app.field_focal_mm, f_range[0]..=f_range[1])
+                .suffix(" mm")
+                .fixed_decimals(0)
+                .text("focal length"),
+        );
+        ui.add_space(12.0);
+        ui.add(
+            egui::Slider::new(&mut app.field_f_number, a_range[0]..=a_range[1])
+                .prefix("f/")
+                .fixed_decimals(1)
+                .logarithmic(true)
+                .text("aperture"),
+        );
+    });
+}

@@ -1,0 +1,279 @@
+//! The Models view: cross-validation over α and β (the paper's Fig. 5), the error
+//! distributions of the chosen models (Fig. 6), the profile in use; load and save.
+
+use super::super::{Command, StudioApp};
+use super::{TIP_ALPHA, TIP_BETA, TIP_COR, TIP_CXX, TIP_CYY};
+use egui::Color32;
+
+fn family_color(name: &str) -> Color32 {
+    if name == "global" {
+        Color32::from_rgb(90, 170, 255)
+    } else {
+        Color32::from_rgb(240, 150, 60)
+    }
+}
+
+pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    use egui_plot::{
+        Corner, Legend, Line, LineStyle, MarkerShape, Plot, PlotPoints, Points, VLine,
+    };
+    ui.heading("Models");
+    ui.horizontal(|ui| {
+        if ui
+            .button("Run calibration")
+            .on_hover_text("Fit global and local models over every shot with kernels; cross-validation picks α and β unless the settings fix them (Ctrl+M)")
+            .clicked()
+        {
+            app.commands.push(Command::RunCalibrate);
+        }
+        if ui
+            .button("Load profile…")
+            .on_hover_text("Use a lens profile written earlier (lensblur calibrate or this studio)")
+            .clicked()
+        {
+            app.commands.push(Command::LoadProfileDialog);
+        }
+        if ui
+            .add_enabled(app.profile.is_some(), egui::Button::new("Save profile…"))
+            .on_hover_text("Write the profile in use to a file of your choice")
+            .clicked()
+        {
+            app.commands.push(Command::SaveProfileDialog);
+        }
+    });
+    if let Some((path, p)) = &app.profile {
+        let kind = format!("{:?}", p.preferred).to_lowercase();
+        let orders = |g: Option<(usize, usize)>| {
+            g.map_or("—".to_owned(), |(a, b)| format!("α {a}, β {b}"))
+        };
+        ui.horizontal_wrapped(|ui| {
+            ui.strong(format!("Profile {}:", app.shown_path(path)));
+            ui.label(format!(
+                "uses the {kind} model; global {}; local {}; calibrated {:.0}–{:.0} mm, f/{:.1}–f/{:.1}, sensor {} × {} px",
+                orders(p.global.as_ref().map(|g| (g.alpha, g.beta))),
+                orders(p.local.as_ref().map(|l| (l.alpha, l.beta))),
+                p.norm.focal_range_mm[0],
+                p.norm.focal_range_mm[1],
+                p.norm.f_number_range[0],
+                p.norm.f_number_range[1],
+                p.norm.width,
+                p.norm.height,
+            ));
+        });
+    } else {
+        ui.label("No profile yet — press Calibrate once kernels are measured on the shots, or load a profile.");
+    }
+    let Some(cv) = app.cv.clone() else {
+        ui.label("Cross-validation curves over α and β (paper Fig. 5) and the error distributions (Fig. 6) appear after a calibration that selects α and β.");
+        return;
+    };
+    ui.label(format!(
+        "Cross-validation: {} shots in {} folds, whole shots held out. Errors are % of each parameter's 99 % range (C_xx {:.3} px, C_yy {:.3} px, C_or {:.3}).",
+        cv.shots, cv.folds, cv.ranges.cxx, cv.ranges.cyy, cv.ranges.cor
+    ));
+    let report_id = std::sync::Arc::as_ptr(&cv) as usize;
+    let families: Vec<(&str, &crate::crossval::Selection)> =
+        [("global", cv.global.as_ref()), ("local", cv.local.as_ref())]
+            .into_iter()
+            .filter_map(|(n, s)| s.map(|s| (n, s)))
+            .collect();
+    egui::Grid::new("cv-chosen")
+        .striped(true)
+        .spacing([18.0, 4.0])
+        .show(ui, |ui| {
+            ui.label("chosen");
+            ui.label("α").on_hover_text(TIP_ALPHA);
+            ui.label("β").on_hover_text(TIP_BETA);
+            ui.label("terms");
+            ui.label("mean error C_xx").on_hover_text(TIP_CXX);
+            ui.label("C_yy").on_hover_text(TIP_CYY);
+            ui.label("C_or").on_hover_text(TIP_COR);
+            ui.label("95th percentile C_xx / C_yy / C_or");
+            ui.end_row();
+            for (name, sel) in &families {
+                ui.colored_label(family_color(name), *name);
+                ui.monospace(sel.alpha.to_string());
+                ui.monospace(sel.beta.to_string());
+                ui.monospace(sel.chosen.terms.to_string());
+                for v in sel.chosen.mean_error_pct {
+                    ui.monospace(format!("{v:.2} %"));
+                }
+                ui.monospace(format!(
+                    "{:.2} / {:.2} / {:.2} %",
+                    sel.chosen.p95_error_pct[0],
+                    sel.chosen.p95_error_pct[1],
+                    sel.chosen.p95_error_pct[2]
+                ));
+                ui.end_row();
+            }
+        });
+    let avail = ui.available_size();
+    let plot_w = (avail.x - 24.0) / 3.0;
+    let plot_h = (avail.y - 28.0).max(140.0);
+    let integer_ticks = |mark: egui_plot::GridMark, _: &std::ops::RangeInclusive<f64>| {
+        if (mark.value - mark.value.round()).abs() < 1e-9 {
+            format!("{:.0}", mark.value)
+        } else {
+            String::new()
+        }
+    };
+    // High orders overfit wildly (hundreds of %); the axis stops at four times the best
+    // error so the minimum stays readable (what lies above is noted in the title).
+    let y_top = |by_alpha: bool| {
+        let values: Vec<f64> = families
+            .iter()
+            .flat_map(|(_, sel)| {
+                if by_alpha {
+                    &sel.alpha_curve
+                } else {
+                    &sel.beta_curve
+                }
+                .iter()
+                .map(|p| p.mean_pct)
+            })
+            .collect();
+        let lo = values.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = values.iter().copied().fold(0.0, f64::max);
+        if lo.is_finite() {
+            hi.min(4.0 * lo.max(0.25)) * 1.05
+        } else {
+            1.0
+        }
+    };
+    ui.horizontal(|ui| {
+        for (title, tip, by_alpha) in [
+            ("CV error vs α (β = N − 1)", TIP_ALPHA, true),
+            ("CV error vs β (chosen α)", TIP_BETA, false),
+        ] {
+            ui.vertical(|ui| {
+                let off_plot = families.iter().any(|(_, sel)| {
+                    if by_alpha {
+                        &sel.alpha_curve
+                    } else {
+                        &sel.beta_curve
+                    }
+                    .iter()
+                    .any(|p| p.mean_pct > y_top(by_alpha))
+                });
+                let title = if off_plot {
+                    format!("{title}; higher errors above the plot")
+                } else {
+                    title.to_owned()
+                };
+                ui.label(title).on_hover_text(tip);
+                // Fixed bounds are kept in the plot's memory: a new report gets a new plot.
+                Plot::new(format!("cv-{by_alpha}-{report_id}"))
+                    .width(plot_w)
+                    .height(plot_h)
+                    .custom_x_axes(vec![
+                        super::x_axis(if by_alpha {
+                            "α (order in x, y)"
+                        } else {
+                            "β (order in f, a)"
+                        })
+                        .formatter(integer_ticks),
+                    ])
+                    .y_axis_label("mean error (% of range)")
+                    .x_grid_spacer(egui_plot::uniform_grid_spacer(|_| [1.0, 5.0, 10.0]))
+                    .default_y_bounds(0.0, y_top(by_alpha))
+                    .legend(Legend::default().position(Corner::RightTop))
+                    .allow_scroll(false)
+                    .show(ui, |plot| {
+                        for (name, sel) in &families {
+                            let color = family_color(name);
+                            let curve = if by_alpha {
+                                &sel.alpha_curve
+                            } else {
+                                &sel.beta_curve
+                            };
+                            let pts: Vec<[f64; 2]> = curve
+                                .iter()
+                                .map(|p| {
+                                    [if by_alpha { p.alpha } else { p.beta } as f64, p.mean_pct]
+                                })
+                                .collect();
+                            plot.line(
+                                Line::new(name.to_string(), PlotPoints::from(pts.clone()))
+                                    .color(color)
+                                    .width(1.5),
+                            );
+                            plot.points(
+                                Points::new(name.to_string(), PlotPoints::from(pts))
+                                    .color(color)
+                                    .filled(true)
+                                    .radius(3.0),
+                            );
+                            // The chosen order: a dashed line; on the β curve (where the
+                            // chosen α, β lies) a diamond too. Unnamed: not in the legend.
+                            let chosen = if by_alpha { sel.alpha } else { sel.beta } as f64;
+                            plot.vline(
+                                VLine::new("", chosen)
+                                    .color(color.gamma_multiply(0.6))
+                                    .style(LineStyle::dashed_loose()),
+                            );
+                            if !by_alpha {
+                                plot.points(
+                                    Points::new(
+                                        "",
+                                        PlotPoints::from(vec![[chosen, sel.chosen.mean_pct]]),
+                                    )
+                                    .shape(MarkerShape::Diamond)
+                                    .color(color)
+                                    .filled(false)
+                                    .radius(7.0),
+                                );
+                            }
+                        }
+                    });
+            });
+        }
+        ui.vertical(|ui| {
+            ui.label("Error CDF of the chosen models (Fig. 6)")
+                .on_hover_text("Fraction of held-out samples whose prediction error is below each value: solid C_xx, dashed C_yy, dotted C_or");
+            // The worst few samples would stretch the axis until the curves are a wall
+            // at zero: show up to the 99th percentile.
+            let x_max = families
+                .iter()
+                .flat_map(|(_, sel)| {
+                    let c = &sel.error_cdf;
+                    let at99 = c.percentiles.iter().position(|&p| p >= 99.0);
+                    [&c.cxx, &c.cyy, &c.cor]
+                        .into_iter()
+                        .filter_map(move |q| q.get(at99?).copied())
+                })
+                .fold(1e-6, f64::max);
+            Plot::new(format!("cv-cdf-{report_id}"))
+                .width(plot_w)
+                .height(plot_h)
+                .custom_x_axes(vec![super::x_axis("error (% of range)")])
+                .y_axis_label("held-out samples (%)")
+                .default_x_bounds(0.0, x_max * 1.02)
+                .default_y_bounds(0.0, 101.0)
+                .legend(Legend::default().position(Corner::RightBottom))
+                .allow_scroll(false)
+                .show(ui, |plot| {
+                    for (name, sel) in &families {
+                        let color = family_color(name);
+                        let cdf = &sel.error_cdf;
+                        for (param, q, style) in [
+                            ("C_xx", &cdf.cxx, LineStyle::Solid),
+                            ("C_yy", &cdf.cyy, LineStyle::dashed_dense()),
+                            ("C_or", &cdf.cor, LineStyle::dotted_dense()),
+                        ] {
+                            let pts: Vec<[f64; 2]> = q
+                                .iter()
+                                .zip(&cdf.percentiles)
+                                .map(|(&e, &p)| [e, p])
+                                .collect();
+                            plot.line(
+                                Line::new(format!("{name} {param}"), PlotPoints::from(pts))
+                                    .color(color)
+                                    .style(style)
+                                    .width(1.5),
+                            );
+                        }
+                    }
+                });
+        });
+    });
+}

@@ -1,0 +1,306 @@
+//! The session panel: the shots with their settings and stage results, the buttons that
+//! run each stage, and the session's settings.
+
+use super::super::{Command, StudioApp};
+use crate::session::StageStatus;
+use egui::{Color32, Sense};
+
+fn status_text(s: &StageStatus) -> String {
+    match s {
+        StageStatus::Pending => "—".into(),
+        StageStatus::Done { summary } => summary.clone(),
+        StageStatus::Failed { reason } => format!("failed: {reason}"),
+    }
+}
+
+pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    let Some(session) = &app.session else {
+        ui.heading("Session");
+        if app.jobs.is_running("demo session") {
+            ui.label("Making the demo session: simulated calibration shots of the virtual lens (first launch only; progress below)…");
+        } else {
+            ui.label("No session open. Open or create a session folder (Ctrl+O).");
+        }
+        return;
+    };
+    ui.heading(&session.name)
+        .on_hover_text(format!("Session folder: {}", session.folder().display()));
+    if session.is_demo {
+        ui.label("Demo: shots simulated from the virtual lens, whose true blur is known.");
+    }
+    ui.horizontal_wrapped(|ui| {
+        if ui
+            .button("Add shots…")
+            .on_hover_text(
+                "RAW, DNG, TIFF, PNG or JPEG; or drop files on the window (Ctrl+Shift+A)",
+            )
+            .clicked()
+        {
+            app.commands.push(Command::AddShotsDialog);
+        }
+        if ui
+            .button("Detect")
+            .on_hover_text("Find and align the chart's squares in every shot (Ctrl+D)")
+            .clicked()
+        {
+            app.commands.push(Command::RunDetect(None));
+        }
+        if ui
+            .button("Kernels")
+            .on_hover_text("Estimate the blur kernel at every square (Ctrl+K)")
+            .clicked()
+        {
+            app.commands.push(Command::RunKernels(None));
+        }
+        if ui
+            .button("Calibrate")
+            .on_hover_text("Cross-validate and fit the blur model; write the profile (Ctrl+M)")
+            .clicked()
+        {
+            app.commands.push(Command::RunCalibrate);
+        }
+    });
+    ui.separator();
+    let n = session.shots.len();
+    ui.label(if n == 1 {
+        "1 shot".to_owned()
+    } else {
+        format!("{n} shots")
+    });
+    let mut out = Vec::new();
+    for (i, shot) in session.shots.iter().enumerate() {
+        let selected = app.selected_shot == Some(i);
+        let frame = egui::Frame::group(ui.style()).fill(if selected {
+            ui.visuals().selection.bg_fill.gamma_multiply(0.35)
+        } else {
+            Color32::TRANSPARENT
+        });
+        let r = frame.show(ui, |ui| {
+            ui.horizontal(|ui| {
+                match (
+                    app.previews.get(&i).and_then(|p| p.thumbnail.as_ref()),
+                    app.unreadable.get(&i),
+                ) {
+                    (Some(t), _) => {
+                        let size = t.size_vec2() * (72.0 / t.size_vec2().x.max(1.0));
+                        ui.image((t.id(), size));
+                    }
+                    (None, Some(reason)) => {
+                        ui.add_sized(
+                            [72.0, 48.0],
+                            egui::Label::new(
+                                egui::RichText::new("unreadable")
+                                    .color(ui.visuals().error_fg_color),
+                            ),
+                        )
+                        .on_hover_text(reason);
+                    }
+                    (None, None) => {
+                        ui.add_sized([72.0, 48.0], egui::Spinner::new());
+                    }
+                }
+                ui.vertical(|ui| {
+                    let name = shot.path.file_name().map_or_else(
+                        || shot.path.display().to_string(),
+                        |n| n.to_string_lossy().into_owned(),
+                    );
+                    if ui
+                        .selectable_label(selected, name)
+                        .on_hover_text(app.shown_path(&session.shot_path(i)))
+                        .clicked()
+                    {
+                        out.push(Command::SelectShot(i));
+                    }
+                    ui.horizontal(|ui| {
+                        // Unknown settings show as "?" (0 internally) until the user drags.
+                        let mut f = shot.focal_mm.unwrap_or(0.0);
+                        let mut a = shot.f_number.unwrap_or(0.0);
+                        let lf = ui
+                            .label("f")
+                            .on_hover_text("focal length, mm (from EXIF; drag or type)");
+                        let rf = ui.add(
+                            egui::DragValue::new(&mut f)
+                                .speed(0.5)
+                                .range(0.0..=5000.0)
+                                .custom_formatter(|v, _| {
+                                    if v > 0.0 {
+                                        format!("{v:.0} mm")
+                                    } else {
+                                        "? mm".into()
+                                    }
+                                }),
+                        );
+                        let rf = rf.labelled_by(lf.id);
+                        let la = ui
+                            .label("a")
+                            .on_hover_text("aperture, f-number (from EXIF; drag or type)");
+                        let ra = ui.add(
+                            egui::DragValue::new(&mut a)
+                                .speed(0.05)
+                                .range(0.0..=128.0)
+                                .custom_formatter(|v, _| {
+                                    if v > 0.0 {
+                                        format!("f/{v:.1}")
+                                    } else {
+                                        "f/?".into()
+                                    }
+                                }),
+                        );
+                        let ra = ra.labelled_by(la.id);
+                        if rf.changed() || ra.changed() {
+                            out.push(Command::SetShotSetting {
+                                index: i,
+                                focal_mm: (f > 0.0).then_some(f),
+                                f_number: (a > 0.0).then_some(a),
+                            });
+                        }
+                    });
+                    let failed = matches!(shot.detect, StageStatus::Failed { .. })
+                        || matches!(shot.kernels, StageStatus::Failed { .. });
+                    let text = egui::RichText::new(format!(
+                        "detect: {}\nkernels: {}",
+                        status_text(&shot.detect),
+                        status_text(&shot.kernels)
+                    ))
+                    .small();
+                    let text = if failed {
+                        text.color(ui.visuals().error_fg_color)
+                    } else {
+                        text
+                    };
+                    ui.add(egui::Label::new(text).wrap());
+                });
+            });
+        });
+        let response = r.response.interact(Sense::click());
+        if response.clicked() {
+            out.push(Command::SelectShot(i));
+        }
+        response.context_menu(|ui| {
+            if ui.button("Detect this shot again").clicked() {
+                out.push(Command::RunDetect(Some(i)));
+                ui.close();
+            }
+            if ui.button("Estimate its kernels again").clicked() {
+                out.push(Command::RunKernels(Some(i)));
+                ui.close();
+            }
+            if ui.button("Remove from the session").clicked() {
+                out.push(Command::RemoveShot(i));
+                ui.close();
+            }
+        });
+    }
+    if n > 0 {
+        ui.label(
+            egui::RichText::new("Right-click a shot to redo its stages or remove it.")
+                .small()
+                .weak(),
+        );
+    }
+    app.commands.extend(out);
+    ui.separator();
+    settings_ui(app, ui);
+}
+
+/// The chart and the stage settings, edited on a copy and applied by one button (a
+/// change of chart or kernel settings makes earlier results stale).
+fn settings_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    let Some(session) = &app.session else { return };
+    let current = (session.chart.clone(), session.settings.clone());
+    egui::CollapsingHeader::new("Settings")
+        .default_open(false)
+        .show(ui, |ui| {
+            let (chart, s) = app.settings_edit.get_or_insert_with(|| current.clone());
+            ui.strong("Chart");
+            egui::Grid::new("chart-settings").num_columns(2).show(ui, |ui| {
+                ui.label("squares across");
+                ui.add(egui::DragValue::new(&mut chart.cols).range(2..=200));
+                ui.end_row();
+                ui.label("squares down");
+                ui.add(egui::DragValue::new(&mut chart.rows).range(2..=200));
+                ui.end_row();
+                ui.label("square side");
+                ui.add(
+                    egui::DragValue::new(&mut chart.square_mm)
+                        .range(1.0..=500.0)
+                        .speed(0.1)
+                        .suffix(" mm"),
+                );
+                ui.end_row();
+            });
+            let mut load_chart = false;
+            ui.horizontal(|ui| {
+                load_chart = ui
+                    .button("Load chart spec…")
+                    .on_hover_text("A chart.json written by `lensblur chart --spec-out`")
+                    .clicked();
+                if ui.button("Default chart").clicked() {
+                    *chart = crate::chart::ChartSpec::default();
+                }
+            });
+            ui.strong("Kernels");
+            ui.horizontal(|ui| {
+                ui.label("oversampling")
+                    .on_hover_text("Kernel super-resolution factor (odd; the paper uses 3)");
+                for k in [1usize, 3, 5] {
+                    ui.selectable_value(&mut s.oversample, k, format!("{k}×"));
+                }
+            });
+            ui.checkbox(&mut s.weight_all_subpixels, "weight every sub-pixel (W = I)")
+                .on_hover_text("Off: only the sub-pixels at real pixel centres carry data (the default).");
+            ui.strong("Model");
+            let mut auto = s.alpha.is_none();
+            ui.checkbox(&mut auto, "α and β chosen by cross-validation")
+                .on_hover_text(format!("{}\n{}", super::TIP_ALPHA, super::TIP_BETA));
+            if auto {
+                s.alpha = None;
+                s.beta = None;
+            } else {
+                let mut a = s.alpha.unwrap_or(6);
+                let mut b = s.beta.unwrap_or(1);
+                ui.horizontal(|ui| {
+                    ui.label("α").on_hover_text(super::TIP_ALPHA);
+                    ui.add(egui::DragValue::new(&mut a).range(0..=15));
+                    ui.label("β").on_hover_text(super::TIP_BETA);
+                    ui.add(egui::DragValue::new(&mut b).range(0..=15));
+                });
+                s.alpha = Some(a);
+                s.beta = Some(b);
+            }
+            ui.strong("Deblur");
+            ui.horizontal(|ui| {
+                ui.label("method");
+                for (m, tip) in [
+                    ("hqs", "half-quadratic splitting with a hyper-Laplacian prior (fast)"),
+                    ("irls", "iteratively reweighted least squares (Levin et al., slower)"),
+                    ("wiener", "Wiener filter (instant, rings more)"),
+                ] {
+                    ui.selectable_value(&mut s.deblur_method, m.to_owned(), m)
+                        .on_hover_text(tip);
+                }
+            });
+            let changed = (chart.clone(), s.clone()) != current;
+            let (chart, s) = (chart.clone(), s.clone());
+            ui.horizontal(|ui| {
+                if ui
+                    .add_enabled(changed, egui::Button::new("Apply"))
+                    .on_hover_text(
+                        "A new chart resets detection and kernels; new kernel settings reset kernels",
+                    )
+                    .clicked()
+                {
+                    app.commands.push(Command::ApplySettings {
+                        chart,
+                        settings: s,
+                    });
+                }
+                if ui.add_enabled(changed, egui::Button::new("Revert")).clicked() {
+                    app.settings_edit = None;
+                }
+            });
+            if load_chart {
+                app.commands.push(Command::LoadChartDialog);
+            }
+        });
+}

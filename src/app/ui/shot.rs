@@ -1,0 +1,565 @@
+//! The Shot view: one shot per channel with zoom and pan, the detection's overlays, and
+//! the inspector of a clicked square.
+
+use super::super::{Command, StudioApp};
+use super::{caption, ellipse_points, truth_gaussian};
+use crate::detect::{Detection, SquareStatus};
+use crate::session::StageStatus;
+use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
+
+/// Sensor-to-screen mapping of the shot viewer.
+struct SensorView {
+    rect: Rect,
+    points_per_px: f32,
+    centre: [f32; 2],
+}
+
+impl SensorView {
+    fn to_screen(&self, x: f64, y: f64) -> Pos2 {
+        self.rect.center()
+            + Vec2::new(
+                (x as f32 - self.centre[0]) * self.points_per_px,
+                (y as f32 - self.centre[1]) * self.points_per_px,
+            )
+    }
+    fn to_sensor(&self, p: Pos2) -> [f32; 2] {
+        let d = (p - self.rect.center()) / self.points_per_px;
+        [self.centre[0] + d.x, self.centre[1] + d.y]
+    }
+}
+
+/// Width the inspector takes beside the viewer.
+const INSPECTOR_W: f32 = 270.0;
+
+pub(super) fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    let Some(session) = &app.session else {
+        ui.label("No session yet.");
+        return;
+    };
+    let Some(index) = app.selected_shot.filter(|i| *i < session.shots.len()) else {
+        ui.label("No shots in this session: add shots (Ctrl+Shift+A) or drop files on the window.");
+        return;
+    };
+    let shot = &session.shots[index];
+    ui.horizontal(|ui| {
+        ui.heading(app.shown_path(&session.shot_path(index)));
+        match shot.setting() {
+            Some(s) => ui.label(format!("{:.0} mm  f/{:.1}", s.focal_mm, s.f_number)),
+            None => ui.colored_label(
+                ui.visuals().warn_fg_color,
+                "settings unknown: type f and a in the shot list",
+            ),
+        };
+    });
+    let detected = app.detections.get(&index).cloned();
+    ui.horizontal_wrapped(|ui| {
+        match &shot.detect {
+            StageStatus::Pending => {
+                ui.label("No detection yet — press Detect (Ctrl+D) to overlay squares, corners and the chart grid.");
+            }
+            StageStatus::Failed { reason } => {
+                ui.colored_label(
+                    ui.visuals().error_fg_color,
+                    format!("Detection failed: {reason}"),
+                );
+            }
+            StageStatus::Done { summary } => {
+                ui.label(format!("Detection: {summary}."));
+            }
+        }
+        if let Some(det) = &detected {
+            let reasons = crate::review::skip_reasons(det);
+            if !reasons.is_empty() {
+                let text = reasons
+                    .iter()
+                    .map(|(r, n)| format!("{r} ({n})"))
+                    .collect::<Vec<_>>()
+                    .join(", ");
+                ui.colored_label(ui.visuals().warn_fg_color, format!("skipped: {text}"));
+            }
+        }
+        if detected.is_some() {
+            ui.separator();
+            ui.checkbox(&mut app.viewer.show_squares, "squares")
+                .on_hover_text("Each square's refined outline, coloured by its alignment residual");
+            ui.checkbox(&mut app.viewer.show_circles, "circles & corners")
+                .on_hover_text("The chart's circles projected through each square's own homography, and its corners (when zoomed in, or on the selected square)");
+            ui.checkbox(&mut app.viewer.show_grid, "chart grid")
+                .on_hover_text("The whole chart's grid projected through the global homography");
+            residual_legend_ui(ui);
+        }
+    });
+    let Some(preview) = app.previews.get(&index) else {
+        match app.unreadable.get(&index) {
+            Some(reason) => {
+                ui.colored_label(ui.visuals().error_fg_color, reason);
+            }
+            None => {
+                ui.horizontal(|ui| {
+                    ui.spinner();
+                    ui.label("loading shot…");
+                });
+            }
+        }
+        return;
+    };
+    let Some(texture) = preview
+        .textures
+        .get(&app.channel)
+        .or_else(|| preview.textures.values().next())
+    else {
+        ui.label("this shot has no image planes");
+        return;
+    };
+    let cap = &preview.capture;
+    let plane =
+        super::super::logic::pooled_plane(cap, app.channel).or_else(|| cap.planes.first().cloned());
+    let (step, ox, oy) = plane.as_ref().map_or((1.0, 0.0, 0.0), |p| {
+        (p.step as f64, p.offset_x as f64, p.offset_y as f64)
+    });
+
+    let inspecting = app.inspection.as_ref().is_some_and(|i| i.shot == index);
+    let inspector_w = if inspecting { INSPECTOR_W } else { 0.0 };
+    let avail = ui.available_size();
+    let (rect, response) = ui.allocate_exact_size(
+        Vec2::new((avail.x - inspector_w).max(100.0), avail.y),
+        Sense::click_and_drag(),
+    );
+    response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, "shot viewer"));
+    if inspecting {
+        let side = Rect::from_min_size(
+            Pos2::new(rect.right() + 8.0, rect.top()),
+            Vec2::new(inspector_w - 8.0, rect.height()),
+        );
+        let command = ui
+            .scope_builder(egui::UiBuilder::new().max_rect(side), |ui| {
+                egui::ScrollArea::vertical()
+                    .id_salt("inspector")
+                    .show(ui, |ui| inspector_ui(app, ui))
+                    .inner
+            })
+            .inner;
+        app.commands.extend(command);
+    }
+    let fit = (rect.width() / cap.width as f32).min(rect.height() / cap.height as f32);
+    let sensor_centre = [
+        (cap.width as f32 - 1.0) / 2.0,
+        (cap.height as f32 - 1.0) / 2.0,
+    ];
+    let fitted = app.viewer.sensor_px_per_point.is_none();
+    let mut view = SensorView {
+        rect,
+        points_per_px: app.viewer.sensor_px_per_point.map_or(fit, |s| 1.0 / s),
+        centre: if fitted {
+            sensor_centre
+        } else {
+            app.viewer.centre_sensor
+        },
+    };
+    let mut moved = false;
+    if response.dragged() {
+        let d = response.drag_delta() / view.points_per_px;
+        view.centre = [view.centre[0] - d.x, view.centre[1] - d.y];
+        moved = d != Vec2::ZERO;
+    }
+    if response.hovered() {
+        let scroll = ui.input(|i| i.smooth_scroll_delta.y);
+        if scroll != 0.0 {
+            let factor = (scroll * 0.002).exp();
+            let new_ppp = (view.points_per_px * factor).clamp(fit * 0.5, 64.0);
+            if let Some(p) = response.hover_pos() {
+                // Zoom about the cursor: the sensor point under it stays put.
+                let under = view.to_sensor(p);
+                let d = (p - rect.center()) / new_ppp;
+                view.centre = [under[0] - d.x, under[1] - d.y];
+            }
+            view.points_per_px = new_ppp;
+            moved = true;
+        }
+    }
+    if response.double_clicked() {
+        view.points_per_px = fit;
+        view.centre = sensor_centre;
+        app.viewer.sensor_px_per_point = None;
+    } else if moved || !fitted {
+        app.viewer.sensor_px_per_point = Some(1.0 / view.points_per_px);
+    }
+    app.viewer.centre_sensor = view.centre;
+
+    let painter = ui.painter_at(rect);
+    painter.rect_filled(rect, 0.0, Color32::from_gray(20));
+    let tex_size = texture.size_vec2();
+    // Plane pixel (i, j) covers sensor [step·i + ox ± step/2]: the texture's outer edges.
+    let min = view.to_screen(ox - step / 2.0, oy - step / 2.0);
+    let max = view.to_screen(
+        ox + step * (f64::from(tex_size.x) - 0.5),
+        oy + step * (f64::from(tex_size.y) - 0.5),
+    );
+    painter.image(
+        texture.id(),
+        Rect::from_min_max(min, max),
+        Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)),
+        Color32::WHITE,
+    );
+    if let Some(det) = &detected {
+        let clicked = response
+            .clicked()
+            .then(|| response.interact_pointer_pos())
+            .flatten()
+            .map(|p| view.to_sensor(p));
+        let overlay = Overlay {
+            squares: app.viewer.show_squares,
+            circles: app.viewer.show_circles,
+            grid: app.viewer.show_grid,
+        };
+        if let Some(sq) = detection_overlay(
+            &painter,
+            &view,
+            det,
+            &session.chart,
+            overlay,
+            app.selected_square,
+            clicked,
+        ) {
+            app.commands.push(Command::SelectSquare(sq));
+        }
+    }
+    if let Some(p) = response.hover_pos() {
+        let [x, y] = view.to_sensor(p);
+        let v = plane.as_ref().and_then(|cp| {
+            let [i, j] = cp.plane_from_sensor(f64::from(x), f64::from(y));
+            cp.plane.get_checked(i.round() as i64, j.round() as i64)
+        });
+        let text = match v {
+            Some(v) => format!("x {x:.1}  y {y:.1}  {} {v:.4}", app.channel),
+            None => format!("x {x:.1}  y {y:.1}"),
+        };
+        caption(
+            &painter,
+            rect.left_bottom() + Vec2::new(6.0, -6.0),
+            egui::Align2::LEFT_BOTTOM,
+            text,
+        );
+    }
+    caption(
+        &painter,
+        rect.right_top() + Vec2::new(-6.0, 6.0),
+        egui::Align2::RIGHT_TOP,
+        format!(
+            "{}  {:.0}%  (scroll: zoom, drag: pan, double-click: fit, click a square: inspect)",
+            app.channel,
+            view.points_per_px * 100.0
+        ),
+    );
+}
+
+/// Colour of a square's outline by its alignment residual (normalised units): green
+/// when the synthetic square explains the observed one to noise level, red when not.
+fn residual_color(rms: f64) -> Color32 {
+    let t = ((rms - 0.005) / 0.03).clamp(0.0, 1.0) as f32;
+    Color32::from_rgb((60.0 + 195.0 * t) as u8, (220.0 - 160.0 * t) as u8, 80)
+}
+
+fn residual_legend_ui(ui: &mut egui::Ui) {
+    ui.label("residual RMS")
+        .on_hover_text("RMS of observed − synthetic over the square after alignment, white = 1");
+    ui.label("0.5 %");
+    let (rect, _) = ui.allocate_exact_size(Vec2::new(80.0, 10.0), Sense::hover());
+    let p = ui.painter_at(rect);
+    for k in 0..16 {
+        let t = k as f32 / 16.0;
+        let r = Rect::from_min_size(
+            rect.min + Vec2::new(t * rect.width(), 0.0),
+            Vec2::new(rect.width() / 16.0 + 0.5, rect.height()),
+        );
+        p.rect_filled(r, 0.0, residual_color(0.005 + 0.03 * f64::from(t)));
+    }
+    ui.label("3.5 %");
+}
+
+#[derive(Clone, Copy)]
+struct Overlay {
+    squares: bool,
+    circles: bool,
+    grid: bool,
+}
+
+/// Draws every square's refined outline and corners, the chart's circles projected
+/// through that square's own homography (so a misaligned square shows its circles off
+/// the imaged ones), and the whole chart grid through the global homography. Skipped
+/// squares get a red cross. Returns the square under a click.
+fn detection_overlay(
+    painter: &egui::Painter,
+    view: &SensorView,
+    det: &Detection,
+    chart: &crate::chart::ChartSpec,
+    overlay: Overlay,
+    selected: Option<(usize, usize)>,
+    clicked: Option<[f32; 2]>,
+) -> Option<(usize, usize)> {
+    if overlay.grid {
+        let stroke = Stroke::new(1.0, Color32::from_rgba_unmultiplied(0, 200, 255, 140));
+        let h = &det.global;
+        for c in 0..=chart.cols {
+            let a = h.apply([c as f64, 0.0]);
+            let b = h.apply([c as f64, chart.rows as f64]);
+            painter.line_segment(
+                [view.to_screen(a[0], a[1]), view.to_screen(b[0], b[1])],
+                stroke,
+            );
+        }
+        for r in 0..=chart.rows {
+            let a = h.apply([0.0, r as f64]);
+            let b = h.apply([chart.cols as f64, r as f64]);
+            painter.line_segment(
+                [view.to_screen(a[0], a[1]), view.to_screen(b[0], b[1])],
+                stroke,
+            );
+        }
+    }
+    let mut hit = None;
+    // Circles only once a square spans enough screen to show them; at fit zoom on a
+    // large chart they would be thousands of tiny polylines per frame.
+    let zoomed_in = view.points_per_px > 1.2;
+    for sq in &det.squares {
+        let pts: Vec<Pos2> = sq
+            .corners
+            .iter()
+            .map(|c| view.to_screen(c[0], c[1]))
+            .collect();
+        if sq.status != SquareStatus::Ok {
+            if overlay.squares
+                && sq.corners.iter().flatten().all(|v| v.is_finite())
+                && pts[0] != pts[2]
+            {
+                let red = Stroke::new(1.5, Color32::from_rgb(230, 60, 60));
+                painter.line_segment([pts[0], pts[2]], red);
+                painter.line_segment([pts[1], pts[3]], red);
+            }
+            continue;
+        }
+        let is_selected = selected == Some((sq.row, sq.col));
+        if is_selected {
+            painter.add(egui::Shape::closed_line(
+                pts.clone(),
+                Stroke::new(2.5, Color32::from_rgb(255, 210, 0)),
+            ));
+        } else if overlay.squares {
+            painter.add(egui::Shape::closed_line(
+                pts.clone(),
+                Stroke::new(1.0, residual_color(sq.residual_rms)),
+            ));
+        }
+        if overlay.circles && (zoomed_in || is_selected) {
+            let h = &sq.image_from_chart;
+            for c in &chart.circle_centres {
+                let ring: Vec<Pos2> = (0..24)
+                    .map(|k| {
+                        let t = std::f64::consts::TAU * f64::from(k) / 24.0;
+                        let p = h.apply([
+                            sq.col as f64 + c[0] + chart.circle_radius * t.cos(),
+                            sq.row as f64 + c[1] + chart.circle_radius * t.sin(),
+                        ]);
+                        view.to_screen(p[0], p[1])
+                    })
+                    .collect();
+                painter.add(egui::Shape::closed_line(
+                    ring,
+                    Stroke::new(1.0, Color32::from_rgb(80, 170, 255)),
+                ));
+            }
+            for p in &pts {
+                painter.circle_stroke(*p, 3.0, Stroke::new(1.0, Color32::from_rgb(255, 120, 0)));
+            }
+        }
+        if let Some([x, y]) = clicked
+            && point_in_quad([f64::from(x), f64::from(y)], &sq.corners)
+        {
+            hit = Some((sq.row, sq.col));
+        }
+    }
+    hit
+}
+
+fn point_in_quad(p: [f64; 2], q: &[[f64; 2]; 4]) -> bool {
+    let mut sign = 0.0;
+    for k in 0..4 {
+        let a = q[k];
+        let b = q[(k + 1) % 4];
+        let cross = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]);
+        if cross != 0.0 {
+            if sign != 0.0 && cross.signum() != sign {
+                return false;
+            }
+            sign = cross.signum();
+        }
+    }
+    true
+}
+
+/// The clicked square: observed pixels, the synthetic square the alignment matched, and
+/// their difference; its measured 3× kernel with the fitted Gaussian's ellipse; the
+/// numbers behind them.
+fn inspector_ui(app: &StudioApp, ui: &mut egui::Ui) -> Option<Command> {
+    let ins = app.inspection.as_ref()?;
+    let (row, col) = ins.square;
+    let mut out = None;
+    ui.horizontal(|ui| {
+        ui.strong(format!("Square row {row}, column {col} — {}", ins.channel));
+        if ui
+            .small_button("×")
+            .on_hover_text("Close the inspector")
+            .clicked()
+        {
+            out = Some(Command::ClearSquare);
+        }
+    });
+    if let Some(f) = &ins.facts {
+        ui.label(format!(
+            "centre x {:.1}, y {:.1} px; side {:.1} × {:.1} px",
+            f.centre[0], f.centre[1], f.side_px[0], f.side_px[1]
+        ));
+        ui.label(format!(
+            "refinement moved corners ≤ {:.3} px",
+            f.corner_shift_px
+        ));
+    }
+    ui.label(format!(
+        "alignment residual RMS {:.4} (white = 1)",
+        ins.crops.residual_rms
+    ))
+    .on_hover_text("Observed minus the synthetic square (the chart through this square's refined homography, blurred by the detection's blur estimate). Structure here means misalignment or a non-Gaussian blur.");
+    let w = ui.available_width();
+    let crop_w = ((w - 16.0) / 3.0).max(40.0);
+    ui.horizontal(|ui| {
+        for (k, title) in ["observed", "synthetic", "residual"].iter().enumerate() {
+            ui.vertical(|ui| {
+                ui.label(egui::RichText::new(*title).small());
+                let t = &ins.textures[k];
+                let size = t.size_vec2();
+                let scale = crop_w / size.x.max(size.y);
+                ui.image((t.id(), size * scale));
+            });
+        }
+    });
+    ui.label(egui::RichText::new("residual: grey = 0, ±25 % of the square's contrast").small());
+    ui.separator();
+    let sample = app.measured.get(&ins.shot).and_then(|file| {
+        file.samples
+            .iter()
+            .find(|s| s.channel == ins.channel && s.row == Some(row) && s.col == Some(col))
+            .map(|s| (s, file.oversample))
+    });
+    let failed = app.measured.get(&ins.shot).and_then(|file| {
+        file.failed
+            .iter()
+            .find(|s| s.channel == ins.channel && (s.row, s.col) == (row, col))
+    });
+    match (sample, &ins.kernel) {
+        (Some((s, oversample)), Some(t)) => {
+            let n = t.size_vec2().x.max(1.0);
+            // The kernel array spans the estimation's whole support; its central ±2.5σ
+            // (at least ±2 px) is where the shape is.
+            let sigma = s.cxx.unwrap_or(1.0).max(s.cyy.unwrap_or(1.0));
+            let half_texels = ((2.5 * sigma).max(2.0) * oversample as f64).ceil() as f32;
+            let shown = (2.0 * half_texels + 1.0).min(n);
+            ui.label(format!(
+                "measured kernel, {oversample}× resolution, central ±{:.1} px; 1σ and 2σ ellipses of its Gaussian fit",
+                (shown - 1.0) / 2.0 / oversample as f32
+            ));
+            let side = w.min(150.0);
+            let (rect, _) = ui.allocate_exact_size(Vec2::splat(side), Sense::hover());
+            let painter = ui.painter_at(rect);
+            let uv_half = shown / 2.0 / n;
+            painter.image(
+                t.id(),
+                rect,
+                Rect::from_center_size(Pos2::new(0.5, 0.5), Vec2::splat(2.0 * uv_half)),
+                Color32::WHITE,
+            );
+            // Texels are 1/oversample px: σ px spans σ·oversample texels.
+            let points_per_px = side / shown * oversample as f32;
+            if let (Some(cxx), Some(cyy), Some(cor)) = (s.cxx, s.cyy, s.cor) {
+                let g = crate::psf::Gaussian2 {
+                    sigma_x: cxx,
+                    sigma_y: cyy,
+                    rho: cor,
+                };
+                for (k, alpha) in [(1.0, 255), (2.0, 150)] {
+                    painter.add(egui::Shape::closed_line(
+                        ellipse_points(rect.center(), &g, points_per_px * k),
+                        Stroke::new(1.0, Color32::from_rgba_unmultiplied(255, 190, 0, alpha)),
+                    ));
+                }
+            }
+            let truth = app
+                .session
+                .as_ref()
+                .filter(|s| s.is_demo)
+                .and_then(|session| session.shots.get(ins.shot)?.setting())
+                .zip(app.previews.get(&ins.shot))
+                .zip(ins.facts)
+                .map(|((setting, p), f)| {
+                    truth_gaussian(
+                        &crate::simulate::VirtualLens::demo(),
+                        ins.channel,
+                        f.centre[0],
+                        f.centre[1],
+                        (p.capture.width, p.capture.height),
+                        setting,
+                    )
+                });
+            egui::Grid::new("inspector-numbers")
+                .num_columns(4)
+                .striped(true)
+                .show(ui, |ui| {
+                    ui.label("");
+                    ui.label("C_xx px").on_hover_text(super::TIP_CXX);
+                    ui.label("C_yy px").on_hover_text(super::TIP_CYY);
+                    ui.label("C_or").on_hover_text(super::TIP_COR);
+                    ui.end_row();
+                    let row3 = |ui: &mut egui::Ui, name: &str, tip: &str, v: [Option<f64>; 3]| {
+                        ui.label(name).on_hover_text(tip);
+                        for x in v {
+                            ui.monospace(x.map_or("—".into(), |x| format!("{x:.3}")));
+                        }
+                        ui.end_row();
+                    };
+                    row3(
+                        ui,
+                        "robust fit",
+                        "Levenberg–Marquardt fit of a Gaussian to the kernel's central region",
+                        [s.cxx, s.cyy, s.cor],
+                    );
+                    if let Some(ml) = &s.ml {
+                        row3(
+                            ui,
+                            "ML fit",
+                            "Moments of the thresholded kernel (the fit's starting point)",
+                            [Some(ml.cxx), Some(ml.cyy), Some(ml.cor)],
+                        );
+                    }
+                    if let Some(t) = truth {
+                        row3(
+                            ui,
+                            "truth",
+                            "The demo lens's pixel-level Gaussian at the square's centre",
+                            [Some(t.sigma_x), Some(t.sigma_y), Some(t.rho)],
+                        );
+                    }
+                });
+        }
+        _ => match failed {
+            Some(f) => {
+                ui.colored_label(
+                    ui.visuals().error_fg_color,
+                    format!("kernel not measured: {}", f.reason),
+                );
+            }
+            None => {
+                ui.label("No kernel measured here yet — press Kernels (Ctrl+K).");
+            }
+        },
+    }
+    out
+}

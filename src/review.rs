@@ -1,0 +1,597 @@
+//! What the studio asks of a session's results, answered by the core so that the app
+//! only shows: measured sweep points (the paper's Fig. 4), the numbers behind one
+//! square, the kernels a photo is deblurred with, and deblurred crops of a photo region
+//! side by side (the paper's Fig. 7–8 comparison of predicted Gaussians and measured
+//! kernels).
+//!
+//! This module is core: it never touches egui.
+
+use crate::deblur::source::{Prefer, ScatteredKernels};
+use crate::deblur::{DeblurError, DeblurOptions, KernelSource, ProfileKernels, SourceError};
+use crate::detect::SquareAlignment;
+use crate::job::JobContext;
+use crate::kernel::file::KernelsFile;
+use crate::model::Dataset;
+use crate::plane::{Capture, Channel, ChannelPlane, LensSetting, Plane};
+use crate::profile::Profile;
+use crate::psf::{Gaussian2, Kernel};
+use crate::session::Session;
+use std::path::{Path, PathBuf};
+
+/// Two settings are the same when they agree to 0.1 % (EXIF rounds, users type).
+#[must_use]
+pub fn same_value(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-3 * b.abs().max(1e-9)
+}
+
+/// The value of `values` nearest `wanted` (the calibrated setting a sweep holds fixed).
+#[must_use]
+pub fn nearest_value(values: &[f64], wanted: f64) -> Option<f64> {
+    values
+        .iter()
+        .copied()
+        .min_by(|a, b| (a - wanted).abs().total_cmp(&(b - wanted).abs()))
+}
+
+/// `nx` × `ny` points spread evenly over a `width` × `height` sensor (cell centres),
+/// row-major: where the Kernel field view shows a predicted or true field.
+#[must_use]
+pub fn field_grid(width: usize, height: usize, nx: usize, ny: usize) -> Vec<[f64; 2]> {
+    let (w, h) = (width.max(1) as f64 - 1.0, height.max(1) as f64 - 1.0);
+    (0..ny)
+        .flat_map(|j| {
+            (0..nx).map(move |i| {
+                [
+                    (i as f64 + 0.5) / nx as f64 * w,
+                    (j as f64 + 0.5) / ny as f64 * h,
+                ]
+            })
+        })
+        .collect()
+}
+
+/// The pixel-level Gaussian of a virtual lens at a sensor point: its optical blur plus
+/// the 1-px box of the pixel's own integration (what kernels measure).
+#[must_use]
+pub fn truth_pixel_gaussian(
+    lens: &crate::simulate::VirtualLens,
+    channel: Channel,
+    (x, y): (f64, f64),
+    (width, height): (usize, usize),
+    setting: LensSetting,
+) -> Gaussian2 {
+    lens.gaussian_at(channel, x, y, width, height, setting)
+        .convolved_variance(1.0 / 12.0, 1.0 / 12.0, 0.0)
+}
+
+/// `n` + 1 settings along a sweep for drawing model curves: the f-number from
+/// `range[0]` to `range[1]` evenly in stops at focal length `fixed` (`vs_aperture`), or
+/// the focal length evenly in mm at f-number `fixed`.
+#[must_use]
+pub fn sweep_settings(
+    range: [f64; 2],
+    fixed: f64,
+    vs_aperture: bool,
+    n: usize,
+) -> Vec<LensSetting> {
+    let n = n.max(1);
+    (0..=n)
+        .map(|k| {
+            let t = k as f64 / n as f64;
+            if vs_aperture {
+                LensSetting {
+                    focal_mm: fixed,
+                    f_number: range[0] * (range[1] / range[0]).powf(t),
+                }
+            } else {
+                LensSetting {
+                    focal_mm: range[0] + (range[1] - range[0]) * t,
+                    f_number: fixed,
+                }
+            }
+        })
+        .collect()
+}
+
+/// One measured point of a sweep.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SweepPoint {
+    pub setting: LensSetting,
+    /// Where the square it was measured on lies, sensor px.
+    pub x: f64,
+    pub y: f64,
+    pub gaussian: Gaussian2,
+}
+
+/// Measured points of one sweep: for every shot on the sweep (its focal length equals
+/// `fixed` when `vs_aperture`, its f-number otherwise), the `channel` sample nearest
+/// sensor point (x, y). Sorted by the varying setting.
+#[must_use]
+pub fn sweep_points(
+    ds: &Dataset,
+    channel: Channel,
+    (x, y): (f64, f64),
+    vs_aperture: bool,
+    fixed: f64,
+) -> Vec<SweepPoint> {
+    let mut out: Vec<SweepPoint> = ds
+        .shots
+        .iter()
+        .enumerate()
+        .filter(|(_, info)| {
+            if vs_aperture {
+                same_value(info.focal_mm, fixed)
+            } else {
+                same_value(info.f_number, fixed)
+            }
+        })
+        .filter_map(|(k, info)| {
+            let s = ds
+                .samples
+                .iter()
+                .filter(|s| s.shot == k && s.channel == channel)
+                .min_by(|a, b| {
+                    let da = (a.x - x).powi(2) + (a.y - y).powi(2);
+                    let db = (b.x - x).powi(2) + (b.y - y).powi(2);
+                    da.total_cmp(&db)
+                })?;
+            Some(SweepPoint {
+                setting: LensSetting {
+                    focal_mm: info.focal_mm,
+                    f_number: info.f_number,
+                },
+                x: s.x,
+                y: s.y,
+                gaussian: s.gaussian,
+            })
+        })
+        .collect();
+    let key = |p: &SweepPoint| {
+        if vs_aperture {
+            p.setting.f_number
+        } else {
+            p.setting.focal_mm
+        }
+    };
+    out.sort_by(|a, b| key(a).total_cmp(&key(b)));
+    out
+}
+
+/// The numbers the inspector shows for one aligned square.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SquareFacts {
+    /// The square's centre through its refined homography, sensor px.
+    pub centre: [f64; 2],
+    /// How far refinement moved the bootstrap corners (the largest of the four), px.
+    pub corner_shift_px: f64,
+    /// Side lengths of the refined square (mean of opposite sides), px.
+    pub side_px: [f64; 2],
+}
+
+#[must_use]
+pub fn square_facts(sq: &SquareAlignment) -> SquareFacts {
+    let centre = crate::kernel::square_centre(&crate::kernel::SquareGeometry {
+        row: sq.row,
+        col: sq.col,
+        image_from_chart: sq.image_from_chart,
+    });
+    let dist = |a: [f64; 2], b: [f64; 2]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt();
+    let corner_shift_px = sq
+        .corners
+        .iter()
+        .zip(&sq.bootstrap_corners)
+        .map(|(a, b)| dist(*a, *b))
+        .fold(0.0, f64::max);
+    let c = &sq.corners;
+    let side_px = [
+        0.5 * (dist(c[0], c[1]) + dist(c[3], c[2])),
+        0.5 * (dist(c[0], c[3]) + dist(c[1], c[2])),
+    ];
+    SquareFacts {
+        centre,
+        corner_shift_px,
+        side_px,
+    }
+}
+
+/// Why a detection skipped squares: each reason with how many squares it covers, most
+/// frequent first.
+#[must_use]
+pub fn skip_reasons(det: &crate::detect::Detection) -> Vec<(String, usize)> {
+    let mut counts: std::collections::BTreeMap<String, usize> = std::collections::BTreeMap::new();
+    for sq in det
+        .squares
+        .iter()
+        .filter(|s| s.status != crate::detect::SquareStatus::Ok)
+    {
+        let reason = sq
+            .reason
+            .clone()
+            .unwrap_or_else(|| "no reason given".into());
+        *counts.entry(reason).or_default() += 1;
+    }
+    let mut out: Vec<(String, usize)> = counts.into_iter().collect();
+    out.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+    out
+}
+
+/// A rectangle of sensor pixels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Region {
+    pub x0: usize,
+    pub y0: usize,
+    pub width: usize,
+    pub height: usize,
+}
+
+impl Region {
+    /// A `size` × `size` region (at most the sensor) centred as near (cx, cy) as the
+    /// sensor allows, its corner and size even so that a Bayer mosaic keeps its phase.
+    #[must_use]
+    pub fn around(cx: f64, cy: f64, size: usize, sensor_w: usize, sensor_h: usize) -> Self {
+        let even = |v: usize| v & !1;
+        let w = even(size.min(sensor_w)).max(2.min(sensor_w));
+        let h = even(size.min(sensor_h)).max(2.min(sensor_h));
+        let place = |c: f64, len: usize, full: usize| -> usize {
+            let start = (c - len as f64 / 2.0).round().max(0.0) as usize;
+            even(start.min(full.saturating_sub(len)))
+        };
+        Self {
+            x0: place(cx, w, sensor_w),
+            y0: place(cy, h, sensor_h),
+            width: w,
+            height: h,
+        }
+    }
+
+    /// This region grown by `margin` px on every side, clipped to the sensor (kept even).
+    #[must_use]
+    pub fn grown(&self, margin: usize, sensor_w: usize, sensor_h: usize) -> Self {
+        let m = margin & !1;
+        let x0 = self.x0.saturating_sub(m) & !1;
+        let y0 = self.y0.saturating_sub(m) & !1;
+        let x1 = (self.x0 + self.width + m).min(sensor_w);
+        let y1 = (self.y0 + self.height + m).min(sensor_h);
+        Self {
+            x0,
+            y0,
+            width: (x1 - x0) & !1,
+            height: (y1 - y0) & !1,
+        }
+    }
+
+    #[must_use]
+    pub fn centre(&self) -> [f64; 2] {
+        [
+            self.x0 as f64 + (self.width as f64 - 1.0) / 2.0,
+            self.y0 as f64 + (self.height as f64 - 1.0) / 2.0,
+        ]
+    }
+}
+
+/// The part of a capture inside `region`, as a capture of its own whose pixel (0, 0) is
+/// sensor pixel (x0, y0). The region's corner must be even (see [`Region::around`]) so
+/// every plane keeps its mosaic offset.
+#[must_use]
+pub fn crop_capture(cap: &Capture, region: Region) -> Capture {
+    let planes = cap
+        .planes
+        .iter()
+        .map(|cp| {
+            let s = cp.step.max(1);
+            let i0 = region.x0 / s;
+            let j0 = region.y0 / s;
+            let w = (region.width / s).min(cp.plane.width.saturating_sub(i0));
+            let h = (region.height / s).min(cp.plane.height.saturating_sub(j0));
+            ChannelPlane {
+                channel: cp.channel,
+                plane: cp.plane.crop(i0, j0, w, h),
+                step: cp.step,
+                offset_x: cp.offset_x,
+                offset_y: cp.offset_y,
+            }
+        })
+        .collect();
+    Capture {
+        width: region.width,
+        height: region.height,
+        planes,
+        setting_focal_mm: cap.setting_focal_mm,
+        setting_f_number: cap.setting_f_number,
+        identity: cap.identity.clone(),
+        is_raw: cap.is_raw,
+    }
+}
+
+/// A kernel source asked in a crop's coordinates, answering from the full sensor's.
+struct Shifted<'a> {
+    inner: &'a dyn KernelSource,
+    dx: f64,
+    dy: f64,
+}
+
+impl KernelSource for Shifted<'_> {
+    fn kernel_at(&self, channel: Channel, x: f64, y: f64) -> Result<Kernel, SourceError> {
+        self.inner.kernel_at(channel, x + self.dx, y + self.dy)
+    }
+}
+
+/// Full-resolution planes of `region` of a capture deblurred with `source` (asked at
+/// full-sensor positions). A margin around the region is deconvolved with it and cut
+/// away afterwards, so the crop's own borders do not ring into the result.
+///
+/// # Errors
+/// The source has no kernel, or the job was cancelled.
+pub fn deblur_region(
+    cap: &Capture,
+    region: Region,
+    source: &dyn KernelSource,
+    opts: &DeblurOptions,
+    job: &JobContext,
+) -> Result<Vec<(Channel, Plane)>, DeblurError> {
+    let outer = region.grown(48, cap.width, cap.height);
+    let crop = crop_capture(cap, outer);
+    let shifted = Shifted {
+        inner: source,
+        dx: outer.x0 as f64,
+        dy: outer.y0 as f64,
+    };
+    let out = crate::deblur::deblur_capture(&crop, &shifted, opts, job)?;
+    Ok(inner_planes(&out, region, outer))
+}
+
+fn inner_planes(cap: &Capture, region: Region, outer: Region) -> Vec<(Channel, Plane)> {
+    let (dx, dy) = (region.x0 - outer.x0, region.y0 - outer.y0);
+    crate::raw::full_planes(cap)
+        .into_iter()
+        .map(|(c, p)| {
+            let w = region.width.min(p.width.saturating_sub(dx));
+            let h = region.height.min(p.height.saturating_sub(dy));
+            (c, p.crop(dx, dy, w, h))
+        })
+        .collect()
+}
+
+/// The linear value each plane shows as white on screen: its 99.5th percentile (at
+/// least a small positive floor), so a few specular pixels do not darken the picture
+/// and the paper of a chart, whatever the camera's channel gains, shows neutral.
+#[must_use]
+pub fn display_whites(planes: &[(Channel, Plane)]) -> Vec<(Channel, f32)> {
+    planes
+        .iter()
+        .map(|(c, p)| {
+            let mut v: Vec<f32> = p.data.iter().copied().filter(|v| v.is_finite()).collect();
+            if v.is_empty() {
+                return (*c, 1.0);
+            }
+            let k = ((v.len() - 1) as f64 * 0.995).round() as usize;
+            let (_, white, _) = v.select_nth_unstable_by(k, f32::total_cmp);
+            (*c, white.max(1e-3))
+        })
+        .collect()
+}
+
+/// The planes of `region` as they are (the "original" of a comparison).
+#[must_use]
+pub fn region_planes(cap: &Capture, region: Region) -> Vec<(Channel, Plane)> {
+    let outer = region.grown(2, cap.width, cap.height);
+    inner_planes(&crop_capture(cap, outer), region, outer)
+}
+
+/// A photo region and its deblurred versions: with the Gaussians the profile predicts
+/// and with the kernels measured on a chart shot at the same setting. Each result is
+/// absent with the reason when its kernels are not available.
+#[derive(Clone, Debug)]
+pub struct DeblurComparison {
+    pub region: Region,
+    pub original: Vec<(Channel, Plane)>,
+    pub predicted: Result<Vec<(Channel, Plane)>, String>,
+    pub measured: Result<Vec<(Channel, Plane)>, String>,
+}
+
+/// Deblurs `region` with both sources (each may be absent, with its reason).
+///
+/// # Errors
+/// Only on cancellation; a source that fails leaves its reason in the comparison.
+pub fn compare_deblur(
+    cap: &Capture,
+    region: Region,
+    predicted: Result<&dyn KernelSource, String>,
+    measured: Result<&dyn KernelSource, String>,
+    opts: &DeblurOptions,
+    job: &JobContext,
+) -> Result<DeblurComparison, crate::job::Cancelled> {
+    let predicted = deblur_or_reason(cap, region, predicted, opts, &job.prefixed("predicted: "))?;
+    let measured = deblur_or_reason(cap, region, measured, opts, &job.prefixed("measured: "))?;
+    Ok(DeblurComparison {
+        region,
+        original: region_planes(cap, region),
+        predicted,
+        measured,
+    })
+}
+
+/// One result of a comparison: the planes, or why there are none; `Err` only when
+/// cancelled.
+fn deblur_or_reason(
+    cap: &Capture,
+    region: Region,
+    source: Result<&dyn KernelSource, String>,
+    opts: &DeblurOptions,
+    job: &JobContext,
+) -> Result<Result<Vec<(Channel, Plane)>, String>, crate::job::Cancelled> {
+    let source = match source {
+        Ok(s) => s,
+        Err(reason) => return Ok(Err(reason)),
+    };
+    match deblur_region(cap, region, source, opts, job) {
+        Ok(p) => Ok(Ok(p)),
+        Err(DeblurError::Cancelled(c)) => Err(c),
+        Err(e) => Ok(Err(e.to_string())),
+    }
+}
+
+/// The kernels a profile predicts for a photo at `setting`, or why there are none: the
+/// setting is unknown or outside the calibrated range, or the photo comes from another
+/// sensor size.
+///
+/// # Errors
+/// The one-line reason.
+pub fn profile_source(
+    profile: &Profile,
+    cap: &Capture,
+    setting: Option<LensSetting>,
+) -> Result<ProfileKernels, String> {
+    let Some(setting) = setting else {
+        return Err("focal length and aperture unknown: type them above".into());
+    };
+    if (profile.norm.width, profile.norm.height) != (cap.width, cap.height) {
+        return Err(format!(
+            "the photo is {} × {} but the profile is for a {} × {} sensor",
+            cap.width, cap.height, profile.norm.width, profile.norm.height
+        ));
+    }
+    profile.check_setting(setting).map_err(|e| e.to_string())?;
+    Ok(ProfileKernels {
+        profile: profile.clone(),
+        setting,
+    })
+}
+
+/// The session shot whose kernels were measured at `setting` on a sensor of the
+/// photo's size: what a photo at that setting is deblurred with "measured kernels".
+#[must_use]
+pub fn measured_kernels_for(
+    session: &Session,
+    width: usize,
+    height: usize,
+    setting: LensSetting,
+) -> Option<(usize, PathBuf)> {
+    (0..session.shots.len()).find_map(|i| {
+        let shot = &session.shots[i];
+        let s = shot.setting()?;
+        if !(shot.kernels.is_done()
+            && same_value(s.focal_mm, setting.focal_mm)
+            && same_value(s.f_number, setting.f_number))
+        {
+            return None;
+        }
+        let path = session.result_path(i, "kernels");
+        let file = KernelsFile::load(&path).ok()?;
+        ((file.width, file.height) == (width, height)).then_some((i, path))
+    })
+}
+
+/// The measured non-parametric kernels of a kernels file as a deblurring source.
+///
+/// # Errors
+/// The file cannot be read, or holds no sample.
+pub fn measured_source(path: &Path) -> Result<ScatteredKernels, String> {
+    let file = KernelsFile::load(path).map_err(|e| e.to_string())?;
+    if file.samples.is_empty() {
+        return Err(format!("{}: no measured kernel", path.display()));
+    }
+    Ok(ScatteredKernels::new(file, Prefer::Kernel))
+}
+
+/// Deblurs a whole capture and writes it (16-bit linear PNG or TIFF, full resolution,
+/// RAW mosaics interpolated).
+///
+/// # Errors
+/// The source failed, the file cannot be written, or the job was cancelled.
+pub fn export_deblurred(
+    cap: &Capture,
+    source: &dyn KernelSource,
+    opts: &DeblurOptions,
+    out: &Path,
+    job: &JobContext,
+) -> Result<(), String> {
+    let done = crate::deblur::deblur_capture(cap, source, opts, job)
+        .map_err(|e| format!("{}: {e}", out.display()))?;
+    crate::raw::save_planes(out, &crate::raw::full_planes(&done), false).map_err(|e| e.to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{BlurSample, ShotInfo};
+    use crate::plane::CameraIdentity;
+
+    #[test]
+    fn regions_stay_inside_and_even() {
+        let r = Region::around(5.0, 3.0, 64, 100, 80);
+        assert_eq!((r.x0, r.y0, r.width, r.height), (0, 0, 64, 64));
+        let r = Region::around(99.0, 79.0, 64, 101, 80);
+        assert_eq!((r.x0 + r.width <= 101, r.y0 + r.height <= 80), (true, true));
+        assert_eq!((r.x0 % 2, r.y0 % 2), (0, 0));
+        let r = Region::around(50.0, 40.0, 500, 100, 80);
+        assert_eq!((r.width, r.height), (100, 80));
+        let g = Region::around(50.0, 40.0, 20, 100, 80).grown(13, 100, 80);
+        assert_eq!((g.x0 % 2, g.y0 % 2, g.width % 2), (0, 0, 0));
+        assert!(g.x0 + g.width <= 100 && g.y0 + g.height <= 80);
+    }
+
+    #[test]
+    fn crops_keep_sensor_positions() {
+        // A Bayer-like capture: an R plane at even sites, values = sensor x + 1000 y.
+        let (w, h) = (40, 30);
+        let plane = Plane::from_fn(w / 2, h / 2, |i, j| (2 * i + 1000 * 2 * j) as f32);
+        let cap = Capture {
+            width: w,
+            height: h,
+            planes: vec![ChannelPlane {
+                channel: Channel::R,
+                plane,
+                step: 2,
+                offset_x: 0,
+                offset_y: 0,
+            }],
+            setting_focal_mm: None,
+            setting_f_number: None,
+            identity: CameraIdentity::default(),
+            is_raw: true,
+        };
+        let r = Region::around(20.0, 15.0, 10, w, h);
+        let c = crop_capture(&cap, r);
+        let cp = &c.planes[0];
+        let [x, y] = cp.sensor_from_plane(1.0, 2.0);
+        let v = cp.plane.get(1, 2);
+        assert_eq!(v, (x as usize + r.x0 + 1000 * (y as usize + r.y0)) as f32);
+    }
+
+    #[test]
+    fn sweep_points_follow_the_fixed_setting() {
+        let mut ds = Dataset::new(100, 100, CameraIdentity::default());
+        let g = |s: f64| Gaussian2::isotropic(s);
+        for (f, a) in [(24.0, 4.0), (24.0, 8.0), (50.0, 4.0)] {
+            let samples = [(10.0, 10.0, 1.0), (90.0, 90.0, 2.0)].map(|(x, y, s)| BlurSample {
+                shot: 0,
+                x,
+                y,
+                focal_mm: 0.0,
+                f_number: 0.0,
+                channel: Channel::G,
+                gaussian: g(s * a / 4.0),
+            });
+            ds.push_shot(
+                ShotInfo {
+                    name: format!("{f}-{a}"),
+                    focal_mm: f,
+                    f_number: a,
+                },
+                samples,
+            );
+        }
+        let p = sweep_points(&ds, Channel::G, (80.0, 85.0), true, 24.0);
+        assert_eq!(p.len(), 2);
+        assert_eq!(p[0].setting.f_number, 4.0);
+        assert_eq!((p[1].x, p[1].gaussian.sigma_x), (90.0, 4.0));
+        let q = sweep_points(&ds, Channel::G, (0.0, 0.0), false, 4.0);
+        assert_eq!(
+            q.iter().map(|p| p.setting.focal_mm).collect::<Vec<_>>(),
+            [24.0, 50.0]
+        );
+        assert!(sweep_points(&ds, Channel::R, (0.0, 0.0), false, 4.0).is_empty());
+        assert_eq!(nearest_value(&[4.0, 5.6, 10.0], 6.0), Some(5.6));
+    }
+}
