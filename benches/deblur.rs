@@ -10,7 +10,7 @@ use lensblur::deblur::{
 };
 use lensblur::experiment::dead_leaves;
 use lensblur::job::JobContext;
-use lensblur::model::{SampleNoise, simulated_dataset, spaced};
+use lensblur::model::{SimulatedSession, spaced};
 use lensblur::plane::{Capture, Channel, ChannelPlane, LensSetting};
 use lensblur::profile::{CalibrateOptions, Families, calibrate};
 use lensblur::simulate::VirtualLens;
@@ -28,16 +28,11 @@ fn bench(c: &mut Criterion) {
             });
         }
     }
-    let ds = simulated_dataset(
-        &VirtualLens::demo(),
-        w,
-        h,
-        (24, 16),
-        &settings,
-        1,
-        &SampleNoise::default(),
-        11,
-    );
+    let ds = SimulatedSession {
+        seed: 11,
+        ..SimulatedSession::new(w, h)
+    }
+    .dataset(&VirtualLens::demo(), &settings);
     let opts = CalibrateOptions {
         families: Families::Global,
         alpha: Some(6),

@@ -572,6 +572,7 @@ mod tests {
                 f_number: 0.0,
                 channel: Channel::G,
                 gaussian: g(s * a / 4.0),
+                square: None,
             });
             ds.push_shot(
                 ShotInfo {

@@ -16,7 +16,7 @@ use lensblur::experiment::{
 };
 use lensblur::job::JobContext;
 use lensblur::metrics::{SsimParams, psnr, reference_pair, ssim, ssim_f64};
-use lensblur::model::{SampleNoise, simulated_dataset, spaced};
+use lensblur::model::{SimulatedSession, spaced};
 use lensblur::plane::{Channel, ChannelPlane, LensSetting, Plane};
 use lensblur::profile::{CalibrateOptions, Families, Profile, calibrate};
 use lensblur::psf::{Gaussian2, Kernel};
@@ -497,16 +497,11 @@ fn calibration_settings() -> Vec<LensSetting> {
 /// A lens profile fitted, model order chosen by cross-validation, on the calibration
 /// set for a `w × h` sensor: what `lensblur calibrate` makes from measured kernels.
 fn fitted_profile(w: usize, h: usize) -> Profile {
-    let ds = simulated_dataset(
-        &VirtualLens::demo(),
-        w,
-        h,
-        (24, 16),
-        &calibration_settings(),
-        1,
-        &SampleNoise::default(),
-        17,
-    );
+    let ds = SimulatedSession {
+        seed: 17,
+        ..SimulatedSession::new(w, h)
+    }
+    .dataset(&VirtualLens::demo(), &calibration_settings());
     let opts = CalibrateOptions {
         families: Families::Global,
         ..CalibrateOptions::default()

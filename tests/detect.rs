@@ -107,8 +107,8 @@ fn corner_errors(
     let (mut e_b, mut e_r, mut n) = (0.0, 0.0, 0usize);
     for sq in det.ok_squares() {
         let chart = spec.square_corners(sq.col, sq.row);
-        for k in 0..4 {
-            let t = truth.apply(chart[k]);
+        for (k, c) in chart.iter().enumerate() {
+            let t = truth.apply(*c);
             e_b += (sq.bootstrap_corners[k][0] - t[0]).powi(2)
                 + (sq.bootstrap_corners[k][1] - t[1]).powi(2);
             e_r += (sq.corners[k][0] - t[0]).powi(2) + (sq.corners[k][1] - t[1]).powi(2);

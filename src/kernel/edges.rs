@@ -377,13 +377,15 @@ impl Rows<'_> {
     #[target_feature(enable = "avx2,fma")]
     unsafe fn predict_avx2(&self, patches: &[usize], flipped: &[f64], out: &mut [f64]) {
         use std::arch::x86_64::{
-            _mm256_add_pd, _mm256_fmadd_pd, _mm256_loadu_pd, _mm256_setzero_pd,
-            _mm256_storeu_pd,
+            _mm256_add_pd, _mm256_fmadd_pd, _mm256_loadu_pd, _mm256_setzero_pd, _mm256_storeu_pd,
         };
         let (k, kp, stride) = (self.k, self.kp, self.stride);
         assert!(flipped.len() >= k * kp && kp % LANES == 0, "kernel layout");
         for (o, &p) in out.iter_mut().zip(patches) {
-            assert!(p + (k - 1) * stride + kp <= self.raster.len(), "patch outside the raster");
+            assert!(
+                p + (k - 1) * stride + kp <= self.raster.len(),
+                "patch outside the raster"
+            );
             let (mut a0, mut a1) = (_mm256_setzero_pd(), _mm256_setzero_pd());
             for r in 0..k {
                 let row = self.raster[p + r * stride..].as_ptr();
@@ -392,7 +394,11 @@ impl Rows<'_> {
                     // SAFETY: c + 8 ≤ kp, and both the patch row (asserted above) and
                     // the kernel row (`flipped` holds k rows of kp) have kp samples.
                     unsafe {
-                        a0 = _mm256_fmadd_pd(_mm256_loadu_pd(row.add(c)), _mm256_loadu_pd(kr.add(c)), a0);
+                        a0 = _mm256_fmadd_pd(
+                            _mm256_loadu_pd(row.add(c)),
+                            _mm256_loadu_pd(kr.add(c)),
+                            a0,
+                        );
                         a1 = _mm256_fmadd_pd(
                             _mm256_loadu_pd(row.add(c + 4)),
                             _mm256_loadu_pd(kr.add(c + 4)),
@@ -415,14 +421,19 @@ impl Rows<'_> {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
     unsafe fn correlate_avx2(&self, patches: &[usize], weights: &[f64], acc: &mut [f64]) {
-        use std::arch::x86_64::{_mm256_fmadd_pd, _mm256_loadu_pd, _mm256_set1_pd, _mm256_storeu_pd};
+        use std::arch::x86_64::{
+            _mm256_fmadd_pd, _mm256_loadu_pd, _mm256_set1_pd, _mm256_storeu_pd,
+        };
         let (k, kp, stride) = (self.k, self.kp, self.stride);
         assert!(acc.len() >= k * kp && kp % 4 == 0, "accumulator layout");
         for (&p, &w) in patches.iter().zip(weights) {
             if w == 0.0 {
                 continue;
             }
-            assert!(p + (k - 1) * stride + kp <= self.raster.len(), "patch outside the raster");
+            assert!(
+                p + (k - 1) * stride + kp <= self.raster.len(),
+                "patch outside the raster"
+            );
             let wv = _mm256_set1_pd(w);
             for r in 0..k {
                 let row = self.raster[p + r * stride..].as_ptr();
@@ -431,7 +442,11 @@ impl Rows<'_> {
                     // SAFETY: c + 4 ≤ kp; the patch row and the accumulator row have kp
                     // samples (asserted above).
                     unsafe {
-                        let v = _mm256_fmadd_pd(_mm256_loadu_pd(row.add(c)), wv, _mm256_loadu_pd(dst.add(c)));
+                        let v = _mm256_fmadd_pd(
+                            _mm256_loadu_pd(row.add(c)),
+                            wv,
+                            _mm256_loadu_pd(dst.add(c)),
+                        );
                         _mm256_storeu_pd(dst.add(c), v);
                     }
                 }
@@ -529,7 +544,10 @@ mod tests {
         for (x, y) in ra.iter().zip(&rb) {
             assert!((x - y).abs() < 1e-4 * (1.0 + x.abs()), "{x} vs {y}");
         }
-        let (sa, sb) = (cg_solve(&mut fft, 100, 1e-10), cgls_solve(&mut edges, 100, 1e-10));
+        let (sa, sb) = (
+            cg_solve(&mut fft, 100, 1e-10),
+            cgls_solve(&mut edges, 100, 1e-10),
+        );
         for (x, y) in sa.x.iter().zip(&sb.x) {
             assert!((x - y).abs() < 1e-3 * (1.0 + x.abs()), "{x} vs {y}");
         }

@@ -260,7 +260,15 @@ pub fn estimate_square(
                 (None, _) => measure_support(capture, square, spec, params, channel),
             };
             let r = first.and_then(|support| {
-                estimate_with_support(capture, square, spec, params, channel, support, &mut prepared)
+                estimate_with_support(
+                    capture,
+                    square,
+                    spec,
+                    params,
+                    channel,
+                    support,
+                    &mut prepared,
+                )
             });
             (channel, r)
         })
@@ -293,7 +301,14 @@ fn estimate_with_support(
                 &prepared[prepared.len() - 1]
             }
         };
-        let raw = solve(capture, prep, channel, params, params.cg_iterations, params.cg_tolerance)?;
+        let raw = solve(
+            capture,
+            prep,
+            channel,
+            params,
+            params.cg_iterations,
+            params.cg_tolerance,
+        )?;
         let kernel = clean(&raw.kernel, params.threshold)?;
         let fit = fit_gaussian(
             &kernel,
@@ -353,10 +368,11 @@ fn measure_support(
     let mut support = FIRST_PASS_SUPPORT_PX;
     loop {
         let r_px = support.ceil() as usize;
-        let prep = prepare(capture, square, spec, 1, r_px, params.weighting).map_err(|e| match e {
-            KernelFailure::NoObservations(_) => KernelFailure::NoObservations(channel),
-            e => e,
-        })?;
+        let prep =
+            prepare(capture, square, spec, 1, r_px, params.weighting).map_err(|e| match e {
+                KernelFailure::NoObservations(_) => KernelFailure::NoObservations(channel),
+                e => e,
+            })?;
         let raw = solve(capture, &prep, channel, params, 40, 1e-6)?;
         let kernel = clean(&raw.kernel, params.threshold)?;
         let central = Kernel {
@@ -469,7 +485,13 @@ fn prepare(
     }
     let margin = r_px as f64;
     let lo = |k: usize| corners.iter().map(|c| c[k]).fold(f64::INFINITY, f64::min) - margin;
-    let hi = |k: usize| corners.iter().map(|c| c[k]).fold(f64::NEG_INFINITY, f64::max) + margin;
+    let hi = |k: usize| {
+        corners
+            .iter()
+            .map(|c| c[k])
+            .fold(f64::NEG_INFINITY, f64::max)
+            + margin
+    };
     let bx0 = lo(0).ceil().max(0.0);
     let by0 = lo(1).ceil().max(0.0);
     let bx1 = hi(0).floor().min(capture.width as f64 - 1.0);
@@ -540,7 +562,12 @@ fn solve(
                         // The patch under pixel x is centred on its raster sample
                         // (x − bx0)·s + r_sub, so it starts at (x − bx0)·s.
                         let (x0, y0) = ((x - prep.bx0) * os, (y - prep.by0) * os);
-                        problem.observe(x0, y0, f64::from(cp.plane.get(i, j)), uniform.value(x0, y0));
+                        problem.observe(
+                            x0,
+                            y0,
+                            f64::from(cp.plane.get(i, j)),
+                            uniform.value(x0, y0),
+                        );
                     }
                 }
             }
