@@ -59,34 +59,15 @@ pub enum FitError {
 /// (0 = background, regions numbered from 1) and the number of regions.
 #[must_use]
 pub fn label_regions(mask: &[bool], size: usize) -> (Vec<u32>, u32) {
-    let mut labels = vec![0u32; mask.len()];
-    let mut next = 0u32;
-    let mut stack = Vec::new();
-    for start in 0..mask.len() {
-        if !mask[start] || labels[start] != 0 {
-            continue;
-        }
-        next += 1;
-        labels[start] = next;
-        stack.push(start);
-        while let Some(p) = stack.pop() {
-            let (x, y) = ((p % size) as i64, (p / size) as i64);
-            for dy in -1..=1i64 {
-                for dx in -1..=1i64 {
-                    let (nx, ny) = (x + dx, y + dy);
-                    if nx < 0 || ny < 0 || nx >= size as i64 || ny >= size as i64 {
-                        continue;
-                    }
-                    let q = ny as usize * size + nx as usize;
-                    if mask[q] && labels[q] == 0 {
-                        labels[q] = next;
-                        stack.push(q);
-                    }
-                }
-            }
-        }
-    }
-    (labels, next)
+    use imageproc::region_labelling::{Connectivity, connected_components};
+    let side = u32::try_from(size).unwrap_or(u32::MAX);
+    let image = image::GrayImage::from_fn(side, side, |x, y| {
+        image::Luma([u8::from(mask[y as usize * size + x as usize]) * 255])
+    });
+    let labelled = connected_components(&image, Connectivity::Eight, image::Luma([0u8]));
+    let labels = labelled.into_raw();
+    let count = labels.iter().copied().max().unwrap_or(0);
+    (labels, count)
 }
 
 /// The kernel with everything outside its central region set to zero: the region that
