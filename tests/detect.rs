@@ -494,3 +494,45 @@ fn simulated_full_chart_at_the_extreme_settings() {
         }
     }
 }
+
+/// A chart whose outer squares' junctions line up one step beyond the board (the
+/// studio's first-launch demo framing: 16 × 10 squares of about 54 and 67 px): every
+/// square is still found, at the right place.
+#[test]
+fn lattice_ignores_junctions_beyond_the_board() {
+    use lensblur::simulate::{CaptureParams, VirtualLens, simulate_shot};
+    let spec = ChartSpec {
+        cols: 16,
+        rows: 10,
+        ..ChartSpec::default()
+    };
+    let job = JobContext::silent();
+    for width in [960usize, 1200] {
+        let setting = lensblur::plane::LensSetting {
+            focal_mm: 24.0,
+            f_number: 4.0,
+        };
+        let mut cp = CaptureParams::new(width, width * 2 / 3, setting);
+        cp.bayer = false;
+        let shot = simulate_shot(&spec, &VirtualLens::demo(), &cp, &job).expect("simulate");
+        let det = detect(&shot.capture, &spec, &DetectParams::default(), &job)
+            .unwrap_or_else(|e| panic!("{width} px wide: {e}"));
+        let (mut worst, mut sum, mut n) = (0.0f64, 0.0, 0usize);
+        for t in &shot.truth.squares {
+            let sq = det
+                .ok_squares()
+                .find(|s| s.row == t.row && s.col == t.col)
+                .unwrap_or_else(|| panic!("{width} px: square ({}, {}) missing", t.row, t.col));
+            for c in 0..4 {
+                let d2 = (sq.corners[c][0] - t.corners[c][0]).powi(2)
+                    + (sq.corners[c][1] - t.corners[c][1]).powi(2);
+                worst = worst.max(d2.sqrt());
+                sum += d2;
+                n += 1;
+            }
+        }
+        let rms = (sum / n as f64).sqrt();
+        eprintln!("{width} px: corner RMS {rms:.4} px, worst {worst:.3} px");
+        assert!(rms <= 0.03, "{width} px: corner RMS {rms:.4} px");
+    }
+}

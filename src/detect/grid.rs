@@ -356,6 +356,7 @@ pub fn build_lattice(
     if pts.len() < 9 {
         return Err(LatticeError::NotFound);
     }
+
     // Bucket cells of about the search radius, so a neighbour query looks at a few
     // cells whatever the square size: the median distance to the nearest junction
     // estimates the corner spacing.
@@ -367,12 +368,14 @@ pub fn build_lattice(
     order.sort_by(|&a, &b| pts[b].response.total_cmp(&pts[a].response));
     let n_seeds = 24usize;
     let stride = (order.len() / n_seeds).max(1);
-    let seeds: Vec<usize> = order
-        .iter()
-        .step_by(stride)
-        .take(n_seeds)
-        .copied()
-        .collect();
+    // The strongest saddles are mostly true corners; the rest spread over the list in
+    // case a strong false lattice (circles against square edges) dominates the top.
+    let mut seeds: Vec<usize> = order.iter().take(n_seeds / 2).copied().collect();
+    for &k in order.iter().step_by(stride).take(n_seeds) {
+        if seeds.len() < n_seeds + n_seeds / 2 && !seeds.contains(&k) {
+            seeds.push(k);
+        }
+    }
     let max_step = (smoothed.w.min(smoothed.h) as f64) / 3.0;
     let mut best: HashMap<(i64, i64), usize> = HashMap::new();
     let mut best_score = 0.0;
@@ -407,7 +410,8 @@ pub fn build_lattice(
                 if !(0.6..=1.6).contains(&ratio) {
                     continue;
                 }
-                let g = grow(pts, &buckets, seed, ex, ey);
+                let mut g = grow(pts, &buckets, seed, ex, ey);
+                trim_border(&mut g, pts, spec.cols - 1, spec.rows - 1);
                 if g.len() < 9 {
                     continue;
                 }
@@ -609,6 +613,49 @@ pub fn build_lattice(
         corners,
         image_from_chart,
     })
+}
+
+/// Drops up to two outermost lines of nodes on each axis while the lattice spans more
+/// corners than the chart has inside it. Junctions just outside the board (where the
+/// outer squares' circles meet their edges, or the board's own outer corners in some
+/// framings) can line up with the lattice one step beyond the last inner corner; a line
+/// of them is sparse or weak, so the line with fewer nodes (then the weaker) goes.
+fn trim_border(g: &mut HashMap<(i64, i64), usize>, pts: &[Junction], max_i: usize, max_j: usize) {
+    for axis in 0..2 {
+        for _ in 0..2 {
+            if g.is_empty() {
+                return;
+            }
+            let (imin, imax, jmin, jmax) = extent(g);
+            let (lo, hi, limit) = if axis == 0 {
+                (imin, imax, max_i)
+            } else {
+                (jmin, jmax, max_j)
+            };
+            if ((hi - lo + 1) as usize) <= limit {
+                break;
+            }
+            let line = |v: i64| -> (usize, f64) {
+                let mut n = 0usize;
+                let mut r = 0.0;
+                for (&(i, j), &k) in g.iter() {
+                    if (if axis == 0 { i } else { j }) == v {
+                        n += 1;
+                        r += pts[k].response;
+                    }
+                }
+                (n, r)
+            };
+            let (nl, rl) = line(lo);
+            let (nh, rh) = line(hi);
+            let drop = if (nl, rl) < (nh, rh) || (nl == nh && rl < rh) {
+                lo
+            } else {
+                hi
+            };
+            g.retain(|&(i, j), _| (if axis == 0 { i } else { j }) != drop);
+        }
+    }
 }
 
 fn extent(g: &HashMap<(i64, i64), usize>) -> (i64, i64, i64, i64) {
