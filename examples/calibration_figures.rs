@@ -148,7 +148,7 @@ fn measure(
             black: params.black_level,
             white: params.white_level,
             setting: Some(plan.setting),
-            tile: None,
+            layout: lensblur::simulate::dng::DngLayout::default(),
         };
         lensblur::simulate::dng::write_dng(
             &shots.join(format!("{}.dng", plan.name)),

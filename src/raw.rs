@@ -178,26 +178,24 @@ fn tiff_ifd0(b: &[u8]) -> Result<Ifd, String> {
     Ok(out)
 }
 
-/// A RAW file: rawloader first; an uncompressed tiled DNG (which rawloader refuses) by
-/// our own reader of its first directory.
+/// A RAW file: an uncompressed DNG that rawloader would misread by our own reader of its
+/// first directory, everything else through rawloader.
 fn load_raw(path: &Path, tiff: Option<(&[u8], &Ifd)>) -> Result<Capture, LoadError> {
+    if let Some((bytes, ifd)) = tiff
+        && needs_own_reader(ifd)
+    {
+        return read_uncompressed_dng(path, bytes, ifd);
+    }
     let decoded = {
         let _quiet = QuietPanics::new();
         std::panic::catch_unwind(|| rawloader::decode_file(path))
     };
     match decoded {
         Ok(Ok(img)) => from_rawloader(path, &img),
-        Ok(Err(e)) => {
-            if let Some((bytes, ifd)) = tiff
-                && ifd.contains_key(&TAG_TILE_OFFSETS)
-            {
-                return read_tiled_dng(path, bytes, ifd);
-            }
-            Err(LoadError::Corrupt {
-                path: path.to_path_buf(),
-                reason: format!("RAW decoder: {}", one_line(&e.to_string())),
-            })
-        }
+        Ok(Err(e)) => Err(LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: format!("RAW decoder: {}", one_line(&e.to_string())),
+        }),
         Err(_) => Err(LoadError::Corrupt {
             path: path.to_path_buf(),
             reason: "the RAW decoder failed on this file".into(),
@@ -205,7 +203,32 @@ fn load_raw(path: &Path, tiff: Option<(&[u8], &Ifd)>) -> Result<Capture, LoadErr
     }
 }
 
+const TAG_COMPRESSION: u16 = 259;
+const TAG_STRIP_OFFSETS: u16 = 273;
+const TAG_ROWS_PER_STRIP: u16 = 278;
+const TAG_STRIP_BYTE_COUNTS: u16 = 279;
 const TAG_TILE_OFFSETS: u16 = 324;
+
+/// Whether the first directory holds an uncompressed CFA image that rawloader reads
+/// wrongly or not at all: tiles (it refuses them: "Couldn't find tag StripOffsets"), or
+/// strips that do not follow one another in the file (it reads every sample on from the
+/// first strip, so a gap or a reordering would be read as image).
+fn needs_own_reader(ifd: &Ifd) -> bool {
+    let first = |tag: u16| ifd.get(&tag).and_then(|v| v.first().copied());
+    if first(TAG_PHOTOMETRIC) != Some(32803.0) || first(TAG_COMPRESSION) != Some(1.0) {
+        return false;
+    }
+    if ifd.contains_key(&TAG_TILE_OFFSETS) {
+        return true;
+    }
+    match (ifd.get(&TAG_STRIP_OFFSETS), ifd.get(&TAG_STRIP_BYTE_COUNTS)) {
+        (Some(offsets), Some(counts)) => offsets
+            .windows(2)
+            .zip(counts)
+            .any(|(o, c)| o[1] != o[0] + c),
+        _ => false,
+    }
+}
 
 type PanicHook = Box<dyn Fn(&std::panic::PanicHookInfo<'_>) + Sync + Send + 'static>;
 
@@ -356,8 +379,9 @@ fn from_rawloader(path: &Path, img: &rawloader::RawImage) -> Result<Capture, Loa
     Ok(c)
 }
 
-/// An uncompressed, tiled, 16-bit CFA DNG whose raw image is in the first directory.
-fn read_tiled_dng(path: &Path, b: &[u8], ifd: &Ifd) -> Result<Capture, LoadError> {
+/// An uncompressed 16-bit CFA DNG whose raw image is in the first directory, in tiles
+/// or strips (a strip is a tile as wide as the image).
+fn read_uncompressed_dng(path: &Path, b: &[u8], ifd: &Ifd) -> Result<Capture, LoadError> {
     let err = |reason: String| LoadError::Corrupt {
         path: path.to_path_buf(),
         reason,
@@ -365,28 +389,33 @@ fn read_tiled_dng(path: &Path, b: &[u8], ifd: &Ifd) -> Result<Capture, LoadError
     let one = |tag: u16| -> Result<f64, LoadError> {
         ifd.get(&tag)
             .and_then(|v| v.first().copied())
-            .ok_or_else(|| err(format!("tiled DNG without tag {tag}")))
+            .ok_or_else(|| err(format!("DNG without tag {tag}")))
     };
-    if one(259)? != 1.0 {
-        return Err(err(
-            "compressed tiled DNG: only uncompressed tiles are read".into(),
-        ));
-    }
     if one(258)? != 16.0 {
-        return Err(err("only 16-bit tiled DNGs are read".into()));
+        return Err(err("only 16-bit uncompressed DNGs are read".into()));
     }
     let (w, h) = (one(256)? as usize, one(257)? as usize);
     check_size(path, w, h)?;
-    let (tw, th) = (one(322)? as usize, one(323)? as usize);
-    if tw == 0 || th == 0 || tw > 65536 || th > 65536 {
-        return Err(err(format!("absurd tile size {tw} × {th}")));
+    let tiled = ifd.contains_key(&TAG_TILE_OFFSETS);
+    let (tw, th, offsets_tag) = if tiled {
+        (one(322)? as usize, one(323)? as usize, TAG_TILE_OFFSETS)
+    } else {
+        let rows = ifd
+            .get(&TAG_ROWS_PER_STRIP)
+            .and_then(|v| v.first().copied())
+            .map_or(h, |r| (r as usize).min(h));
+        (w, rows, TAG_STRIP_OFFSETS)
+    };
+    if tw == 0 || th == 0 || tw > MAX_SIDE || th > MAX_SIDE {
+        return Err(err(format!("absurd tile or strip size {tw} × {th}")));
     }
-    let offsets = ifd.get(&TAG_TILE_OFFSETS).cloned().unwrap_or_default();
+    let offsets = ifd.get(&offsets_tag).cloned().unwrap_or_default();
     let (across, down) = (w.div_ceil(tw), h.div_ceil(th));
     if offsets.len() < across * down {
         return Err(err(format!(
-            "{} tiles for a {across} × {down} grid",
-            offsets.len()
+            "{} {} for a {across} × {down} grid",
+            offsets.len(),
+            if tiled { "tiles" } else { "strips" }
         )));
     }
     let le = b.starts_with(b"II");
@@ -394,8 +423,16 @@ fn read_tiled_dng(path: &Path, b: &[u8], ifd: &Ifd) -> Result<Capture, LoadError
     for ty in 0..down {
         for tx in 0..across {
             let base = offsets[ty * across + tx] as usize;
-            if b.len() < base + 2 * tw * th {
-                return Err(err("truncated: a tile lies past the end of the file".into()));
+            // A strip holds only the rows it has; a tile is always whole.
+            let rows = if tiled { th } else { th.min(h - ty * th) };
+            if base
+                .checked_add(2 * tw * rows)
+                .is_none_or(|end| b.len() < end)
+            {
+                return Err(err(format!(
+                    "truncated: a {} lies past the end of the file",
+                    if tiled { "tile" } else { "strip" }
+                )));
             }
             for y in 0..th.min(h - ty * th) {
                 for x in 0..tw.min(w - tx * tw) {

@@ -908,7 +908,7 @@ fn deblur_command_on_a_raw_photo_with_settings_from_exif() {
         black,
         white,
         setting: Some(setting),
-        tile: None,
+        layout: lensblur::simulate::dng::DngLayout::default(),
     };
     write_dng(&photo, &cfa, w, h, &info).expect("write dng");
     let profile = dir.path().join("profile.json");

@@ -8,7 +8,8 @@ use lensblur::chart::ChartSpec;
 use lensblur::manifest::{ChartRef, Manifest, ManifestShot};
 use lensblur::plane::LensSetting;
 use lensblur::simulate::{
-    CaptureParams, NoiseModel, Pose, PsfShape, ShotFormat, VirtualLens, simulate_shot, write_shot,
+    CaptureParams, DngCompression, DngLayout, NoiseModel, Pose, PsfShape, ShotFormat, VirtualLens,
+    simulate_shot, write_shot_as,
 };
 use rand::{Rng, SeedableRng};
 use std::path::PathBuf;
@@ -22,6 +23,15 @@ pub enum FormatArg {
     Png,
     /// Linear 16-bit RGB TIFF.
     Tiff,
+}
+
+#[derive(Clone, Copy, Debug, Default, clap::ValueEnum)]
+pub enum DngCompressionArg {
+    /// 16-bit samples as they are.
+    #[default]
+    None,
+    /// Lossless JPEG, as Adobe's DNG converter writes.
+    Ljpeg,
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -61,6 +71,12 @@ pub struct Args {
     pub shots_per_setting: usize,
     #[arg(long, value_enum, default_value_t = FormatArg::Dng)]
     pub format: FormatArg,
+    /// DNG samples in square tiles of this side (a multiple of 16) instead of strips.
+    #[arg(long)]
+    pub dng_tile: Option<usize>,
+    /// How DNG strips or tiles are stored.
+    #[arg(long, value_enum, default_value_t = DngCompressionArg::None)]
+    pub dng_compression: DngCompressionArg,
     /// PSF shape, overriding the lens's.
     #[arg(long, value_enum)]
     pub shape: Option<ShapeArg>,
@@ -95,6 +111,8 @@ impl Default for Args {
             grid: 5,
             shots_per_setting: 1,
             format: FormatArg::Dng,
+            dng_tile: None,
+            dng_compression: DngCompressionArg::None,
             shape: None,
             chart: None,
             fill: 0.9,
@@ -178,6 +196,18 @@ pub fn run(args: Args) -> Result<()> {
         FormatArg::Png => ShotFormat::Png,
         FormatArg::Tiff => ShotFormat::Tiff,
     };
+    let dng_layout = DngLayout {
+        tile: args.dng_tile,
+        compression: match args.dng_compression {
+            DngCompressionArg::None => DngCompression::Uncompressed,
+            DngCompressionArg::Ljpeg => DngCompression::LosslessJpeg,
+        },
+    };
+    if let Some(t) = args.dng_tile
+        && (t == 0 || !t.is_multiple_of(16) || t > 65_520)
+    {
+        bail!("--dng-tile must be a multiple of 16 up to 65520 (got {t})");
+    }
     let settings = settings(&args, &lens)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("{}: cannot create", args.out.display()))?;
@@ -231,7 +261,7 @@ pub fn run(args: Args) -> Result<()> {
         );
         let shot = simulate_shot(&chart, &lens, &params, &job)
             .with_context(|| format!("{}: simulating", args.out.join(&file).display()))?;
-        write_shot(&args.out.join(&file), &shot, format)?;
+        write_shot_as(&args.out.join(&file), &shot, format, dng_layout)?;
         write_json(&args.out.join(format!("{name}.truth.json")), &shot.truth)?;
         shots.push(ManifestShot {
             path: PathBuf::from(file),

@@ -1,6 +1,8 @@
-//! A minimal valid DNG of a simulated Bayer shot: 16-bit uncompressed RGGB in strips
-//! (or tiles), the levels, the colour tags a DNG reader needs, and the lens setting as
-//! EXIF tags in IFD0 — what many real writers do.
+//! A minimal valid DNG of a simulated Bayer shot: RGGB samples in strips or tiles,
+//! uncompressed or lossless-JPEG compressed (the layouts real writers produce: cameras
+//! write strips, Adobe's converter lossless-JPEG tiles), the levels, the colour tags a
+//! DNG reader needs, and the lens setting as EXIF tags in IFD0 — what many real writers
+//! do.
 
 use crate::plane::LensSetting;
 use std::path::Path;
@@ -13,8 +15,56 @@ pub struct DngInfo {
     pub black: u16,
     pub white: u16,
     pub setting: Option<LensSetting>,
+    pub layout: DngLayout,
+}
+
+/// How the samples are laid out in the file.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DngLayout {
     /// Tiles of this side instead of strips (a multiple of 16).
     pub tile: Option<usize>,
+    pub compression: DngCompression,
+}
+
+/// How each strip or tile is stored.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DngCompression {
+    /// 16-bit little-endian samples (TIFF compression 1).
+    #[default]
+    Uncompressed,
+    /// Lossless JPEG (TIFF compression 7, ITU T.81 process 14, predictor 1), each tile
+    /// (or the one strip) coded as two interleaved components of half its width, as the
+    /// DNG specification and Adobe's converter store a CFA.
+    LosslessJpeg,
+}
+
+/// The lossless-JPEG code of a `w × h` block of CFA samples (`w` even) with `bits` of
+/// precision.
+fn ljpeg_block(block: &[u16], w: usize, h: usize, bits: ljpeg::Bitdepth) -> Vec<u8> {
+    let encoder = ljpeg::Encoder::new(
+        (w / 2) as u16,
+        h as u16,
+        ljpeg::Components::C2,
+        bits,
+        ljpeg::Predictor::P1,
+        0,
+        0,
+    );
+    encoder
+        .encode(block)
+        .expect("the block holds w × h samples")
+}
+
+/// The least JPEG precision (12–16 bits, what DNG readers accept) that holds `max`.
+fn ljpeg_bits(max: u16) -> ljpeg::Bitdepth {
+    let needed = (16 - max.leading_zeros()).max(12);
+    match needed {
+        12 => ljpeg::Bitdepth::B12,
+        13 => ljpeg::Bitdepth::B13,
+        14 => ljpeg::Bitdepth::B14,
+        15 => ljpeg::Bitdepth::B15,
+        _ => ljpeg::Bitdepth::B16,
+    }
 }
 
 enum Val {
@@ -71,8 +121,9 @@ fn rational(v: f64) -> (u32, u32) {
 /// included).
 ///
 /// # Panics
-/// Never for sizes the simulator accepts; sizes past 4 GiB of samples would not fit a
-/// TIFF and are refused by the caller.
+/// Never for sizes [`write_dng`] accepts: sizes past 4 GiB of samples would not fit a
+/// TIFF, and lossless JPEG needs an even width (a CFA's) and a strip or tile of at most
+/// 65535 rows and 2 × 65535 columns.
 #[must_use]
 pub fn dng_bytes(cfa: &[u16], width: usize, height: usize, info: &DngInfo) -> Vec<u8> {
     let (w, h) = (width as u32, height as u32);
@@ -81,35 +132,48 @@ pub fn dng_bytes(cfa: &[u16], width: usize, height: usize, info: &DngInfo) -> Ve
     let mut offsets = Vec::new();
     let mut counts = Vec::new();
     let base = 8u32;
-    match info.tile {
+    let ljpeg = info.layout.compression == DngCompression::LosslessJpeg;
+    let bits = ljpeg_bits(cfa.iter().copied().max().unwrap_or(0).max(info.white));
+    let mut put = |block: &[u16], w: usize, h: usize| {
+        offsets.push(base + data.len() as u32);
+        let before = data.len();
+        if ljpeg {
+            data.extend_from_slice(&ljpeg_block(block, w, h, bits));
+        } else {
+            block
+                .iter()
+                .for_each(|v| data.extend_from_slice(&v.to_le_bytes()));
+        }
+        counts.push((data.len() - before) as u32);
+        if data.len() % 2 == 1 {
+            // Keep every strip and tile at an even offset, as TIFF readers expect.
+            data.push(0);
+        }
+    };
+    // Lossless JPEG strips: one for the whole image, the only form DNG readers share.
+    let rows_per_strip = if ljpeg { height } else { 64 };
+    match info.layout.tile {
         Some(t) => {
+            let mut block = vec![0u16; t * t];
             for ty in 0..height.div_ceil(t) {
                 for tx in 0..width.div_ceil(t) {
-                    offsets.push(base + data.len() as u32);
+                    // Tiles past the image's edge are padded with its last row and column
+                    // (readers discard the padding; repeats code cheaply).
                     for y in 0..t {
+                        let sy = (ty * t + y).min(height - 1);
                         for x in 0..t {
-                            let (sx, sy) = (tx * t + x, ty * t + y);
-                            let v = if sx < width && sy < height {
-                                cfa[sy * width + sx]
-                            } else {
-                                0
-                            };
-                            data.extend_from_slice(&v.to_le_bytes());
+                            let sx = (tx * t + x).min(width - 1);
+                            block[y * t + x] = cfa[sy * width + sx];
                         }
                     }
-                    counts.push((2 * t * t) as u32);
+                    put(&block, t, t);
                 }
             }
         }
         None => {
-            // Strips of 64 rows keep any one read small.
-            for y0 in (0..height).step_by(64) {
-                offsets.push(base + data.len() as u32);
-                let rows = 64.min(height - y0);
-                for v in &cfa[y0 * width..(y0 + rows) * width] {
-                    data.extend_from_slice(&v.to_le_bytes());
-                }
-                counts.push((2 * rows * width) as u32);
+            for y0 in (0..height).step_by(rows_per_strip) {
+                let rows = rows_per_strip.min(height - y0);
+                put(&cfa[y0 * width..(y0 + rows) * width], width, rows);
             }
         }
     }
@@ -117,8 +181,8 @@ pub fn dng_bytes(cfa: &[u16], width: usize, height: usize, info: &DngInfo) -> Ve
         (254, Val::Long(vec![0])),
         (256, Val::Long(vec![w])),
         (257, Val::Long(vec![h])),
-        (258, Val::Short(vec![16])),
-        (259, Val::Short(vec![1])),
+        (258, Val::Short(vec![if ljpeg { bits as u16 } else { 16 }])),
+        (259, Val::Short(vec![if ljpeg { 7 } else { 1 }])),
         (262, Val::Short(vec![32803])),
         (271, Val::Ascii(info.make.clone())),
         (272, Val::Ascii(info.model.clone())),
@@ -151,7 +215,7 @@ pub fn dng_bytes(cfa: &[u16], width: usize, height: usize, info: &DngInfo) -> Ve
         ),
         (50778, Val::Short(vec![21])),
     ];
-    match info.tile {
+    match info.layout.tile {
         Some(t) => {
             tags.push((322, Val::Long(vec![t as u32])));
             tags.push((323, Val::Long(vec![t as u32])));
@@ -160,7 +224,7 @@ pub fn dng_bytes(cfa: &[u16], width: usize, height: usize, info: &DngInfo) -> Ve
         }
         None => {
             tags.push((273, Val::Long(offsets)));
-            tags.push((278, Val::Long(vec![64])));
+            tags.push((278, Val::Long(vec![rows_per_strip as u32])));
             tags.push((279, Val::Long(counts)));
         }
     }
@@ -214,9 +278,29 @@ pub fn write_dng(
     height: usize,
     info: &DngInfo,
 ) -> std::io::Result<()> {
-    if cfa.len() != width * height || cfa.len() > (u32::MAX as usize - 1_000_000) / 2 {
+    if cfa.len() != width * height
+        || cfa.is_empty()
+        || cfa.len() > (u32::MAX as usize - 1_000_000) / 2
+    {
         return Err(std::io::Error::other(format!(
             "{}: a {width} × {height} mosaic does not fit a DNG",
+            path.display()
+        )));
+    }
+    if let Some(t) = info.layout.tile
+        && (t == 0 || !t.is_multiple_of(16) || t > 65_520)
+    {
+        return Err(std::io::Error::other(format!(
+            "{}: tile side {t} is not a multiple of 16 up to 65520",
+            path.display()
+        )));
+    }
+    if info.layout.compression == DngCompression::LosslessJpeg
+        && info.layout.tile.is_none()
+        && (!width.is_multiple_of(2) || width > 2 * 65_535 || height > 65_535)
+    {
+        return Err(std::io::Error::other(format!(
+            "{}: a {width} × {height} mosaic cannot be one lossless-JPEG strip (use tiles)",
             path.display()
         )));
     }

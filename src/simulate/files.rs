@@ -3,7 +3,7 @@
 //! ground truth beside it.
 
 use super::capture::SimulatedShot;
-use super::dng::{DngInfo, write_dng};
+use super::dng::{DngInfo, DngLayout, write_dng};
 use crate::plane::{Capture, Channel};
 use std::path::Path;
 
@@ -47,11 +47,24 @@ pub enum WriteError {
     },
 }
 
-/// Writes `shot` to `path` in `format`, atomically.
+/// Writes `shot` to `path` in `format`, atomically; a DNG in uncompressed strips.
 ///
 /// # Errors
 /// The shot does not suit the format (an RGB shot as DNG or the reverse), or I/O.
 pub fn write_shot(path: &Path, shot: &SimulatedShot, format: ShotFormat) -> Result<(), WriteError> {
+    write_shot_as(path, shot, format, DngLayout::default())
+}
+
+/// [`write_shot`] with the DNG's layout (ignored for other formats).
+///
+/// # Errors
+/// As [`write_shot`], and a layout the mosaic cannot take.
+pub fn write_shot_as(
+    path: &Path,
+    shot: &SimulatedShot,
+    format: ShotFormat,
+    dng_layout: DngLayout,
+) -> Result<(), WriteError> {
     let unsuitable = |reason: &str| WriteError::Unsuitable {
         path: path.display().to_string(),
         reason: reason.into(),
@@ -71,7 +84,7 @@ pub fn write_shot(path: &Path, shot: &SimulatedShot, format: ShotFormat) -> Resu
                 black: shot.black_level,
                 white: shot.white_level,
                 setting: Some(shot.truth.setting),
-                tile: None,
+                layout: dng_layout,
             };
             write_dng(
                 path,

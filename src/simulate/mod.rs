@@ -10,5 +10,6 @@ pub use capture::{
     CaptureParams, NoiseModel, Pose, PsfField, ShotTruth, SimulateError, SimulatedShot,
     SquareTruth, capture_from_raw, simulate_shot,
 };
-pub use files::{ShotFormat, write_shot};
+pub use dng::{DngCompression, DngLayout};
+pub use files::{ShotFormat, write_shot, write_shot_as};
 pub use lens::{PsfShape, VirtualLens};
