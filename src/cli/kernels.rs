@@ -5,7 +5,7 @@ use super::common::{load_chart, progress_job, write_json};
 use anyhow::{Context, Result, bail};
 use lensblur::detect::{DetectParams, detect};
 use lensblur::kernel::file::KernelsFile;
-use lensblur::kernel::{KernelParams, Weighting, estimate_shot};
+use lensblur::kernel::{KernelParams, Operator, Weighting, estimate_shot};
 use lensblur::raw::{LoadOptions, load_capture};
 use std::path::PathBuf;
 
@@ -34,6 +34,10 @@ pub struct Args {
     /// Weight every sub-sample (the paper's W = I) instead of only real pixel centres.
     #[arg(long)]
     pub uniform_weights: bool,
+    /// Compute every product with the sharp chart by FFT over the whole oversampled
+    /// raster (the same kernels, several times slower than the default operator).
+    #[arg(long)]
+    pub fft: bool,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -52,6 +56,11 @@ pub fn run(args: Args) -> Result<()> {
             Weighting::Uniform
         } else {
             Weighting::PixelCentres
+        },
+        operator: if args.fft {
+            Operator::Fft
+        } else {
+            Operator::Auto
         },
         ..KernelParams::default()
     };

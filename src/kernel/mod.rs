@@ -42,12 +42,25 @@ pub enum Weighting {
     Uniform,
 }
 
+/// How products with A_r and A_rᵀ are computed. Both give the same operator (tested to
+/// rounding); they differ in speed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+pub enum Operator {
+    /// With pixel-centre weighting, products over the observed pixels only, exploiting
+    /// the chart's uniform areas ([`edges`]); with W = I, the FFT form.
+    #[default]
+    Auto,
+    /// Every product a 2-D FFT over the whole oversampled raster ([`LeastSquares`]).
+    Fft,
+}
+
 /// Parameters of the kernel estimate.
 #[derive(Clone, Debug, PartialEq)]
 pub struct KernelParams {
     /// Sub-samples per pixel (odd, so pixel centres are sub-samples).
     pub oversample: usize,
     pub weighting: Weighting,
+    pub operator: Operator,
     /// Kernel half-width in pixels; `None` chooses it from the blur (first pass).
     pub support_px: Option<f64>,
     /// Most conjugate-gradient iterations of the final estimate. CG stopped early is the
@@ -75,6 +88,7 @@ impl Default for KernelParams {
         Self {
             oversample: 3,
             weighting: Weighting::PixelCentres,
+            operator: Operator::Auto,
             support_px: None,
             cg_iterations: 30,
             cg_tolerance: 1e-7,
@@ -291,12 +305,10 @@ fn estimate_with_support(
         let prep = match prepared.iter().position(|p| p.r_px == r_px && p.os == os) {
             Some(i) => &prepared[i],
             None => {
-                let p = prepare(capture, square, spec, os, r_px, params.weighting).map_err(
-                    |e| match e {
-                        KernelFailure::NoObservations(_) => KernelFailure::NoObservations(channel),
-                        e => e,
-                    },
-                )?;
+                let p = prepare(capture, square, spec, os, r_px, params).map_err(|e| match e {
+                    KernelFailure::NoObservations(_) => KernelFailure::NoObservations(channel),
+                    e => e,
+                })?;
                 prepared.push(p);
                 &prepared[prepared.len() - 1]
             }
@@ -368,11 +380,10 @@ fn measure_support(
     let mut support = FIRST_PASS_SUPPORT_PX;
     loop {
         let r_px = support.ceil() as usize;
-        let prep =
-            prepare(capture, square, spec, 1, r_px, params.weighting).map_err(|e| match e {
-                KernelFailure::NoObservations(_) => KernelFailure::NoObservations(channel),
-                e => e,
-            })?;
+        let prep = prepare(capture, square, spec, 1, r_px, params).map_err(|e| match e {
+            KernelFailure::NoObservations(_) => KernelFailure::NoObservations(channel),
+            e => e,
+        })?;
         let raw = solve(capture, &prep, channel, params, 40, 1e-6)?;
         let kernel = clean(&raw.kernel, params.threshold)?;
         let central = Kernel {
@@ -458,7 +469,7 @@ struct Prepared {
     nx: usize,
     ny: usize,
     raster: Vec<f32>,
-    /// Which kernel patches are uniform (pixel-centre weighting only).
+    /// Which kernel patches are uniform (pixel-centre weighting by the direct operator).
     uniform: Option<edges::Uniformity>,
 }
 
@@ -468,7 +479,7 @@ fn prepare(
     spec: &ChartSpec,
     os: usize,
     r_px: usize,
-    weighting: Weighting,
+    params: &KernelParams,
 ) -> Result<Prepared, KernelFailure> {
     let r_sub = r_px * os;
     let k_size = 2 * r_sub + 1;
@@ -517,7 +528,8 @@ fn prepare(
         1.0,
     )
     .data;
-    let uniform = (weighting == Weighting::PixelCentres)
+    let uniform = (params.weighting == Weighting::PixelCentres
+        && params.operator == Operator::Auto)
         .then(|| edges::Uniformity::new(&raster, nx, ny, k_size));
     Ok(Prepared {
         os,
@@ -545,31 +557,38 @@ fn solve(
 ) -> Result<RawKernel, KernelFailure> {
     let (os, k_size) = (prep.os, prep.k_size);
     let planes = || capture.planes.iter().filter(|p| p.channel == channel);
-    let solution = match &prep.uniform {
-        Some(uniform) => {
+    // The channel's real pixel centres in the observed window: where each one's kernel
+    // patch starts in the raster, and its value. The patch under pixel x is centred on
+    // its raster sample (x − bx0)·s + r_sub, so it starts at (x − bx0)·s.
+    let pixel_centres = || {
+        planes().flat_map(move |cp| {
+            // The plane's pixels inside the window [b·0, b·1] along one axis.
+            let span = move |lo: usize, hi: usize, offset: usize, n: usize| {
+                let first = lo.saturating_sub(offset).div_ceil(cp.step);
+                let end = if hi < offset {
+                    0
+                } else {
+                    ((hi - offset) / cp.step + 1).min(n)
+                };
+                first..end.max(first)
+            };
+            span(prep.by0, prep.by1, cp.offset_y, cp.plane.height).flat_map(move |j| {
+                span(prep.bx0, prep.bx1, cp.offset_x, cp.plane.width).map(move |i| {
+                    let (x, y) = (cp.step * i + cp.offset_x, cp.step * j + cp.offset_y);
+                    (
+                        (x - prep.bx0) * os,
+                        (y - prep.by0) * os,
+                        f64::from(cp.plane.get(i, j)),
+                    )
+                })
+            })
+        })
+    };
+    let solution = match (&prep.uniform, params.weighting) {
+        (Some(uniform), _) => {
             let mut problem = edges::EdgeProblem::new(&prep.raster, prep.nx, k_size);
-            for cp in planes() {
-                for j in 0..cp.plane.height {
-                    let y = cp.step * j + cp.offset_y;
-                    if y < prep.by0 || y > prep.by1 {
-                        continue;
-                    }
-                    for i in 0..cp.plane.width {
-                        let x = cp.step * i + cp.offset_x;
-                        if x < prep.bx0 || x > prep.bx1 {
-                            continue;
-                        }
-                        // The patch under pixel x is centred on its raster sample
-                        // (x − bx0)·s + r_sub, so it starts at (x − bx0)·s.
-                        let (x0, y0) = ((x - prep.bx0) * os, (y - prep.by0) * os);
-                        problem.observe(
-                            x0,
-                            y0,
-                            f64::from(cp.plane.get(i, j)),
-                            uniform.value(x0, y0),
-                        );
-                    }
-                }
+            for (x0, y0, v) in pixel_centres() {
+                problem.observe(x0, y0, v, uniform.value(x0, y0));
             }
             if problem.observations() < k_size {
                 return Err(KernelFailure::NoObservations(channel));
@@ -577,7 +596,23 @@ fn solve(
             problem.set_smoothness(params.smoothness);
             cgls_solve(&mut problem, iterations, tolerance)
         }
-        None => {
+        (None, Weighting::PixelCentres) => {
+            let mut problem = LeastSquares::new(&prep.raster, prep.nx, prep.ny, k_size);
+            problem.set_smoothness(params.smoothness);
+            // The FFT form indexes a sample by where its patch ends.
+            let mut count = 0usize;
+            for (x0, y0, v) in pixel_centres() {
+                problem.observe(x0 + k_size - 1, y0 + k_size - 1, v);
+                count += 1;
+            }
+            if count < k_size {
+                return Err(KernelFailure::NoObservations(channel));
+            }
+            // CGLS, as for the default operator: the iteration count is the
+            // regulariser, and CG on the normal equations squares the rounding.
+            cgls_solve(&mut problem, iterations, tolerance)
+        }
+        (None, Weighting::Uniform) => {
             let mut problem = LeastSquares::new(&prep.raster, prep.nx, prep.ny, k_size);
             problem.set_smoothness(params.smoothness);
             let r_sub = k_size / 2;

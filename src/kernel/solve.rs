@@ -91,6 +91,20 @@ impl LeastSquares {
         self.rows_hi = self.rows_hi.max(n_y + 1);
     }
 
+    /// λ of the gradient penalty (see [`LeastSquares::set_smoothness`]).
+    fn penalty_weight(&self) -> f64 {
+        let total_weight: f64 = self.weight.iter().sum();
+        self.smoothness * total_weight * self.sharp_mean_square
+    }
+
+    fn penalty_rows(&self) -> usize {
+        if self.smoothness > 0.0 {
+            2 * self.k_size * (self.k_size - 1)
+        } else {
+            0
+        }
+    }
+
     fn obs_rows(&self) -> std::ops::Range<usize> {
         if self.rows_lo >= self.rows_hi {
             0..0
@@ -151,9 +165,7 @@ impl NormalEquations for LeastSquares {
         out_c[0] = sum;
         self.correlate_into(out_k);
         if self.smoothness > 0.0 {
-            let total_weight: f64 = self.weight.iter().sum();
-            let lambda = self.smoothness * total_weight * self.sharp_mean_square;
-            add_gradient_penalty(kernel, k, lambda, out_k);
+            add_gradient_penalty(kernel, k, self.penalty_weight(), out_k);
         }
     }
 
@@ -191,6 +203,42 @@ pub fn add_gradient_penalty(kernel: &[f64], k: usize, lambda: f64, out: &mut [f6
     }
 }
 
+/// √λ times the forward differences of the kernel, along x then along y.
+pub(super) fn gradient_rows(kernel: &[f64], k: usize, scale: f64, out: &mut [f64]) {
+    let mut o = 0;
+    for j in 0..k {
+        for i in 0..k - 1 {
+            out[o] = scale * (kernel[j * k + i + 1] - kernel[j * k + i]);
+            o += 1;
+        }
+    }
+    for j in 0..k - 1 {
+        for i in 0..k {
+            out[o] = scale * (kernel[(j + 1) * k + i] - kernel[j * k + i]);
+            o += 1;
+        }
+    }
+}
+
+/// out += the transpose of [`gradient_rows`] applied to `r`.
+pub(super) fn gradient_rows_adjoint(r: &[f64], k: usize, scale: f64, out: &mut [f64]) {
+    let mut o = 0;
+    for j in 0..k {
+        for i in 0..k - 1 {
+            out[j * k + i + 1] += scale * r[o];
+            out[j * k + i] -= scale * r[o];
+            o += 1;
+        }
+    }
+    for j in 0..k - 1 {
+        for i in 0..k {
+            out[(j + 1) * k + i] += scale * r[o];
+            out[j * k + i] -= scale * r[o];
+            o += 1;
+        }
+    }
+}
+
 /// A linear least-squares operator A with its target b: min ‖A x − b‖².
 pub trait LinearOperator {
     /// Unknowns.
@@ -202,6 +250,80 @@ pub trait LinearOperator {
     /// `out = Aᵀ r`.
     fn adjoint(&mut self, r: &[f64], out: &mut [f64]);
     fn target(&self) -> Vec<f64>;
+}
+
+/// The same problem as a least-squares operator for [`cgls_solve`]: one row per
+/// observed output sample n, scaled by √w(n) with target t(n)/√w(n) (so that
+/// ‖A x − b‖² equals ‖W(A k − b)‖² up to a constant), then the penalty rows.
+impl LinearOperator for LeastSquares {
+    fn dim(&self) -> usize {
+        self.k_size * self.k_size + 1
+    }
+
+    fn rows(&self) -> usize {
+        self.weight.iter().filter(|&&w| w > 0.0).count() + self.penalty_rows()
+    }
+
+    fn forward(&mut self, x: &[f64], out: &mut [f64]) {
+        let (m, k) = (self.m, self.k_size);
+        let (kernel, offset) = x.split_at(k * k);
+        self.image.iter_mut().for_each(|v| *v = 0.0);
+        for j in 0..k {
+            self.image[j * m..j * m + k].copy_from_slice(&kernel[j * k..(j + 1) * k]);
+        }
+        self.fft.forward(&self.image, 0..k, &mut self.spectrum);
+        for (s, x) in self.spectrum.iter_mut().zip(&self.sharp_spectrum) {
+            *s *= x;
+        }
+        let rows = self.obs_rows();
+        self.fft.inverse(&mut self.spectrum, rows, &mut self.image);
+        let mut o = 0;
+        for (v, &w) in self.image.iter().zip(&self.weight) {
+            if w > 0.0 {
+                out[o] = w.sqrt() * (v + offset[0]);
+                o += 1;
+            }
+        }
+        if self.smoothness > 0.0 {
+            let lambda = self.penalty_weight();
+            gradient_rows(kernel, k, lambda.sqrt(), &mut out[o..]);
+        }
+    }
+
+    fn adjoint(&mut self, r: &[f64], out: &mut [f64]) {
+        let k = self.k_size;
+        let mut o = 0;
+        let mut sum = 0.0;
+        for (v, &w) in self.image.iter_mut().zip(&self.weight) {
+            *v = if w > 0.0 {
+                let z = w.sqrt() * r[o];
+                o += 1;
+                sum += z;
+                z
+            } else {
+                0.0
+            };
+        }
+        let (out_k, out_c) = out.split_at_mut(k * k);
+        out_c[0] = sum;
+        self.correlate_into(out_k);
+        if self.smoothness > 0.0 {
+            let lambda = self.penalty_weight();
+            gradient_rows_adjoint(&r[o..], k, lambda.sqrt(), out_k);
+        }
+    }
+
+    fn target(&self) -> Vec<f64> {
+        let mut b: Vec<f64> = self
+            .weight
+            .iter()
+            .zip(&self.target)
+            .filter(|&(&w, _)| w > 0.0)
+            .map(|(&w, &t)| t / w.sqrt())
+            .collect();
+        b.resize(b.len() + self.penalty_rows(), 0.0);
+        b
+    }
 }
 
 /// CGLS (Björck): conjugate gradients on the normal equations, carried out with A and
@@ -386,6 +508,41 @@ mod tests {
         let cg = cg_solve(&mut problem, 200, 1e-13);
         for (c, d) in cg.x.iter().zip(dense_x.iter()) {
             assert!((c - d).abs() < 1e-6 * (1.0 + d.abs()), "{c} vs {d}");
+        }
+    }
+
+    #[test]
+    fn least_squares_form_has_the_normal_equations() {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(8);
+        let (nx, ny, k) = (16, 13, 3);
+        let sharp: Vec<f32> = (0..nx * ny).map(|_| rng.random::<f32>()).collect();
+        for smoothness in [0.0, 0.05] {
+            let mut problem = LeastSquares::new(&sharp, nx, ny, k);
+            problem.set_smoothness(smoothness);
+            for n_y in (k - 1)..ny {
+                for n_x in (k - 1)..nx {
+                    // Some samples observed twice, as two planes of one channel can be.
+                    for _ in 0..rng.random_range(0..3) {
+                        problem.observe(n_x, n_y, rng.random::<f64>());
+                    }
+                }
+            }
+            let probe: Vec<f64> = (0..k * k + 1).map(|_| rng.random::<f64>() - 0.5).collect();
+            let mut want = vec![0.0; k * k + 1];
+            problem.apply(&probe, &mut want);
+            let mut y = vec![0.0; LinearOperator::rows(&problem)];
+            problem.forward(&probe, &mut y);
+            let mut got = vec![0.0; k * k + 1];
+            problem.adjoint(&y, &mut got);
+            for (g, w) in got.iter().zip(&want) {
+                assert!((g - w).abs() < 1e-9 * (1.0 + w.abs()), "{g} vs {w}");
+            }
+            let want_rhs = problem.rhs();
+            let mut got_rhs = vec![0.0; k * k + 1];
+            problem.adjoint(&LinearOperator::target(&problem), &mut got_rhs);
+            for (g, w) in got_rhs.iter().zip(&want_rhs) {
+                assert!((g - w).abs() < 1e-9 * (1.0 + w.abs()), "{g} vs {w}");
+            }
         }
     }
 }
