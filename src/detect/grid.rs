@@ -6,6 +6,7 @@ use super::filter::gaussian_blur;
 use crate::chart::ChartSpec;
 use crate::geometry::Homography;
 use crate::plane::Plane;
+use rayon::prelude::*;
 use std::collections::{HashMap, VecDeque};
 
 /// A refined X-junction in sensor pixels.
@@ -293,6 +294,31 @@ fn norm(a: [f64; 2]) -> f64 {
     a[0].hypot(a[1])
 }
 
+/// [`lattice_score`] with each edge's contrast measured once: candidate lattices from
+/// one seed share most of their edges.
+fn memo_score<'a>(
+    contrasts: &'a mut HashMap<(usize, usize), Option<f64>>,
+    smoothed: &'a Smoothed,
+    pts: &'a [Junction],
+) -> impl FnMut(&HashMap<(i64, i64), usize>) -> f64 + 'a {
+    move |g| {
+        lattice_score(g, |k, q| {
+            *contrasts
+                .entry((k, q))
+                .or_insert_with(|| edge_contrast(smoothed, pts[k].pos, pts[q].pos))
+        })
+    }
+}
+
+/// The best lattice grown from one seed, and the largest one refused as larger than
+/// the chart (nodes, columns, rows).
+#[derive(Default)]
+struct SeedLattice {
+    best: HashMap<(i64, i64), usize>,
+    score: f64,
+    too_large: (usize, usize, usize),
+}
+
 /// Grows a lattice from `seed` with starting axes `ex`, `ey`: every node predicts its
 /// four neighbours from its own local axes, so mild perspective and rotation are
 /// followed smoothly.
@@ -377,62 +403,83 @@ pub fn build_lattice(
         }
     }
     let max_step = (smoothed.w.min(smoothed.h) as f64) / 3.0;
+    // Seeds are independent: grown in parallel, then judged in seed order as a serial
+    // search would (the first of equal scores wins).
+    let per_seed: Vec<SeedLattice> = seeds
+        .par_iter()
+        .map_init(HashMap::new, |contrasts, &seed| {
+            let mut score = memo_score(contrasts, smoothed, pts);
+            let mut out = SeedLattice::default();
+            let p0 = pts[seed].pos;
+            let cone = |target: f64| -> Vec<[f64; 2]> {
+                let mut v: Vec<(f64, [f64; 2])> = pts
+                    .iter()
+                    .map(|q| sub(q.pos, p0))
+                    .filter(|d| {
+                        let n = norm(*d);
+                        if !(6.0..=max_step).contains(&n) {
+                            return false;
+                        }
+                        let mut diff = (d[1].atan2(d[0]) - target).abs();
+                        if diff > std::f64::consts::PI {
+                            diff = 2.0 * std::f64::consts::PI - diff;
+                        }
+                        diff < std::f64::consts::FRAC_PI_4
+                    })
+                    .map(|d| (norm(d), d))
+                    .collect();
+                v.sort_by(|a, b| a.0.total_cmp(&b.0));
+                // The adjacent corner is among the nearest few in each direction
+                // (others there are saddles between circles, or corners further along).
+                v.into_iter().take(8).map(|x| x.1).collect()
+            };
+            for ex in cone(0.0) {
+                for ey in cone(std::f64::consts::FRAC_PI_2) {
+                    let ratio = norm(ex) / norm(ey);
+                    if !(0.6..=1.6).contains(&ratio) {
+                        continue;
+                    }
+                    let mut g = grow(pts, &buckets, seed, ex, ey);
+                    trim_border(&mut g, spec.cols - 1, spec.rows - 1, |g, axis, lo, hi| {
+                        worse_line(g, axis, lo, hi, &mut score)
+                    });
+                    if g.len() < 9 {
+                        continue;
+                    }
+                    // Finer lattices of saddles between circles span more nodes than
+                    // the chart has corners.
+                    let (imin, imax, jmin, jmax) = extent(&g);
+                    let (ni, nj) = ((imax - imin + 1) as usize, (jmax - jmin + 1) as usize);
+                    if ni > spec.cols - 1 || nj > spec.rows - 1 {
+                        if g.len() > out.too_large.0 {
+                            out.too_large = (g.len(), ni + 1, nj + 1);
+                        }
+                        continue;
+                    }
+                    let s = score(&g);
+                    if s > out.score {
+                        out.score = s;
+                        out.best = g;
+                    }
+                }
+            }
+            out
+        })
+        .collect();
     let mut best: HashMap<(i64, i64), usize> = HashMap::new();
     let mut best_score = 0.0;
     let mut too_large = (0usize, 0usize, 0usize);
-    for &seed in &seeds {
-        let p0 = pts[seed].pos;
-        let cone = |target: f64| -> Vec<[f64; 2]> {
-            let mut v: Vec<(f64, [f64; 2])> = pts
-                .iter()
-                .map(|q| sub(q.pos, p0))
-                .filter(|d| {
-                    let n = norm(*d);
-                    if !(6.0..=max_step).contains(&n) {
-                        return false;
-                    }
-                    let mut diff = (d[1].atan2(d[0]) - target).abs();
-                    if diff > std::f64::consts::PI {
-                        diff = 2.0 * std::f64::consts::PI - diff;
-                    }
-                    diff < std::f64::consts::FRAC_PI_4
-                })
-                .map(|d| (norm(d), d))
-                .collect();
-            v.sort_by(|a, b| a.0.total_cmp(&b.0));
-            // The adjacent corner is among the nearest few in each direction (others
-            // there are saddles between circles, or corners further along).
-            v.into_iter().take(8).map(|x| x.1).collect()
-        };
-        for ex in cone(0.0) {
-            for ey in cone(std::f64::consts::FRAC_PI_2) {
-                let ratio = norm(ex) / norm(ey);
-                if !(0.6..=1.6).contains(&ratio) {
-                    continue;
-                }
-                let mut g = grow(pts, &buckets, seed, ex, ey);
-                trim_border(&mut g, pts, spec.cols - 1, spec.rows - 1);
-                if g.len() < 9 {
-                    continue;
-                }
-                // Finer lattices of saddles between circles span more nodes than the
-                // chart has corners.
-                let (imin, imax, jmin, jmax) = extent(&g);
-                let (ni, nj) = ((imax - imin + 1) as usize, (jmax - jmin + 1) as usize);
-                if ni > spec.cols - 1 || nj > spec.rows - 1 {
-                    if g.len() > too_large.0 {
-                        too_large = (g.len(), ni + 1, nj + 1);
-                    }
-                    continue;
-                }
-                let score = lattice_score(&g, pts, smoothed);
-                if score > best_score {
-                    best_score = score;
-                    best = g;
-                }
-            }
+    for r in per_seed {
+        if r.too_large.0 > too_large.0 {
+            too_large = r.too_large;
+        }
+        if r.score > best_score {
+            best_score = r.score;
+            best = r.best;
         }
     }
+    let mut contrasts = HashMap::new();
+    let mut score = memo_score(&mut contrasts, smoothed, pts);
     if best.len() < 9 {
         if too_large.0 >= 9 && too_large.0 > 2 * best.len() {
             return Err(LatticeError::TooLarge {
@@ -464,15 +511,21 @@ pub fn build_lattice(
     let Some(mut h) = fit(&best) else {
         return Err(LatticeError::NotFound);
     };
-    // Drop nodes the global fit disowns, then fill holes from its predictions.
+    // Drop nodes the global fit disowns, then fill holes from its predictions. Along
+    // an axis that spans fewer lines than the chart has, look one line beyond each
+    // end too; where that overshoots (a line of saddles just outside the board lines
+    // up with the lattice), the outer line whose removal leaves the better
+    // checkerboard goes.
     for _ in 0..2 {
         best.retain(|k, &mut i| {
             norm(sub(h.apply([k.0 as f64, k.1 as f64]), pts[i].pos)) < 0.2 * spacing
         });
         let (imin, imax, jmin, jmax) = extent(&best);
+        let grow_i = i64::from(((imax - imin + 1) as usize) < spec.cols - 1);
+        let grow_j = i64::from(((jmax - jmin + 1) as usize) < spec.rows - 1);
         let mut taken: std::collections::HashSet<usize> = best.values().copied().collect();
-        for j in jmin - 1..=jmax + 1 {
-            for i in imin - 1..=imax + 1 {
+        for j in jmin - grow_j..=jmax + grow_j {
+            for i in imin - grow_i..=imax + grow_i {
                 if best.contains_key(&(i, j)) {
                     continue;
                 }
@@ -485,6 +538,12 @@ pub fn build_lattice(
                 }
             }
         }
+        trim_border(
+            &mut best,
+            spec.cols - 1,
+            spec.rows - 1,
+            |g, axis, lo, hi| worse_line(g, axis, lo, hi, &mut score),
+        );
         match fit(&best) {
             Some(nh) => h = nh,
             None => return Err(LatticeError::NotFound),
@@ -618,9 +677,14 @@ pub fn build_lattice(
 /// Drops up to two outermost lines of nodes on each axis while the lattice spans more
 /// corners than the chart has inside it. Junctions just outside the board (where the
 /// outer squares' circles meet their edges, or the board's own outer corners in some
-/// framings) can line up with the lattice one step beyond the last inner corner; a line
-/// of them is sparse or weak, so the line with fewer nodes (then the weaker) goes.
-fn trim_border(g: &mut HashMap<(i64, i64), usize>, pts: &[Junction], max_i: usize, max_j: usize) {
+/// framings) can line up with the lattice one step beyond the last inner corner;
+/// `pick(g, axis, lo, hi)` says which of the two outer lines (index along `axis`) goes.
+fn trim_border(
+    g: &mut HashMap<(i64, i64), usize>,
+    max_i: usize,
+    max_j: usize,
+    mut pick: impl FnMut(&HashMap<(i64, i64), usize>, usize, i64, i64) -> i64,
+) {
     for axis in 0..2 {
         for _ in 0..2 {
             if g.is_empty() {
@@ -635,27 +699,30 @@ fn trim_border(g: &mut HashMap<(i64, i64), usize>, pts: &[Junction], max_i: usiz
             if ((hi - lo + 1) as usize) <= limit {
                 break;
             }
-            let line = |v: i64| -> (usize, f64) {
-                let mut n = 0usize;
-                let mut r = 0.0;
-                for (&(i, j), &k) in g.iter() {
-                    if (if axis == 0 { i } else { j }) == v {
-                        n += 1;
-                        r += pts[k].response;
-                    }
-                }
-                (n, r)
-            };
-            let (nl, rl) = line(lo);
-            let (nh, rh) = line(hi);
-            let drop = if (nl, rl) < (nh, rh) || (nl == nh && rl < rh) {
-                lo
-            } else {
-                hi
-            };
+            let drop = pick(g, axis, lo, hi);
             g.retain(|&(i, j), _| (if axis == 0 { i } else { j }) != drop);
         }
     }
+}
+
+/// Of the outer lines `lo` and `hi` along `axis`, the one whose removal leaves the
+/// better checkerboard by `score`. A line of saddles along the board's outer edge can
+/// be as full as a true line and respond as strongly (the true corners nearest the
+/// frame are the blurriest), but half of its edges run between a white square and the
+/// white margin and have no contrast.
+fn worse_line(
+    g: &HashMap<(i64, i64), usize>,
+    axis: usize,
+    lo: i64,
+    hi: i64,
+    score: &mut impl FnMut(&HashMap<(i64, i64), usize>) -> f64,
+) -> i64 {
+    let mut without = |v: i64| {
+        let mut rest = g.clone();
+        rest.retain(|&(i, j), _| (if axis == 0 { i } else { j }) != v);
+        score(&rest)
+    };
+    if without(lo) >= without(hi) { lo } else { hi }
 }
 
 fn extent(g: &HashMap<(i64, i64), usize>) -> (i64, i64, i64, i64) {
@@ -675,15 +742,19 @@ fn extent(g: &HashMap<(i64, i64), usize>) -> (i64, i64, i64, i64) {
 /// lattices of saddles between circles and square edges, or diagonal ones, have edges
 /// with no consistent contrast. Counting (rather than weighting by length) keeps every
 /// super-lattice below the true one.
-fn lattice_score(g: &HashMap<(i64, i64), usize>, pts: &[Junction], s: &Smoothed) -> f64 {
+///
+/// `contrast(k, q)` is [`edge_contrast`] from junction k to junction q.
+fn lattice_score(
+    g: &HashMap<(i64, i64), usize>,
+    mut contrast: impl FnMut(usize, usize) -> Option<f64>,
+) -> f64 {
     let mut signed = [0usize; 2];
     let mut bad = 0usize;
     for (&(i, j), &k) in g {
-        let p = pts[k].pos;
         let parity = (i + j).rem_euclid(2) == 0;
         for key in [(i + 1, j), (i, j + 1)] {
             let Some(&q) = g.get(&key) else { continue };
-            match edge_contrast(s, p, pts[q].pos) {
+            match contrast(k, q) {
                 // Square (i, j) lies on the +y side of the edge to (i+1, j) and on the −x
                 // side of the edge to (i, j+1) (as seen along the edge): flip one so both
                 // edge kinds report the colour of square (i, j).
