@@ -86,12 +86,21 @@ pub fn to_svg(spec: &ChartSpec) -> Result<String, ExportError> {
     Ok(doc.to_string())
 }
 
+/// zlib-wrapped deflate, what a PDF's FlateDecode filter reads.
+fn zlib_deflate(data: &[u8]) -> Vec<u8> {
+    use std::io::Write;
+    let mut z = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::best());
+    // Writing to a Vec cannot fail.
+    let _ = z.write_all(data);
+    z.finish().unwrap_or_default()
+}
+
 /// A one-page PDF whose page is the chart at its physical size.
 ///
 /// # Errors
 /// An invalid spec.
 pub fn to_pdf(spec: &ChartSpec) -> Result<Vec<u8>, ExportError> {
-    use pdf_writer::{Content, Pdf, Rect, Ref};
+    use pdf_writer::{Content, Filter, Pdf, Rect, Ref};
     spec.validate()
         .map_err(|e| ExportError::Invalid(e.to_string()))?;
     let (w_mm, h_mm) = spec.paper_mm();
@@ -143,8 +152,9 @@ pub fn to_pdf(spec: &ChartSpec) -> Result<Vec<u8>, ExportError> {
         p.parent(tree);
         p.contents(stream);
     }
-    let bytes = content.finish();
-    pdf.stream(stream, &bytes);
+    // Two thousand circles of plain operators deflate to a tenth of their size.
+    let bytes = zlib_deflate(&content.finish());
+    pdf.stream(stream, &bytes).filter(Filter::FlateDecode);
     Ok(pdf.finish())
 }
 
@@ -222,6 +232,26 @@ mod tests {
             text.contains("/MediaBox [0 0 453.5") && text.contains(&w_pt[..5]),
             "no {media} in the PDF"
         );
+        // The content stream inflates to every square and four Béziers per circle.
+        assert!(text.contains("/Filter /FlateDecode"));
+        let start = pdf
+            .windows(7)
+            .position(|w| w == b"stream\n")
+            .expect("a stream")
+            + 7;
+        let end = pdf
+            .windows(10)
+            .position(|w| w == b"\nendstream")
+            .expect("its end");
+        let mut content = String::new();
+        std::io::Read::read_to_string(
+            &mut flate2::read::ZlibDecoder::new(&pdf[start..end]),
+            &mut content,
+        )
+        .expect("inflates");
+        let ops = |op: &str| content.lines().filter(|l| l.ends_with(op)).count();
+        assert_eq!(ops(" re"), spec.cols * spec.rows / 2, "squares");
+        assert_eq!(ops(" c"), 4 * 5 * spec.cols * spec.rows, "circle arcs");
     }
 
     #[test]
