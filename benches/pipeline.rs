@@ -2,14 +2,16 @@
 //! RGGB Bayer shot of the 24 × 16 chart simulated at 24 mm f/4 (the demo lens, σ
 //! 0.65–2.4 px; 384 squares, three pooled colours each), loaded from its DNG as a user's
 //! file would be. Benchmarks: detect + align of the whole shot; the kernels of one
-//! square (all three colours, 3×); and every kernel of the shot (1152), which is what
-//! `lensblur kernels` does.
+//! square (all three colours, 3×), by the default operator and by the FFT form; and
+//! every kernel of the shot (1152), which is what `lensblur kernels` does.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use lensblur::chart::ChartSpec;
 use lensblur::detect::{DetectParams, detect};
 use lensblur::job::JobContext;
-use lensblur::kernel::{KernelParams, SquareGeometry, channels_of, estimate_shot, estimate_square};
+use lensblur::kernel::{
+    KernelParams, Operator, SquareGeometry, channels_of, estimate_shot, estimate_square,
+};
 use lensblur::plane::LensSetting;
 use lensblur::raw::{LoadOptions, load_capture};
 use lensblur::simulate::{CaptureParams, ShotFormat, VirtualLens, simulate_shot, write_shot};
@@ -59,6 +61,24 @@ fn bench(c: &mut Criterion) {
                 &square,
                 &spec,
                 &kp,
+                &channels,
+                &mid.sigma_by_channel,
+            ))
+        })
+    });
+    // The same square with every product by FFT over the whole 3× raster: what the
+    // default operator is measured against.
+    let fft = KernelParams {
+        operator: Operator::Fft,
+        ..KernelParams::default()
+    };
+    g.bench_function("kernels_one_square_rgb_3x_fft_operator", |b| {
+        b.iter(|| {
+            black_box(estimate_square(
+                &capture,
+                &square,
+                &spec,
+                &fft,
                 &channels,
                 &mid.sigma_by_channel,
             ))

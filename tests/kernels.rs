@@ -2,7 +2,8 @@
 //!
 //! Every test runs the whole chain a user runs: a simulated shot (exact pixel
 //! integration, spatially varying PSF, RGGB mosaic or 16-bit RGB, Poisson–Gaussian noise,
-//! 14-bit quantisation), detection and alignment, then the kernel stage. Truth is the
+//! 14-bit quantisation) written as a DNG or a 16-bit TIFF and loaded back, detection and
+//! alignment, then the kernel stage. Truth is the
 //! pixel-level PSF (optical ⊛ 1-px box) at each square's centre, which the simulator
 //! reports. Shots are small (640 × 440) but the squares are about the size they image at on
 //! a full-size shot (about 95 px), so the problem per square is the real one.
@@ -16,7 +17,10 @@ use lensblur::kernel::{
 };
 use lensblur::plane::{Channel, LensSetting};
 use lensblur::psf::{Gaussian2, Kernel};
-use lensblur::simulate::{CaptureParams, PsfShape, ShotTruth, VirtualLens, simulate_shot};
+use lensblur::raw::{LoadOptions, load_capture};
+use lensblur::simulate::{
+    CaptureParams, PsfShape, ShotFormat, ShotTruth, VirtualLens, simulate_shot, write_shot,
+};
 
 const WIDTH: usize = 640;
 const HEIGHT: usize = 440;
@@ -46,8 +50,19 @@ fn measure(
     cp.pose.tilt_y = -0.015;
     let job = JobContext::silent();
     let shot = simulate_shot(&spec, lens, &cp, &job).expect("simulate");
-    let detection = detect(&shot.capture, &spec, &DetectParams::default(), &job).expect("detect");
-    let kernels = estimate_shot(&shot.capture, &detection, &spec, params, &job).expect("kernels");
+    // Through a file, as a user's shot arrives: a DNG, or a 16-bit linear TIFF.
+    let format = if bayer {
+        ShotFormat::Dng
+    } else {
+        ShotFormat::Tiff
+    };
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join(format!("shot.{}", format.extension()));
+    write_shot(&path, &shot, format).expect("write");
+    let capture = load_capture(&path, &LoadOptions::default()).expect("load");
+    assert_eq!(capture.is_raw, bayer);
+    let detection = detect(&capture, &spec, &DetectParams::default(), &job).expect("detect");
+    let kernels = estimate_shot(&capture, &detection, &spec, params, &job).expect("kernels");
     (shot.truth, kernels)
 }
 
@@ -494,4 +509,52 @@ fn direct_and_fft_operators_give_the_same_kernels() {
         default[1] < 0.01 && default[2] < 0.01,
         "σ or ρ differ beyond rounding's reach: {default:?}"
     );
+}
+
+/// The full-size figures of the README: 10-megapixel shots of the 24 × 16 chart at the
+/// demo lens's two extreme settings, RAW through a DNG file and 16-bit RGB, every
+/// square. Minutes in a debug build; run in release:
+/// `cargo test --release --test kernels -- --ignored --nocapture`.
+#[test]
+#[ignore = "10 MP figures: cargo test --release --test kernels -- --ignored --nocapture"]
+fn full_size_figures() {
+    let spec = ChartSpec::default();
+    let lens = VirtualLens::demo();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let job = JobContext::silent();
+    for (k, setting) in extremes(&lens).into_iter().enumerate() {
+        for bayer in [true, false] {
+            let mut cp = CaptureParams::new(3872, 2592, setting);
+            cp.bayer = bayer;
+            cp.seed = 61 + k as u64;
+            cp.pose.rotation_deg = 1.5;
+            cp.pose.tilt_x = 0.02;
+            cp.pose.tilt_y = -0.01;
+            let shot = simulate_shot(&spec, &lens, &cp, &job).expect("simulate");
+            let format = if bayer {
+                ShotFormat::Dng
+            } else {
+                ShotFormat::Tiff
+            };
+            let path = dir.path().join(format!("shot.{}", format.extension()));
+            write_shot(&path, &shot, format).expect("write");
+            let capture = load_capture(&path, &LoadOptions::default()).expect("load");
+            let detection =
+                detect(&capture, &spec, &DetectParams::default(), &job).expect("detect");
+            let t = std::time::Instant::now();
+            let kernels =
+                estimate_shot(&capture, &detection, &spec, &KernelParams::default(), &job)
+                    .expect("kernels");
+            let seconds = t.elapsed().as_secs_f64();
+            let name = format!(
+                "10 MP {} at {} mm f/{:.0}",
+                if bayer { "DNG" } else { "RGB TIFF" },
+                setting.focal_mm,
+                setting.f_number
+            );
+            let errs = gaussian_errors(&shot.truth, &kernels);
+            eprintln!("{name}: kernels in {seconds:.1} s");
+            assert_bars(&name, &errs, 2000);
+        }
+    }
 }
