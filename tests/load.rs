@@ -170,30 +170,15 @@ fn bad_files_are_one_line_errors_naming_the_file() {
     )
     .expect("write");
     let bytes = std::fs::read(&good).expect("read");
-    let ljpeg = dng_bytes(
-        &s.cfa,
-        params.width,
-        params.height,
-        &info(
-            &params,
-            DngLayout {
-                tile: Some(32),
-                compression: DngCompression::LosslessJpeg,
-            },
-        ),
-    );
-    let tiled = dng_bytes(
-        &s.cfa,
-        params.width,
-        params.height,
-        &info(
-            &params,
-            DngLayout {
-                tile: Some(32),
-                compression: DngCompression::Uncompressed,
-            },
-        ),
-    );
+    let tiles_of = |compression| {
+        let layout = DngLayout {
+            tile: Some(32),
+            compression,
+        };
+        dng_bytes(&s.cfa, params.width, params.height, &info(&params, layout))
+    };
+    let ljpeg = tiles_of(DngCompression::LosslessJpeg);
+    let tiled = tiles_of(DngCompression::Uncompressed);
     let cases: Vec<(&str, Vec<u8>)> = vec![
         ("empty.dng", Vec::new()),
         (

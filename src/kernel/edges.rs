@@ -508,19 +508,32 @@ const LANES: usize = 8;
 /// Segments per register block of the AVX2 products.
 const BLOCK: usize = 4;
 
-/// `out[obs[i]] += Σ_j data[offsets[i] + j] · g[j]` over the `g.len()` (a multiple of
-/// [`LANES`]) samples of each segment.
-fn predict_segments(data: &[f64], offsets: &[usize], obs: &[u32], g: &[f64], out: &mut [f64]) {
+/// The bounds the unchecked SIMD products rely on: `len` (a multiple of [`LANES`])
+/// samples from every offset lie in the data, and every observation index is below
+/// `observations`.
+fn check_segments(
+    data_len: usize,
+    offsets: &[usize],
+    obs: &[u32],
+    len: usize,
+    observations: usize,
+) {
     assert!(
-        g.len().is_multiple_of(LANES) && obs.len() == offsets.len(),
+        len.is_multiple_of(LANES) && obs.len() == offsets.len(),
         "segment layout"
     );
     for &off in offsets {
-        assert!(off + g.len() <= data.len(), "segment outside the raster");
+        assert!(off + len <= data_len, "segment outside the raster");
     }
     for &o in obs {
-        assert!((o as usize) < out.len(), "observation out of range");
+        assert!((o as usize) < observations, "observation out of range");
     }
+}
+
+/// `out[obs[i]] += Σ_j data[offsets[i] + j] · g[j]` over the `g.len()` (a multiple of
+/// [`LANES`]) samples of each segment.
+fn predict_segments(data: &[f64], offsets: &[usize], obs: &[u32], g: &[f64], out: &mut [f64]) {
+    check_segments(data.len(), offsets, obs, g.len(), out.len());
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
         // SAFETY: the CPU has AVX2 and FMA (checked just above), and every segment and
@@ -533,16 +546,7 @@ fn predict_segments(data: &[f64], offsets: &[usize], obs: &[u32], g: &[f64], out
 
 /// `acc[j] += Σ_i w[obs[i]] · data[offsets[i] + j]`.
 fn correlate_segments(data: &[f64], offsets: &[usize], obs: &[u32], w: &[f64], acc: &mut [f64]) {
-    assert!(
-        acc.len().is_multiple_of(LANES) && obs.len() == offsets.len(),
-        "segment layout"
-    );
-    for &off in offsets {
-        assert!(off + acc.len() <= data.len(), "segment outside the raster");
-    }
-    for &o in obs {
-        assert!((o as usize) < w.len(), "observation out of range");
-    }
+    check_segments(data.len(), offsets, obs, acc.len(), w.len());
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
         // SAFETY: as in `predict_segments`.

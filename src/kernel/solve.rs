@@ -113,6 +113,22 @@ impl LeastSquares {
         }
     }
 
+    /// `self.image` = the sharp raster convolved with the `K × K` kernel, on the
+    /// observed rows (the rest is not meaningful).
+    fn convolve_into_image(&mut self, kernel: &[f64]) {
+        let (m, k) = (self.m, self.k_size);
+        self.image.iter_mut().for_each(|v| *v = 0.0);
+        for j in 0..k {
+            self.image[j * m..j * m + k].copy_from_slice(&kernel[j * k..(j + 1) * k]);
+        }
+        self.fft.forward(&self.image, 0..k, &mut self.spectrum);
+        for (s, x) in self.spectrum.iter_mut().zip(&self.sharp_spectrum) {
+            *s *= x;
+        }
+        let rows = self.obs_rows();
+        self.fft.inverse(&mut self.spectrum, rows, &mut self.image);
+    }
+
     /// `out_k = Aᵀ z` for the image in `self.image` (zero outside the observed rows).
     fn correlate_into(&mut self, out: &mut [f64]) {
         let m = self.m;
@@ -138,17 +154,8 @@ impl NormalEquations for LeastSquares {
         let (m, k) = (self.m, self.k_size);
         let (kernel, offset) = x.split_at(k * k);
         let offset = offset[0];
-        self.image.iter_mut().for_each(|v| *v = 0.0);
-        for j in 0..k {
-            self.image[j * m..j * m + k].copy_from_slice(&kernel[j * k..(j + 1) * k]);
-        }
-        self.fft.forward(&self.image, 0..k, &mut self.spectrum);
-        for (s, x) in self.spectrum.iter_mut().zip(&self.sharp_spectrum) {
-            *s *= x;
-        }
+        self.convolve_into_image(kernel);
         let rows = self.obs_rows();
-        self.fft
-            .inverse(&mut self.spectrum, rows.clone(), &mut self.image);
         let mut sum = 0.0;
         for row in 0..m {
             let line = &mut self.image[row * m..(row + 1) * m];
@@ -265,18 +272,9 @@ impl LinearOperator for LeastSquares {
     }
 
     fn forward(&mut self, x: &[f64], out: &mut [f64]) {
-        let (m, k) = (self.m, self.k_size);
+        let k = self.k_size;
         let (kernel, offset) = x.split_at(k * k);
-        self.image.iter_mut().for_each(|v| *v = 0.0);
-        for j in 0..k {
-            self.image[j * m..j * m + k].copy_from_slice(&kernel[j * k..(j + 1) * k]);
-        }
-        self.fft.forward(&self.image, 0..k, &mut self.spectrum);
-        for (s, x) in self.spectrum.iter_mut().zip(&self.sharp_spectrum) {
-            *s *= x;
-        }
-        let rows = self.obs_rows();
-        self.fft.inverse(&mut self.spectrum, rows, &mut self.image);
+        self.convolve_into_image(kernel);
         let mut o = 0;
         for (v, &w) in self.image.iter().zip(&self.weight) {
             if w > 0.0 {
