@@ -305,10 +305,7 @@ fn estimate_with_support(
         let prep = match prepared.iter().position(|p| p.r_px == r_px && p.os == os) {
             Some(i) => &prepared[i],
             None => {
-                let p = prepare(capture, square, spec, os, r_px, params).map_err(|e| match e {
-                    KernelFailure::NoObservations(_) => KernelFailure::NoObservations(channel),
-                    e => e,
-                })?;
+                let p = prepare(capture, square, spec, os, r_px, params, channel)?;
                 prepared.push(p);
                 &prepared[prepared.len() - 1]
             }
@@ -380,10 +377,7 @@ fn measure_support(
     let mut support = FIRST_PASS_SUPPORT_PX;
     loop {
         let r_px = support.ceil() as usize;
-        let prep = prepare(capture, square, spec, 1, r_px, params).map_err(|e| match e {
-            KernelFailure::NoObservations(_) => KernelFailure::NoObservations(channel),
-            e => e,
-        })?;
+        let prep = prepare(capture, square, spec, 1, r_px, params, channel)?;
         let raw = solve(capture, &prep, channel, params, 40, 1e-6)?;
         let kernel = clean(&raw.kernel, params.threshold)?;
         let central = Kernel {
@@ -480,6 +474,8 @@ fn prepare(
     os: usize,
     r_px: usize,
     params: &KernelParams,
+    // Only for the failure: what is prepared is the same for every channel.
+    channel: Channel,
 ) -> Result<Prepared, KernelFailure> {
     let r_sub = r_px * os;
     let k_size = 2 * r_sub + 1;
@@ -508,7 +504,7 @@ fn prepare(
     let bx1 = hi(0).floor().min(capture.width as f64 - 1.0);
     let by1 = hi(1).floor().min(capture.height as f64 - 1.0);
     if !(bx1 > bx0 + 2.0 && by1 > by0 + 2.0) || bx1 - bx0 > 4000.0 || by1 - by0 > 4000.0 {
-        return Err(KernelFailure::NoObservations(Channel::Y));
+        return Err(KernelFailure::NoObservations(channel));
     }
     let (bx0, by0, bx1, by1) = (bx0 as usize, by0 as usize, bx1 as usize, by1 as usize);
     let nx = (bx1 - bx0) * os + 1 + 2 * r_sub;
