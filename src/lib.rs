@@ -15,6 +15,7 @@ pub mod experiment;
 pub mod fft;
 pub mod gaussian;
 pub mod geometry;
+pub mod io;
 pub mod job;
 pub mod kernel;
 pub mod manifest;

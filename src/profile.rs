@@ -427,19 +427,7 @@ impl Profile {
             path: path.display().to_string(),
             reason: e.to_string(),
         };
-        let dir = path
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        let name = path
-            .file_name()
-            .map_or_else(|| "profile".into(), |n| n.to_string_lossy().into_owned());
-        let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
-        let mut f = std::fs::File::create(&tmp).map_err(err)?;
-        f.write_all(&bytes).map_err(err)?;
-        f.sync_all().ok();
-        drop(f);
-        std::fs::rename(&tmp, path).map_err(err)
+        crate::io::write_atomic(path, &bytes).map_err(|e| err(e.source))
     }
 
     /// Reads and validates a profile.

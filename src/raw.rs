@@ -747,15 +747,5 @@ pub fn save_planes(path: &Path, planes: &[(Channel, Plane)], srgb: bool) -> Resu
     let mut bytes = Vec::new();
     img.write_to(&mut std::io::Cursor::new(&mut bytes), format)
         .map_err(|e| err(e.to_string()))?;
-    // Atomic: a temporary file beside the target, then rename.
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
-    let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
-    std::fs::write(&tmp, &bytes).map_err(|e| err(e.to_string()))?;
-    std::fs::rename(&tmp, path).map_err(|e| err(e.to_string()))
+    crate::io::write_atomic(path, &bytes).map_err(|e| err(e.source.to_string()))
 }

@@ -710,21 +710,9 @@ fn write_rgb16_png(path: &Path, capture: &crate::plane::Capture) -> Result<(), S
 }
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), SessionError> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
-    let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
-    std::fs::write(&tmp, bytes).map_err(|source| SessionError::Write {
-        path: tmp.clone(),
-        source,
-    })?;
-    std::fs::rename(&tmp, path).map_err(|source| SessionError::Write {
-        path: path.to_path_buf(),
-        source,
+    crate::io::write_atomic(path, bytes).map_err(|e| SessionError::Write {
+        path: e.path,
+        source: e.source,
     })
 }
 

@@ -4,7 +4,6 @@ use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use lensblur::chart::ChartSpec;
 use lensblur::job::JobContext;
-use std::io::Write;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 
@@ -38,30 +37,12 @@ pub fn load_chart(path: Option<&Path>) -> Result<ChartSpec> {
     }
 }
 
-/// Writes `value` as pretty JSON, atomically (temporary file in the same folder, then
-/// rename), so an interrupted run never leaves a half-written file.
+/// Writes `value` as pretty JSON, atomically and durably (see `lensblur::io`).
 pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
-    let text = serde_json::to_vec_pretty(value).context("serialising output")?;
-    write_atomic(path, &text)
+    Ok(lensblur::io::write_json(path, value)?)
 }
 
-/// Atomic write of bytes: temp file beside the target, then rename.
+/// Atomic, durable write of bytes.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "out".into());
-    let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
-    let mut f =
-        std::fs::File::create(&tmp).with_context(|| format!("{}: cannot create", tmp.display()))?;
-    f.write_all(bytes)
-        .with_context(|| format!("{}: cannot write", tmp.display()))?;
-    f.sync_all().ok();
-    drop(f);
-    std::fs::rename(&tmp, path).with_context(|| format!("{}: cannot write", path.display()))?;
-    Ok(())
+    Ok(lensblur::io::write_atomic(path, bytes)?)
 }

@@ -305,7 +305,5 @@ pub fn write_dng(
         )));
     }
     let bytes = dng_bytes(cfa, width, height, info);
-    let tmp = path.with_extension("dng.tmp");
-    std::fs::write(&tmp, bytes)?;
-    std::fs::rename(&tmp, path)
+    crate::io::write_atomic(path, &bytes).map_err(|e| e.source)
 }

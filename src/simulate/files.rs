@@ -136,21 +136,7 @@ pub fn rgb16_bytes(capture: &Capture, format: ShotFormat) -> Result<Vec<u8>, Str
     Ok(bytes)
 }
 
-/// Temp file beside the target, then rename: a reader never sees half a file.
+/// Atomic, durable write (see [`crate::io`]), as an `io::Error` naming the file.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    use std::io::Write;
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "out".into());
-    let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
-    let mut f = std::fs::File::create(&tmp)?;
-    f.write_all(bytes)?;
-    f.sync_all().ok();
-    drop(f);
-    std::fs::rename(&tmp, path)
+    crate::io::write_atomic(path, bytes).map_err(|e| std::io::Error::other(e.to_string()))
 }
