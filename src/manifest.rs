@@ -1,4 +1,4 @@
-//! The session manifest (DESIGN.md §3): the chart that was printed and the shots with
+//! The session manifest (docs/formats.md): the chart that was printed and the shots with
 //! their settings. Scripts write it by hand, the simulator writes it for its shots, and
 //! every command that works on a session reads it.
 

@@ -19,7 +19,7 @@ use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-/// What was printed. Field names are part of the file contract (DESIGN.md §3).
+/// What was printed. Field names are part of the file contract (docs/formats.md).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ChartSpec {
     #[serde(default = "default_cols")]

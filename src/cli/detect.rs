@@ -1,5 +1,5 @@
 //! `lensblur detect SHOT --out detect.json [--chart chart.json]`: find the chart's
-//! squares and align each to sub-pixel accuracy (DESIGN.md §3).
+//! squares and align each to sub-pixel accuracy; `detect.json` is in docs/formats.md.
 
 use super::common::{load_chart, progress_job, write_json};
 use anyhow::{Context, Result};
