@@ -1,11 +1,12 @@
 //! Applies commands and drains finished jobs. Never draws.
 
-use super::jobs::{JobEvent, JobScope};
+use super::jobs::{Emitter, JobEvent, JobScope};
 use super::{
     Command, ComparisonView, DeblurResult, JobOutput, KernelAtlas, Photo, ShotPreview, StudioApp,
 };
 use crate::deblur::{DeblurOptions, KernelSource, Method};
 use crate::detect::Detection;
+use crate::job::JobContext;
 use crate::kernel::file::KernelsFile;
 use crate::pipeline::{self, GivenSetting, MeasuredShot, ShotFile};
 use crate::plane::{Capture, Channel, ChannelPlane, Plane};
@@ -773,6 +774,45 @@ fn targets(app: &StudioApp, which: Option<ShotId>, done: impl Fn(ShotId) -> bool
     }
 }
 
+/// One shot of a stage run over several: its id, its file, its capture where the
+/// preview already holds it, and what the stage needs besides.
+type ShotWork<W> = (ShotId, PathBuf, Option<Arc<Capture>>, W);
+
+/// Runs a stage on each shot in turn. Each shot has its own context, cancelled alone
+/// when the shot is removed (it is then skipped); its file is fingerprinted for the
+/// cache and loaded unless the preview holds it; `emit` makes each shot's result (a
+/// failure in words) the job's output for that shot.
+fn each_shot<W, T>(
+    work: Vec<ShotWork<W>>,
+    ctx: &JobContext,
+    out: &Emitter<JobOutput>,
+    stage: impl Fn(&Capture, &ShotFile, W, &JobContext) -> Result<T, pipeline::PipelineError>,
+    emit: impl Fn(ShotId, Result<T, String>) -> JobOutput,
+) -> Result<(), String> {
+    let n = work.len();
+    for (k, (id, path, capture, extra)) in work.into_iter().enumerate() {
+        ctx.check().map_err(|e| e.to_string())?;
+        let Some(shot_ctx) = out.shot_context(ctx, id) else {
+            continue;
+        };
+        let shot_ctx = shot_ctx.prefixed(&format!("shot {} of {n}: ", k + 1));
+        let result = ShotFile::read(&path).and_then(|file| {
+            let capture = match capture {
+                Some(c) => c,
+                None => Arc::new(pipeline::load(&path)?),
+            };
+            stage(&capture, &file, extra, &shot_ctx)
+        });
+        match result {
+            Ok(v) => out.emit(emit(id, Ok(v))),
+            // The shot was removed; if the whole job was cancelled, the next check ends it.
+            Err(e) if e.is_cancelled() => {}
+            Err(e) => out.emit(emit(id, Err(e.to_string()))),
+        }
+    }
+    Ok(())
+}
+
 /// Detection of the chosen shots on one job thread (each detection is itself parallel),
 /// results cached in the session and handed back shot by shot.
 fn run_detect(app: &mut StudioApp, which: Option<ShotId>) {
@@ -790,42 +830,28 @@ fn run_detect(app: &mut StudioApp, which: Option<ShotId>) {
     }
     let m = session.measurement();
     let cache = session.cache();
-    let work: Vec<(ShotId, PathBuf, Option<Arc<Capture>>)> = ids
+    let work: Vec<ShotWork<()>> = ids
         .iter()
         .filter_map(|&id| {
             Some((
                 id,
                 session.path_of(session.shot(id)?),
                 app.previews.get(&id).map(|p| Arc::clone(&p.capture)),
+                (),
             ))
         })
         .collect();
-    let n = work.len();
     let scope = JobScope::shots(app.session_generation, ids);
     let r = app.jobs.spawn_scoped("detect", scope, move |ctx, out| {
-        for (k, (id, path, capture)) in work.into_iter().enumerate() {
-            ctx.check().map_err(|e| e.to_string())?;
-            let Some(shot_ctx) = out.shot_context(ctx, id) else {
-                continue;
-            };
-            let shot_ctx = shot_ctx.prefixed(&format!("shot {} of {n}: ", k + 1));
-            let result = (|| {
-                let file = ShotFile::read(&path)?;
-                let capture = match capture {
-                    Some(c) => c,
-                    None => Arc::new(pipeline::load(&path)?),
-                };
-                pipeline::detect_shot(&capture, &file, &m, &cache, &shot_ctx)
-            })();
-            let result = match result {
-                Ok(d) => Ok(Arc::new(d)),
-                // The shot was removed (or the whole job cancelled: the loop stops).
-                Err(e) if e.is_cancelled() => continue,
-                Err(e) => Err(e.to_string()),
-            };
-            out.emit(JobOutput::Detected { shot: id, result });
-        }
-        Ok(())
+        each_shot(
+            work,
+            ctx,
+            out,
+            |capture, file, (), shot_ctx| {
+                pipeline::detect_shot(capture, file, &m, &cache, shot_ctx).map(Arc::new)
+            },
+            |shot, result| JobOutput::Detected { shot, result },
+        )
     });
     if let Err(e) = r {
         app.error(e);
@@ -1126,14 +1152,7 @@ fn run_kernels(app: &mut StudioApp, which: Option<ShotId>) {
     }
     let m = session.measurement();
     let cache = session.cache();
-    type Work = (
-        ShotId,
-        PathBuf,
-        Option<Arc<Capture>>,
-        Arc<Detection>,
-        GivenSetting,
-    );
-    let work: Vec<Work> = ids
+    let work: Vec<ShotWork<(Arc<Detection>, GivenSetting)>> = ids
         .iter()
         .filter_map(|&id| {
             let shot = session.shot(id)?;
@@ -1141,36 +1160,22 @@ fn run_kernels(app: &mut StudioApp, which: Option<ShotId>) {
                 id,
                 session.path_of(shot),
                 app.previews.get(&id).map(|p| Arc::clone(&p.capture)),
-                Arc::clone(app.detections.get(&id)?),
-                shot.given_setting(),
+                (Arc::clone(app.detections.get(&id)?), shot.given_setting()),
             ))
         })
         .collect();
-    let n = work.len();
     let scope = JobScope::shots(app.session_generation, ids);
     let r = app.jobs.spawn_scoped("kernels", scope, move |ctx, out| {
-        for (k, (id, path, capture, det, given)) in work.into_iter().enumerate() {
-            ctx.check().map_err(|e| e.to_string())?;
-            let Some(shot_ctx) = out.shot_context(ctx, id) else {
-                continue;
-            };
-            let shot_ctx = shot_ctx.prefixed(&format!("shot {} of {n}: ", k + 1));
-            let result = (|| {
-                let file = ShotFile::read(&path)?;
-                let capture = match capture {
-                    Some(c) => c,
-                    None => Arc::new(pipeline::load(&path)?),
-                };
-                pipeline::kernels_of_shot(&capture, &det, &file, given, &m, &cache, &shot_ctx)
-            })();
-            let result = match result {
-                Ok(file) => Ok(Arc::new(file)),
-                Err(e) if e.is_cancelled() => continue,
-                Err(e) => Err(e.to_string()),
-            };
-            out.emit(JobOutput::KernelsMeasured { shot: id, result });
-        }
-        Ok(())
+        each_shot(
+            work,
+            ctx,
+            out,
+            |capture, file, (det, given), shot_ctx| {
+                pipeline::kernels_of_shot(capture, &det, file, given, &m, &cache, shot_ctx)
+                    .map(Arc::new)
+            },
+            |shot, result| JobOutput::KernelsMeasured { shot, result },
+        )
     });
     if let Err(e) = r {
         app.error(e);
