@@ -19,6 +19,9 @@ type Sink = Arc<dyn Fn(&Progress) + Send + Sync>;
 #[derive(Clone)]
 pub struct JobContext {
     cancel: Arc<AtomicBool>,
+    /// The enclosing job's flag, for a part of it that can also be cancelled alone
+    /// ([`JobContext::part`]).
+    outer: Option<Arc<AtomicBool>>,
     sink: Option<Sink>,
 }
 
@@ -47,6 +50,7 @@ impl JobContext {
     pub fn silent() -> Self {
         Self {
             cancel: Arc::new(AtomicBool::new(false)),
+            outer: None,
             sink: None,
         }
     }
@@ -56,6 +60,7 @@ impl JobContext {
     pub fn with_sink(sink: impl Fn(&Progress) + Send + Sync + 'static) -> Self {
         Self {
             cancel: Arc::new(AtomicBool::new(false)),
+            outer: None,
             sink: Some(Arc::new(sink)),
         }
     }
@@ -73,6 +78,22 @@ impl JobContext {
     #[must_use]
     pub fn is_cancelled(&self) -> bool {
         self.cancel.load(Ordering::Relaxed)
+            || self
+                .outer
+                .as_ref()
+                .is_some_and(|o| o.load(Ordering::Relaxed))
+    }
+
+    /// A part of this job (one shot of a stage run over many) that `flag` cancels on
+    /// its own, while cancelling the whole job still cancels the part. Progress goes
+    /// to the same sink.
+    #[must_use]
+    pub fn part(&self, flag: Arc<AtomicBool>) -> JobContext {
+        JobContext {
+            cancel: flag,
+            outer: Some(Arc::clone(&self.cancel)),
+            sink: self.sink.clone(),
+        }
     }
 
     /// # Errors
@@ -95,6 +116,7 @@ impl JobContext {
         let prefix = prefix.to_owned();
         JobContext {
             cancel: Arc::clone(&self.cancel),
+            outer: self.outer.clone(),
             sink: Some(Arc::new(move |p: &Progress| {
                 parent(&Progress {
                     stage: format!("{prefix}{}", p.stage),
@@ -149,5 +171,18 @@ mod tests {
                 ("shot 2/3: detect".into(), 5)
             ]
         );
+    }
+
+    #[test]
+    fn a_part_is_cancelled_alone_or_with_its_job() {
+        let job = JobContext::silent();
+        let flag = Arc::new(AtomicBool::new(false));
+        let part = job.part(Arc::clone(&flag));
+        let other = job.part(Arc::new(AtomicBool::new(false)));
+        flag.store(true, Ordering::Relaxed);
+        assert!(part.is_cancelled() && part.prefixed("x").is_cancelled());
+        assert!(!other.is_cancelled() && !job.is_cancelled());
+        job.cancel();
+        assert!(other.is_cancelled());
     }
 }

@@ -21,6 +21,7 @@ pub mod kernel;
 pub mod manifest;
 pub mod metrics;
 pub mod model;
+pub mod pipeline;
 pub mod plane;
 pub mod profile;
 pub mod psf;

@@ -7,6 +7,9 @@ use crate::plane::LensSetting;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
+/// The manifest's name inside a session folder.
+pub const MANIFEST_FILE: &str = "manifest.json";
+
 /// The chart of a manifest: the spec inline, or a path to a spec file relative to the
 /// manifest.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -105,13 +108,9 @@ impl Manifest {
     /// # Errors
     /// The file cannot be written.
     pub fn save(&self, path: &Path) -> Result<(), ManifestError> {
-        let text = serde_json::to_vec_pretty(self).map_err(|e| ManifestError::Write {
-            path: path.to_path_buf(),
-            source: std::io::Error::other(e),
-        })?;
-        crate::simulate::files::write_atomic(path, &text).map_err(|source| ManifestError::Write {
-            path: path.to_path_buf(),
-            source,
+        crate::io::write_json(path, self).map_err(|e| ManifestError::Write {
+            path: e.path,
+            source: e.source,
         })
     }
 }

@@ -192,30 +192,50 @@ impl Dataset {
         paths: &[&Path],
         settings: &[Option<LensSetting>],
     ) -> Result<Self, ModelError> {
-        let mut ds: Option<Dataset> = None;
-        for (i, path) in paths.iter().enumerate() {
-            let file_err = |reason: String| ModelError::File {
-                path: path.display().to_string(),
-                reason,
-            };
-            let kf =
-                crate::kernel::file::KernelsFile::load(path).map_err(|e| file_err(e.reason))?;
-            let name = path.file_name().map_or_else(
+        let files = paths
+            .iter()
+            .map(|path| {
+                crate::kernel::file::KernelsFile::load(path).map_err(|e| ModelError::File {
+                    path: path.display().to_string(),
+                    reason: e.reason,
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
+        let shots: Vec<(&str, &crate::kernel::file::KernelsFile, Option<LensSetting>)> = files
+            .iter()
+            .enumerate()
+            .map(|(i, kf)| (names[i].as_str(), kf, settings.get(i).copied().flatten()))
+            .collect();
+        let mut ds = Self::from_kernels(&shots)?;
+        // A shot read from a file is named by the file, as it always was.
+        for (info, path) in ds.shots.iter_mut().zip(paths) {
+            info.name = path.file_name().map_or_else(
                 || path.display().to_string(),
                 |n| n.to_string_lossy().into_owned(),
             );
-            let given = settings.get(i).copied().flatten();
+        }
+        Ok(ds)
+    }
+
+    /// The dataset of kernels already in memory, one `(name, file, setting)` per shot;
+    /// the given setting overrides the file's, and errors name the shot by `name`.
+    ///
+    /// # Errors
+    /// A shot whose setting is unknown, shots of different cameras or lenses or sensor
+    /// sizes, or no shot.
+    pub fn from_kernels(
+        shots: &[(&str, &crate::kernel::file::KernelsFile, Option<LensSetting>)],
+    ) -> Result<Self, ModelError> {
+        let mut ds: Option<Dataset> = None;
+        for &(name, kf, given) in shots {
             let focal_mm = given.map(|s| s.focal_mm).or(kf.focal_mm);
             let f_number = given.map(|s| s.f_number).or(kf.f_number);
             let (Some(focal_mm), Some(f_number)) = (focal_mm, f_number) else {
-                return Err(ModelError::UnknownSetting {
-                    shot: path.display().to_string(),
-                });
+                return Err(ModelError::UnknownSetting { shot: name.into() });
             };
             if !(focal_mm.is_finite() && focal_mm > 0.0 && f_number.is_finite() && f_number > 0.0) {
-                return Err(ModelError::UnknownSetting {
-                    shot: path.display().to_string(),
-                });
+                return Err(ModelError::UnknownSetting { shot: name.into() });
             }
             let d = ds.get_or_insert_with(|| {
                 Dataset::new(kf.width, kf.height, kf.identity.clone().unwrap_or_default())
@@ -226,14 +246,14 @@ impl Dataset {
                         field,
                         a,
                         b,
-                        shot: path.display().to_string(),
+                        shot: name.into(),
                     }
                 })?;
             }
             if (d.width, d.height) != (kf.width, kf.height) {
                 return Err(ModelError::SensorMismatch {
                     a: format!("{}×{}", d.width, d.height),
-                    b: format!("{}×{} in {}", kf.width, kf.height, path.display()),
+                    b: format!("{}×{} in {name}", kf.width, kf.height),
                 });
             }
             let samples: Vec<BlurSample> = kf
@@ -259,7 +279,7 @@ impl Dataset {
                 .collect();
             d.push_shot(
                 ShotInfo {
-                    name,
+                    name: name.into(),
                     focal_mm,
                     f_number,
                 },

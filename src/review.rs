@@ -15,8 +15,7 @@ use crate::model::Dataset;
 use crate::plane::{Capture, Channel, ChannelPlane, LensSetting, Plane};
 use crate::profile::Profile;
 use crate::psf::{Gaussian2, Kernel};
-use crate::session::Session;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// Two settings are the same when they agree to 0.1 % (EXIF rounds, users type).
 #[must_use]
@@ -458,40 +457,34 @@ pub fn profile_source(
     })
 }
 
-/// The session shot whose kernels were measured at `setting` on a sensor of the
-/// photo's size: what a photo at that setting is deblurred with "measured kernels".
+/// Whether kernels measured on a shot at `shot_setting` serve a photo at `setting` on a
+/// sensor of the photo's size: what a photo at that setting is deblurred with
+/// "measured kernels".
 #[must_use]
-pub fn measured_kernels_for(
-    session: &Session,
+pub fn measured_at(
+    shot_setting: Option<LensSetting>,
+    file: &KernelsFile,
     width: usize,
     height: usize,
     setting: LensSetting,
-) -> Option<(usize, PathBuf)> {
-    (0..session.shots.len()).find_map(|i| {
-        let shot = &session.shots[i];
-        let s = shot.setting()?;
-        if !(shot.kernels.is_done()
-            && same_value(s.focal_mm, setting.focal_mm)
-            && same_value(s.f_number, setting.f_number))
-        {
-            return None;
-        }
-        let path = session.result_path(i, "kernels");
-        let file = KernelsFile::load(&path).ok()?;
-        ((file.width, file.height) == (width, height)).then_some((i, path))
-    })
+) -> bool {
+    shot_setting.is_some_and(|s| {
+        same_value(s.focal_mm, setting.focal_mm) && same_value(s.f_number, setting.f_number)
+    }) && (file.width, file.height) == (width, height)
 }
 
 /// The measured non-parametric kernels of a kernels file as a deblurring source.
 ///
 /// # Errors
-/// The file cannot be read, or holds no sample.
-pub fn measured_source(path: &Path) -> Result<ScatteredKernels, String> {
-    let file = KernelsFile::load(path).map_err(|e| e.to_string())?;
+/// The file holds no sample.
+pub fn measured_source(file: &KernelsFile) -> Result<ScatteredKernels, String> {
     if file.samples.is_empty() {
-        return Err(format!("{}: no measured kernel", path.display()));
+        return Err(match &file.source {
+            Some(s) => format!("{}: no measured kernel", s.file),
+            None => "no measured kernel".into(),
+        });
     }
-    Ok(ScatteredKernels::new(file, Prefer::Kernel))
+    Ok(ScatteredKernels::new(file.clone(), Prefer::Kernel))
 }
 
 /// Deblurs a whole capture and writes it (16-bit linear PNG or TIFF, full resolution,

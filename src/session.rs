@@ -1,20 +1,29 @@
 //! A calibration session as the studio keeps it: the shots, their lens settings, the
 //! chart, the stage settings, and where each stage's results live.
 //!
-//! A session is a folder: `session.json` plus one results file per shot and stage under
-//! `results/`. The studio rewrites `session.json` (atomically) every time the session
-//! changes, so quitting or a crash loses nothing. A session exports the manifest of
-//! DESIGN.md §3, which is what the command-line stages read.
+//! A session is a folder: `session.json` plus the stage results the pipeline caches
+//! under `results/` (named by each shot's content, see [`crate::pipeline`]). The studio
+//! rewrites `session.json` (atomically) every time the session changes, so quitting or a
+//! crash loses nothing. A session exports its manifest (the format
+//! [`crate::manifest`] owns), which is what `lensblur calibrate` reads; both find the
+//! same cached results.
+//!
+//! Shots are identified by a [`ShotId`] that never changes and is never reused within a
+//! session, not by their place in the list: work running on a shot reports by its id,
+//! so removing another shot cannot make it land on the wrong one.
 //!
 //! This module is core: it never touches egui.
 
 use crate::chart::ChartSpec;
+use crate::manifest::{ChartRef, MANIFEST_FILE, Manifest, ManifestShot};
 use crate::plane::LensSetting;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 pub const SESSION_FILE: &str = "session.json";
-pub const SCHEMA: &str = "lensblur.session/1";
+pub const SCHEMA: &str = "lensblur.session/2";
+/// The first version: shots without ids (they are given ids in list order on reading).
+const SCHEMA_V1: &str = "lensblur.session/1";
 
 /// File types a shot may have (RAW formats rawloader reads, DNG, TIFF, PNG, JPEG).
 pub const SHOT_EXTENSIONS: &[&str] = &[
@@ -70,6 +79,22 @@ fn default_method() -> String {
     "hqs".into()
 }
 
+impl StageSettings {
+    /// The kernel stage's parameters these settings choose.
+    #[must_use]
+    pub fn kernel_params(&self) -> crate::kernel::KernelParams {
+        crate::kernel::KernelParams {
+            oversample: self.oversample,
+            weighting: if self.weight_all_subpixels {
+                crate::kernel::Weighting::Uniform
+            } else {
+                crate::kernel::Weighting::PixelCentres
+            },
+            ..Default::default()
+        }
+    }
+}
+
 impl Default for StageSettings {
     fn default() -> Self {
         Self {
@@ -101,9 +126,23 @@ impl StageStatus {
     }
 }
 
+/// A shot's identity within its session: stable while the session lives, never reused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct ShotId(pub u64);
+
+impl std::fmt::Display for ShotId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "#{}", self.0)
+    }
+}
+
 /// One calibration shot.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Shot {
+    /// Version 1 files have none; [`Session::open`] numbers them.
+    #[serde(default = "unnumbered")]
+    pub id: ShotId,
     /// Relative to the session folder when the file is inside it, absolute otherwise.
     pub path: PathBuf,
     /// Settings from EXIF or typed by the user; `None` where unknown.
@@ -117,6 +156,10 @@ pub struct Shot {
     pub kernels: StageStatus,
 }
 
+fn unnumbered() -> ShotId {
+    ShotId(0)
+}
+
 impl Shot {
     #[must_use]
     pub fn setting(&self) -> Option<LensSetting> {
@@ -126,12 +169,27 @@ impl Shot {
         })
     }
 
-    /// The file name without its extension, used to name the shot's results files.
+    /// The setting as the pipeline takes it (either value may be missing; EXIF fills in).
+    #[must_use]
+    pub fn given_setting(&self) -> crate::pipeline::GivenSetting {
+        crate::pipeline::GivenSetting {
+            focal_mm: self.focal_mm,
+            f_number: self.f_number,
+        }
+    }
+
+    /// The file name without its extension.
     #[must_use]
     pub fn stem(&self) -> String {
         self.path
             .file_stem()
             .map_or_else(|| "shot".into(), |s| s.to_string_lossy().into_owned())
+    }
+
+    /// How reports and errors name the shot: its path as the session stores it.
+    #[must_use]
+    pub fn name(&self) -> String {
+        self.path.display().to_string()
     }
 }
 
@@ -156,31 +214,11 @@ pub struct Session {
     /// or another version of the simulator is made again rather than shown.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub demo_key: Option<String>,
+    /// The id the next added shot gets.
+    #[serde(default)]
+    pub next_shot_id: u64,
     #[serde(skip)]
     folder: PathBuf,
-}
-
-#[derive(Deserialize)]
-struct ManifestShot {
-    path: PathBuf,
-    #[serde(default)]
-    focal_mm: Option<f64>,
-    #[serde(default)]
-    f_number: Option<f64>,
-}
-
-#[derive(Deserialize)]
-#[serde(untagged)]
-enum ChartRef {
-    Spec(ChartSpec),
-    Path(PathBuf),
-}
-
-#[derive(Deserialize)]
-struct Manifest {
-    #[serde(default)]
-    chart: Option<ChartRef>,
-    shots: Vec<ManifestShot>,
 }
 
 impl Session {
@@ -199,6 +237,7 @@ impl Session {
             profile: None,
             is_demo: false,
             demo_key: None,
+            next_shot_id: 1,
             folder: folder.to_path_buf(),
         }
     }
@@ -220,7 +259,7 @@ impl Session {
             if file.is_file() {
                 return Self::open(&file);
             }
-            let manifest = path.join("manifest.json");
+            let manifest = path.join(MANIFEST_FILE);
             if manifest.is_file() {
                 return Self::open(&manifest);
             }
@@ -245,41 +284,57 @@ impl Session {
                 path: path.to_path_buf(),
                 reason: e.to_string(),
             })?;
-        if value.get("schema").and_then(|s| s.as_str()) == Some(SCHEMA) {
-            let mut s: Session =
-                serde_json::from_value(value).map_err(|e| SessionError::Parse {
+        let parse_err = |e: serde_json::Error| SessionError::Parse {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        };
+        match value.get("schema").and_then(|s| s.as_str()) {
+            Some(SCHEMA) => {
+                let mut s: Session = serde_json::from_value(value).map_err(parse_err)?;
+                s.folder = folder;
+                s.number_shots();
+                return Ok(s);
+            }
+            Some(SCHEMA_V1) => {
+                // Version 1 kept results by list position: the ids are new, and results
+                // are found again by content in the cache.
+                let mut s: Session = serde_json::from_value(value).map_err(parse_err)?;
+                s.schema = SCHEMA.into();
+                s.folder = folder;
+                for shot in &mut s.shots {
+                    shot.id = ShotId(0);
+                    shot.detect = StageStatus::Pending;
+                    shot.kernels = StageStatus::Pending;
+                }
+                s.number_shots();
+                return Ok(s);
+            }
+            Some(other) if other.starts_with("lensblur.session/") => {
+                return Err(SessionError::Parse {
                     path: path.to_path_buf(),
-                    reason: e.to_string(),
-                })?;
-            s.folder = folder;
-            return Ok(s);
+                    reason: format!(
+                        "session version '{other}' is newer than this lensblur reads ('{SCHEMA}')"
+                    ),
+                });
+            }
+            _ => {}
         }
-        let m: Manifest = serde_json::from_value(value).map_err(|e| SessionError::Parse {
+        let m: Manifest = serde_json::from_value(value).map_err(parse_err)?;
+        let mut s = Self::new(&folder);
+        s.chart = m.chart_spec(&folder).map_err(|e| SessionError::Parse {
             path: path.to_path_buf(),
             reason: e.to_string(),
         })?;
-        let mut s = Self::new(&folder);
-        s.chart = match m.chart {
-            None => ChartSpec::default(),
-            Some(ChartRef::Spec(c)) => c,
-            Some(ChartRef::Path(p)) => {
-                let p = if p.is_absolute() { p } else { folder.join(p) };
-                ChartSpec::load(&p).map_err(|e| SessionError::Parse {
-                    path: p.clone(),
-                    reason: e.to_string(),
-                })?
-            }
-        };
-        s.shots = m
-            .shots
-            .into_iter()
-            .map(|ms| Shot {
+        for ms in m.shots {
+            let id = s.new_shot_id();
+            s.shots.push(Shot {
+                id,
                 path: ms.path,
                 focal_mm: ms.focal_mm,
                 f_number: ms.f_number,
                 ..Shot::blank()
-            })
-            .collect();
+            });
+        }
         Ok(s)
     }
 
@@ -303,7 +358,7 @@ impl Session {
     ///
     /// # Errors
     /// The file is missing, of an unsupported type, or already in the session.
-    pub fn add_shot(&mut self, path: &Path) -> Result<usize, SessionError> {
+    pub fn add_shot(&mut self, path: &Path) -> Result<ShotId, SessionError> {
         if !path.is_file() {
             return Err(SessionError::Missing {
                 path: path.to_path_buf(),
@@ -330,62 +385,98 @@ impl Session {
         let stored = abs
             .strip_prefix(&folder)
             .map_or_else(|_| abs.clone(), Path::to_path_buf);
+        let id = self.new_shot_id();
         self.shots.push(Shot {
+            id,
             path: stored,
             ..Shot::blank()
         });
-        Ok(self.shots.len() - 1)
+        Ok(id)
+    }
+
+    /// Gives every shot without an id (version 1, or a hand-edited file) a fresh one,
+    /// and makes sure later ids stay unused.
+    fn number_shots(&mut self) {
+        let top = self.shots.iter().map(|s| s.id.0).max().unwrap_or(0);
+        self.next_shot_id = self.next_shot_id.max(top + 1);
+        let mut seen = std::collections::BTreeSet::new();
+        for i in 0..self.shots.len() {
+            let id = self.shots[i].id;
+            if id.0 == 0 || !seen.insert(id) {
+                self.shots[i].id = self.new_shot_id();
+                seen.insert(self.shots[i].id);
+            }
+        }
+    }
+
+    fn new_shot_id(&mut self) -> ShotId {
+        let id = ShotId(self.next_shot_id.max(1));
+        self.next_shot_id = id.0 + 1;
+        id
+    }
+
+    /// Where a shot is in the list now.
+    #[must_use]
+    pub fn index_of(&self, id: ShotId) -> Option<usize> {
+        self.shots.iter().position(|s| s.id == id)
+    }
+
+    #[must_use]
+    pub fn shot(&self, id: ShotId) -> Option<&Shot> {
+        self.shots.iter().find(|s| s.id == id)
+    }
+
+    pub fn shot_mut(&mut self, id: ShotId) -> Option<&mut Shot> {
+        self.shots.iter_mut().find(|s| s.id == id)
+    }
+
+    /// Removes a shot from the session (its file and cached results stay on disk).
+    pub fn remove_shot(&mut self, id: ShotId) -> Option<Shot> {
+        let i = self.index_of(id)?;
+        Some(self.shots.remove(i))
+    }
+
+    /// The file of a shot: absolute, or relative to the working directory.
+    #[must_use]
+    pub fn path_of(&self, shot: &Shot) -> PathBuf {
+        crate::manifest::resolve(&self.folder, &shot.path)
+    }
+
+    /// What decides the session's stage results: its chart and stage settings.
+    #[must_use]
+    pub fn measurement(&self) -> crate::pipeline::Measurement {
+        crate::pipeline::Measurement::new(self.chart.clone(), self.settings.kernel_params())
+    }
+
+    /// The cache of stage results in the session folder.
+    #[must_use]
+    pub fn cache(&self) -> crate::pipeline::ResultCache {
+        crate::pipeline::ResultCache::in_folder(&self.folder)
     }
 
     /// The absolute (or working-directory-relative) path of shot `index`.
     #[must_use]
     pub fn shot_path(&self, index: usize) -> PathBuf {
-        let p = &self.shots[index].path;
-        if p.is_absolute() {
-            p.clone()
-        } else {
-            self.folder.join(p)
+        self.path_of(&self.shots[index])
+    }
+
+    /// The session's manifest, written into the session folder: shot paths as the
+    /// session keeps them (relative to the folder where they lie inside it), so the
+    /// command line names each shot as the studio does.
+    #[must_use]
+    pub fn manifest(&self) -> Manifest {
+        Manifest {
+            chart: Some(ChartRef::Spec(self.chart.clone())),
+            shots: self
+                .shots
+                .iter()
+                .map(|s| ManifestShot {
+                    path: s.path.clone(),
+                    focal_mm: s.focal_mm,
+                    f_number: s.f_number,
+                })
+                .collect(),
         }
-    }
-
-    /// Where shot `index` keeps the results of `stage` ("detect", "kernels"): named by
-    /// the shot's file name and a hash of its path, not its place in the list, so
-    /// removing a shot leaves the others' results where they are.
-    #[must_use]
-    pub fn result_path(&self, index: usize, stage: &str) -> PathBuf {
-        let shot = &self.shots[index];
-        // FNV-1a: stable across runs and platforms (std's hasher is seeded per process).
-        let hash = shot
-            .path
-            .to_string_lossy()
-            .bytes()
-            .fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
-                (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
-            });
-        self.folder.join("results").join(format!(
-            "{}-{:08x}.{stage}.json",
-            shot.stem(),
-            hash & 0xffff_ffff
-        ))
-    }
-
-    /// The session's manifest (DESIGN.md §3); shot paths absolute so it can live anywhere.
-    #[must_use]
-    pub fn manifest(&self) -> serde_json::Value {
-        let shots: Vec<serde_json::Value> = (0..self.shots.len())
-            .map(|i| {
-                let s = &self.shots[i];
-                let mut o = serde_json::json!({ "path": self.shot_path(i) });
-                if let Some(f) = s.focal_mm {
-                    o["focal_mm"] = f.into();
-                }
-                if let Some(a) = s.f_number {
-                    o["f_number"] = a.into();
-                }
-                o
-            })
-            .collect();
-        serde_json::json!({ "chart": self.chart, "shots": shots })
     }
 
     /// Writes the manifest beside `session.json` and returns its path.
@@ -393,17 +484,9 @@ impl Session {
     /// # Errors
     /// The file cannot be written.
     pub fn write_manifest(&self) -> Result<PathBuf, SessionError> {
-        let path = self.folder.join("manifest.json");
-        let text =
-            serde_json::to_vec_pretty(&self.manifest()).map_err(|e| SessionError::Write {
-                path: path.clone(),
-                source: std::io::Error::other(e),
-            })?;
-        std::fs::create_dir_all(&self.folder).map_err(|source| SessionError::Write {
-            path: self.folder.clone(),
-            source,
-        })?;
-        write_atomic(&path, &text)?;
+        let path = self.folder.join(MANIFEST_FILE);
+        crate::io::create_dir_all(&self.folder).map_err(write_err)?;
+        crate::io::write_json(&path, &self.manifest()).map_err(write_err)?;
         Ok(path)
     }
 
@@ -423,6 +506,7 @@ impl Session {
 impl Shot {
     fn blank() -> Self {
         Shot {
+            id: ShotId(0),
             path: PathBuf::new(),
             focal_mm: None,
             f_number: None,
@@ -612,7 +696,9 @@ pub fn make_demo(
             })?;
             write_atomic(&truth_path, &truth)?;
         }
+        let id = session.new_shot_id();
         session.shots.push(Shot {
+            id,
             path: PathBuf::from(&name),
             focal_mm: Some(setting.focal_mm),
             f_number: Some(setting.f_number),
@@ -647,7 +733,7 @@ fn clear_demo_files(dir: &Path) -> Result<(), SessionError> {
             && (name.ends_with(".png") || name.ends_with(".truth.json")))
             || [
                 SESSION_FILE,
-                "manifest.json",
+                MANIFEST_FILE,
                 "profile.json",
                 "crossval.json",
                 DEMO_KEY_FILE,
@@ -710,10 +796,14 @@ fn write_rgb16_png(path: &Path, capture: &crate::plane::Capture) -> Result<(), S
 }
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), SessionError> {
-    crate::io::write_atomic(path, bytes).map_err(|e| SessionError::Write {
+    crate::io::write_atomic(path, bytes).map_err(write_err)
+}
+
+fn write_err(e: crate::io::WriteError) -> SessionError {
+    SessionError::Write {
         path: e.path,
         source: e.source,
-    })
+    }
 }
 
 #[cfg(test)]
@@ -726,7 +816,7 @@ mod tests {
         let shot = dir.path().join("a.png");
         std::fs::write(&shot, b"x").unwrap();
         let mut s = Session::new(dir.path());
-        assert_eq!(s.add_shot(&shot).unwrap(), 0);
+        assert_eq!(s.add_shot(&shot).unwrap(), ShotId(1));
         assert!(matches!(
             s.add_shot(&shot),
             Err(SessionError::Duplicate { .. })
@@ -790,5 +880,60 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("no such file"), "{e}");
+    }
+
+    #[test]
+    fn shot_ids_stay_with_their_shots_and_are_never_reused() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut s = Session::new(dir.path());
+        let ids: Vec<ShotId> = ["a.png", "b.png", "c.png"]
+            .iter()
+            .map(|n| {
+                let p = dir.path().join(n);
+                std::fs::write(&p, n.as_bytes()).unwrap();
+                s.add_shot(&p).unwrap()
+            })
+            .collect();
+        s.remove_shot(ids[1]).unwrap();
+        assert_eq!(s.index_of(ids[2]), Some(1));
+        let p = dir.path().join("d.png");
+        std::fs::write(&p, b"d").unwrap();
+        let d = s.add_shot(&p).unwrap();
+        assert!(!ids.contains(&d), "a removed shot's id is not given again");
+        s.save().unwrap();
+        let back = Session::open(dir.path()).unwrap();
+        assert_eq!(back.shot(ids[2]).map(|x| x.stem()), Some("c".into()));
+        assert_eq!(back.shot(d).map(|x| x.stem()), Some("d".into()));
+    }
+
+    #[test]
+    fn a_version_1_session_is_numbered_and_a_newer_one_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join(SESSION_FILE);
+        let v1 = serde_json::json!({
+            "schema": "lensblur.session/1",
+            "name": "old",
+            "chart": ChartSpec::default(),
+            "shots": [
+                {"path": "a.png", "focal_mm": 24.0, "detect": {"state": "done", "summary": "x"}},
+                {"path": "b.png"}
+            ]
+        });
+        std::fs::write(&file, serde_json::to_vec(&v1).unwrap()).unwrap();
+        let s = Session::open(dir.path()).unwrap();
+        assert_eq!(s.schema, SCHEMA);
+        let ids: Vec<ShotId> = s.shots.iter().map(|x| x.id).collect();
+        assert_eq!(ids, vec![ShotId(1), ShotId(2)]);
+        assert_eq!(s.shots[0].focal_mm, Some(24.0));
+        // Version 1 results were kept by position: they are found again by content.
+        assert_eq!(s.shots[0].detect, StageStatus::Pending);
+        let mut newer = v1;
+        newer["schema"] = "lensblur.session/9".into();
+        std::fs::write(&file, serde_json::to_vec(&newer).unwrap()).unwrap();
+        let e = Session::open(dir.path()).unwrap_err().to_string();
+        assert!(
+            e.contains("lensblur.session/9") && e.contains(SCHEMA),
+            "{e}"
+        );
     }
 }

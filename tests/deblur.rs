@@ -800,6 +800,7 @@ fn lens_kernels_file(w: usize, h: usize, setting: LensSetting, with: &str) -> Ke
         f_number: Some(setting.f_number),
         oversample,
         identity: None,
+        source: None,
         samples,
         failed: Vec::new(),
     }

@@ -49,7 +49,7 @@ fn calibrate_on_simulated_shots_and_predict_a_novel_setting() {
     );
 
     // The kernels measured on the way (cached beside the manifest) against the truth.
-    let cache = dir.path().join("lensblur-cache");
+    let cache = dir.path().join(lensblur::pipeline::RESULTS_DIR);
     let mut sigma_err = Vec::new();
     let mut rho_err = Vec::new();
     for setting in &spec.settings {

@@ -9,7 +9,9 @@
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
 use lensblur::app::{AppOptions, Command, FieldSource, StudioApp, View};
-use lensblur::session::{DemoSpec, StageStatus};
+use lensblur::job::JobContext;
+use lensblur::pipeline::ShotFile;
+use lensblur::session::{DemoSpec, Session, ShotId, StageStatus, make_demo};
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -191,7 +193,8 @@ fn every_view_on_the_demo_session() {
     let viewer = h.get_by_label("shot viewer").rect();
     let (centre, (w, hgt)) = {
         let app = h.state();
-        let det = &app.detections[&0];
+        let first = app.session.as_ref().expect("session").shots[0].id;
+        let det = &app.detections[&first];
         let sq = det
             .squares
             .iter()
@@ -225,10 +228,15 @@ fn every_view_on_the_demo_session() {
         a.measured.len() == n_shots && a.dataset.is_some() && idle(a)
     });
     let session = h.state().session.clone().expect("session");
-    for (i, m) in &h.state().measured {
+    for (id, m) in &h.state().measured {
         // Every square and channel is measured or reported with its reason, and
         // nearly all are measured on clean simulated shots.
-        let file = lensblur::kernel::file::KernelsFile::load(&session.result_path(*i, "kernels"))
+        let shot = session.shot(*id).expect("measured shot is in the session");
+        let shot_file = ShotFile::read(&session.path_of(shot)).expect("shot readable");
+        let file = session
+            .cache()
+            .kernels(&shot_file, &session.measurement())
+            .expect("kernels file readable")
             .expect("kernels file written");
         assert_eq!(m.samples.len(), file.samples.len());
         assert_eq!(file.samples.len() + file.failed.len(), 3 * n_squares);
@@ -275,6 +283,15 @@ fn every_view_on_the_demo_session() {
         demo_dir.join("profile.json").is_file() && demo_dir.join("crossval.json").is_file(),
         "profile and cross-validation saved in the session"
     );
+    // The command line calibrates the studio's session from the same cache, measuring
+    // nothing again, to the same profile.
+    let cli_profile = dir.path().join("cli-profile.json");
+    let cli = calibrate_on_the_command_line(&demo_dir, &cli_profile);
+    assert!(
+        cli.contains(&format!("0 shots measured, {n_shots} from the cache")),
+        "{cli}"
+    );
+    assert_same_profile(&cli_profile, &demo_dir.join("profile.json"));
     snapshot(&mut h, "studio_models");
 
     h.get_by_label("Sweeps").click();
@@ -410,8 +427,9 @@ fn light_theme_and_user_session() {
     let saved = lensblur::session::Session::open(&folder).expect("session saved as it changes");
     assert_eq!(saved.shots.len(), 1);
     // Settings typed for the shot are saved too.
+    let first = saved.shots[0].id;
     h.state_mut().commands.push(Command::SetShotSetting {
-        index: 0,
+        shot: first,
         focal_mm: Some(35.0),
         f_number: Some(8.0),
     });
@@ -449,7 +467,7 @@ fn light_theme_and_user_session() {
         &mut h,
         "the unreadable shot",
         Duration::from_secs(30),
-        |a| a.unreadable.contains_key(&1) && idle(a),
+        |a| a.unreadable.len() == 1 && !a.unreadable.contains_key(&first) && idle(a),
     );
     assert!(
         h.state()
@@ -458,7 +476,7 @@ fn light_theme_and_user_session() {
             .any(|m| m.is_error && m.text.starts_with("broken.png"))
     );
     // Detect by its keyboard shortcut on the readable shot.
-    h.state_mut().commands.push(Command::SelectShot(0));
+    h.state_mut().commands.push(Command::SelectShot(first));
     h.run_steps(2);
     h.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::D);
     step_until(
@@ -473,4 +491,171 @@ fn light_theme_and_user_session() {
         },
     );
     snapshot(&mut h, "studio_user_session_light");
+}
+
+/// The same measurements give the same profile in either front end: byte for byte.
+fn assert_same_profile(a: &Path, b: &Path) {
+    let read = |p: &Path| std::fs::read_to_string(p).expect("profile written");
+    let (ta, tb) = (read(a), read(b));
+    if ta != tb {
+        let va: serde_json::Value = serde_json::from_str(&ta).expect("profile json");
+        let vb: serde_json::Value = serde_json::from_str(&tb).expect("profile json");
+        let differ: Vec<String> = va
+            .as_object()
+            .into_iter()
+            .flatten()
+            .filter(|(k, v)| vb.get(k.as_str()) != Some(v))
+            .map(|(k, v)| format!("{k}: {} vs {}", short(v), short(&vb[k.as_str()])))
+            .collect();
+        panic!("{} and {} differ in {differ:?}", a.display(), b.display());
+    }
+}
+
+fn short(v: &serde_json::Value) -> String {
+    let t = v.to_string();
+    t.chars().take(300).collect()
+}
+
+/// Runs `lensblur calibrate` on a session folder's manifest; returns its stderr.
+fn calibrate_on_the_command_line(folder: &Path, out: &Path) -> String {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_lensblur"))
+        .arg("calibrate")
+        .arg("--manifest")
+        .arg(folder)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .expect("run lensblur calibrate");
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "lensblur calibrate failed: {err}");
+    err
+}
+
+/// Every stage the session records as done has its result in the cache under the
+/// shot's own content, and that result names the shot's file and carries its setting.
+fn assert_results_belong_to_their_shots(folder: &Path) -> Session {
+    let s = Session::open(folder).expect("session reopens");
+    let (m, cache) = (s.measurement(), s.cache());
+    for shot in &s.shots {
+        let file = ShotFile::read(&s.path_of(shot)).expect("shot readable");
+        if shot.detect.is_done() {
+            let path = cache.detect_path(&file, &m);
+            let det: lensblur::detect::DetectFile =
+                serde_json::from_str(&std::fs::read_to_string(&path).expect("detection cached"))
+                    .expect("detection file");
+            assert_eq!(det.source, Some(file.record()), "{}", path.display());
+        }
+        if shot.kernels.is_done() {
+            let k = cache
+                .kernels(&file, &m)
+                .expect("kernels readable")
+                .expect("kernels cached");
+            assert_eq!(k.source, Some(file.record()), "{}", shot.name());
+            assert_eq!((k.focal_mm, k.f_number), (shot.focal_mm, shot.f_number));
+        }
+    }
+    s
+}
+
+fn first_unmeasured(app: &StudioApp, measured: impl Fn(&StudioApp, ShotId) -> bool) -> ShotId {
+    let s = app.session.as_ref().expect("session");
+    s.shots
+        .iter()
+        .map(|shot| shot.id)
+        .find(|&id| !measured(app, id))
+        .unwrap_or_else(|| s.shots[s.shots.len() - 1].id)
+}
+
+#[test]
+fn removing_shots_and_switching_sessions_while_jobs_run() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (a_dir, b_dir) = (dir.path().join("a"), dir.path().join("b"));
+    let spec = test_demo();
+    make_demo(&a_dir, &spec, &JobContext::silent()).expect("session A");
+    let mut spec_b = test_demo();
+    spec_b.seed = 99;
+    make_demo(&b_dir, &spec_b, &JobContext::silent()).expect("session B");
+    let n = spec.settings.len();
+
+    let mut h = new_harness(&dir.path().join("demo"), Some(&a_dir));
+    step_until(&mut h, "session A", Duration::from_secs(60), demo_ready);
+    h.state_mut().commands.push(Command::RunDetect(None));
+    step_until(&mut h, "a first detection", Duration::from_secs(120), |a| {
+        !a.detections.is_empty() || idle(a)
+    });
+    // A shot the job has not finished: removed while it runs (or waits its turn).
+    let gone = first_unmeasured(h.state(), |a, id| a.detections.contains_key(&id));
+    h.state_mut().commands.push(Command::RemoveShot(gone));
+    step_until(&mut h, "detection", Duration::from_secs(240), idle);
+    assert!(!h.state().detections.contains_key(&gone));
+
+    h.state_mut().commands.push(Command::RunKernels(None));
+    h.run_steps(1);
+    let gone2 = first_unmeasured(h.state(), |a, id| a.measured.contains_key(&id));
+    h.state_mut().commands.push(Command::RemoveShot(gone2));
+    step_until(
+        &mut h,
+        "a first kernels result",
+        Duration::from_secs(600),
+        |a| !a.measured.is_empty() || idle(a),
+    );
+    // Another session while the kernels job may still run: its late results are
+    // dropped, and session B's shots (with the same ids) get none of them.
+    h.state_mut()
+        .commands
+        .push(Command::OpenSession(b_dir.clone()));
+    h.run_steps(1);
+    h.state_mut().commands.push(Command::RunDetect(None));
+    step_until(
+        &mut h,
+        "session B detected",
+        Duration::from_secs(240),
+        |a| idle(a) && a.detections.len() == n,
+    );
+    assert!(
+        h.state().measured.is_empty(),
+        "no kernels were measured in session B"
+    );
+    drop(h);
+
+    let a = assert_results_belong_to_their_shots(&a_dir);
+    assert_eq!(a.shots.len(), n - 2);
+    assert!(a.shot(gone).is_none() && a.shot(gone2).is_none());
+    assert!(a.shots.iter().all(|s| s.detect.is_done()));
+    let b = assert_results_belong_to_their_shots(&b_dir);
+    assert_eq!(b.shots.len(), n);
+    assert!(
+        b.shots
+            .iter()
+            .all(|s| s.detect.is_done() && !s.kernels.is_done())
+    );
+}
+
+#[test]
+fn a_session_measured_on_the_command_line_calibrates_in_the_studio() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let folder = dir.path().join("session");
+    let spec = test_demo();
+    make_demo(&folder, &spec, &JobContext::silent()).expect("session");
+    let cli_profile = dir.path().join("cli-profile.json");
+    let cli = calibrate_on_the_command_line(&folder, &cli_profile);
+    assert!(cli.contains("shots measured, 0 from the cache"), "{cli}");
+
+    let mut h = new_harness(&dir.path().join("demo"), Some(&folder));
+    let n = spec.settings.len();
+    step_until(&mut h, "the cached results", Duration::from_secs(60), |a| {
+        a.measured.len() == n && a.detections.len() == n && idle(a)
+    });
+    assert!(
+        h.state()
+            .session
+            .as_ref()
+            .is_some_and(|s| s.shots.iter().all(|s| s.kernels.is_done())),
+        "results measured elsewhere count as done"
+    );
+    h.state_mut().commands.push(Command::RunCalibrate);
+    step_until(&mut h, "calibration", Duration::from_secs(300), |a| {
+        a.profile.is_some() && idle(a)
+    });
+    assert_same_profile(&folder.join("profile.json"), &cli_profile);
 }

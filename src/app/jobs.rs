@@ -1,16 +1,57 @@
 //! Long work off the UI thread: one named thread per job, a [`JobContext`] whose
 //! progress sink wakes the UI, results through one bounded channel, and a handle whose
 //! drop cancels the work.
+//!
+//! A job that works on the open session says so ([`JobScope`]): its results carry the
+//! session they belong to, so the app drops what arrives after it switched sessions,
+//! and each shot it works on can be cancelled alone when the shot is removed.
 
 use crate::job::{JobContext, Progress};
+use crate::session::ShotId;
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
+/// What a job works on: the session (the app's count of sessions opened, so a result
+/// for an earlier one is recognised) and the shots, each cancellable alone.
+#[derive(Clone, Debug, Default)]
+pub struct JobScope {
+    pub session: Option<u64>,
+    pub shots: Vec<ShotId>,
+}
+
+impl JobScope {
+    #[must_use]
+    pub fn session(session: u64) -> Self {
+        Self {
+            session: Some(session),
+            shots: Vec::new(),
+        }
+    }
+
+    #[must_use]
+    pub fn shots(session: u64, shots: Vec<ShotId>) -> Self {
+        Self {
+            session: Some(session),
+            shots,
+        }
+    }
+}
+
+/// The cancel flag of every shot a job works on.
+type ShotFlags = Arc<BTreeMap<ShotId, Arc<AtomicBool>>>;
+
 /// What a finished (or partly finished) job hands back to the UI thread.
 pub enum JobEvent<T> {
-    /// A result that is ready now; more may follow from the same job.
-    Output { job: u64, output: T },
+    /// A result that is ready now; more may follow from the same job. `session` is the
+    /// job's [`JobScope::session`].
+    Output {
+        job: u64,
+        session: Option<u64>,
+        output: T,
+    },
     /// The job stopped: `Ok(())`, or the one-line reason it failed or was cancelled.
     Finished {
         job: u64,
@@ -24,8 +65,10 @@ pub struct JobHandle {
     pub id: u64,
     pub name: String,
     pub started: Instant,
+    pub session: Option<u64>,
     ctx: JobContext,
     progress: Arc<Mutex<Option<Progress>>>,
+    shots: ShotFlags,
 }
 
 impl JobHandle {
@@ -42,6 +85,20 @@ impl JobHandle {
     pub fn is_cancelled(&self) -> bool {
         self.ctx.is_cancelled()
     }
+
+    /// Cancels the job's work on one shot: the whole job when that is all it does.
+    /// Returns whether the job worked on that shot.
+    pub fn cancel_shot(&self, shot: ShotId) -> bool {
+        let Some(flag) = self.shots.get(&shot) else {
+            return false;
+        };
+        if self.shots.len() == 1 {
+            self.cancel();
+        } else {
+            flag.store(true, Ordering::Relaxed);
+        }
+        true
+    }
 }
 
 impl Drop for JobHandle {
@@ -55,8 +112,10 @@ impl Drop for JobHandle {
 /// Sends a job's partial results to the UI and wakes it.
 pub struct Emitter<T> {
     job: u64,
+    session: Option<u64>,
     tx: SyncSender<JobEvent<T>>,
     wake: Arc<dyn Fn() + Send + Sync>,
+    shots: ShotFlags,
 }
 
 impl<T> Emitter<T> {
@@ -64,9 +123,19 @@ impl<T> Emitter<T> {
         // A closed channel means the app is gone; the work is then cancelled anyway.
         let _ = self.tx.send(JobEvent::Output {
             job: self.job,
+            session: self.session,
             output,
         });
         (self.wake)();
+    }
+
+    /// The context for the job's work on one shot of its scope: cancelled with the job,
+    /// or alone when the shot is removed; `None` when it already was.
+    #[must_use]
+    pub fn shot_context(&self, ctx: &JobContext, shot: ShotId) -> Option<JobContext> {
+        let flag = self.shots.get(&shot)?;
+        let part = ctx.part(Arc::clone(flag));
+        (!part.is_cancelled()).then_some(part)
     }
 }
 
@@ -121,6 +190,26 @@ impl<T: Send + 'static> Jobs<T> {
         name: &str,
         work: impl FnOnce(&JobContext, &Emitter<T>) -> Result<(), String> + Send + 'static,
     ) -> Result<u64, String> {
+        self.spawn_scoped(name, JobScope::default(), work)
+    }
+
+    /// Starts `work` on its own named thread, working on `scope`.
+    ///
+    /// # Errors
+    /// The thread could not be spawned.
+    pub fn spawn_scoped(
+        &mut self,
+        name: &str,
+        scope: JobScope,
+        work: impl FnOnce(&JobContext, &Emitter<T>) -> Result<(), String> + Send + 'static,
+    ) -> Result<u64, String> {
+        let shots: ShotFlags = Arc::new(
+            scope
+                .shots
+                .iter()
+                .map(|&s| (s, Arc::new(AtomicBool::new(false))))
+                .collect(),
+        );
         let id = self.next_id;
         self.next_id += 1;
         let progress = Arc::new(Mutex::new(None));
@@ -134,8 +223,10 @@ impl<T: Send + 'static> Jobs<T> {
         });
         let emitter = Emitter {
             job: id,
+            session: scope.session,
             tx: self.tx.clone(),
             wake: Arc::clone(&self.wake),
+            shots: Arc::clone(&shots),
         };
         let worker_ctx = ctx.clone();
         let pool = self.pool.clone();
@@ -165,8 +256,10 @@ impl<T: Send + 'static> Jobs<T> {
             id,
             name: name.to_owned(),
             started: Instant::now(),
+            session: scope.session,
             ctx,
             progress,
+            shots,
         });
         Ok(id)
     }
@@ -199,6 +292,20 @@ impl<T: Send + 'static> Jobs<T> {
     pub fn cancel(&mut self, id: u64) {
         if let Some(h) = self.running.iter().find(|h| h.id == id) {
             h.cancel();
+        }
+    }
+
+    /// Cancels every job working on a session: it is being closed.
+    pub fn cancel_session_jobs(&self) {
+        for h in self.running.iter().filter(|h| h.session.is_some()) {
+            h.cancel();
+        }
+    }
+
+    /// Cancels every job's work on a shot that is being removed.
+    pub fn cancel_shot(&self, shot: ShotId) {
+        for h in &self.running {
+            h.cancel_shot(shot);
         }
     }
 }

@@ -1,14 +1,16 @@
 //! Applies commands and drains finished jobs. Never draws.
 
-use super::jobs::JobEvent;
+use super::jobs::{Emitter, JobEvent, JobScope};
 use super::{
     Command, ComparisonView, DeblurResult, JobOutput, KernelAtlas, Photo, ShotPreview, StudioApp,
 };
 use crate::deblur::{DeblurOptions, KernelSource, Method};
-use crate::detect::{DetectFile, DetectParams, Detection};
+use crate::detect::Detection;
+use crate::job::JobContext;
 use crate::kernel::file::KernelsFile;
-use crate::plane::{Capture, Channel, ChannelPlane, LensSetting, Plane};
-use crate::session::{Session, StageStatus};
+use crate::pipeline::{self, GivenSetting, MeasuredShot, ShotFile};
+use crate::plane::{Capture, Channel, ChannelPlane, Plane};
+use crate::session::{Session, ShotId, StageStatus};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -16,7 +18,14 @@ use std::sync::Arc;
 pub(super) fn drain_jobs(app: &mut StudioApp) {
     for event in app.jobs.drain() {
         match event {
-            JobEvent::Output { output, .. } => apply_output(app, output),
+            JobEvent::Output {
+                session, output, ..
+            } => {
+                // A result for a session that has since been closed is not this one's.
+                if session.is_none_or(|g| g == app.session_generation) {
+                    apply_output(app, output);
+                }
+            }
             JobEvent::Finished {
                 name,
                 result: Err(e),
@@ -53,9 +62,12 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
                 "demo session ready: {n} simulated shots of the virtual lens"
             ));
         }
-        JobOutput::ShotLoaded { index, capture } => {
-            let preview = make_preview(&app.ctx, index, &capture);
-            if let Some(shot) = app.session.as_mut().and_then(|s| s.shots.get_mut(index)) {
+        JobOutput::ShotLoaded { shot: id, capture } => {
+            if !app.has_shot(id) {
+                return;
+            }
+            let preview = make_preview(&app.ctx, id, &capture);
+            if let Some(shot) = app.session.as_mut().and_then(|s| s.shot_mut(id)) {
                 // EXIF fills what the user has not typed.
                 let mut changed = false;
                 if shot.focal_mm.is_none() && capture.setting_focal_mm.is_some() {
@@ -70,14 +82,16 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
                     save(app);
                 }
             }
-            app.previews.insert(index, preview);
-            if app.selected_shot == Some(index) {
+            app.previews.insert(id, preview);
+            if app.selected_shot == Some(id) {
                 update_inspection(app);
             }
         }
-        JobOutput::ShotUnreadable { index, reason } => {
-            app.error(reason.clone());
-            app.unreadable.insert(index, reason);
+        JobOutput::ShotUnreadable { shot, reason } => {
+            if app.has_shot(shot) {
+                app.error(reason.clone());
+                app.unreadable.insert(shot, reason);
+            }
         }
         JobOutput::Calibrated {
             dataset,
@@ -117,26 +131,25 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
                 app.deblur.comparison = None;
             }
         }
-        JobOutput::KernelsMeasured { index, result } => {
+        JobOutput::KernelsMeasured { shot: id, result } => {
+            if !app.has_shot(id) {
+                return;
+            }
             let result = result.map_err(|e| app.shorten_paths(e));
             let status = match &result {
                 Ok(file) => StageStatus::Done {
-                    summary: format!(
-                        "{} kernels, {} failed",
-                        file.samples.len(),
-                        file.failed.len()
-                    ),
+                    summary: kernels_summary(file),
                 },
                 Err(reason) => StageStatus::Failed {
                     reason: reason.clone(),
                 },
             };
-            if let Some(shot) = app.session.as_mut().and_then(|s| s.shots.get_mut(index)) {
+            if let Some(shot) = app.session.as_mut().and_then(|s| s.shot_mut(id)) {
                 shot.kernels = status;
             }
             match result {
                 Ok(file) => {
-                    app.measured.insert(index, file);
+                    app.measured.insert(id, file);
                     app.measured_generation += 1;
                     update_inspection(app);
                 }
@@ -150,6 +163,22 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
             measured,
             cv,
         } => {
+            // The cache decides what is done: results measured elsewhere (another
+            // front end, an earlier version of the session) count, and a status whose
+            // result has gone is pending again.
+            if let Some(s) = app.session.as_mut() {
+                for shot in &mut s.shots {
+                    shot.detect = settle(
+                        &shot.detect,
+                        detections.get(&shot.id).map(|d| detect_summary(d)),
+                    );
+                    shot.kernels = settle(
+                        &shot.kernels,
+                        measured.get(&shot.id).map(|k| kernels_summary(k)),
+                    );
+                }
+            }
+            save(app);
             app.detections = detections;
             app.measured = measured;
             app.measured_generation += 1;
@@ -159,26 +188,25 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
             update_inspection(app);
             spawn_dataset(app);
         }
-        JobOutput::Detected { index, result } => {
+        JobOutput::Detected { shot: id, result } => {
+            if !app.has_shot(id) {
+                return;
+            }
             let result = result.map_err(|e| app.shorten_paths(e));
             let status = match &result {
                 Ok(d) => StageStatus::Done {
-                    summary: format!(
-                        "{} of {} squares aligned",
-                        d.ok_squares().count(),
-                        d.squares.len()
-                    ),
+                    summary: detect_summary(d),
                 },
                 Err(reason) => StageStatus::Failed {
                     reason: reason.clone(),
                 },
             };
-            if let Some(shot) = app.session.as_mut().and_then(|s| s.shots.get_mut(index)) {
+            if let Some(shot) = app.session.as_mut().and_then(|s| s.shot_mut(id)) {
                 shot.detect = status;
             }
             match result {
                 Ok(d) => {
-                    app.detections.insert(index, d);
+                    app.detections.insert(id, d);
                 }
                 Err(e) => app.error(e),
             }
@@ -188,9 +216,10 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
             let texture = rgb_texture(&app.ctx, "photo", &crate::raw::full_planes(&capture), None);
             // Settings: EXIF first, then the session's record of the same file.
             let recorded = app.session.as_ref().and_then(|s| {
-                (0..s.shots.len())
-                    .find(|&i| s.shot_path(i) == path)
-                    .map(|i| (s.shots[i].focal_mm, s.shots[i].f_number))
+                s.shots
+                    .iter()
+                    .find(|shot| s.path_of(shot) == path)
+                    .map(|shot| (shot.focal_mm, shot.f_number))
             });
             let (rf, ra) = recorded.unwrap_or((None, None));
             let centre = [
@@ -276,13 +305,13 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
             }
         }
         Command::AddShots(files) => add_shots(app, &files),
-        Command::RemoveShot(i) => remove_shot(app, i),
+        Command::RemoveShot(id) => remove_shot(app, id),
         Command::SetShotSetting {
-            index,
+            shot,
             focal_mm,
             f_number,
         } => {
-            if let Some(shot) = app.session.as_mut().and_then(|s| s.shots.get_mut(index)) {
+            if let Some(shot) = app.session.as_mut().and_then(|s| s.shot_mut(shot)) {
                 shot.focal_mm = focal_mm;
                 shot.f_number = f_number;
                 save(app);
@@ -427,15 +456,16 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
                 .set_title("Open or create a session folder")
                 .pick_folder()
             {
-                match crate::session::Session::open(&dir) {
-                    Ok(s) => {
-                        app.set_session(s);
-                        save(app);
-                    }
-                    Err(e) => app.error(e.to_string()),
-                }
+                apply(app, Command::OpenSession(dir));
             }
         }
+        Command::OpenSession(path) => match crate::session::Session::open(&path) {
+            Ok(s) => {
+                app.set_session(s);
+                save(app);
+            }
+            Err(e) => app.error(e.to_string()),
+        },
         Command::Cancel(id) => app.jobs.cancel(id),
         Command::CancelAll => {
             for h in &app.jobs.running {
@@ -468,7 +498,7 @@ fn add_shots(app: &mut StudioApp, files: &[PathBuf]) {
     if let Some(s) = app.session.as_mut() {
         for f in files {
             match s.add_shot(f) {
-                Ok(i) => added = Some(i),
+                Ok(id) => added = Some(id),
                 Err(e) => errors.push(e.to_string()),
             }
         }
@@ -476,46 +506,40 @@ fn add_shots(app: &mut StudioApp, files: &[PathBuf]) {
     for e in errors {
         app.error(e);
     }
-    if let Some(i) = added {
-        app.selected_shot = Some(i);
+    if let Some(id) = added {
+        app.selected_shot = Some(id);
         app.viewer.sensor_px_per_point = None;
         save(app);
     }
 }
 
-/// Removes a shot from the session (its file and results stay on disk); every map keyed
-/// by shot index moves the later shots down by one.
-fn remove_shot(app: &mut StudioApp, i: usize) {
+/// Removes a shot from the session (its file and cached results stay on disk): work on
+/// it stops, and whatever it still sends is dropped since the shot is gone.
+fn remove_shot(app: &mut StudioApp, id: ShotId) {
     let Some(s) = app.session.as_mut() else {
         return;
     };
-    if i >= s.shots.len() {
+    let Some(i) = s.index_of(id) else {
         return;
-    }
-    s.shots.remove(i);
-    let n = s.shots.len();
-    fn shift<T>(map: &mut BTreeMap<usize, T>, removed: usize) {
-        let old = std::mem::take(map);
-        *map = old
-            .into_iter()
-            .filter(|(k, _)| *k != removed)
-            .map(|(k, v)| (if k > removed { k - 1 } else { k }, v))
-            .collect();
-    }
-    shift(&mut app.previews, i);
-    shift(&mut app.unreadable, i);
-    shift(&mut app.detections, i);
-    shift(&mut app.measured, i);
-    app.loading = app
-        .loading
-        .iter()
-        .filter(|&&k| k != i)
-        .map(|&k| if k > i { k - 1 } else { k })
-        .collect();
+    };
+    s.remove_shot(id);
+    app.jobs.cancel_shot(id);
+    let next = s
+        .shots
+        .get(i)
+        .or_else(|| s.shots.last())
+        .map(|shot| shot.id);
+    app.previews.remove(&id);
+    app.unreadable.remove(&id);
+    app.detections.remove(&id);
+    app.measured.remove(&id);
+    app.loading.remove(&id);
     app.measured_generation += 1;
-    app.selected_shot = if n == 0 { None } else { Some(i.min(n - 1)) };
-    app.selected_square = None;
-    app.inspection = None;
+    if app.selected_shot == Some(id) {
+        app.selected_shot = next;
+        app.selected_square = None;
+        app.inspection = None;
+    }
     save(app);
     spawn_dataset(app);
 }
@@ -567,33 +591,37 @@ fn apply_settings(
     save(app);
 }
 
-/// Starts loading the selected shot (and then the others, for thumbnails), one at a
-/// time so the machine is not flooded.
 pub(super) fn ensure_preview(app: &mut StudioApp) {
     let Some(s) = &app.session else { return };
     if app.jobs.is_running("load shot") {
         return;
     }
-    let order = app.selected_shot.into_iter().chain(0..s.shots.len());
-    let Some(index) = order
-        .filter(|i| *i < s.shots.len())
-        .find(|i| !app.loading.contains(i))
+    let order = app
+        .selected_shot
+        .into_iter()
+        .chain(s.shots.iter().map(|shot| shot.id));
+    let Some(id) = order
+        .filter(|id| s.shot(*id).is_some())
+        .find(|id| !app.loading.contains(id))
     else {
         return;
     };
-    let path = s.shot_path(index);
-    app.loading.insert(index);
-    let r = app.jobs.spawn("load shot", move |ctx, out| {
+    let Some(path) = s.shot(id).map(|shot| s.path_of(shot)) else {
+        return;
+    };
+    app.loading.insert(id);
+    let scope = JobScope::shots(app.session_generation, vec![id]);
+    let r = app.jobs.spawn_scoped("load shot", scope, move |ctx, out| {
         ctx.report("loading shot", 0, 1);
         match load_capture(&path) {
             Ok(capture) => {
                 ctx.check().map_err(|e| e.to_string())?;
                 out.emit(JobOutput::ShotLoaded {
-                    index,
+                    shot: id,
                     capture: Arc::new(capture),
                 });
             }
-            Err(reason) => out.emit(JobOutput::ShotUnreadable { index, reason }),
+            Err(reason) => out.emit(JobOutput::ShotUnreadable { shot: id, reason }),
         }
         ctx.report("loading shot", 1, 1);
         Ok(())
@@ -606,7 +634,7 @@ pub(super) fn ensure_preview(app: &mut StudioApp) {
 /// Loads a shot or photo through the core's loader; the error is already one line
 /// naming the file.
 pub(crate) fn load_capture(path: &Path) -> Result<Capture, String> {
-    crate::raw::load_capture(path, &crate::raw::LoadOptions::default()).map_err(|e| e.to_string())
+    pipeline::load(path).map_err(|e| e.to_string())
 }
 
 /// Display value of a linear sample: sRGB-like encoding so mid-greys look right.
@@ -701,7 +729,8 @@ pub(crate) fn pooled_plane(capture: &Capture, channel: Channel) -> Option<Channe
         .cloned()
 }
 
-fn make_preview(ctx: &egui::Context, index: usize, capture: &Arc<Capture>) -> ShotPreview {
+fn make_preview(ctx: &egui::Context, id: ShotId, capture: &Arc<Capture>) -> ShotPreview {
+    let index = id.0;
     let mut textures = std::collections::BTreeMap::new();
     let mut channels: Vec<Channel> = capture.planes.iter().map(|p| p.channel).collect();
     channels.dedup();
@@ -730,171 +759,230 @@ fn make_preview(ctx: &egui::Context, index: usize, capture: &Arc<Capture>) -> Sh
 
 /// Shots a stage should run on: the one asked for, or every readable shot without a
 /// result.
-fn targets(app: &StudioApp, which: Option<usize>, done: impl Fn(usize) -> bool) -> Vec<usize> {
-    let n = app.session.as_ref().map_or(0, |s| s.shots.len());
+fn targets(app: &StudioApp, which: Option<ShotId>, done: impl Fn(ShotId) -> bool) -> Vec<ShotId> {
+    let Some(s) = app.session.as_ref() else {
+        return Vec::new();
+    };
     match which {
-        Some(i) if i < n => vec![i],
-        Some(_) => Vec::new(),
-        None => (0..n)
-            .filter(|&i| !done(i) && !app.unreadable.contains_key(&i))
+        Some(id) => s.shot(id).map(|shot| shot.id).into_iter().collect(),
+        None => s
+            .shots
+            .iter()
+            .map(|shot| shot.id)
+            .filter(|&id| !done(id) && !app.unreadable.contains_key(&id))
             .collect(),
     }
 }
 
+/// One shot of a stage run over several: its id, its file, its capture where the
+/// preview already holds it, and what the stage needs besides.
+type ShotWork<W> = (ShotId, PathBuf, Option<Arc<Capture>>, W);
+
+/// Runs a stage on each shot in turn. Each shot has its own context, cancelled alone
+/// when the shot is removed (it is then skipped); its file is fingerprinted for the
+/// cache and loaded unless the preview holds it; `emit` makes each shot's result (a
+/// failure in words) the job's output for that shot.
+fn each_shot<W, T>(
+    work: Vec<ShotWork<W>>,
+    ctx: &JobContext,
+    out: &Emitter<JobOutput>,
+    stage: impl Fn(&Capture, &ShotFile, W, &JobContext) -> Result<T, pipeline::PipelineError>,
+    emit: impl Fn(ShotId, Result<T, String>) -> JobOutput,
+) -> Result<(), String> {
+    let n = work.len();
+    for (k, (id, path, capture, extra)) in work.into_iter().enumerate() {
+        ctx.check().map_err(|e| e.to_string())?;
+        let Some(shot_ctx) = out.shot_context(ctx, id) else {
+            continue;
+        };
+        let shot_ctx = shot_ctx.prefixed(&format!("shot {} of {n}: ", k + 1));
+        let result = ShotFile::read(&path).and_then(|file| {
+            let capture = match capture {
+                Some(c) => c,
+                None => Arc::new(pipeline::load(&path)?),
+            };
+            stage(&capture, &file, extra, &shot_ctx)
+        });
+        match result {
+            Ok(v) => out.emit(emit(id, Ok(v))),
+            // The shot was removed; if the whole job was cancelled, the next check ends it.
+            Err(e) if e.is_cancelled() => {}
+            Err(e) => out.emit(emit(id, Err(e.to_string()))),
+        }
+    }
+    Ok(())
+}
+
 /// Detection of the chosen shots on one job thread (each detection is itself parallel),
-/// results written beside the session and handed back shot by shot.
-fn run_detect(app: &mut StudioApp, which: Option<usize>) {
+/// results cached in the session and handed back shot by shot.
+fn run_detect(app: &mut StudioApp, which: Option<ShotId>) {
     if app.jobs.is_running("detect") {
         app.info("detection is already running");
         return;
     }
-    let indices = targets(app, which, |i| app.detections.contains_key(&i));
+    let ids = targets(app, which, |id| app.detections.contains_key(&id));
     let Some(session) = app.session.as_ref() else {
         return;
     };
-    if indices.is_empty() {
+    if ids.is_empty() {
         app.info("every shot is already detected (select one and press Detect to redo it)");
         return;
     }
-    let spec = session.chart.clone();
-    let work: Vec<(usize, PathBuf, PathBuf, Option<Arc<Capture>>)> = indices
+    let m = session.measurement();
+    let cache = session.cache();
+    let work: Vec<ShotWork<()>> = ids
         .iter()
-        .map(|&i| {
-            (
-                i,
-                session.shot_path(i),
-                session.result_path(i, "detect"),
-                app.previews.get(&i).map(|p| Arc::clone(&p.capture)),
-            )
+        .filter_map(|&id| {
+            Some((
+                id,
+                session.path_of(session.shot(id)?),
+                app.previews.get(&id).map(|p| Arc::clone(&p.capture)),
+                (),
+            ))
         })
         .collect();
-    let n = work.len();
-    let r = app.jobs.spawn("detect", move |ctx, out| {
-        for (k, (index, shot, result_path, capture)) in work.into_iter().enumerate() {
-            ctx.check().map_err(|e| e.to_string())?;
-            let shot_ctx = ctx.prefixed(&format!("shot {} of {n}: ", k + 1));
-            let capture = match capture {
-                Some(c) => c,
-                None => match load_capture(&shot) {
-                    Ok(c) => Arc::new(c),
-                    Err(e) => {
-                        out.emit(JobOutput::Detected {
-                            index,
-                            result: Err(e),
-                        });
-                        continue;
-                    }
-                },
-            };
-            let result =
-                match crate::detect::detect(&capture, &spec, &DetectParams::default(), &shot_ctx) {
-                    Ok(d) => write_result(&result_path, &d.to_file()).map(|()| Arc::new(d)),
-                    Err(crate::detect::DetectError::Cancelled(c)) => return Err(c.to_string()),
-                    Err(e) => Err(format!("{}: {e}", shot.display())),
-                };
-            out.emit(JobOutput::Detected { index, result });
-        }
-        Ok(())
+    let scope = JobScope::shots(app.session_generation, ids);
+    let r = app.jobs.spawn_scoped("detect", scope, move |ctx, out| {
+        each_shot(
+            work,
+            ctx,
+            out,
+            |capture, file, (), shot_ctx| {
+                pipeline::detect_shot(capture, file, &m, &cache, shot_ctx).map(Arc::new)
+            },
+            |shot, result| JobOutput::Detected { shot, result },
+        )
     });
     if let Err(e) = r {
         app.error(e);
     }
 }
 
-fn write_result<T: serde::Serialize>(path: &Path, value: &T) -> Result<(), String> {
-    if let Some(dir) = path.parent() {
-        crate::io::create_dir_all(dir).map_err(|e| e.to_string())?;
-    }
-    crate::io::write_json(path, value).map_err(|e| e.to_string())
-}
-
-/// Reads the detections, kernels and cross-validation report a session already has on
-/// disk, off the UI thread (kernels files with their arrays run to megabytes).
+/// Finds the results a session already has in its cache (measured by the studio or by
+/// `lensblur calibrate`), off the UI thread: shots are fingerprinted, and kernels files
+/// with their arrays run to megabytes.
 pub(super) fn read_results(app: &mut StudioApp, session: &Session) {
-    let detect: Vec<(usize, PathBuf)> = (0..session.shots.len())
-        .filter(|&i| session.shots[i].detect.is_done())
-        .map(|i| (i, session.result_path(i, "detect")))
-        .collect();
-    let kernels: Vec<(usize, PathBuf)> = (0..session.shots.len())
-        .filter(|&i| session.shots[i].kernels.is_done())
-        .map(|i| (i, session.result_path(i, "kernels")))
+    let shots: Vec<(ShotId, PathBuf)> = session
+        .shots
+        .iter()
+        .map(|shot| (shot.id, session.path_of(shot)))
         .collect();
     let cv_path = session.folder().join(CV_FILE);
-    if detect.is_empty() && kernels.is_empty() && !cv_path.is_file() {
+    if shots.is_empty() && !cv_path.is_file() {
         return;
     }
-    let r = app.jobs.spawn("read results", move |ctx, out| {
-        let total = detect.len() + kernels.len();
-        let mut detections = BTreeMap::new();
-        for (k, (i, path)) in detect.into_iter().enumerate() {
-            ctx.check().map_err(|e| e.to_string())?;
-            ctx.report("reading results", k, total);
-            let text =
-                std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-            let file: DetectFile =
-                serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
-            detections.insert(i, Arc::new(Detection::from_file(&file)));
-        }
-        let n_detect = detections.len();
-        let mut measured = BTreeMap::new();
-        for (k, (i, path)) in kernels.into_iter().enumerate() {
-            ctx.check().map_err(|e| e.to_string())?;
-            ctx.report("reading results", n_detect + k, total);
-            let file = KernelsFile::load(&path).map_err(|e| e.to_string())?;
-            measured.insert(i, Arc::new(file));
-        }
-        let cv = std::fs::read_to_string(&cv_path)
-            .ok()
-            .and_then(|t| serde_json::from_str(&t).ok())
-            .map(Arc::new);
-        out.emit(JobOutput::ResultsRead {
-            detections,
-            measured,
-            cv,
+    let m = session.measurement();
+    let cache = session.cache();
+    let scope = JobScope::session(app.session_generation);
+    let r = app
+        .jobs
+        .spawn_scoped("read results", scope, move |ctx, out| {
+            let total = shots.len();
+            let mut detections = BTreeMap::new();
+            let mut measured = BTreeMap::new();
+            for (k, (id, path)) in shots.into_iter().enumerate() {
+                ctx.check().map_err(|e| e.to_string())?;
+                ctx.report("reading results", k, total);
+                // A shot that cannot be read has no results; loading it says why.
+                let Ok(file) = ShotFile::read(&path) else {
+                    continue;
+                };
+                if let Some(d) = cache.detection(&file, &m).map_err(|e| e.to_string())? {
+                    detections.insert(id, Arc::new(d));
+                }
+                if let Some(k) = cache.kernels(&file, &m).map_err(|e| e.to_string())? {
+                    measured.insert(id, Arc::new(k));
+                }
+            }
+            let cv = std::fs::read_to_string(&cv_path)
+                .ok()
+                .and_then(|t| serde_json::from_str(&t).ok())
+                .map(Arc::new);
+            out.emit(JobOutput::ResultsRead {
+                detections,
+                measured,
+                cv,
+            });
+            Ok(())
         });
-        Ok(())
-    });
     if let Err(e) = r {
         app.error(e);
     }
+}
+
+/// A stage's status once the cache has been read: done where a result exists, pending
+/// where a recorded result has gone, a recorded failure kept.
+fn settle(status: &StageStatus, found: Option<String>) -> StageStatus {
+    match (found, status) {
+        (Some(summary), _) => StageStatus::Done { summary },
+        (None, StageStatus::Failed { reason }) => StageStatus::Failed {
+            reason: reason.clone(),
+        },
+        (None, _) => StageStatus::Pending,
+    }
+}
+
+fn detect_summary(d: &Detection) -> String {
+    format!(
+        "{} of {} squares aligned",
+        d.ok_squares().count(),
+        d.squares.len()
+    )
+}
+
+fn kernels_summary(file: &KernelsFile) -> String {
+    format!(
+        "{} kernels, {} failed",
+        file.samples.len(),
+        file.failed.len()
+    )
+}
+
+/// The shots with measured kernels, in session order, as calibration takes them.
+fn measured_shots(app: &StudioApp) -> Vec<MeasuredShot> {
+    let Some(session) = app.session.as_ref() else {
+        return Vec::new();
+    };
+    session
+        .shots
+        .iter()
+        .filter_map(|shot| {
+            Some(MeasuredShot {
+                name: shot.name(),
+                kernels: KernelsFile::clone(app.measured.get(&shot.id)?),
+                given: shot.given_setting(),
+            })
+        })
+        .collect()
 }
 
 /// The session's measured Gaussians over every shot with kernels and known settings,
 /// for the sweeps (rebuilt when kernels or settings change).
 fn spawn_dataset(app: &mut StudioApp) {
-    let Some(session) = app.session.as_ref() else {
-        return;
-    };
-    let done: Vec<usize> = (0..session.shots.len())
-        .filter(|&i| session.shots[i].kernels.is_done() && session.shots[i].setting().is_some())
+    let shots: Vec<MeasuredShot> = measured_shots(app)
+        .into_iter()
+        .filter(|s| {
+            s.given.focal_mm.or(s.kernels.focal_mm).is_some()
+                && s.given.f_number.or(s.kernels.f_number).is_some()
+        })
         .collect();
-    if done.is_empty() {
+    if shots.is_empty() {
         app.dataset = None;
         return;
     }
-    let paths: Vec<PathBuf> = done
-        .iter()
-        .map(|&i| session.result_path(i, "kernels"))
-        .collect();
-    let settings: Vec<_> = done.iter().map(|&i| session.shots[i].setting()).collect();
-    let names: Vec<String> = done.iter().map(|&i| session.shots[i].stem()).collect();
-    let r = app.jobs.spawn("gather measurements", move |_ctx, out| {
-        let refs: Vec<&Path> = paths.iter().map(PathBuf::as_path).collect();
-        let ds = crate::model::Dataset::from_kernels_files(&refs, &settings).map(|mut ds| {
-            for (info, name) in ds.shots.iter_mut().zip(names) {
-                info.name = name;
+    let scope = JobScope::session(app.session_generation);
+    let r = app
+        .jobs
+        .spawn_scoped("gather measurements", scope, move |_ctx, out| {
+            match pipeline::dataset(&shots) {
+                Ok(ds) => out.emit(JobOutput::DatasetReady(Some(Arc::new(ds)))),
+                Err(e) => {
+                    out.emit(JobOutput::DatasetReady(None));
+                    return Err(e.to_string());
+                }
             }
-            Arc::new(ds)
+            Ok(())
         });
-        match ds {
-            Ok(ds) => out.emit(JobOutput::DatasetReady(Some(ds))),
-            Err(e) => {
-                out.emit(JobOutput::DatasetReady(None));
-                return Err(e.to_string());
-            }
-        }
-        Ok(())
-    });
     if let Err(e) = r {
         app.error(e);
     }
@@ -1004,31 +1092,11 @@ fn run_calibrate(app: &mut StudioApp) {
     let Some(session) = app.session.as_ref() else {
         return;
     };
-    let done: Vec<usize> = (0..session.shots.len())
-        .filter(|&i| session.shots[i].kernels.is_done())
-        .collect();
-    if done.len() < 2 {
+    let shots = measured_shots(app);
+    if shots.len() < 2 {
         app.error("calibration needs kernels on at least two shots: run Detect (Ctrl+D) and Kernels (Ctrl+K) first");
         return;
     }
-    let missing: Vec<String> = done
-        .iter()
-        .filter(|&&i| session.shots[i].setting().is_none())
-        .map(|&i| session.shots[i].stem())
-        .collect();
-    if !missing.is_empty() {
-        app.error(format!(
-            "calibration needs the focal length and aperture of every shot: type them for {}",
-            missing.join(", ")
-        ));
-        return;
-    }
-    let paths: Vec<PathBuf> = done
-        .iter()
-        .map(|&i| session.result_path(i, "kernels"))
-        .collect();
-    let settings: Vec<_> = done.iter().map(|&i| session.shots[i].setting()).collect();
-    let names: Vec<String> = done.iter().map(|&i| session.shots[i].stem()).collect();
     let chart = session.chart.clone();
     let out_path = session.folder().join("profile.json");
     let cv_path = session.folder().join(CV_FILE);
@@ -1037,18 +1105,15 @@ fn run_calibrate(app: &mut StudioApp) {
         beta: session.settings.beta,
         ..Default::default()
     };
-    let r = app.jobs.spawn("calibrate", move |ctx, out| {
-        let refs: Vec<&Path> = paths.iter().map(PathBuf::as_path).collect();
-        let mut ds = crate::model::Dataset::from_kernels_files(&refs, &settings)
-            .map_err(|e| e.to_string())?;
-        for (info, name) in ds.shots.iter_mut().zip(names) {
-            info.name = name;
-        }
+    let scope = JobScope::session(app.session_generation);
+    let r = app.jobs.spawn_scoped("calibrate", scope, move |ctx, out| {
+        // Every shot needs its setting: the error names the ones without.
+        let ds = pipeline::dataset(&shots).map_err(|e| format!("calibration: {e}"))?;
         let (profile, cv) = crate::profile::calibrate(&ds, Some(chart), &opts, ctx)
             .map_err(|e| format!("calibration: {e}"))?;
         profile.save(&out_path).map_err(|e| e.to_string())?;
         match &cv {
-            Some(report) => write_result(&cv_path, report)?,
+            Some(report) => crate::io::write_json(&cv_path, report).map_err(|e| e.to_string())?,
             None => {
                 // A fixed α, β has no curves: an old report would describe another fit.
                 let _ = std::fs::remove_file(&cv_path);
@@ -1068,8 +1133,8 @@ fn run_calibrate(app: &mut StudioApp) {
 }
 
 /// Kernels of the chosen shots (those detected), one shot after another, each shot's
-/// squares in parallel; results written beside the session as kernels files.
-fn run_kernels(app: &mut StudioApp, which: Option<usize>) {
+/// squares in parallel; results cached in the session as kernels files.
+fn run_kernels(app: &mut StudioApp, which: Option<ShotId>) {
     if app.jobs.is_running("kernels") {
         app.info("kernel estimation is already running");
         return;
@@ -1077,81 +1142,40 @@ fn run_kernels(app: &mut StudioApp, which: Option<usize>) {
     let Some(session) = app.session.as_ref() else {
         return;
     };
-    let indices: Vec<usize> = targets(app, which, |i| app.measured.contains_key(&i))
+    let ids: Vec<ShotId> = targets(app, which, |id| app.measured.contains_key(&id))
         .into_iter()
-        .filter(|i| app.detections.contains_key(i))
+        .filter(|id| app.detections.contains_key(id))
         .collect();
-    if indices.is_empty() {
+    if ids.is_empty() {
         app.info("no detected shot without kernels: run Detect (Ctrl+D) first");
         return;
     }
-    let spec = session.chart.clone();
-    let params = crate::kernel::KernelParams {
-        oversample: session.settings.oversample,
-        weighting: if session.settings.weight_all_subpixels {
-            crate::kernel::Weighting::Uniform
-        } else {
-            crate::kernel::Weighting::PixelCentres
-        },
-        ..Default::default()
-    };
-    type Work = (
-        usize,
-        PathBuf,
-        PathBuf,
-        Option<Arc<Capture>>,
-        Arc<Detection>,
-        Option<LensSetting>,
-    );
-    let work: Vec<Work> = indices
+    let m = session.measurement();
+    let cache = session.cache();
+    let work: Vec<ShotWork<(Arc<Detection>, GivenSetting)>> = ids
         .iter()
-        .filter_map(|&i| {
+        .filter_map(|&id| {
+            let shot = session.shot(id)?;
             Some((
-                i,
-                session.shot_path(i),
-                session.result_path(i, "kernels"),
-                app.previews.get(&i).map(|p| Arc::clone(&p.capture)),
-                Arc::clone(app.detections.get(&i)?),
-                session.shots[i].setting(),
+                id,
+                session.path_of(shot),
+                app.previews.get(&id).map(|p| Arc::clone(&p.capture)),
+                (Arc::clone(app.detections.get(&id)?), shot.given_setting()),
             ))
         })
         .collect();
-    let n = work.len();
-    let r = app.jobs.spawn("kernels", move |ctx, out| {
-        for (k, (index, shot, result_path, capture, det, setting)) in work.into_iter().enumerate() {
-            ctx.check().map_err(|e| e.to_string())?;
-            let shot_ctx = ctx.prefixed(&format!("shot {} of {n}: ", k + 1));
-            let capture = match capture {
-                Some(c) => c,
-                None => match load_capture(&shot) {
-                    Ok(c) => Arc::new(c),
-                    Err(e) => {
-                        out.emit(JobOutput::KernelsMeasured {
-                            index,
-                            result: Err(e),
-                        });
-                        continue;
-                    }
-                },
-            };
-            let result =
-                match crate::kernel::estimate_shot(&capture, &det, &spec, &params, &shot_ctx) {
-                    Ok(k) => {
-                        let file = KernelsFile::from_shot(
-                            &k,
-                            setting.map(|s| s.focal_mm).or(capture.setting_focal_mm),
-                            setting.map(|s| s.f_number).or(capture.setting_f_number),
-                            Some(capture.identity.clone()),
-                            true,
-                        );
-                        write_result(&result_path, &file).map(|()| Arc::new(file))
-                    }
-                    Err(crate::kernel::KernelError::Cancelled(c)) => return Err(c.to_string()),
-                    Err(e) => Err(format!("{}: {e}", shot.display())),
-                };
-            out.emit(JobOutput::KernelsMeasured { index, result });
-        }
-        Ok(())
+    let scope = JobScope::shots(app.session_generation, ids);
+    let r = app.jobs.spawn_scoped("kernels", scope, move |ctx, out| {
+        each_shot(
+            work,
+            ctx,
+            out,
+            |capture, file, (det, given), shot_ctx| {
+                pipeline::kernels_of_shot(capture, &det, file, given, &m, &cache, shot_ctx)
+                    .map(Arc::new)
+            },
+            |shot, result| JobOutput::KernelsMeasured { shot, result },
+        )
     });
     if let Err(e) = r {
         app.error(e);
@@ -1187,12 +1211,15 @@ fn photo_sources(app: &StudioApp, photo: &Photo) -> Sources {
         None => Err("no profile yet: Calibrate (Ctrl+M) or load one in Models".into()),
     };
     let found = match (app.session.as_ref(), setting) {
-        (Some(s), Some(set)) => crate::review::measured_kernels_for(s, cap.width, cap.height, set)
-            .map(|(i, path)| (s.shots[i].stem(), path)),
+        (Some(s), Some(set)) => s.shots.iter().find_map(|shot| {
+            let file = app.measured.get(&shot.id)?;
+            crate::review::measured_at(shot.setting(), file, cap.width, cap.height, set)
+                .then(|| (shot.stem(), Arc::clone(file)))
+        }),
         _ => None,
     };
     let (measured, from) = match (found, setting) {
-        (Some((name, path)), _) => (crate::review::measured_source(&path), Some(name)),
+        (Some((name, file)), _) => (crate::review::measured_source(&file), Some(name)),
         (None, None) => (
             Err("focal length and aperture unknown: type them above".into()),
             None,

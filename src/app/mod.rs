@@ -17,7 +17,7 @@ use crate::model::Dataset;
 use crate::plane::{Capture, Channel};
 use crate::profile::Profile;
 use crate::review::DeblurComparison;
-use crate::session::{DemoSpec, Session, StageSettings};
+use crate::session::{DemoSpec, Session, ShotId, StageSettings};
 use jobs::Jobs;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -86,7 +86,7 @@ pub enum DeblurLayout {
 #[derive(Clone, Debug, PartialEq)]
 pub enum Command {
     SelectView(View),
-    SelectShot(usize),
+    SelectShot(ShotId),
     SelectChannel(Channel),
     /// A chart square in the Shot view: (row, col).
     SelectSquare((usize, usize)),
@@ -94,9 +94,9 @@ pub enum Command {
     /// Opens the file dialog for shots.
     AddShotsDialog,
     AddShots(Vec<PathBuf>),
-    RemoveShot(usize),
+    RemoveShot(ShotId),
     SetShotSetting {
-        index: usize,
+        shot: ShotId,
         focal_mm: Option<f64>,
         f_number: Option<f64>,
     },
@@ -108,8 +108,8 @@ pub enum Command {
     /// Reads a chart spec file into the settings being edited.
     LoadChartDialog,
     /// Detection on one shot, or on every shot without a result.
-    RunDetect(Option<usize>),
-    RunKernels(Option<usize>),
+    RunDetect(Option<ShotId>),
+    RunKernels(Option<ShotId>),
     RunCalibrate,
     OpenPhotoDialog,
     OpenPhoto(PathBuf),
@@ -137,6 +137,8 @@ pub enum Command {
     SetFieldSource(FieldSource),
     SetFieldShow(FieldShow),
     OpenSessionDialog,
+    /// Opens (or creates) the session in a folder, or from a session file or manifest.
+    OpenSession(PathBuf),
     Cancel(u64),
     CancelAll,
     SetDark(bool),
@@ -147,12 +149,12 @@ pub enum Command {
 pub enum JobOutput {
     DemoReady(Box<Session>),
     ShotLoaded {
-        index: usize,
+        shot: ShotId,
         capture: Arc<Capture>,
     },
     /// A shot that cannot be read: the one-line reason names the file.
     ShotUnreadable {
-        index: usize,
+        shot: ShotId,
         reason: String,
     },
     PhotoLoaded {
@@ -161,15 +163,15 @@ pub enum JobOutput {
     },
     /// A shot's kernels finished (or failed).
     KernelsMeasured {
-        index: usize,
+        shot: ShotId,
         result: Result<Arc<KernelsFile>, String>,
     },
     /// The session's measured Gaussians, gathered from its kernels files.
     DatasetReady(Option<Arc<Dataset>>),
-    /// Results a reopened session already has on disk.
+    /// Results a reopened session already has in its cache.
     ResultsRead {
-        detections: BTreeMap<usize, Arc<Detection>>,
-        measured: BTreeMap<usize, Arc<KernelsFile>>,
+        detections: BTreeMap<ShotId, Arc<Detection>>,
+        measured: BTreeMap<ShotId, Arc<KernelsFile>>,
         cv: Option<Arc<CvReport>>,
     },
     /// Calibration finished: the measurements it used, the profile and the
@@ -187,7 +189,7 @@ pub enum JobOutput {
     },
     /// A shot's detection finished (or failed: `Err` carries the one-line reason).
     Detected {
-        index: usize,
+        shot: ShotId,
         result: Result<Arc<Detection>, String>,
     },
     /// Deblurred crops of the open photo; `measured_from` names the shot whose kernels
@@ -271,7 +273,7 @@ pub enum FieldShow {
 /// The inspector's square: which one, its crops and their textures (observed,
 /// synthetic, residual), and its measured kernel's texture.
 pub struct Inspection {
-    pub shot: usize,
+    pub shot: ShotId,
     pub square: (usize, usize),
     pub channel: Channel,
     pub crops: crate::detect::inspect::SquareInspection,
@@ -344,7 +346,7 @@ pub struct DeblurState {
 /// field view: each cell holds the central ±`extent_px` of one kernel, scaled to its
 /// peak.
 pub struct KernelAtlas {
-    pub key: (usize, Channel, usize),
+    pub key: (ShotId, Channel, usize),
     pub texture: egui::TextureHandle,
     /// Per sample: its index in the kernels file and its cell's UV rectangle.
     pub cells: Vec<(usize, egui::Rect)>,
@@ -402,11 +404,11 @@ pub struct StudioApp {
     pub session: Option<Session>,
     pub jobs: Jobs<JobOutput>,
     pub view: View,
-    pub selected_shot: Option<usize>,
+    pub selected_shot: Option<ShotId>,
     pub channel: Channel,
-    pub previews: BTreeMap<usize, ShotPreview>,
+    pub previews: BTreeMap<ShotId, ShotPreview>,
     /// Shots that could not be read, with the reason.
-    pub unreadable: BTreeMap<usize, String>,
+    pub unreadable: BTreeMap<ShotId, String>,
     pub messages: Vec<Message>,
     pub commands: Vec<Command>,
     pub viewer: ViewerState,
@@ -414,12 +416,12 @@ pub struct StudioApp {
     pub field_focal_mm: f64,
     pub field_f_number: f64,
     pub compare_units: bool,
-    /// Detection per shot index, this run's or read back from the session's results.
-    pub detections: BTreeMap<usize, Arc<Detection>>,
+    /// Detection per shot, this run's or read back from the session's results.
+    pub detections: BTreeMap<ShotId, Arc<Detection>>,
     /// The square clicked in the Shot view: (row, col).
     pub selected_square: Option<(usize, usize)>,
-    /// Measured kernels and their Gaussians per shot index (all channels).
-    pub measured: BTreeMap<usize, Arc<KernelsFile>>,
+    /// Measured kernels and their Gaussians per shot (all channels).
+    pub measured: BTreeMap<ShotId, Arc<KernelsFile>>,
     /// The session's measured Gaussians over every shot with kernels.
     pub dataset: Option<Arc<Dataset>>,
     /// The lens profile in use (calibrated here or loaded) and a second one to compare.
@@ -439,8 +441,11 @@ pub struct StudioApp {
     pub frames: FrameLog,
     pub options: AppOptions,
     pub ctx: egui::Context,
-    /// Shot indices whose loading has been started.
-    loading: std::collections::BTreeSet<usize>,
+    /// Shots whose loading has been started.
+    loading: std::collections::BTreeSet<ShotId>,
+    /// Counts the sessions opened: results of jobs started for an earlier one are
+    /// dropped when they arrive.
+    session_generation: u64,
     /// Bumped whenever measured kernels change, so cached textures are rebuilt.
     measured_generation: usize,
     first_frame_logged: bool,
@@ -498,6 +503,7 @@ impl StudioApp {
             options: options.clone(),
             ctx: ctx.clone(),
             loading: std::collections::BTreeSet::new(),
+            session_generation: 0,
             measured_generation: 0,
             first_frame_logged: false,
             ready_logged: false,
@@ -514,6 +520,13 @@ impl StudioApp {
             None => app.open_or_make_demo(),
         }
         app
+    }
+
+    /// Whether the open session still has this shot (a job's result may arrive after
+    /// the shot was removed).
+    #[must_use]
+    pub fn has_shot(&self, id: ShotId) -> bool {
+        self.session.as_ref().is_some_and(|s| s.shot(id).is_some())
     }
 
     pub fn error(&mut self, text: impl Into<String>) {
@@ -590,6 +603,9 @@ impl StudioApp {
     }
 
     pub(crate) fn set_session(&mut self, s: Session) {
+        // Work on the session being closed stops, and what it still sends is dropped.
+        self.jobs.cancel_session_jobs();
+        self.session_generation += 1;
         self.previews.clear();
         self.unreadable.clear();
         self.loading.clear();
@@ -617,7 +633,7 @@ impl StudioApp {
         }
         self.selected_square = None;
         self.inspection = None;
-        self.selected_shot = if s.shots.is_empty() { None } else { Some(0) };
+        self.selected_shot = s.shots.first().map(|shot| shot.id);
         self.viewer.sensor_px_per_point = None;
         if let Some((f, a)) = middle_setting(&s) {
             self.field_focal_mm = f;

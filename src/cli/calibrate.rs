@@ -1,55 +1,38 @@
 //! `lensblur calibrate`: fit blur models over a calibration session and write a profile.
 //!
-//! The session is either a manifest of shots (the whole chain runs per shot: load,
-//! detect, kernels; each shot's kernels are cached in `lensblur-cache/` beside the
-//! manifest, keyed by the file's hash and setting, so re-runs are quick) or a list of
-//! kernels files.
+//! The session is either a manifest of shots, each measured through the core pipeline
+//! (load, detect, kernels; every stage's result cached in `results/` beside the
+//! manifest, the same cache the studio keeps, so shots measured there or in an earlier
+//! run are not measured again), or a list of kernels files measured earlier.
 
 use super::common::{load_chart, progress_job, write_json};
-use anyhow::{Context, Result, bail};
+use anyhow::Result;
 use lensblur::chart::ChartSpec;
 use lensblur::crossval::{CvOptions, HoldOut};
-use lensblur::detect::{DetectParams, detect};
 use lensblur::kernel::file::KernelsFile;
-use lensblur::kernel::{KernelParams, estimate_shot};
-use lensblur::model::{Dataset, LocalOptions, ModelError};
-use lensblur::plane::LensSetting;
+use lensblur::model::{Dataset, LocalOptions};
+use lensblur::pipeline::{self, MeasuredShot, Provenance, ShotFile};
 use lensblur::profile::{CalibrateOptions, Families, calibrate};
-use lensblur::raw::{LoadOptions, load_capture};
-use serde::Deserialize;
+use lensblur::session::Session;
 use std::path::{Path, PathBuf};
 
 /// Where a session's measurements come from (shared by calibrate, crossval, sweeps).
 #[derive(clap::Args, Default, Clone)]
 pub struct SessionArgs {
-    /// Session manifest (DESIGN §3); every shot is measured (cached in lensblur-cache/).
+    /// Session manifest (or a studio session folder or its session.json); every shot
+    /// is measured, or taken from the cache in results/ beside it.
     #[arg(long, conflicts_with = "kernels")]
     pub manifest: Option<PathBuf>,
     /// Kernels files (lensblur.kernels/1), one per shot, instead of a manifest.
     #[arg(long, num_args = 1.., required_unless_present = "manifest")]
     pub kernels: Vec<PathBuf>,
-    /// Chart spec, where another chart than the default 24×16 was printed.
+    /// Chart spec, where another chart than the manifest's (or the default 24×16) was
+    /// printed.
     #[arg(long)]
     pub chart: Option<PathBuf>,
-    /// Re-measure every shot, ignoring the cache.
+    /// Measure every shot again, ignoring (and replacing) cached results.
     #[arg(long)]
     pub no_cache: bool,
-}
-
-#[derive(Deserialize)]
-struct Manifest {
-    #[serde(default)]
-    chart: Option<serde_json::Value>,
-    shots: Vec<ManifestShot>,
-}
-
-#[derive(Deserialize)]
-struct ManifestShot {
-    path: PathBuf,
-    #[serde(default)]
-    focal_mm: Option<f64>,
-    #[serde(default)]
-    f_number: Option<f64>,
 }
 
 fn is_kernels_file(path: &Path) -> bool {
@@ -60,34 +43,9 @@ fn is_kernels_file(path: &Path) -> bool {
             .and_then(|v| {
                 v.get("schema")
                     .and_then(|s| s.as_str())
-                    .map(|s| s == "lensblur.kernels/1")
+                    .map(|s| s == lensblur::kernel::file::KERNELS_SCHEMA)
             })
             .unwrap_or(false)
-}
-
-/// FNV-1a over the file's bytes and the setting: the cache key of a shot's kernels.
-fn cache_key(
-    path: &Path,
-    (focal_mm, f_number): (Option<f64>, Option<f64>),
-    chart: &ChartSpec,
-) -> Result<String> {
-    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    let mut eat = |b: &[u8]| {
-        for &x in b {
-            h ^= u64::from(x);
-            h = h.wrapping_mul(0x0100_0000_01b3);
-        }
-    };
-    eat(&bytes);
-    for (tag, v) in [(b'f', focal_mm), (b'a', f_number)] {
-        if let Some(v) = v {
-            eat(&[tag]);
-            eat(&v.to_le_bytes());
-        }
-    }
-    eat(serde_json::to_string(chart).unwrap_or_default().as_bytes());
-    Ok(format!("{h:016x}"))
 }
 
 /// Loads a session's measured Gaussians, measuring (or taking from the cache) every
@@ -101,119 +59,58 @@ pub fn load_session(args: &SessionArgs) -> Result<(Dataset, Option<ChartSpec>)> 
         let paths: Vec<&Path> = args.kernels.iter().map(PathBuf::as_path).collect();
         return Ok((Dataset::from_kernels_files(&paths, &[])?, chart));
     };
-    let text = std::fs::read_to_string(manifest_path)
-        .with_context(|| format!("{}: cannot read", manifest_path.display()))?;
-    let manifest: Manifest = serde_json::from_str(&text)
-        .with_context(|| format!("{}: not a session manifest", manifest_path.display()))?;
-    let base = manifest_path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."))
-        .to_path_buf();
-    let chart = match (&args.chart, &manifest.chart) {
-        (Some(p), _) => load_chart(Some(p))?,
-        (None, Some(serde_json::Value::String(p))) => load_chart(Some(&base.join(p)))?,
-        (None, Some(v)) => serde_json::from_value(v.clone())
-            .with_context(|| format!("{}: the chart spec is malformed", manifest_path.display()))?,
-        (None, None) => ChartSpec::default(),
-    };
-    if manifest.shots.is_empty() {
-        bail!("{}: the manifest lists no shots", manifest_path.display());
+    let mut session = Session::open(manifest_path)?;
+    if args.chart.is_some() {
+        session.chart = load_chart(args.chart.as_deref())?;
     }
-    let cache_dir = base.join("lensblur-cache");
+    if session.shots.is_empty() {
+        anyhow::bail!("{}: the manifest lists no shots", manifest_path.display());
+    }
+    let measurement = session.measurement();
+    let cache = session.cache();
     let job = progress_job();
-    let mut kernel_paths = Vec::new();
-    let mut settings = Vec::new();
-    for (i, shot) in manifest.shots.iter().enumerate() {
-        job.report("measuring", i, manifest.shots.len());
-        let path = base.join(&shot.path);
-        let setting = match (shot.focal_mm, shot.f_number) {
-            (Some(f), Some(a)) => Some(LensSetting {
-                focal_mm: f,
-                f_number: a,
-            }),
-            _ => None,
-        };
-        if is_kernels_file(&path) {
-            kernel_paths.push(path);
+    let total = session.shots.len();
+    let (mut measured, mut cached) = (0, 0);
+    let mut shots = Vec::with_capacity(total);
+    for (i, shot) in session.shots.iter().enumerate() {
+        job.report("measuring", i, total);
+        let path = session.path_of(shot);
+        let kernels = if is_kernels_file(&path) {
+            KernelsFile::load(&path)?
         } else {
-            let key = cache_key(&path, (shot.focal_mm, shot.f_number), &chart)?;
-            let cached = cache_dir.join(format!("{key}.kernels.json"));
-            if args.no_cache || !cached.exists() {
-                std::fs::create_dir_all(&cache_dir)
-                    .with_context(|| format!("{}: cannot create", cache_dir.display()))?;
-                let kernels = measure_shot(&path, (shot.focal_mm, shot.f_number), &chart, &job)?;
-                write_json(&cached, &kernels)?;
+            let file = ShotFile::read(&path)?;
+            if args.no_cache {
+                for stale in [
+                    cache.detect_path(&file, &measurement),
+                    cache.kernels_path(&file, &measurement),
+                ] {
+                    let _ = std::fs::remove_file(stale);
+                }
             }
-            kernel_paths.push(cached);
-        }
-        settings.push(setting);
-    }
-    job.report("measuring", manifest.shots.len(), manifest.shots.len());
-    let paths: Vec<&Path> = kernel_paths.iter().map(PathBuf::as_path).collect();
-    // Errors name the photo, not its cached kernels.
-    let photo_of = |shot: &str| {
-        kernel_paths
-            .iter()
-            .position(|k| k.display().to_string() == shot)
-            .map_or_else(
-                || shot.to_string(),
-                |i| base.join(&manifest.shots[i].path).display().to_string(),
-            )
-    };
-    let mut ds = Dataset::from_kernels_files(&paths, &settings).map_err(|e| match e {
-        ModelError::UnknownSetting { shot } => ModelError::UnknownSetting {
-            shot: photo_of(&shot),
-        },
-        ModelError::MixedIdentity { field, a, b, shot } => ModelError::MixedIdentity {
-            field,
-            a,
-            b,
-            shot: photo_of(&shot),
-        },
-        e => e,
-    })?;
-    // Name shots by their photo, not the cache file.
-    for (info, shot) in ds.shots.iter_mut().zip(&manifest.shots) {
-        info.name = shot.path.display().to_string();
-    }
-    Ok((ds, Some(chart)))
-}
-
-/// Runs load → detect → kernels on one shot and returns its kernels document. The
-/// manifest's focal length and f-number (either may be absent) take precedence over the
-/// file's EXIF; a shot with neither is refused before the minutes of measuring.
-fn measure_shot(
-    path: &Path,
-    (focal_mm, f_number): (Option<f64>, Option<f64>),
-    chart: &ChartSpec,
-    job: &lensblur::job::JobContext,
-) -> Result<KernelsFile> {
-    let capture = load_capture(path, &LoadOptions::default())?;
-    let focal_mm = focal_mm.or(capture.setting_focal_mm);
-    let f_number = f_number.or(capture.setting_f_number);
-    if focal_mm.is_none() || f_number.is_none() {
-        bail!(
-            "{}: no {} in the manifest or the file's EXIF; add \"focal_mm\" and \"f_number\" to its manifest entry",
-            path.display(),
-            match (focal_mm, f_number) {
-                (None, None) => "focal length or f-number",
-                (None, Some(_)) => "focal length",
-                _ => "f-number",
+            let (k, how) = pipeline::measure_shot(
+                &file,
+                shot.given_setting(),
+                true,
+                &measurement,
+                &cache,
+                &job.prefixed(&format!("shot {} of {total}: ", i + 1)),
+            )?;
+            match how {
+                Provenance::Cached => cached += 1,
+                Provenance::Measured => measured += 1,
             }
-        );
+            k
+        };
+        shots.push(MeasuredShot {
+            name: shot.name(),
+            kernels,
+            given: shot.given_setting(),
+        });
     }
-    let det = detect(&capture, chart, &DetectParams::default(), job)
-        .with_context(|| path.display().to_string())?;
-    let shot = estimate_shot(&capture, &det, chart, &KernelParams::default(), job)
-        .with_context(|| path.display().to_string())?;
-    Ok(KernelsFile::from_shot(
-        &shot,
-        focal_mm,
-        f_number,
-        Some(capture.identity.clone()),
-        false,
-    ))
+    job.report("measuring", total, total);
+    eprintln!("{measured} shots measured, {cached} from the cache");
+    let ds = pipeline::dataset(&shots)?;
+    Ok((ds, Some(session.chart)))
 }
 
 #[derive(clap::Args, Default)]

@@ -2,11 +2,9 @@
 //! the 3× kernel and its Gaussian fits at every square and channel of a shot.
 
 use super::common::{load_chart, progress_job, write_json};
-use anyhow::{Context, Result, bail};
-use lensblur::detect::{DetectParams, detect};
-use lensblur::kernel::file::KernelsFile;
-use lensblur::kernel::{KernelParams, Operator, Weighting, estimate_shot};
-use lensblur::raw::{LoadOptions, load_capture};
+use anyhow::{Result, bail};
+use lensblur::kernel::{KernelParams, Operator, Weighting};
+use lensblur::pipeline::{self, GivenSetting, Measurement};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Default)]
@@ -49,33 +47,39 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     let spec = load_chart(args.chart.as_deref())?;
-    let capture = load_capture(&args.shot, &LoadOptions::default())?;
-    let params = KernelParams {
-        oversample: args.oversample,
-        weighting: if args.uniform_weights {
-            Weighting::Uniform
-        } else {
-            Weighting::PixelCentres
+    let capture = pipeline::load(&args.shot)?;
+    let m = Measurement::new(
+        spec,
+        KernelParams {
+            oversample: args.oversample,
+            weighting: if args.uniform_weights {
+                Weighting::Uniform
+            } else {
+                Weighting::PixelCentres
+            },
+            operator: if args.fft {
+                Operator::Fft
+            } else {
+                Operator::Auto
+            },
+            ..KernelParams::default()
         },
-        operator: if args.fft {
-            Operator::Fft
-        } else {
-            Operator::Auto
-        },
-        ..KernelParams::default()
-    };
-    let job = progress_job();
-    let det = detect(&capture, &spec, &DetectParams::default(), &job)
-        .with_context(|| args.shot.display().to_string())?;
-    let shot = estimate_shot(&capture, &det, &spec, &params, &job)
-        .with_context(|| args.shot.display().to_string())?;
-    let file = KernelsFile::from_shot(
-        &shot,
-        args.focal.or(capture.setting_focal_mm),
-        args.aperture.or(capture.setting_f_number),
-        Some(capture.identity.clone()),
-        args.with_kernels,
     );
+    let job = progress_job();
+    let det = pipeline::detect(&capture, &args.shot, &m, &job)?;
+    let given = GivenSetting {
+        focal_mm: args.focal,
+        f_number: args.aperture,
+    };
+    let file = pipeline::estimate(
+        &capture,
+        &det,
+        &args.shot,
+        given,
+        &m,
+        args.with_kernels,
+        &job,
+    )?;
     let mut sigmas: Vec<f64> = file
         .samples
         .iter()
@@ -87,7 +91,7 @@ pub fn run(args: Args) -> Result<()> {
         "{}: {} kernels over {} squares, {} failed; median σ {median:.3} px",
         args.shot.display(),
         file.samples.len(),
-        shot.squares.len(),
+        det.ok_squares().count(),
         file.failed.len()
     );
     if file.focal_mm.is_none() || file.f_number.is_none() {

@@ -316,6 +316,7 @@ mod tests {
             f_number: None,
             oversample: 3,
             identity: None,
+            source: None,
             samples: vec![sample(0.0, 0.0, 1.0), sample(100.0, 0.0, 2.0)],
             failed: Vec::new(),
         };

@@ -282,6 +282,9 @@ pub struct DetectFile {
     pub schema: String,
     pub width: usize,
     pub height: usize,
+    /// The shot it was detected on, where the pipeline wrote it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<crate::pipeline::ShotRecord>,
     pub squares: Vec<SquareRecord>,
 }
 
@@ -311,6 +314,7 @@ impl Detection {
             schema: DETECT_SCHEMA.into(),
             width: self.width,
             height: self.height,
+            source: None,
             squares: self
                 .squares
                 .iter()

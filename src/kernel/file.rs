@@ -78,6 +78,9 @@ pub struct KernelsFile {
     pub oversample: usize,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub identity: Option<CameraIdentity>,
+    /// The shot it was measured on, where the pipeline wrote it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<crate::pipeline::ShotRecord>,
     pub samples: Vec<KernelSample>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub failed: Vec<FailedSample>,
@@ -150,6 +153,7 @@ impl KernelsFile {
             f_number,
             oversample: shot.oversample,
             identity,
+            source: None,
             samples,
             failed,
         }

@@ -21,7 +21,10 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         }
         let shot = app
             .selected_shot
-            .and_then(|i| Some((i, app.session.as_ref()?.shot_path(i))));
+            .and_then(|id| {
+                let s = app.session.as_ref()?;
+                Some((id, s.path_of(s.shot(id)?)))
+            });
         if let Some((_, path)) = shot
             && ui
                 .button("Deblur the selected shot")

@@ -131,7 +131,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
             let shot = app.selected_shot;
             let name = shot
-                .and_then(|i| app.session.as_ref()?.shots.get(i))
+                .and_then(|id| app.session.as_ref()?.shot(id))
                 .map_or_else(String::new, |s| {
                     let setting = s.setting().map_or_else(String::new, |v| {
                         format!(" ({:.0} mm f/{:.1})", v.focal_mm, v.f_number)

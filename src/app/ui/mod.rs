@@ -115,13 +115,14 @@ fn shortcuts(app: &mut StudioApp, ctx: &egui::Context) {
                 out.push(Command::SelectChannel(c));
             }
         }
-        if n_shots > 0 {
-            let current = app.selected_shot.unwrap_or(0);
+        if let Some(s) = app.session.as_ref().filter(|_| n_shots > 0) {
+            let current = app.selected_shot.and_then(|id| s.index_of(id)).unwrap_or(0);
+            let at = |i: usize| s.shots[i.min(n_shots - 1)].id;
             if i.consume_key(Modifiers::NONE, Key::PageDown) {
-                out.push(Command::SelectShot((current + 1).min(n_shots - 1)));
+                out.push(Command::SelectShot(at(current + 1)));
             }
             if i.consume_key(Modifiers::NONE, Key::PageUp) {
-                out.push(Command::SelectShot(current.saturating_sub(1)));
+                out.push(Command::SelectShot(at(current.saturating_sub(1))));
             }
         }
     });

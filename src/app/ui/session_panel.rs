@@ -68,8 +68,9 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         format!("{n} shots")
     });
     let mut out = Vec::new();
-    for (i, shot) in session.shots.iter().enumerate() {
-        let selected = app.selected_shot == Some(i);
+    for shot in &session.shots {
+        let id = shot.id;
+        let selected = app.selected_shot == Some(id);
         let frame = egui::Frame::group(ui.style()).fill(if selected {
             ui.visuals().selection.bg_fill.gamma_multiply(0.35)
         } else {
@@ -78,8 +79,8 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         let r = frame.show(ui, |ui| {
             ui.horizontal(|ui| {
                 match (
-                    app.previews.get(&i).and_then(|p| p.thumbnail.as_ref()),
-                    app.unreadable.get(&i),
+                    app.previews.get(&id).and_then(|p| p.thumbnail.as_ref()),
+                    app.unreadable.get(&id),
                 ) {
                     (Some(t), _) => {
                         let size = t.size_vec2() * (72.0 / t.size_vec2().x.max(1.0));
@@ -106,10 +107,10 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                     );
                     if ui
                         .selectable_label(selected, name)
-                        .on_hover_text(app.shown_path(&session.shot_path(i)))
+                        .on_hover_text(app.shown_path(&session.path_of(shot)))
                         .clicked()
                     {
-                        out.push(Command::SelectShot(i));
+                        out.push(Command::SelectShot(id));
                     }
                     ui.horizontal(|ui| {
                         // Unknown settings show as "?" (0 internally) until the user drags.
@@ -149,7 +150,7 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                         let ra = ra.labelled_by(la.id);
                         if rf.changed() || ra.changed() {
                             out.push(Command::SetShotSetting {
-                                index: i,
+                                shot: id,
                                 focal_mm: (f > 0.0).then_some(f),
                                 f_number: (a > 0.0).then_some(a),
                             });
@@ -174,19 +175,19 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         });
         let response = r.response.interact(Sense::click());
         if response.clicked() {
-            out.push(Command::SelectShot(i));
+            out.push(Command::SelectShot(id));
         }
         response.context_menu(|ui| {
             if ui.button("Detect this shot again").clicked() {
-                out.push(Command::RunDetect(Some(i)));
+                out.push(Command::RunDetect(Some(id)));
                 ui.close();
             }
             if ui.button("Estimate its kernels again").clicked() {
-                out.push(Command::RunKernels(Some(i)));
+                out.push(Command::RunKernels(Some(id)));
                 ui.close();
             }
             if ui.button("Remove from the session").clicked() {
-                out.push(Command::RemoveShot(i));
+                out.push(Command::RemoveShot(id));
                 ui.close();
             }
         });

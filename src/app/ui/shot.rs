@@ -36,13 +36,13 @@ pub(super) fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         ui.label("No session yet.");
         return;
     };
-    let Some(index) = app.selected_shot.filter(|i| *i < session.shots.len()) else {
+    let Some(shot) = app.selected_shot.and_then(|id| session.shot(id)) else {
         ui.label("No shots in this session: add shots (Ctrl+Shift+A) or drop files on the window.");
         return;
     };
-    let shot = &session.shots[index];
+    let index = shot.id;
     ui.horizontal(|ui| {
-        ui.heading(app.shown_path(&session.shot_path(index)));
+        ui.heading(app.shown_path(&session.path_of(shot)));
         match shot.setting() {
             Some(s) => ui.label(format!("{:.0} mm  f/{:.1}", s.focal_mm, s.f_number)),
             None => ui.colored_label(
@@ -496,7 +496,7 @@ fn inspector_ui(app: &StudioApp, ui: &mut egui::Ui) -> Option<Command> {
                 .session
                 .as_ref()
                 .filter(|s| s.is_demo)
-                .and_then(|session| session.shots.get(ins.shot)?.setting())
+                .and_then(|session| session.shot(ins.shot)?.setting())
                 .zip(app.previews.get(&ins.shot))
                 .zip(ins.facts)
                 .map(|((setting, p), f)| {

@@ -1,0 +1,530 @@
+//! The chain a shot goes through (load → detect → kernels) and calibration over a
+//! session's shots, written once for every front end: `lensblur kernels`,
+//! `lensblur calibrate` and the studio all call these functions.
+//!
+//! Each stage's result is cached in the session folder's `results/`, in a file whose
+//! name is derived from everything that decides it: the shot file's content (not its
+//! path or its place in a list), the chart, the stage's parameters and
+//! [`MEASURE_VERSION`]. A cache written by the studio is therefore read by
+//! `lensblur calibrate` on the same folder's manifest and the other way round, a shot
+//! renamed or moved keeps its results, and a shot whose file changed is measured again.
+//! Every result file records the shot it was measured on ([`ShotRecord`]).
+
+use crate::chart::ChartSpec;
+use crate::detect::{DetectFile, DetectParams, Detection};
+use crate::job::JobContext;
+use crate::kernel::KernelParams;
+use crate::kernel::file::KernelsFile;
+use crate::plane::{Capture, LensSetting};
+use serde::{Deserialize, Serialize};
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+/// The folder, inside a session folder, that holds every shot's stage results.
+pub const RESULTS_DIR: &str = "results";
+
+/// Part of every cache key: bumped when a stage changes what it writes, so results of
+/// an older measurement are measured again instead of mixed with new ones.
+pub const MEASURE_VERSION: u32 = 1;
+
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error("{}: cannot read: {source}", path.display())]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Load(#[from] crate::raw::LoadError),
+    /// A stage failed on a shot: the shot's file and the stage's reason.
+    #[error("{}: {reason}", path.display())]
+    Stage { path: PathBuf, reason: String },
+    #[error(
+        "{}: no {missing} in the manifest or the file's EXIF; give the shot's \"focal_mm\" and \"f_number\" (manifest), type them (studio) or pass --focal and --aperture",
+        path.display()
+    )]
+    NoSetting {
+        path: PathBuf,
+        missing: &'static str,
+    },
+    /// A cached result that cannot be read back: the file and the reason.
+    #[error("{}: unreadable cached result: {reason}", path.display())]
+    Cache { path: PathBuf, reason: String },
+    #[error(transparent)]
+    Write(#[from] crate::io::WriteError),
+    #[error("cancelled")]
+    Cancelled(#[from] crate::job::Cancelled),
+}
+
+impl PipelineError {
+    #[must_use]
+    pub fn is_cancelled(&self) -> bool {
+        matches!(self, PipelineError::Cancelled(_))
+    }
+}
+
+/// A 64-bit FNV-1a hash of a shot file's bytes: what identifies a shot's content.
+/// FNV is stable across runs, platforms and versions (std's hasher is seeded per
+/// process), and reading the file costs far less than any stage.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct Fingerprint(#[serde(with = "hex_u64")] pub u64);
+
+impl Fingerprint {
+    /// Hashes a file's content.
+    ///
+    /// # Errors
+    /// The file cannot be read.
+    pub fn of_file(path: &Path) -> Result<Self, PipelineError> {
+        let err = |source| PipelineError::Read {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut f = std::fs::File::open(path).map_err(err)?;
+        let mut h = Fnv::new();
+        let mut buf = vec![0u8; 1 << 20];
+        loop {
+            let n = f.read(&mut buf).map_err(err)?;
+            if n == 0 {
+                break;
+            }
+            h.eat(&buf[..n]);
+        }
+        Ok(Fingerprint(h.0))
+    }
+}
+
+impl std::fmt::Display for Fingerprint {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:016x}", self.0)
+    }
+}
+
+mod hex_u64 {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(v: &u64, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&format!("{v:016x}"))
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
+        let text = String::deserialize(d)?;
+        u64::from_str_radix(&text, 16).map_err(serde::de::Error::custom)
+    }
+}
+
+struct Fnv(u64);
+
+impl Fnv {
+    fn new() -> Self {
+        Fnv(0xcbf2_9ce4_8422_2325)
+    }
+
+    fn eat(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 ^= u64::from(b);
+            self.0 = self.0.wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+}
+
+/// Which shot a result was measured on: written into every result file, so a result
+/// can always be traced to (and checked against) its photo.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ShotRecord {
+    /// The shot's file name (no folder: the session may move).
+    pub file: String,
+    pub fingerprint: Fingerprint,
+}
+
+/// A shot file as the pipeline knows it: where it is and what it holds.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ShotFile {
+    pub path: PathBuf,
+    pub fingerprint: Fingerprint,
+}
+
+impl ShotFile {
+    /// Reads the file once to fingerprint it.
+    ///
+    /// # Errors
+    /// The file cannot be read.
+    pub fn read(path: &Path) -> Result<Self, PipelineError> {
+        Ok(Self {
+            path: path.to_path_buf(),
+            fingerprint: Fingerprint::of_file(path)?,
+        })
+    }
+
+    #[must_use]
+    pub fn record(&self) -> ShotRecord {
+        ShotRecord {
+            file: self
+                .path
+                .file_name()
+                .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+            fingerprint: self.fingerprint,
+        }
+    }
+
+    fn stem(&self) -> String {
+        self.path
+            .file_stem()
+            .map_or_else(|| "shot".into(), |s| s.to_string_lossy().into_owned())
+    }
+}
+
+/// What decides a shot's results besides the shot itself: the chart printed and each
+/// stage's parameters.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Measurement {
+    pub chart: ChartSpec,
+    pub detect: DetectParams,
+    pub kernels: KernelParams,
+}
+
+impl Measurement {
+    #[must_use]
+    pub fn new(chart: ChartSpec, kernels: KernelParams) -> Self {
+        Self {
+            chart,
+            detect: DetectParams::default(),
+            kernels,
+        }
+    }
+
+    fn detect_key(&self, shot: &ShotFile) -> u64 {
+        let mut h = Fnv::new();
+        h.eat(format!("detect v{MEASURE_VERSION} {}", shot.fingerprint).as_bytes());
+        h.eat(
+            serde_json::to_string(&self.chart)
+                .unwrap_or_default()
+                .as_bytes(),
+        );
+        h.eat(format!("{:?}", self.detect).as_bytes());
+        h.0
+    }
+
+    fn kernels_key(&self, shot: &ShotFile) -> u64 {
+        let mut h = Fnv::new();
+        h.eat(&self.detect_key(shot).to_le_bytes());
+        h.eat(format!("kernels {:?}", self.kernels).as_bytes());
+        h.0
+    }
+}
+
+/// A session folder's cache of stage results (see the module documentation).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ResultCache {
+    dir: PathBuf,
+}
+
+impl ResultCache {
+    /// The cache of the session (or manifest) in `folder`.
+    #[must_use]
+    pub fn in_folder(folder: &Path) -> Self {
+        Self {
+            dir: folder.join(RESULTS_DIR),
+        }
+    }
+
+    #[must_use]
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    #[must_use]
+    pub fn detect_path(&self, shot: &ShotFile, m: &Measurement) -> PathBuf {
+        self.dir.join(format!(
+            "{}-{:016x}.detect.json",
+            shot.stem(),
+            m.detect_key(shot)
+        ))
+    }
+
+    #[must_use]
+    pub fn kernels_path(&self, shot: &ShotFile, m: &Measurement) -> PathBuf {
+        self.dir.join(format!(
+            "{}-{:016x}.kernels.json",
+            shot.stem(),
+            m.kernels_key(shot)
+        ))
+    }
+
+    /// The shot's cached detection, if there is one.
+    ///
+    /// # Errors
+    /// A cached file that exists but cannot be read or parsed.
+    pub fn detection(
+        &self,
+        shot: &ShotFile,
+        m: &Measurement,
+    ) -> Result<Option<Detection>, PipelineError> {
+        let path = self.detect_path(shot, m);
+        let Some(text) = read_if_present(&path)? else {
+            return Ok(None);
+        };
+        let file: DetectFile = serde_json::from_str(&text).map_err(|e| PipelineError::Cache {
+            path: path.clone(),
+            reason: e.to_string(),
+        })?;
+        Ok(Some(Detection::from_file(&file)))
+    }
+
+    /// The shot's cached kernels, if there are some.
+    ///
+    /// # Errors
+    /// A cached file that exists but cannot be read or is not a valid kernels file.
+    pub fn kernels(
+        &self,
+        shot: &ShotFile,
+        m: &Measurement,
+    ) -> Result<Option<KernelsFile>, PipelineError> {
+        let path = self.kernels_path(shot, m);
+        if !path.is_file() {
+            return Ok(None);
+        }
+        KernelsFile::load(&path)
+            .map(Some)
+            .map_err(|e| PipelineError::Cache {
+                path,
+                reason: e.reason,
+            })
+    }
+}
+
+fn read_if_present(path: &Path) -> Result<Option<String>, PipelineError> {
+    match std::fs::read_to_string(path) {
+        Ok(t) => Ok(Some(t)),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(source) => Err(PipelineError::Read {
+            path: path.to_path_buf(),
+            source,
+        }),
+    }
+}
+
+/// A shot's focal length and f-number as given by a manifest, the studio or flags;
+/// either may be missing, and then the file's EXIF decides.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GivenSetting {
+    pub focal_mm: Option<f64>,
+    pub f_number: Option<f64>,
+}
+
+impl GivenSetting {
+    /// What was given, completed from the capture's EXIF.
+    #[must_use]
+    pub fn or_exif(self, capture: &Capture) -> GivenSetting {
+        GivenSetting {
+            focal_mm: self.focal_mm.or(capture.setting_focal_mm),
+            f_number: self.f_number.or(capture.setting_f_number),
+        }
+    }
+
+    /// Both values, or the error naming the shot and what is missing: a shot is only
+    /// measured for calibration once its setting is known.
+    ///
+    /// # Errors
+    /// [`PipelineError::NoSetting`].
+    pub fn require(self, path: &Path) -> Result<LensSetting, PipelineError> {
+        match (self.focal_mm, self.f_number) {
+            (Some(focal_mm), Some(f_number)) => Ok(LensSetting { focal_mm, f_number }),
+            (f, _) => Err(PipelineError::NoSetting {
+                path: path.to_path_buf(),
+                missing: match (f, self.f_number) {
+                    (None, None) => "focal length or f-number",
+                    (None, Some(_)) => "focal length",
+                    _ => "f-number",
+                },
+            }),
+        }
+    }
+}
+
+/// Loads a shot through the core's loader.
+///
+/// # Errors
+/// The file cannot be read or decoded (the reason names the file).
+pub fn load(path: &Path) -> Result<Capture, PipelineError> {
+    Ok(crate::raw::load_capture(
+        path,
+        &crate::raw::LoadOptions::default(),
+    )?)
+}
+
+/// Detects the chart in a loaded shot; errors name the shot's file.
+///
+/// # Errors
+/// Detection failed, or the job was cancelled.
+pub fn detect(
+    capture: &Capture,
+    path: &Path,
+    m: &Measurement,
+    job: &JobContext,
+) -> Result<Detection, PipelineError> {
+    crate::detect::detect(capture, &m.chart, &m.detect, job).map_err(|e| match e {
+        crate::detect::DetectError::Cancelled(c) => PipelineError::Cancelled(c),
+        e => PipelineError::Stage {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        },
+    })
+}
+
+/// Estimates a detected shot's kernels and their Gaussians as a kernels file, which
+/// records the setting as given or else read from EXIF; `with_kernels` keeps the
+/// kernel arrays, not only their fits.
+///
+/// # Errors
+/// Estimation failed, or the job was cancelled.
+pub fn estimate(
+    capture: &Capture,
+    detection: &Detection,
+    path: &Path,
+    setting: GivenSetting,
+    m: &Measurement,
+    with_kernels: bool,
+    job: &JobContext,
+) -> Result<KernelsFile, PipelineError> {
+    let kernels = crate::kernel::estimate_shot(capture, detection, &m.chart, &m.kernels, job)
+        .map_err(|e| match e {
+            crate::kernel::KernelError::Cancelled(c) => PipelineError::Cancelled(c),
+            e => PipelineError::Stage {
+                path: path.to_path_buf(),
+                reason: e.to_string(),
+            },
+        })?;
+    let setting = setting.or_exif(capture);
+    Ok(KernelsFile::from_shot(
+        &kernels,
+        setting.focal_mm,
+        setting.f_number,
+        Some(capture.identity.clone()),
+        with_kernels,
+    ))
+}
+
+/// [`detect`], and the result cached.
+///
+/// # Errors
+/// Detection failed, the cache cannot be written, or the job was cancelled.
+pub fn detect_shot(
+    capture: &Capture,
+    shot: &ShotFile,
+    m: &Measurement,
+    cache: &ResultCache,
+    job: &JobContext,
+) -> Result<Detection, PipelineError> {
+    let det = detect(capture, &shot.path, m, job)?;
+    let mut file = det.to_file();
+    file.source = Some(shot.record());
+    crate::io::create_dir_all(cache.dir())?;
+    crate::io::write_json(&cache.detect_path(shot, m), &file)?;
+    Ok(det)
+}
+
+/// [`estimate`] with the kernel arrays (the studio shows them, and deblurring with
+/// measured kernels needs them), and the kernels file cached.
+///
+/// # Errors
+/// Estimation failed, the cache cannot be written, or the job was cancelled.
+pub fn kernels_of_shot(
+    capture: &Capture,
+    detection: &Detection,
+    shot: &ShotFile,
+    setting: GivenSetting,
+    m: &Measurement,
+    cache: &ResultCache,
+    job: &JobContext,
+) -> Result<KernelsFile, PipelineError> {
+    let mut file = estimate(capture, detection, &shot.path, setting, m, true, job)?;
+    file.source = Some(shot.record());
+    crate::io::create_dir_all(cache.dir())?;
+    crate::io::write_json(&cache.kernels_path(shot, m), &file)?;
+    Ok(file)
+}
+
+/// How [`measure_shot`] came by a shot's kernels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Provenance {
+    Cached,
+    Measured,
+}
+
+/// A shot's kernels from the cache, or by the whole chain (load → detect, itself from
+/// the cache where it can be → kernels), caching what it computes. With
+/// `require_setting`, a shot whose focal length or f-number is neither given nor in
+/// its EXIF is refused right after loading, before the minutes of measuring.
+///
+/// # Errors
+/// Any stage's failure naming the shot, a missing setting, or cancellation.
+pub fn measure_shot(
+    shot: &ShotFile,
+    given: GivenSetting,
+    require_setting: bool,
+    m: &Measurement,
+    cache: &ResultCache,
+    job: &JobContext,
+) -> Result<(KernelsFile, Provenance), PipelineError> {
+    if let Some(k) = cache.kernels(shot, m)? {
+        if require_setting {
+            GivenSetting {
+                focal_mm: given.focal_mm.or(k.focal_mm),
+                f_number: given.f_number.or(k.f_number),
+            }
+            .require(&shot.path)?;
+        }
+        return Ok((k, Provenance::Cached));
+    }
+    let capture = load(&shot.path)?;
+    if require_setting {
+        given.or_exif(&capture).require(&shot.path)?;
+    }
+    job.check()?;
+    let det = match cache.detection(shot, m)? {
+        Some(d) => d,
+        None => detect_shot(&capture, shot, m, cache, job)?,
+    };
+    let k = kernels_of_shot(&capture, &det, shot, given, m, cache, job)?;
+    Ok((k, Provenance::Measured))
+}
+
+/// One measured shot as calibration takes it.
+#[derive(Clone, Debug)]
+pub struct MeasuredShot {
+    /// How errors and reports name the shot (its photo, never its cache file).
+    pub name: String,
+    pub kernels: KernelsFile,
+    /// The session's record of its setting; the kernels file's own where absent.
+    pub given: GivenSetting,
+}
+
+/// The measured Gaussians of a session's shots, each at its setting.
+///
+/// # Errors
+/// A shot without a setting, or shots of different cameras or lenses (each names the
+/// photo).
+pub fn dataset(shots: &[MeasuredShot]) -> Result<crate::model::Dataset, crate::model::ModelError> {
+    let named: Vec<(&str, &KernelsFile, Option<LensSetting>)> = shots
+        .iter()
+        .map(|s| {
+            let setting = GivenSetting {
+                focal_mm: s.given.focal_mm.or(s.kernels.focal_mm),
+                f_number: s.given.f_number.or(s.kernels.f_number),
+            };
+            (
+                s.name.as_str(),
+                &s.kernels,
+                setting
+                    .focal_mm
+                    .zip(setting.f_number)
+                    .map(|(f, a)| LensSetting {
+                        focal_mm: f,
+                        f_number: a,
+                    }),
+            )
+        })
+        .collect();
+    crate::model::Dataset::from_kernels(&named)
+}
