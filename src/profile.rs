@@ -20,7 +20,6 @@ use crate::model::{
 use crate::plane::{CameraIdentity, Channel, LensSetting};
 use crate::psf::Gaussian2;
 use serde::{Deserialize, Serialize};
-use std::io::Write;
 use std::path::Path;
 
 pub const PROFILE_SCHEMA: &str = "lensblur.profile/1";

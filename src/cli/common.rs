@@ -1,6 +1,6 @@
 //! What every subcommand shares: progress bars, JSON output, the chart option.
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use lensblur::chart::ChartSpec;
 use lensblur::job::JobContext;
