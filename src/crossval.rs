@@ -228,17 +228,15 @@ pub fn assign_folds(
     match hold_out {
         HoldOut::Setting if ds.distinct_setting_pairs().len() >= 2 => {
             let settings = ds.distinct_setting_pairs();
-            let close = |a: f64, b: f64| (a - b).abs() <= 1e-3 * b.abs();
             let group: Vec<usize> = ds
                 .shots
                 .iter()
                 .map(|s| {
-                    settings
-                        .iter()
-                        .position(|o| {
-                            close(o.focal_mm, s.focal_mm) && close(o.f_number, s.f_number)
-                        })
-                        .unwrap_or(0)
+                    let s = LensSetting {
+                        focal_mm: s.focal_mm,
+                        f_number: s.f_number,
+                    };
+                    settings.iter().position(|o| o.same_as(s)).unwrap_or(0)
                 })
                 .collect();
             let k = folds.clamp(2, settings.len());

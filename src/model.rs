@@ -300,17 +300,13 @@ impl Dataset {
         c
     }
 
-    /// Distinct focal lengths and f-numbers (sorted), merged within 0.1 %.
+    /// Distinct focal lengths and f-numbers (sorted), merged by
+    /// [`LensSetting::same_value`].
     #[must_use]
     pub fn distinct_settings(&self) -> (Vec<f64>, Vec<f64>) {
-        let dedup = |mut v: Vec<f64>| {
-            v.sort_by(f64::total_cmp);
-            v.dedup_by(|a, b| (*a - *b).abs() <= 1e-3 * b.abs());
-            v
-        };
         (
-            dedup(self.shots.iter().map(|s| s.focal_mm).collect()),
-            dedup(self.shots.iter().map(|s| s.f_number).collect()),
+            LensSetting::distinct_values(self.shots.iter().map(|s| s.focal_mm)),
+            LensSetting::distinct_values(self.shots.iter().map(|s| s.f_number)),
         )
     }
 
@@ -358,20 +354,18 @@ impl Dataset {
         }
     }
 
-    /// The distinct settings (f, a) of the session, merged within 0.1 %.
+    /// The distinct settings (f, a) of the session, merged by [`LensSetting::same_as`]
+    /// (the first shot of each stands for it), sorted.
     #[must_use]
     pub fn distinct_setting_pairs(&self) -> Vec<LensSetting> {
-        let close = |a: f64, b: f64| (a - b).abs() <= 1e-3 * b.abs();
         let mut out: Vec<LensSetting> = Vec::new();
         for s in &self.shots {
-            if !out
-                .iter()
-                .any(|o| close(o.focal_mm, s.focal_mm) && close(o.f_number, s.f_number))
-            {
-                out.push(LensSetting {
-                    focal_mm: s.focal_mm,
-                    f_number: s.f_number,
-                });
+            let s = LensSetting {
+                focal_mm: s.focal_mm,
+                f_number: s.f_number,
+            };
+            if !out.iter().any(|o| o.same_as(s)) {
+                out.push(s);
             }
         }
         out.sort_by(|a, b| {
@@ -619,11 +613,12 @@ impl Normalisation {
         out
     }
 
-    /// Whether a setting lies in the calibrated range (with a 0.1 % tolerance for
-    /// rounded EXIF values).
+    /// Whether a setting lies in the calibrated range, widened by the tolerance under
+    /// which two values are the same setting ([`LensSetting::RELATIVE_TOLERANCE`]).
     #[must_use]
     pub fn contains(&self, s: LensSetting) -> bool {
-        let inside = |v: f64, r: [f64; 2]| v >= r[0] * (1.0 - 1e-3) && v <= r[1] * (1.0 + 1e-3);
+        let tol = LensSetting::RELATIVE_TOLERANCE;
+        let inside = |v: f64, r: [f64; 2]| v >= r[0] * (1.0 - tol) && v <= r[1] * (1.0 + tol);
         inside(s.focal_mm, self.focal_range_mm) && inside(s.f_number, self.f_number_range)
     }
 }

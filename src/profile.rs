@@ -930,22 +930,7 @@ pub fn calibrate(
         None
     };
     job.report("fitting", 2, 2);
-    let mut settings: Vec<LensSetting> = ds
-        .shots
-        .iter()
-        .map(|s| LensSetting {
-            focal_mm: s.focal_mm,
-            f_number: s.f_number,
-        })
-        .collect();
-    settings.sort_by(|a, b| {
-        a.focal_mm
-            .total_cmp(&b.focal_mm)
-            .then(a.f_number.total_cmp(&b.f_number))
-    });
-    settings.dedup_by(|a, b| {
-        (a.focal_mm - b.focal_mm).abs() < 1e-6 && (a.f_number - b.f_number).abs() < 1e-6
-    });
+    let settings = ds.distinct_setting_pairs();
     let cv = match &report {
         Some(r) => Some(CvSummary::from_report(r)),
         // Fixed orders: still report how well they cross-validate, where there are

@@ -18,12 +18,6 @@ use crate::psf::{Gaussian2, Kernel};
 use crate::session::Session;
 use std::path::{Path, PathBuf};
 
-/// Two settings are the same when they agree to 0.1 % (EXIF rounds, users type).
-#[must_use]
-pub fn same_value(a: f64, b: f64) -> bool {
-    (a - b).abs() <= 1e-3 * b.abs().max(1e-9)
-}
-
 /// The value of `values` nearest `wanted` (the calibrated setting a sweep holds fixed).
 #[must_use]
 pub fn nearest_value(values: &[f64], wanted: f64) -> Option<f64> {
@@ -120,9 +114,9 @@ pub fn sweep_points(
         .enumerate()
         .filter(|(_, info)| {
             if vs_aperture {
-                same_value(info.focal_mm, fixed)
+                LensSetting::same_value(info.focal_mm, fixed)
             } else {
-                same_value(info.f_number, fixed)
+                LensSetting::same_value(info.f_number, fixed)
             }
         })
         .filter_map(|(k, info)| {
@@ -470,10 +464,7 @@ pub fn measured_kernels_for(
     (0..session.shots.len()).find_map(|i| {
         let shot = &session.shots[i];
         let s = shot.setting()?;
-        if !(shot.kernels.is_done()
-            && same_value(s.focal_mm, setting.focal_mm)
-            && same_value(s.f_number, setting.f_number))
-        {
+        if !(shot.kernels.is_done() && s.same_as(setting)) {
             return None;
         }
         let path = session.result_path(i, "kernels");

@@ -168,9 +168,9 @@ pub fn run(args: Args) -> Result<()> {
             let series = |fixed_is_focal: bool| {
                 let measured = measured_near(&ds, ch, x, y, near_px, |s| {
                     if fixed_is_focal {
-                        (s.focal_mm - focal).abs() <= 1e-3 * focal
+                        LensSetting::same_value(s.focal_mm, focal)
                     } else {
-                        (s.f_number - aperture).abs() <= 1e-3 * aperture
+                        LensSetting::same_value(s.f_number, aperture)
                     }
                 });
                 let model: Vec<Point> = if fixed_is_focal { &a_curve } else { &f_curve }
