@@ -10,10 +10,10 @@ use lensblur::deblur::{
 };
 use lensblur::experiment::dead_leaves;
 use lensblur::job::JobContext;
-use lensblur::model::{SimulatedSession, spaced};
+use lensblur::model::spaced;
 use lensblur::plane::{Capture, Channel, ChannelPlane, LensSetting};
 use lensblur::profile::{CalibrateOptions, Families, calibrate};
-use lensblur::simulate::VirtualLens;
+use lensblur::simulate::{SimulatedSession, VirtualLens};
 use std::hint::black_box;
 use std::time::Duration;
 

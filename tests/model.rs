@@ -12,12 +12,12 @@ use lensblur::crossval::{
 };
 use lensblur::job::JobContext;
 use lensblur::model::{
-    CentreGrid, Dataset, GlobalModel, LocalModel, LocalOptions, ModelError, ModelKind, SampleNoise,
-    SimulatedSession, local_coords, spaced, terms,
+    CentreGrid, Dataset, GlobalModel, LocalModel, LocalOptions, ModelError, ModelKind,
+    local_coords, spaced, terms,
 };
 use lensblur::plane::{CameraIdentity, Channel, LensSetting};
 use lensblur::profile::{CalibrateOptions, Families, Profile, ProfileError, calibrate};
-use lensblur::simulate::VirtualLens;
+use lensblur::simulate::{SampleNoise, SimulatedSession, VirtualLens};
 
 const W: usize = 2400;
 const H: usize = 1600;
