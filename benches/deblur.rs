@@ -4,6 +4,7 @@
 //! the unit the whole is made of.
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
 use lensblur::deblur::solve::Deconvolver;
 use lensblur::deblur::{
     DeblurOptions, KernelSource, Method, ProfileKernels, deblur_capture, plane_tile_grid,
@@ -12,7 +13,6 @@ use lensblur::experiment::dead_leaves;
 use lensblur::job::JobContext;
 use lensblur::model::spaced;
 use lensblur::plane::{Capture, Channel, ChannelPlane, LensSetting};
-use lensblur::profile::{CalibrateOptions, Families, calibrate};
 use lensblur::simulate::{SimulatedSession, VirtualLens};
 use std::hint::black_box;
 use std::time::Duration;

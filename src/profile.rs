@@ -9,7 +9,7 @@
 //! outside the hull of the calibrated settings (unless extrapolation is explicitly
 //! allowed) — never a silent extrapolation in f and a. Over the sensor, where the chart
 //! did not reach, the models continue linearly from the border of the measured area
-//! (`lensblur predict` says so).
+//! (`lensblur predict` says so). Fitting a profile is [`crate::calibrate`]'s.
 
 use crate::chart::ChartSpec;
 use crate::crossval::{CvPoint, CvReport, Ranges};
@@ -840,149 +840,11 @@ impl Profile {
         .ok_or(ProfileError::NoChannel(channel))
     }
 
-    /// Builds a profile from cross-validation: fits both families at their chosen
-    /// (α, β) and prefers the one with the lower CV error.
+    /// The family a cross-validation report prefers: the one with the lower error.
     #[must_use]
     pub fn preferred_from(report: &CvReport) -> ModelKind {
         report.best().map_or(ModelKind::Global, |b| b.0)
     }
-}
-
-/// Which model families to fit.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Families {
-    Global,
-    Local,
-    Both,
-}
-
-/// What `calibrate` fits.
-#[derive(Clone, Debug)]
-pub struct CalibrateOptions {
-    pub families: Families,
-    /// Fixed α (skips cross-validated selection); β defaults to N − 1.
-    pub alpha: Option<usize>,
-    pub beta: Option<usize>,
-    pub cv: crate::crossval::CvOptions,
-}
-
-impl Default for CalibrateOptions {
-    fn default() -> Self {
-        Self {
-            families: Families::Both,
-            alpha: None,
-            beta: None,
-            cv: crate::crossval::CvOptions::default(),
-        }
-    }
-}
-
-/// Fits the requested families (α, β chosen by cross-validation unless given) and
-/// assembles the profile. Returns the cross-validation report when one was run.
-///
-/// # Errors
-/// Unknown settings, β too large for the session, too few shots for cross-validation,
-/// too few samples, or cancellation.
-pub fn calibrate(
-    ds: &crate::model::Dataset,
-    chart: Option<ChartSpec>,
-    opts: &CalibrateOptions,
-    job: &crate::job::JobContext,
-) -> Result<(Profile, Option<CvReport>), crate::model::ModelError> {
-    use crate::model::ModelError;
-    ds.validate()?;
-    let n = ds.setting_resolution();
-    if let Some(b) = opts.beta {
-        ds.check_beta(b)?;
-    }
-    if let Some(a) = opts.alpha {
-        crate::model::check_order(a, opts.beta.unwrap_or(0))?;
-    }
-    let want_global = opts.families != Families::Local;
-    let want_local = opts.families != Families::Global;
-    let (report, g_ab, l_ab) = if let Some(alpha) = opts.alpha {
-        let beta = opts.beta.unwrap_or(n - 1);
-        (None, (alpha, beta), (alpha, beta))
-    } else {
-        let mut cv = opts.cv.clone();
-        cv.run_global = want_global;
-        cv.run_local = want_local;
-        let r = crate::crossval::cross_validate(ds, &cv, job)?;
-        let pick = |s: &Option<crate::crossval::Selection>| {
-            s.as_ref()
-                .map_or((1, 0), |s| (s.alpha, opts.beta.unwrap_or(s.beta)))
-        };
-        let (g, l) = (pick(&r.global), pick(&r.local));
-        (Some(r), g, l)
-    };
-    job.check()?;
-    job.report("fitting", 0, 2);
-    let global = if want_global {
-        Some(GlobalModel::fit(ds, g_ab.0, g_ab.1)?)
-    } else {
-        None
-    };
-    job.report("fitting", 1, 2);
-    let local = if want_local {
-        Some(LocalModel::fit(ds, l_ab.0, l_ab.1, &opts.cv.local)?)
-    } else {
-        None
-    };
-    job.report("fitting", 2, 2);
-    let settings = ds.distinct_setting_pairs();
-    let cv = match &report {
-        Some(r) => Some(CvSummary::from_report(r)),
-        // Fixed orders: still report how well they cross-validate, where there are
-        // shots to hold out.
-        None if ds.shots.len() >= 2 => {
-            let fixed = |kind: ModelKind, (a, b): (usize, usize)| {
-                crate::crossval::cross_validate_fixed(ds, kind, a, b, &opts.cv).map(|r| r.0)
-            };
-            let global_cv = if want_global {
-                Some(fixed(ModelKind::Global, g_ab)?)
-            } else {
-                None
-            };
-            job.check()?;
-            let local_cv = if want_local {
-                Some(fixed(ModelKind::Local, l_ab)?)
-            } else {
-                None
-            };
-            Some(CvSummary {
-                folds: crate::crossval::assign_folds(
-                    ds,
-                    opts.cv.folds,
-                    opts.cv.hold_out,
-                    opts.cv.seed,
-                )
-                .1,
-                ranges: crate::crossval::param_ranges(ds),
-                global: global_cv,
-                local: local_cv,
-            })
-        }
-        None => None,
-    };
-    // The family that cross-validates better; without cross-validation, the local
-    // model where there is one (the smaller error in the paper's tests).
-    let preferred = match cv.as_ref().map(|c| (&c.global, &c.local)) {
-        Some((Some(g), Some(l))) if g.mean_pct < l.mean_pct => ModelKind::Global,
-        _ if want_local => ModelKind::Local,
-        _ => ModelKind::Global,
-    };
-    let profile = Profile::new(
-        ds.identity.clone(),
-        chart,
-        settings,
-        global,
-        local,
-        cv,
-        preferred,
-    )
-    .ok_or(ModelError::Empty)?;
-    Ok((profile, report))
 }
 
 #[cfg(test)]

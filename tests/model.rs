@@ -6,6 +6,7 @@
 //! per shot), which keeps these tests to seconds. The same figures on kernels measured
 //! from simulated shots come from `examples/calibration_figures.rs`.
 
+use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
 use lensblur::crossval::{
     CvOptions, HoldOut, cross_validate, cross_validate_fixed, param_ranges, percentile_sorted,
     prediction_errors,
@@ -16,7 +17,7 @@ use lensblur::model::{
     local_coords, spaced, terms,
 };
 use lensblur::plane::{CameraIdentity, Channel, LensSetting};
-use lensblur::profile::{CalibrateOptions, Families, Profile, ProfileError, calibrate};
+use lensblur::profile::{Profile, ProfileError};
 use lensblur::simulate::{SampleNoise, SimulatedSession, VirtualLens};
 
 const W: usize = 2400;

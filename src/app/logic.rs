@@ -1032,7 +1032,7 @@ fn run_calibrate(app: &mut StudioApp) {
     let chart = session.chart.clone();
     let out_path = session.folder().join("profile.json");
     let cv_path = session.folder().join(CV_FILE);
-    let opts = crate::profile::CalibrateOptions {
+    let opts = crate::calibrate::CalibrateOptions {
         alpha: session.settings.alpha,
         beta: session.settings.beta,
         ..Default::default()
@@ -1044,7 +1044,7 @@ fn run_calibrate(app: &mut StudioApp) {
         for (info, name) in ds.shots.iter_mut().zip(names) {
             info.name = name;
         }
-        let (profile, cv) = crate::profile::calibrate(&ds, Some(chart), &opts, ctx)
+        let (profile, cv) = crate::calibrate::calibrate(&ds, Some(chart), &opts, ctx)
             .map_err(|e| format!("calibration: {e}"))?;
         profile.save(&out_path).map_err(|e| e.to_string())?;
         match &cv {

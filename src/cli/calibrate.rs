@@ -7,6 +7,7 @@
 
 use super::common::{load_chart, progress_job, write_json};
 use anyhow::{Context, Result, bail};
+use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
 use lensblur::chart::ChartSpec;
 use lensblur::crossval::{CvOptions, HoldOut};
 use lensblur::detect::{DetectParams, detect};
@@ -14,7 +15,6 @@ use lensblur::kernel::file::KernelsFile;
 use lensblur::kernel::{KernelParams, estimate_shot};
 use lensblur::model::{Dataset, LocalOptions, ModelError};
 use lensblur::plane::LensSetting;
-use lensblur::profile::{CalibrateOptions, Families, calibrate};
 use lensblur::raw::{LoadOptions, load_capture};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
