@@ -14,8 +14,8 @@
 use crate::chart::ChartSpec;
 use crate::crossval::{CvPoint, CvReport, Ranges};
 use crate::model::{
-    Basis, CentreGrid, ChannelCoeffs, GlobalModel, LocalModel, ModelKind, Normalisation,
-    model_basis, to_gaussian,
+    Basis, CentreGrid, ChannelCoeffs, FieldAtSetting, FittedModel, GlobalModel, LocalModel,
+    ModelKind, Normalisation, model_basis, to_gaussian,
 };
 use crate::plane::{CameraIdentity, Channel, LensSetting};
 use crate::psf::Gaussian2;
@@ -744,35 +744,30 @@ impl Profile {
         setting: LensSetting,
     ) -> Result<Gaussian2, ProfileError> {
         self.check_setting(setting)?;
-        let p = match kind {
-            ModelKind::Global => self
-                .global
-                .as_ref()
-                .ok_or(ProfileError::NoModel(kind))?
-                .predict(channel, x, y, setting),
-            ModelKind::Local => self
-                .local
-                .as_ref()
-                .ok_or(ProfileError::NoModel(kind))?
-                .predict(channel, x, y, setting),
+        self.model(kind)?
+            .predict(channel, x, y, setting)
+            .map(to_gaussian)
+            .ok_or(ProfileError::NoChannel(channel))
+    }
+
+    /// The fitted model of a family.
+    ///
+    /// # Errors
+    /// [`ProfileError::NoModel`] when the profile holds none of that family.
+    pub fn model(&self, kind: ModelKind) -> Result<&dyn FittedModel, ProfileError> {
+        let model: Option<&dyn FittedModel> = match kind {
+            ModelKind::Global => self.global.as_ref().map(|g| g as &dyn FittedModel),
+            ModelKind::Local => self.local.as_ref().map(|l| l as &dyn FittedModel),
         };
-        p.map(to_gaussian).ok_or(ProfileError::NoChannel(channel))
+        model.ok_or(ProfileError::NoModel(kind))
     }
 
     /// The channels the preferred model holds.
     #[must_use]
     pub fn channels(&self) -> Vec<Channel> {
-        match self.preferred {
-            ModelKind::Global => self
-                .global
-                .as_ref()
-                .map(|g| g.channels.iter().map(|c| c.channel).collect()),
-            ModelKind::Local => self
-                .local
-                .as_ref()
-                .map(|l| l.channels.iter().map(|c| c.0).collect()),
-        }
-        .unwrap_or_default()
+        self.model(self.preferred)
+            .map(|m| m.channels())
+            .unwrap_or_default()
     }
 
     /// The predicted field every `step_px` pixels (from pixel 0, plus the last row and
@@ -823,21 +818,11 @@ impl Profile {
         kind: ModelKind,
         channel: Channel,
         setting: LensSetting,
-    ) -> Result<crate::model::FieldAtSetting, ProfileError> {
+    ) -> Result<FieldAtSetting, ProfileError> {
         self.check_setting(setting)?;
-        match kind {
-            ModelKind::Global => self
-                .global
-                .as_ref()
-                .ok_or(ProfileError::NoModel(kind))?
-                .at_setting(channel, setting),
-            ModelKind::Local => self
-                .local
-                .as_ref()
-                .ok_or(ProfileError::NoModel(kind))?
-                .at_setting(channel, setting),
-        }
-        .ok_or(ProfileError::NoChannel(channel))
+        self.model(kind)?
+            .at_setting(channel, setting)
+            .ok_or(ProfileError::NoChannel(channel))
     }
 
     /// The family a cross-validation report prefers: the one with the lower error.

@@ -13,8 +13,8 @@ use lensblur::crossval::{
 };
 use lensblur::job::JobContext;
 use lensblur::model::{
-    CentreGrid, Dataset, GlobalModel, LocalModel, LocalOptions, ModelError, ModelKind,
-    local_coords, spaced, terms,
+    CentreGrid, Dataset, FittedModel, GlobalModel, LocalModel, LocalOptions, ModelError, ModelKind,
+    fit_model, local_coords, spaced, terms,
 };
 use lensblur::plane::{CameraIdentity, Channel, LensSetting};
 use lensblur::profile::{Profile, ProfileError};
@@ -68,8 +68,6 @@ fn calibration_set() -> Dataset {
     }
     .dataset(&VirtualLens::demo(), &grid_settings(5, 5))
 }
-
-type Predictor = Box<dyn Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>>;
 
 fn p95(e: &[Vec<f64>; 3]) -> [f64; 3] {
     let mut out = [0.0; 3];
@@ -339,17 +337,8 @@ fn models_meet_the_bars_at_novel_settings() {
     let (best_kind, _, _) = report.best().unwrap();
 
     let t1 = std::time::Instant::now();
-    let fit = |kind: ModelKind, a: usize, b: usize| -> Predictor {
-        match kind {
-            ModelKind::Global => {
-                let m = GlobalModel::fit(&cal, a, b).unwrap();
-                Box::new(move |c, x, y, s| m.predict(c, x, y, s))
-            }
-            ModelKind::Local => {
-                let m = LocalModel::fit(&cal, a, b, &LocalOptions::default()).unwrap();
-                Box::new(move |c, x, y, s| m.predict(c, x, y, s))
-            }
-        }
+    let fit = |kind: ModelKind, a: usize, b: usize| {
+        fit_model(&cal, kind, a, b, &LocalOptions::default()).unwrap()
     };
     let models = [
         ("chosen global", ModelKind::Global, g.alpha, g.beta),
@@ -359,10 +348,10 @@ fn models_meet_the_bars_at_novel_settings() {
     ];
     let mut results = Vec::new();
     for (name, kind, a, b) in models {
-        let pred = fit(kind, a, b);
-        let vs_truth = prediction_errors(&test_truth, &ranges, &pred);
-        let vs_meas = prediction_errors(&test_measured, &ranges, &pred);
-        let vs_expected = prediction_errors(&test_expected, &ranges, &pred);
+        let model = fit(kind, a, b);
+        let vs_truth = prediction_errors(&test_truth, &ranges, model.as_ref());
+        let vs_meas = prediction_errors(&test_measured, &ranges, model.as_ref());
+        let vs_expected = prediction_errors(&test_expected, &ranges, model.as_ref());
         eprintln!(
             "{name} ({kind:?} {a},{b}): test error vs measured p95 {:.2?} % mean {:.2} %; vs truth p95 {:.2?} % mean {:.2} %; vs bias-only {:.3} %",
             p95(&vs_meas),
