@@ -4,9 +4,11 @@
 //! Coefficients are stored as base64 of little-endian `f32` (7 significant digits, far
 //! below the measurement noise): a G_{8,3} profile of three channels is about 17 kB (the
 //! paper: ≈ 12 kB), an L_{1,3} one 50–160 kB depending on the chart's scale (≈ 200 kB).
-//! Loading validates the schema and every coefficient count; predicting refuses another
-//! camera's photos (unless forced), and settings outside the calibrated ranges or
-//! outside the hull of the calibrated settings (unless extrapolation is explicitly
+//! Loading validates the schema and every number before it sizes anything (sensor and
+//! grid sizes with checked arithmetic, ranges, orders, term and coefficient counts), so
+//! a damaged or hostile file is refused with one line naming it; predicting refuses
+//! another camera's photos (unless forced), and settings outside the calibrated ranges
+//! or outside the hull of the calibrated settings (unless extrapolation is explicitly
 //! allowed) — never a silent extrapolation in f and a. Over the sensor, where the chart
 //! did not reach, the models continue linearly from the border of the measured area
 //! (`lensblur predict` says so). Fitting a profile is [`crate::calibrate`]'s.
@@ -14,7 +16,7 @@
 use crate::chart::ChartSpec;
 use crate::crossval::{CvPoint, CvReport, Ranges};
 use crate::model::{
-    Basis, CentreGrid, ChannelCoeffs, FieldAtSetting, FittedModel, GlobalModel, LocalModel,
+    CentreGrid, ChannelCoeffs, FieldAtSetting, FittedModel, GlobalModel, LocalModel, MAX_ORDER,
     ModelKind, Normalisation, model_basis, to_gaussian,
 };
 use crate::plane::{CameraIdentity, Channel, LensSetting};
@@ -23,6 +25,14 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 pub const PROFILE_SCHEMA: &str = "lensblur.profile/1";
+
+/// The longest sensor side a profile may describe, in pixels: several times any camera
+/// sensor, and small enough that sizes derived from it cannot overflow.
+pub const MAX_SENSOR_SIDE_PX: usize = 1 << 17;
+
+/// The most centres a local model may have: far more than a fit on any chart produces
+/// (one every few squares), and a bound on what a file can make a reader allocate.
+pub const MAX_LOCAL_CENTRES: usize = 1_000_000;
 
 /// Errors of reading, writing and using a profile.
 #[derive(Debug, thiserror::Error)]
@@ -276,6 +286,19 @@ fn load_channel(
     Ok(out)
 }
 
+/// Refuses a model that stores a channel twice (which of the two would it predict?).
+fn check_distinct_channels(
+    channels: &[StoredChannel],
+    invalid: &dyn Fn(String) -> ProfileError,
+) -> Result<(), ProfileError> {
+    for (i, c) in channels.iter().enumerate() {
+        if channels[..i].iter().any(|d| d.channel == c.channel) {
+            return Err(invalid(format!("channel {} is stored twice", c.channel)));
+        }
+    }
+    Ok(())
+}
+
 /// Whether `q` lies in the convex hull of `pts` (2-D), within `tol`. Handles hulls
 /// that are a point or a segment (a session at one setting, or at one focal length).
 fn point_in_hull(pts: &[[f64; 2]], q: [f64; 2], tol: f64) -> bool {
@@ -477,8 +500,12 @@ impl Profile {
             path: origin.into(),
             reason,
         };
-        if file.width < 2 || file.height < 2 {
-            return Err(invalid(format!("sensor {}×{}", file.width, file.height)));
+        let sides = 2..=MAX_SENSOR_SIDE_PX;
+        if !(sides.contains(&file.width) && sides.contains(&file.height)) {
+            return Err(invalid(format!(
+                "sensor {}×{} px (each side must be 2–{MAX_SENSOR_SIDE_PX})",
+                file.width, file.height
+            )));
         }
         let ok_range =
             |r: [f64; 2]| r[0].is_finite() && r[1].is_finite() && r[0] > 0.0 && r[1] >= r[0];
@@ -492,6 +519,20 @@ impl Profile {
         {
             return Err(invalid("sampled extent is not a box".into()));
         }
+        let real = |v: f64| v.is_finite() && v > 0.0;
+        if let Some(s) = file
+            .calibrated_settings
+            .iter()
+            .find(|s| !(real(s.focal_mm) && real(s.f_number)))
+        {
+            return Err(invalid(format!(
+                "calibrated setting f = {} mm, f/{} is not a lens setting",
+                s.focal_mm, s.f_number
+            )));
+        }
+        if let Some(chart) = &file.chart {
+            chart.validate().map_err(|e| invalid(e.to_string()))?;
+        }
         let norm = Normalisation {
             width: file.width,
             height: file.height,
@@ -499,30 +540,31 @@ impl Profile {
             f_number_range: file.f_number_range,
             sampled_extent_px: file.sampled_extent_px,
         };
-        let check_order = |a: usize, b: usize| {
-            if a.max(b) > crate::model::MAX_ORDER {
-                Err(invalid(format!(
-                    "model order α = {a}, β = {b} above {}",
-                    crate::model::MAX_ORDER
-                )))
-            } else {
-                Ok(())
+        // Orders first: the basis of an order beyond MAX_ORDER is not even enumerated.
+        let checked_basis = |name: String, alpha: usize, beta: usize, terms: usize| {
+            if alpha.max(beta) > MAX_ORDER {
+                return Err(invalid(format!(
+                    "{name}: model order α = {alpha}, β = {beta} above {MAX_ORDER}"
+                )));
             }
+            let basis = model_basis(&norm, alpha, beta);
+            if basis.len() != terms {
+                return Err(invalid(format!(
+                    "{name} has {} terms, file says {terms}",
+                    basis.len()
+                )));
+            }
+            Ok(basis)
         };
         let global = match &file.global {
             None => None,
             Some(g) => {
-                check_order(g.alpha, g.beta)?;
-                let basis = model_basis(&norm, g.alpha, g.beta);
-                if basis.len() != g.terms {
-                    return Err(invalid(format!(
-                        "global model G_{{{},{}}} has {} terms, file says {}",
-                        g.alpha,
-                        g.beta,
-                        basis.len(),
-                        g.terms
-                    )));
-                }
+                let name = format!(
+                    "global model {}",
+                    ModelKind::Global.model_name(g.alpha, g.beta)
+                );
+                let basis = checked_basis(name, g.alpha, g.beta, g.terms)?;
+                check_distinct_channels(&g.channels, &invalid)?;
                 let mut channels = Vec::new();
                 for sc in &g.channels {
                     channels.push(ChannelCoeffs {
@@ -542,25 +584,38 @@ impl Profile {
         let local = match &file.local {
             None => None,
             Some(l) => {
-                check_order(l.alpha, l.beta)?;
-                let basis: Basis = model_basis(&norm, l.alpha, l.beta);
-                if basis.len() != l.terms {
+                let name = format!(
+                    "local model {}",
+                    ModelKind::Local.model_name(l.alpha, l.beta)
+                );
+                let basis = checked_basis(name, l.alpha, l.beta, l.terms)?;
+                if !(l.radius_px.is_finite() && l.radius_px >= 1.0) {
                     return Err(invalid(format!(
-                        "local model L_{{{},{}}} has {} terms, file says {}",
-                        l.alpha,
-                        l.beta,
-                        basis.len(),
-                        l.terms
+                        "local model radius {} px is not a radius of at least 1 px",
+                        l.radius_px
                     )));
                 }
-                if l.centres_x < 2
-                    || l.centres_y < 2
-                    || l.centres_x * l.centres_y > 1_000_000
-                    || !l.radius_px.is_finite()
-                    || l.radius_px <= 0.0
-                {
-                    return Err(invalid("local model grid is malformed".into()));
-                }
+                // A fit places at most one centre per pixel along each side.
+                let centres = l
+                    .centres_x
+                    .checked_mul(l.centres_y)
+                    .filter(|&n| n <= MAX_LOCAL_CENTRES);
+                let per_side = |n: usize, side: usize| (2..=side).contains(&n);
+                let (Some(n_centres), true, true) = (
+                    centres,
+                    per_side(l.centres_x, file.width),
+                    per_side(l.centres_y, file.height),
+                ) else {
+                    return Err(invalid(format!(
+                        "local model grid of {} × {} centres does not fit a {}×{} sensor (at least 2 per side, at most one per pixel and {MAX_LOCAL_CENTRES} in all)",
+                        l.centres_x, l.centres_y, file.width, file.height
+                    )));
+                };
+                let n = basis.len();
+                let expected = n.checked_mul(n_centres).ok_or_else(|| {
+                    invalid(format!("local model: {n_centres} centres of {n} terms"))
+                })?;
+                check_distinct_channels(&l.channels, &invalid)?;
                 let grid = CentreGrid {
                     nx: l.centres_x,
                     ny: l.centres_y,
@@ -568,11 +623,10 @@ impl Profile {
                     width: file.width,
                     height: file.height,
                 };
-                let n = basis.len();
                 let mut channels = Vec::new();
                 for sc in &l.channels {
-                    let flat = load_channel(sc, n * grid.len(), &invalid)?;
-                    let centres = (0..grid.len())
+                    let flat = load_channel(sc, expected, &invalid)?;
+                    let centres = (0..n_centres)
                         .map(|c| {
                             [
                                 flat[0][c * n..(c + 1) * n].to_vec(),

@@ -576,6 +576,150 @@ fn profile_round_trip_and_validation() {
     }
 }
 
+/// Damaged or hostile numbers in a profile file (sizes that overflow or are negative or
+/// not numbers, ranges that are not intervals, orders and counts that do not match,
+/// coefficient arrays of the wrong length): each is refused with one line naming the
+/// file, never a panic, a wrapped size or an allocation sized by the file.
+#[test]
+fn hostile_profiles_are_refused_naming_the_file() {
+    use serde_json::{Value, json};
+    let ds = session(1, 9).dataset(&VirtualLens::demo(), &grid_settings(3, 3));
+    let profile = Profile::new(
+        ds.identity.clone(),
+        Some(lensblur::chart::ChartSpec::default()),
+        ds.distinct_setting_pairs(),
+        Some(GlobalModel::fit(&ds, 2, 1).unwrap()),
+        Some(LocalModel::fit(&ds, 1, 1, &LocalOptions::default()).unwrap()),
+        None,
+        ModelKind::Local,
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("good.json");
+    profile.save(&good).unwrap();
+    assert!(Profile::load(&good).is_ok());
+    let original: Value = serde_json::from_str(&std::fs::read_to_string(&good).unwrap()).unwrap();
+    let global_cxx = original["global"]["channels"][0]["cxx"].clone();
+    let first_global_channel = original["global"]["channels"][0].clone();
+    type Tamper = Box<dyn Fn(&mut Value)>;
+    let cases: Vec<(&str, Tamper)> = vec![
+        (
+            "grid-product-overflows",
+            Box::new(|v| {
+                v["local"]["centres_x"] = json!(1u64 << 32);
+                v["local"]["centres_y"] = json!((1u64 << 32) + 1);
+            }),
+        ),
+        (
+            "grid-beyond-the-sensor",
+            Box::new(|v| v["local"]["centres_x"] = json!(1_000_000_000u64)),
+        ),
+        (
+            "grid-negative",
+            Box::new(|v| v["local"]["centres_x"] = json!(-3)),
+        ),
+        (
+            "grid-of-one",
+            Box::new(|v| v["local"]["centres_y"] = json!(1)),
+        ),
+        (
+            "radius-nan",
+            Box::new(|v| v["local"]["radius_px"] = json!(f64::NAN)),
+        ),
+        (
+            "radius-negative",
+            Box::new(|v| v["local"]["radius_px"] = json!(-40.0)),
+        ),
+        (
+            "radius-zero",
+            Box::new(|v| v["local"]["radius_px"] = json!(0.0)),
+        ),
+        ("width-negative", Box::new(|v| v["width"] = json!(-2400))),
+        ("width-zero", Box::new(|v| v["width"] = json!(0))),
+        ("width-huge", Box::new(|v| v["width"] = json!(u64::MAX))),
+        (
+            "height-fractional",
+            Box::new(|v| v["height"] = json!(1600.5)),
+        ),
+        (
+            "focal-range-nan",
+            Box::new(|v| v["focal_range_mm"] = json!([f64::NAN, 105.0])),
+        ),
+        (
+            "focal-range-negative",
+            Box::new(|v| v["focal_range_mm"] = json!([-24.0, 105.0])),
+        ),
+        (
+            "focal-range-reversed",
+            Box::new(|v| v["focal_range_mm"] = json!([105.0, 24.0])),
+        ),
+        (
+            "f-number-range-zero",
+            Box::new(|v| v["f_number_range"] = json!([0.0, 10.0])),
+        ),
+        (
+            "extent-inverted",
+            Box::new(|v| v["sampled_extent_px"] = json!([2000.0, 10.0, 100.0, 1500.0])),
+        ),
+        (
+            "calibrated-setting-negative",
+            Box::new(|v| v["calibrated_settings"][0]["focal_mm"] = json!(-50.0)),
+        ),
+        (
+            "alpha-huge",
+            Box::new(|v| v["global"]["alpha"] = json!(u64::MAX)),
+        ),
+        (
+            "beta-too-high",
+            Box::new(|v| v["global"]["beta"] = json!(16)),
+        ),
+        (
+            "term-count-huge",
+            Box::new(|v| v["global"]["terms"] = json!(1_000_000_000_000u64)),
+        ),
+        (
+            "local-term-count-zero",
+            Box::new(|v| v["local"]["terms"] = json!(0)),
+        ),
+        (
+            "coefficients-empty",
+            Box::new(|v| v["local"]["channels"][0]["cyy"] = json!("")),
+        ),
+        (
+            "coefficients-of-another-model",
+            Box::new(move |v| v["local"]["channels"][1]["cor"] = global_cxx.clone()),
+        ),
+        (
+            "coefficients-not-base64",
+            Box::new(|v| v["global"]["channels"][2]["cxx"] = json!("!!!!")),
+        ),
+        (
+            "channel-stored-twice",
+            Box::new(move |v| v["global"]["channels"][1] = first_global_channel.clone()),
+        ),
+        (
+            "chart-huge",
+            Box::new(|v| v["chart"]["cols"] = json!(1_000_000_000u64)),
+        ),
+    ];
+    for (name, tamper) in cases {
+        let mut v = original.clone();
+        tamper(&mut v);
+        let path = dir.path().join(format!("{name}.json"));
+        std::fs::write(&path, v.to_string()).unwrap();
+        let Err(e) = Profile::load(&path) else {
+            panic!("{name}: accepted");
+        };
+        let msg = e.to_string();
+        eprintln!("{msg}");
+        assert!(
+            msg.contains(&path.display().to_string()),
+            "{name}: the error does not name the file: {msg}"
+        );
+        assert!(!msg.contains('\n'), "{name}: more than one line: {msg}");
+    }
+}
+
 #[test]
 fn degenerate_sessions() {
     let lens = VirtualLens::demo();
