@@ -4,16 +4,16 @@
 //! the unit the whole is made of.
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
 use lensblur::deblur::solve::Deconvolver;
 use lensblur::deblur::{
     DeblurOptions, KernelSource, Method, ProfileKernels, deblur_capture, plane_tile_grid,
 };
 use lensblur::experiment::dead_leaves;
 use lensblur::job::JobContext;
-use lensblur::model::{SimulatedSession, spaced};
+use lensblur::model::spaced;
 use lensblur::plane::{Capture, Channel, ChannelPlane, LensSetting};
-use lensblur::profile::{CalibrateOptions, Families, calibrate};
-use lensblur::simulate::VirtualLens;
+use lensblur::simulate::{SimulatedSession, VirtualLens};
 use std::hint::black_box;
 use std::time::Duration;
 

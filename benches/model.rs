@@ -7,10 +7,10 @@
 //! deconvolver uses.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use lensblur::model::{GlobalModel, LocalModel, LocalOptions, ModelKind, SimulatedSession, spaced};
+use lensblur::model::{GlobalModel, LocalModel, LocalOptions, ModelKind, spaced};
 use lensblur::plane::LensSetting;
 use lensblur::profile::Profile;
-use lensblur::simulate::VirtualLens;
+use lensblur::simulate::{SimulatedSession, VirtualLens};
 use std::hint::black_box;
 
 fn bench(c: &mut Criterion) {

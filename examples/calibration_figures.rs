@@ -28,6 +28,7 @@
 
 use anyhow::{Context, Result};
 use clap::Parser;
+use lensblur::calibrate::{CalibrateOptions, calibrate};
 use lensblur::chart::ChartSpec;
 use lensblur::crossval::{
     CvOptions, CvReport, Ranges, TestReport, cross_validate_fixed, evaluate_test_set,
@@ -39,7 +40,7 @@ use lensblur::kernel::file::KernelsFile;
 use lensblur::kernel::{KernelParams, estimate_shot};
 use lensblur::model::{BlurSample, Dataset, GlobalModel, LocalModel, LocalOptions, ModelKind};
 use lensblur::plane::LensSetting;
-use lensblur::profile::{CalibrateOptions, Profile, calibrate};
+use lensblur::profile::Profile;
 use lensblur::simulate::{CaptureParams, Pose, ShotTruth, VirtualLens, simulate_shot};
 use serde::Serialize;
 use std::path::{Path, PathBuf};

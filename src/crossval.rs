@@ -13,12 +13,14 @@
 //! accumulated per fold: the training Gram matrix of a fold is the total minus the
 //! held-out fold's, and a smaller candidate is the matching sub-block. In the Legendre
 //! basis these systems are well conditioned (the final fit uses QR; a unit test checks
-//! the two agree).
+//! the two agree). Each fold's fits are scored through [`FittedModel::predict`], the
+//! prediction a profile makes.
 
 use crate::job::JobContext;
 use crate::model::{
-    Basis, CentreGrid, Dataset, LocalOptions, ModelError, ModelKind, global_coords, local_coords,
-    local_grid, local_members, model_basis, solve_normal,
+    Basis, CentreGrid, ChannelCoeffs, Dataset, FittedModel, GlobalModel, LocalModel, LocalOptions,
+    ModelError, ModelKind, Normalisation, fit_model, global_coords, local_coords, local_grid,
+    local_members, model_basis, solve_normal, split_coeffs,
 };
 use crate::plane::{Channel, LensSetting};
 use nalgebra::DMatrix;
@@ -228,16 +230,13 @@ pub fn assign_folds(
     match hold_out {
         HoldOut::Setting if ds.distinct_setting_pairs().len() >= 2 => {
             let settings = ds.distinct_setting_pairs();
-            let close = |a: f64, b: f64| (a - b).abs() <= 1e-3 * b.abs();
             let group: Vec<usize> = ds
                 .shots
                 .iter()
                 .map(|s| {
                     settings
                         .iter()
-                        .position(|o| {
-                            close(o.focal_mm, s.focal_mm) && close(o.f_number, s.f_number)
-                        })
+                        .position(|o| o.same_as(s.setting()))
                         .unwrap_or(0)
                 })
                 .collect();
@@ -253,27 +252,25 @@ pub fn assign_folds(
     }
 }
 
-/// Errors (% of range) of a predictor on every sample of a dataset, per parameter.
-pub fn prediction_errors(
-    ds: &Dataset,
-    ranges: &Ranges,
-    predict: impl Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>,
-) -> [Vec<f64>; 3] {
+/// Errors (% of range) of a model's predictions at every sample of a dataset, per
+/// parameter. Samples of a channel the model lacks are left out.
+#[must_use]
+pub fn prediction_errors(ds: &Dataset, ranges: &Ranges, model: &dyn FittedModel) -> [Vec<f64>; 3] {
     let r = ranges.as_array();
     let mut out: [Vec<f64>; 3] = Default::default();
     for s in &ds.samples {
-        let setting = LensSetting {
-            focal_mm: s.focal_mm,
-            f_number: s.f_number,
-        };
-        if let Some(p) = predict(s.channel, s.x, s.y, setting) {
-            let m = s.params();
-            for k in 0..3 {
-                out[k].push((p[k] - m[k]).abs() / r[k] * 100.0);
-            }
+        if let Some(p) = model.predict(s.channel, s.x, s.y, s.setting()) {
+            push_errors(&mut out, p, s.params(), r);
         }
     }
     out
+}
+
+/// Appends |predicted − measured| / range × 100 % per parameter.
+fn push_errors(out: &mut [Vec<f64>; 3], predicted: [f64; 3], measured: [f64; 3], r: [f64; 3]) {
+    for k in 0..3 {
+        out[k].push((predicted[k] - measured[k]).abs() / r[k] * 100.0);
+    }
 }
 
 /// Summary of per-parameter errors.
@@ -301,6 +298,14 @@ pub fn summarise(alpha: usize, beta: usize, terms: usize, errors: &[Vec<f64>; 3]
     }
 }
 
+/// One row of a least-squares problem: normalised coordinates, the measured C_xx, C_yy,
+/// C_or, and the fold that holds the sample out.
+struct Row {
+    coords: [f64; 4],
+    params: [f64; 3],
+    fold: usize,
+}
+
 /// Normal equations of one least-squares problem, split by fold.
 struct FoldedSystem {
     gram_total: DMatrix<f64>,
@@ -310,23 +315,22 @@ struct FoldedSystem {
 }
 
 impl FoldedSystem {
-    fn build(basis: &Basis, rows: &[([f64; 4], [f64; 3], usize)], folds: usize) -> Self {
+    fn build(basis: &Basis, rows: &[Row], folds: usize) -> Self {
         let n = basis.len();
         let mut gram_fold = Vec::with_capacity(folds);
         let mut rhs_fold = Vec::with_capacity(folds);
         let mut row = vec![0.0; n];
         for k in 0..folds {
-            let mine: Vec<&([f64; 4], [f64; 3], usize)> =
-                rows.iter().filter(|r| r.2 == k).collect();
+            let mine: Vec<&Row> = rows.iter().filter(|r| r.fold == k).collect();
             let mut a = DMatrix::zeros(mine.len(), n);
             let mut y = DMatrix::zeros(mine.len(), 3);
             for (i, r) in mine.iter().enumerate() {
-                basis.row(r.0, &mut row);
+                basis.row(r.coords, &mut row);
                 for (c, v) in row.iter().enumerate() {
                     a[(i, c)] = *v;
                 }
                 for p in 0..3 {
-                    y[(i, p)] = r.1[p];
+                    y[(i, p)] = r.params[p];
                 }
             }
             gram_fold.push(a.tr_mul(&a));
@@ -346,16 +350,16 @@ impl FoldedSystem {
         }
     }
 
-    /// Coefficients (subset.len() × 3) fitted without fold `k` (or with all data when
-    /// `k` is `None`), restricted to the `subset` of the union's terms.
-    fn solve(&self, k: Option<usize>, subset: &[usize]) -> DMatrix<f64> {
+    /// Coefficients of C_xx, C_yy, C_or over the `subset` of the union's terms, fitted
+    /// without fold `k` (or with all data when `k` is `None`).
+    fn solve(&self, k: Option<usize>, subset: &[usize]) -> [Vec<f64>; 3] {
         let mut g = self.gram_total.select_rows(subset).select_columns(subset);
         let mut b = self.rhs_total.select_rows(subset);
         if let Some(k) = k {
             g -= self.gram_fold[k].select_rows(subset).select_columns(subset);
             b -= self.rhs_fold[k].select_rows(subset);
         }
-        solve_normal(g, &b)
+        split_coeffs(&solve_normal(g, &b))
     }
 }
 
@@ -366,42 +370,62 @@ fn subset_of(union: &Basis, sub: &Basis) -> Vec<usize> {
         .collect()
 }
 
-fn coeff_cols(x: &DMatrix<f64>) -> [Vec<f64>; 3] {
-    crate::model::split_coeffs(x)
+/// One measured sample as cross-validation sees it.
+struct CvSample {
+    x: f64,
+    y: f64,
+    setting: LensSetting,
+    /// Measured C_xx, C_yy, C_or.
+    params: [f64; 3],
+    /// The fold that holds its shot out.
+    fold: usize,
 }
 
-/// Per channel: the samples' coordinates, measured parameters, folds.
+/// The samples of one channel.
 struct ChannelData {
-    /// (x, y, focal, f-number, params, fold)
-    samples: Vec<(f64, f64, f64, f64, [f64; 3], usize)>,
+    channel: Channel,
+    samples: Vec<CvSample>,
 }
 
 fn channel_data(ds: &Dataset, fold_of_shot: &[usize]) -> Vec<ChannelData> {
     ds.channels()
         .into_iter()
-        .map(|ch| ChannelData {
+        .map(|channel| ChannelData {
+            channel,
             samples: ds
                 .samples
                 .iter()
-                .filter(|s| s.channel == ch)
-                .map(|s| {
-                    (
-                        s.x,
-                        s.y,
-                        s.focal_mm,
-                        s.f_number,
-                        s.params(),
-                        fold_of_shot[s.shot],
-                    )
+                .filter(|s| s.channel == channel)
+                .map(|s| CvSample {
+                    x: s.x,
+                    y: s.y,
+                    setting: s.setting(),
+                    params: s.params(),
+                    fold: fold_of_shot[s.shot],
                 })
                 .collect(),
         })
         .collect()
 }
 
+/// Errors of every sample of `cd` as predicted by the model fitted without its fold
+/// (`fold_models[k]` is the fit without fold k), appended to `out`.
+fn score_held_out<M: FittedModel>(
+    cd: &ChannelData,
+    fold_models: &[M],
+    r: [f64; 3],
+    out: &mut [Vec<f64>; 3],
+) {
+    for s in &cd.samples {
+        if let Some(p) = fold_models[s.fold].predict(cd.channel, s.x, s.y, s.setting) {
+            push_errors(out, p, s.params, r);
+        }
+    }
+}
+
 /// Cross-validation engine for the global family.
 struct GlobalCv {
-    norm: crate::model::Normalisation,
+    norm: Normalisation,
     union: Basis,
     systems: Vec<FoldedSystem>,
     data: Vec<ChannelData>,
@@ -422,10 +446,20 @@ impl GlobalCv {
             use rayon::prelude::*;
             data.par_iter()
                 .map(|cd| {
-                    let rows: Vec<([f64; 4], [f64; 3], usize)> = cd
+                    let rows: Vec<Row> = cd
                         .samples
                         .iter()
-                        .map(|s| (global_coords(&norm, s.0, s.1, s.2, s.3), s.4, s.5))
+                        .map(|s| Row {
+                            coords: global_coords(
+                                &norm,
+                                s.x,
+                                s.y,
+                                s.setting.focal_mm,
+                                s.setting.f_number,
+                            ),
+                            params: s.params,
+                            fold: s.fold,
+                        })
                         .collect();
                     FoldedSystem::build(&union, &rows, folds)
                 })
@@ -441,27 +475,25 @@ impl GlobalCv {
     }
 
     fn errors(&self, alpha: usize, beta: usize, ranges: &Ranges) -> ([Vec<f64>; 3], usize) {
+        use rayon::prelude::*;
         let basis = model_basis(&self.norm, alpha, beta);
         let subset = subset_of(&self.union, &basis);
-        let r = ranges.as_array();
         let mut out: [Vec<f64>; 3] = Default::default();
         for (cd, sys) in self.data.iter().zip(&self.systems) {
-            let per_fold: Vec<[Vec<f64>; 3]> = {
-                use rayon::prelude::*;
-                (0..self.folds)
-                    .into_par_iter()
-                    .map(|k| coeff_cols(&sys.solve(Some(k), &subset)))
-                    .collect()
-            };
-            for s in &cd.samples {
-                let p = basis.eval3(
-                    global_coords(&self.norm, s.0, s.1, s.2, s.3),
-                    &per_fold[s.5],
-                );
-                for k in 0..3 {
-                    out[k].push((p[k] - s.4[k]).abs() / r[k] * 100.0);
-                }
-            }
+            let fold_models: Vec<GlobalModel> = (0..self.folds)
+                .into_par_iter()
+                .map(|k| GlobalModel {
+                    norm: self.norm.clone(),
+                    alpha,
+                    beta,
+                    basis: basis.clone(),
+                    channels: vec![ChannelCoeffs {
+                        channel: cd.channel,
+                        coeffs: sys.solve(Some(k), &subset),
+                    }],
+                })
+                .collect();
+            score_held_out(cd, &fold_models, ranges.as_array(), &mut out);
         }
         (out, basis.len())
     }
@@ -470,10 +502,9 @@ impl GlobalCv {
 /// Cross-validation engine for the local family. Each centre's normal equations are
 /// accumulated once for the largest candidate; a smaller candidate whose centre takes
 /// the same samples (the radius widens with the number of terms, as in
-/// [`crate::model::LocalModel::fit`]) reuses their sub-block, one that takes fewer gets
-/// its own.
+/// [`LocalModel::fit`]) reuses their sub-block, one that takes fewer gets its own.
 struct LocalCv {
-    norm: crate::model::Normalisation,
+    norm: Normalisation,
     grid: CentreGrid,
     union: Basis,
     /// Per channel: sample positions, and per centre the members and their system.
@@ -486,15 +517,27 @@ struct LocalCv {
 fn local_rows(
     cd: &ChannelData,
     grid: &CentreGrid,
-    norm: &crate::model::Normalisation,
+    norm: &Normalisation,
     idx: usize,
     members: &[usize],
-) -> Vec<([f64; 4], [f64; 3], usize)> {
+) -> Vec<Row> {
     members
         .iter()
         .map(|&m| {
             let s = &cd.samples[m];
-            (local_coords(grid, norm, idx, s.0, s.1, s.2, s.3), s.4, s.5)
+            Row {
+                coords: local_coords(
+                    grid,
+                    norm,
+                    idx,
+                    s.x,
+                    s.y,
+                    s.setting.focal_mm,
+                    s.setting.f_number,
+                ),
+                params: s.params,
+                fold: s.fold,
+            }
         })
         .collect()
 }
@@ -513,7 +556,7 @@ impl LocalCv {
         let grid = local_grid(ds, opts);
         let pts: Vec<Vec<[f64; 2]>> = data
             .iter()
-            .map(|cd| cd.samples.iter().map(|s| [s.0, s.1]).collect())
+            .map(|cd| cd.samples.iter().map(|s| [s.x, s.y]).collect())
             .collect();
         let systems = data
             .iter()
@@ -546,7 +589,6 @@ impl LocalCv {
         let basis = model_basis(&self.norm, alpha, beta);
         let subset = subset_of(&self.union, &basis);
         let all: Vec<usize> = (0..basis.len()).collect();
-        let r = ranges.as_array();
         let mut out: [Vec<f64>; 3] = Default::default();
         for ((cd, centres), pts) in self.data.iter().zip(&self.systems).zip(&self.pts) {
             // Centres whose members differ from the union's get their own system.
@@ -560,38 +602,28 @@ impl LocalCv {
                     })
                 })
                 .collect();
-            // coeffs[fold][centre]
-            let coeffs: Vec<Vec<[Vec<f64>; 3]>> = (0..self.folds)
+            let fold_models: Vec<LocalModel> = (0..self.folds)
                 .into_par_iter()
-                .map(|k| {
-                    centres
-                        .iter()
-                        .zip(&own)
-                        .map(|((_, sys), own)| match own {
-                            Some(o) => coeff_cols(&o.solve(Some(k), &all)),
-                            None => coeff_cols(&sys.solve(Some(k), &subset)),
-                        })
-                        .collect()
+                .map(|k| LocalModel {
+                    norm: self.norm.clone(),
+                    alpha,
+                    beta,
+                    grid: self.grid.clone(),
+                    basis: basis.clone(),
+                    channels: vec![(
+                        cd.channel,
+                        centres
+                            .iter()
+                            .zip(&own)
+                            .map(|((_, sys), own)| match own {
+                                Some(o) => o.solve(Some(k), &all),
+                                None => sys.solve(Some(k), &subset),
+                            })
+                            .collect(),
+                    )],
                 })
                 .collect();
-            for s in &cd.samples {
-                let mut p = [0.0; 3];
-                for (idx, w) in self.grid.blend(s.0, s.1) {
-                    if w == 0.0 {
-                        continue;
-                    }
-                    let q = basis.eval3(
-                        local_coords(&self.grid, &self.norm, idx, s.0, s.1, s.2, s.3),
-                        &coeffs[s.5][idx],
-                    );
-                    for k in 0..3 {
-                        p[k] += w * q[k];
-                    }
-                }
-                for k in 0..3 {
-                    out[k].push((p[k] - s.4[k]).abs() / r[k] * 100.0);
-                }
-            }
+            score_held_out(cd, &fold_models, ranges.as_array(), &mut out);
         }
         (out, basis.len())
     }
@@ -774,9 +806,6 @@ pub fn cross_validate_fixed(
     Ok((summarise(alpha, beta, terms, &e), e))
 }
 
-/// A fitted model's prediction of C_xx, C_yy, C_or at (channel, x, y, setting).
-type Predictor = Box<dyn Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>>;
-
 /// One model's errors at a test set's samples (the paper's Fig. 6): fitted on the whole
 /// calibration set, errors in % of the calibration set's ranges.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -838,11 +867,7 @@ pub fn evaluate_test_set(
     }
     let norm = cal.normalisation();
     for s in &test.shots {
-        let setting = LensSetting {
-            focal_mm: s.focal_mm,
-            f_number: s.f_number,
-        };
-        if !norm.contains(setting) {
+        if !norm.contains(s.setting()) {
             return Err(ModelError::OutsideCalibratedRange {
                 shot: s.name.clone(),
                 focal_mm: s.focal_mm,
@@ -853,27 +878,10 @@ pub fn evaluate_test_set(
     let mut results = Vec::new();
     let mut skipped = Vec::new();
     for m in models {
-        let name = match m.kind {
-            ModelKind::Global => format!("G_{{{},{}}}", m.alpha, m.beta),
-            ModelKind::Local => format!("L_{{{},{}}}", m.alpha, m.beta),
-        };
-        let fitted: Result<(Predictor, usize), ModelError> = match m.kind {
-            ModelKind::Global => crate::model::GlobalModel::fit(cal, m.alpha, m.beta).map(|g| {
-                let n = g.basis.len();
-                let f: Predictor = Box::new(move |c, x, y, s| g.predict(c, x, y, s));
-                (f, n)
-            }),
-            ModelKind::Local => {
-                crate::model::LocalModel::fit(cal, m.alpha, m.beta, local).map(|l| {
-                    let n = l.basis.len();
-                    let f: Predictor = Box::new(move |c, x, y, s| l.predict(c, x, y, s));
-                    (f, n)
-                })
-            }
-        };
-        match fitted {
-            Ok((predict, terms)) => {
-                let e = prediction_errors(test, ranges, predict);
+        match fit_model(cal, m.kind, m.alpha, m.beta, local) {
+            Ok(model) => {
+                let terms = model.terms();
+                let e = prediction_errors(test, ranges, model.as_ref());
                 let pt = summarise(m.alpha, m.beta, terms, &e);
                 results.push(TestResult {
                     label: m.label.clone(),
@@ -888,7 +896,7 @@ pub fn evaluate_test_set(
                 });
             }
             Err(ModelError::Cancelled) => return Err(ModelError::Cancelled),
-            Err(e) => skipped.push(format!("{name}: {e}")),
+            Err(e) => skipped.push(format!("{}: {e}", m.kind.model_name(m.alpha, m.beta))),
         }
     }
     Ok(TestReport {

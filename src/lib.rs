@@ -7,6 +7,7 @@
 
 #[cfg(feature = "gui")]
 pub mod app;
+pub mod calibrate;
 pub mod chart;
 pub mod crossval;
 pub mod deblur;

@@ -198,6 +198,49 @@ pub struct LensSetting {
     pub f_number: f64,
 }
 
+impl LensSetting {
+    /// How far apart two values of one setting may lie and still be the same setting:
+    /// 0.1 % of the larger. EXIF stores rounded rationals and users type what the camera
+    /// shows, so the same setting arrives as slightly different numbers, while settings
+    /// a lens really distinguishes lie far further apart (a third of a stop is 12 % in
+    /// f-number).
+    pub const RELATIVE_TOLERANCE: f64 = 1e-3;
+
+    /// Whether two focal lengths, or two f-numbers, are the same setting (within
+    /// [`LensSetting::RELATIVE_TOLERANCE`]). The one rule every comparison of settings
+    /// uses: grouping shots, matching a photo to measured kernels, sweeps.
+    #[must_use]
+    pub fn same_value(a: f64, b: f64) -> bool {
+        (a - b).abs() <= Self::RELATIVE_TOLERANCE * a.abs().max(b.abs())
+    }
+
+    #[must_use]
+    pub fn same_focal(self, other: LensSetting) -> bool {
+        Self::same_value(self.focal_mm, other.focal_mm)
+    }
+
+    #[must_use]
+    pub fn same_f_number(self, other: LensSetting) -> bool {
+        Self::same_value(self.f_number, other.f_number)
+    }
+
+    /// The same focal length and the same f-number.
+    #[must_use]
+    pub fn same_as(self, other: LensSetting) -> bool {
+        self.same_focal(other) && self.same_f_number(other)
+    }
+
+    /// The distinct values among `values` (focal lengths, or f-numbers), sorted; values
+    /// that are the same setting are merged into the smallest of them.
+    #[must_use]
+    pub fn distinct_values(values: impl IntoIterator<Item = f64>) -> Vec<f64> {
+        let mut v: Vec<f64> = values.into_iter().collect();
+        v.sort_by(f64::total_cmp);
+        v.dedup_by(|a, b| Self::same_value(*a, *b));
+        v
+    }
+}
+
 /// Who made the shot: read from EXIF where present. Used to refuse a profile made
 /// for another camera or lens unit.
 #[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]

@@ -4,18 +4,20 @@
 //! Coefficients are stored as base64 of little-endian `f32` (7 significant digits, far
 //! below the measurement noise): a G_{8,3} profile of three channels is about 17 kB (the
 //! paper: ≈ 12 kB), an L_{1,3} one 50–160 kB depending on the chart's scale (≈ 200 kB).
-//! Loading validates the schema and every coefficient count; predicting refuses another
-//! camera's photos (unless forced), and settings outside the calibrated ranges or
-//! outside the hull of the calibrated settings (unless extrapolation is explicitly
+//! Loading validates the schema and every number before it sizes anything (sensor and
+//! grid sizes with checked arithmetic, ranges, orders, term and coefficient counts), so
+//! a damaged or hostile file is refused with one line naming it; predicting refuses
+//! another camera's photos (unless forced), and settings outside the calibrated ranges
+//! or outside the hull of the calibrated settings (unless extrapolation is explicitly
 //! allowed) — never a silent extrapolation in f and a. Over the sensor, where the chart
 //! did not reach, the models continue linearly from the border of the measured area
-//! (`lensblur predict` says so).
+//! (`lensblur predict` says so). Fitting a profile is [`crate::calibrate`]'s.
 
 use crate::chart::ChartSpec;
 use crate::crossval::{CvPoint, CvReport, Ranges};
 use crate::model::{
-    Basis, CentreGrid, ChannelCoeffs, GlobalModel, LocalModel, ModelKind, Normalisation,
-    model_basis, to_gaussian,
+    CentreGrid, ChannelCoeffs, FieldAtSetting, FittedModel, GlobalModel, LocalModel, MAX_ORDER,
+    ModelKind, Normalisation, model_basis, to_gaussian,
 };
 use crate::plane::{CameraIdentity, Channel, LensSetting};
 use crate::psf::Gaussian2;
@@ -23,6 +25,14 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 pub const PROFILE_SCHEMA: &str = "lensblur.profile/1";
+
+/// The longest sensor side a profile may describe, in pixels: several times any camera
+/// sensor, and small enough that sizes derived from it cannot overflow.
+pub const MAX_SENSOR_SIDE_PX: usize = 1 << 17;
+
+/// The most centres a local model may have: far more than a fit on any chart produces
+/// (one every few squares), and a bound on what a file can make a reader allocate.
+pub const MAX_LOCAL_CENTRES: usize = 1_000_000;
 
 /// Errors of reading, writing and using a profile.
 #[derive(Debug, thiserror::Error)]
@@ -276,6 +286,19 @@ fn load_channel(
     Ok(out)
 }
 
+/// Refuses a model that stores a channel twice (which of the two would it predict?).
+fn check_distinct_channels(
+    channels: &[StoredChannel],
+    invalid: &dyn Fn(String) -> ProfileError,
+) -> Result<(), ProfileError> {
+    for (i, c) in channels.iter().enumerate() {
+        if channels[..i].iter().any(|d| d.channel == c.channel) {
+            return Err(invalid(format!("channel {} is stored twice", c.channel)));
+        }
+    }
+    Ok(())
+}
+
 /// Whether `q` lies in the convex hull of `pts` (2-D), within `tol`. Handles hulls
 /// that are a point or a segment (a session at one setting, or at one focal length).
 fn point_in_hull(pts: &[[f64; 2]], q: [f64; 2], tol: f64) -> bool {
@@ -477,8 +500,12 @@ impl Profile {
             path: origin.into(),
             reason,
         };
-        if file.width < 2 || file.height < 2 {
-            return Err(invalid(format!("sensor {}×{}", file.width, file.height)));
+        let sides = 2..=MAX_SENSOR_SIDE_PX;
+        if !(sides.contains(&file.width) && sides.contains(&file.height)) {
+            return Err(invalid(format!(
+                "sensor {}×{} px (each side must be 2–{MAX_SENSOR_SIDE_PX})",
+                file.width, file.height
+            )));
         }
         let ok_range =
             |r: [f64; 2]| r[0].is_finite() && r[1].is_finite() && r[0] > 0.0 && r[1] >= r[0];
@@ -492,6 +519,20 @@ impl Profile {
         {
             return Err(invalid("sampled extent is not a box".into()));
         }
+        let real = |v: f64| v.is_finite() && v > 0.0;
+        if let Some(s) = file
+            .calibrated_settings
+            .iter()
+            .find(|s| !(real(s.focal_mm) && real(s.f_number)))
+        {
+            return Err(invalid(format!(
+                "calibrated setting f = {} mm, f/{} is not a lens setting",
+                s.focal_mm, s.f_number
+            )));
+        }
+        if let Some(chart) = &file.chart {
+            chart.validate().map_err(|e| invalid(e.to_string()))?;
+        }
         let norm = Normalisation {
             width: file.width,
             height: file.height,
@@ -499,30 +540,31 @@ impl Profile {
             f_number_range: file.f_number_range,
             sampled_extent_px: file.sampled_extent_px,
         };
-        let check_order = |a: usize, b: usize| {
-            if a.max(b) > crate::model::MAX_ORDER {
-                Err(invalid(format!(
-                    "model order α = {a}, β = {b} above {}",
-                    crate::model::MAX_ORDER
-                )))
-            } else {
-                Ok(())
+        // Orders first: the basis of an order beyond MAX_ORDER is not even enumerated.
+        let checked_basis = |name: String, alpha: usize, beta: usize, terms: usize| {
+            if alpha.max(beta) > MAX_ORDER {
+                return Err(invalid(format!(
+                    "{name}: model order α = {alpha}, β = {beta} above {MAX_ORDER}"
+                )));
             }
+            let basis = model_basis(&norm, alpha, beta);
+            if basis.len() != terms {
+                return Err(invalid(format!(
+                    "{name} has {} terms, file says {terms}",
+                    basis.len()
+                )));
+            }
+            Ok(basis)
         };
         let global = match &file.global {
             None => None,
             Some(g) => {
-                check_order(g.alpha, g.beta)?;
-                let basis = model_basis(&norm, g.alpha, g.beta);
-                if basis.len() != g.terms {
-                    return Err(invalid(format!(
-                        "global model G_{{{},{}}} has {} terms, file says {}",
-                        g.alpha,
-                        g.beta,
-                        basis.len(),
-                        g.terms
-                    )));
-                }
+                let name = format!(
+                    "global model {}",
+                    ModelKind::Global.model_name(g.alpha, g.beta)
+                );
+                let basis = checked_basis(name, g.alpha, g.beta, g.terms)?;
+                check_distinct_channels(&g.channels, &invalid)?;
                 let mut channels = Vec::new();
                 for sc in &g.channels {
                     channels.push(ChannelCoeffs {
@@ -542,25 +584,38 @@ impl Profile {
         let local = match &file.local {
             None => None,
             Some(l) => {
-                check_order(l.alpha, l.beta)?;
-                let basis: Basis = model_basis(&norm, l.alpha, l.beta);
-                if basis.len() != l.terms {
+                let name = format!(
+                    "local model {}",
+                    ModelKind::Local.model_name(l.alpha, l.beta)
+                );
+                let basis = checked_basis(name, l.alpha, l.beta, l.terms)?;
+                if !(l.radius_px.is_finite() && l.radius_px >= 1.0) {
                     return Err(invalid(format!(
-                        "local model L_{{{},{}}} has {} terms, file says {}",
-                        l.alpha,
-                        l.beta,
-                        basis.len(),
-                        l.terms
+                        "local model radius {} px is not a radius of at least 1 px",
+                        l.radius_px
                     )));
                 }
-                if l.centres_x < 2
-                    || l.centres_y < 2
-                    || l.centres_x * l.centres_y > 1_000_000
-                    || !l.radius_px.is_finite()
-                    || l.radius_px <= 0.0
-                {
-                    return Err(invalid("local model grid is malformed".into()));
-                }
+                // A fit places at most one centre per pixel along each side.
+                let centres = l
+                    .centres_x
+                    .checked_mul(l.centres_y)
+                    .filter(|&n| n <= MAX_LOCAL_CENTRES);
+                let per_side = |n: usize, side: usize| (2..=side).contains(&n);
+                let (Some(n_centres), true, true) = (
+                    centres,
+                    per_side(l.centres_x, file.width),
+                    per_side(l.centres_y, file.height),
+                ) else {
+                    return Err(invalid(format!(
+                        "local model grid of {} × {} centres does not fit a {}×{} sensor (at least 2 per side, at most one per pixel and {MAX_LOCAL_CENTRES} in all)",
+                        l.centres_x, l.centres_y, file.width, file.height
+                    )));
+                };
+                let n = basis.len();
+                let expected = n.checked_mul(n_centres).ok_or_else(|| {
+                    invalid(format!("local model: {n_centres} centres of {n} terms"))
+                })?;
+                check_distinct_channels(&l.channels, &invalid)?;
                 let grid = CentreGrid {
                     nx: l.centres_x,
                     ny: l.centres_y,
@@ -568,11 +623,10 @@ impl Profile {
                     width: file.width,
                     height: file.height,
                 };
-                let n = basis.len();
                 let mut channels = Vec::new();
                 for sc in &l.channels {
-                    let flat = load_channel(sc, n * grid.len(), &invalid)?;
-                    let centres = (0..grid.len())
+                    let flat = load_channel(sc, expected, &invalid)?;
+                    let centres = (0..n_centres)
                         .map(|c| {
                             [
                                 flat[0][c * n..(c + 1) * n].to_vec(),
@@ -744,35 +798,30 @@ impl Profile {
         setting: LensSetting,
     ) -> Result<Gaussian2, ProfileError> {
         self.check_setting(setting)?;
-        let p = match kind {
-            ModelKind::Global => self
-                .global
-                .as_ref()
-                .ok_or(ProfileError::NoModel(kind))?
-                .predict(channel, x, y, setting),
-            ModelKind::Local => self
-                .local
-                .as_ref()
-                .ok_or(ProfileError::NoModel(kind))?
-                .predict(channel, x, y, setting),
+        self.model(kind)?
+            .predict(channel, x, y, setting)
+            .map(to_gaussian)
+            .ok_or(ProfileError::NoChannel(channel))
+    }
+
+    /// The fitted model of a family.
+    ///
+    /// # Errors
+    /// [`ProfileError::NoModel`] when the profile holds none of that family.
+    pub fn model(&self, kind: ModelKind) -> Result<&dyn FittedModel, ProfileError> {
+        let model: Option<&dyn FittedModel> = match kind {
+            ModelKind::Global => self.global.as_ref().map(|g| g as &dyn FittedModel),
+            ModelKind::Local => self.local.as_ref().map(|l| l as &dyn FittedModel),
         };
-        p.map(to_gaussian).ok_or(ProfileError::NoChannel(channel))
+        model.ok_or(ProfileError::NoModel(kind))
     }
 
     /// The channels the preferred model holds.
     #[must_use]
     pub fn channels(&self) -> Vec<Channel> {
-        match self.preferred {
-            ModelKind::Global => self
-                .global
-                .as_ref()
-                .map(|g| g.channels.iter().map(|c| c.channel).collect()),
-            ModelKind::Local => self
-                .local
-                .as_ref()
-                .map(|l| l.channels.iter().map(|c| c.0).collect()),
-        }
-        .unwrap_or_default()
+        self.model(self.preferred)
+            .map(|m| m.channels())
+            .unwrap_or_default()
     }
 
     /// The predicted field every `step_px` pixels (from pixel 0, plus the last row and
@@ -823,181 +872,18 @@ impl Profile {
         kind: ModelKind,
         channel: Channel,
         setting: LensSetting,
-    ) -> Result<crate::model::FieldAtSetting, ProfileError> {
+    ) -> Result<FieldAtSetting, ProfileError> {
         self.check_setting(setting)?;
-        match kind {
-            ModelKind::Global => self
-                .global
-                .as_ref()
-                .ok_or(ProfileError::NoModel(kind))?
-                .at_setting(channel, setting),
-            ModelKind::Local => self
-                .local
-                .as_ref()
-                .ok_or(ProfileError::NoModel(kind))?
-                .at_setting(channel, setting),
-        }
-        .ok_or(ProfileError::NoChannel(channel))
+        self.model(kind)?
+            .at_setting(channel, setting)
+            .ok_or(ProfileError::NoChannel(channel))
     }
 
-    /// Builds a profile from cross-validation: fits both families at their chosen
-    /// (α, β) and prefers the one with the lower CV error.
+    /// The family a cross-validation report prefers: the one with the lower error.
     #[must_use]
     pub fn preferred_from(report: &CvReport) -> ModelKind {
         report.best().map_or(ModelKind::Global, |b| b.0)
     }
-}
-
-/// Which model families to fit.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Families {
-    Global,
-    Local,
-    Both,
-}
-
-/// What `calibrate` fits.
-#[derive(Clone, Debug)]
-pub struct CalibrateOptions {
-    pub families: Families,
-    /// Fixed α (skips cross-validated selection); β defaults to N − 1.
-    pub alpha: Option<usize>,
-    pub beta: Option<usize>,
-    pub cv: crate::crossval::CvOptions,
-}
-
-impl Default for CalibrateOptions {
-    fn default() -> Self {
-        Self {
-            families: Families::Both,
-            alpha: None,
-            beta: None,
-            cv: crate::crossval::CvOptions::default(),
-        }
-    }
-}
-
-/// Fits the requested families (α, β chosen by cross-validation unless given) and
-/// assembles the profile. Returns the cross-validation report when one was run.
-///
-/// # Errors
-/// Unknown settings, β too large for the session, too few shots for cross-validation,
-/// too few samples, or cancellation.
-pub fn calibrate(
-    ds: &crate::model::Dataset,
-    chart: Option<ChartSpec>,
-    opts: &CalibrateOptions,
-    job: &crate::job::JobContext,
-) -> Result<(Profile, Option<CvReport>), crate::model::ModelError> {
-    use crate::model::ModelError;
-    ds.validate()?;
-    let n = ds.setting_resolution();
-    if let Some(b) = opts.beta {
-        ds.check_beta(b)?;
-    }
-    if let Some(a) = opts.alpha {
-        crate::model::check_order(a, opts.beta.unwrap_or(0))?;
-    }
-    let want_global = opts.families != Families::Local;
-    let want_local = opts.families != Families::Global;
-    let (report, g_ab, l_ab) = if let Some(alpha) = opts.alpha {
-        let beta = opts.beta.unwrap_or(n - 1);
-        (None, (alpha, beta), (alpha, beta))
-    } else {
-        let mut cv = opts.cv.clone();
-        cv.run_global = want_global;
-        cv.run_local = want_local;
-        let r = crate::crossval::cross_validate(ds, &cv, job)?;
-        let pick = |s: &Option<crate::crossval::Selection>| {
-            s.as_ref()
-                .map_or((1, 0), |s| (s.alpha, opts.beta.unwrap_or(s.beta)))
-        };
-        let (g, l) = (pick(&r.global), pick(&r.local));
-        (Some(r), g, l)
-    };
-    job.check()?;
-    job.report("fitting", 0, 2);
-    let global = if want_global {
-        Some(GlobalModel::fit(ds, g_ab.0, g_ab.1)?)
-    } else {
-        None
-    };
-    job.report("fitting", 1, 2);
-    let local = if want_local {
-        Some(LocalModel::fit(ds, l_ab.0, l_ab.1, &opts.cv.local)?)
-    } else {
-        None
-    };
-    job.report("fitting", 2, 2);
-    let mut settings: Vec<LensSetting> = ds
-        .shots
-        .iter()
-        .map(|s| LensSetting {
-            focal_mm: s.focal_mm,
-            f_number: s.f_number,
-        })
-        .collect();
-    settings.sort_by(|a, b| {
-        a.focal_mm
-            .total_cmp(&b.focal_mm)
-            .then(a.f_number.total_cmp(&b.f_number))
-    });
-    settings.dedup_by(|a, b| {
-        (a.focal_mm - b.focal_mm).abs() < 1e-6 && (a.f_number - b.f_number).abs() < 1e-6
-    });
-    let cv = match &report {
-        Some(r) => Some(CvSummary::from_report(r)),
-        // Fixed orders: still report how well they cross-validate, where there are
-        // shots to hold out.
-        None if ds.shots.len() >= 2 => {
-            let fixed = |kind: ModelKind, (a, b): (usize, usize)| {
-                crate::crossval::cross_validate_fixed(ds, kind, a, b, &opts.cv).map(|r| r.0)
-            };
-            let global_cv = if want_global {
-                Some(fixed(ModelKind::Global, g_ab)?)
-            } else {
-                None
-            };
-            job.check()?;
-            let local_cv = if want_local {
-                Some(fixed(ModelKind::Local, l_ab)?)
-            } else {
-                None
-            };
-            Some(CvSummary {
-                folds: crate::crossval::assign_folds(
-                    ds,
-                    opts.cv.folds,
-                    opts.cv.hold_out,
-                    opts.cv.seed,
-                )
-                .1,
-                ranges: crate::crossval::param_ranges(ds),
-                global: global_cv,
-                local: local_cv,
-            })
-        }
-        None => None,
-    };
-    // The family that cross-validates better; without cross-validation, the local
-    // model where there is one (the smaller error in the paper's tests).
-    let preferred = match cv.as_ref().map(|c| (&c.global, &c.local)) {
-        Some((Some(g), Some(l))) if g.mean_pct < l.mean_pct => ModelKind::Global,
-        _ if want_local => ModelKind::Local,
-        _ => ModelKind::Global,
-    };
-    let profile = Profile::new(
-        ds.identity.clone(),
-        chart,
-        settings,
-        global,
-        local,
-        cv,
-        preferred,
-    )
-    .ok_or(ModelError::Empty)?;
-    Ok((profile, report))
 }
 
 #[cfg(test)]

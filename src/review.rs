@@ -17,12 +17,6 @@ use crate::profile::Profile;
 use crate::psf::{Gaussian2, Kernel};
 use std::path::Path;
 
-/// Two settings are the same when they agree to 0.1 % (EXIF rounds, users type).
-#[must_use]
-pub fn same_value(a: f64, b: f64) -> bool {
-    (a - b).abs() <= 1e-3 * b.abs().max(1e-9)
-}
-
 /// The value of `values` nearest `wanted` (the calibrated setting a sweep holds fixed).
 #[must_use]
 pub fn nearest_value(values: &[f64], wanted: f64) -> Option<f64> {
@@ -119,9 +113,9 @@ pub fn sweep_points(
         .enumerate()
         .filter(|(_, info)| {
             if vs_aperture {
-                same_value(info.focal_mm, fixed)
+                LensSetting::same_value(info.focal_mm, fixed)
             } else {
-                same_value(info.f_number, fixed)
+                LensSetting::same_value(info.f_number, fixed)
             }
         })
         .filter_map(|(k, info)| {
@@ -468,9 +462,7 @@ pub fn measured_at(
     height: usize,
     setting: LensSetting,
 ) -> bool {
-    shot_setting.is_some_and(|s| {
-        same_value(s.focal_mm, setting.focal_mm) && same_value(s.f_number, setting.f_number)
-    }) && (file.width, file.height) == (width, height)
+    shot_setting.is_some_and(|s| s.same_as(setting)) && (file.width, file.height) == (width, height)
 }
 
 /// The measured non-parametric kernels of a kernels file as a deblurring source.

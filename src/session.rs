@@ -497,7 +497,7 @@ impl Session {
         let mut a: Vec<f64> = self.shots.iter().filter_map(|s| s.f_number).collect();
         for v in [&mut f, &mut a] {
             v.sort_by(f64::total_cmp);
-            v.dedup_by(|x, y| (*x - *y).abs() < 1e-9);
+            v.dedup_by(|x, y| LensSetting::same_value(*x, *y));
         }
         (f, a)
     }

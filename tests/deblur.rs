@@ -2,6 +2,7 @@
 //! oracles, seams, image borders, the spatially varying field with a fitted lens
 //! profile, the Gaussian-approximation experiment, and the `deblur` command.
 
+use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
 use lensblur::deblur::fft::{Fft2, convolve_direct_circular};
 use lensblur::deblur::solve::{
     Deconvolver, HqsParams, IrlsParams, Method, WienerParams, deconvolve_block,
@@ -16,14 +17,14 @@ use lensblur::experiment::{
 };
 use lensblur::job::JobContext;
 use lensblur::metrics::{SsimParams, psnr, reference_pair, ssim, ssim_f64};
-use lensblur::model::{SimulatedSession, spaced};
+use lensblur::model::spaced;
 use lensblur::plane::{Channel, ChannelPlane, LensSetting, Plane};
-use lensblur::profile::{CalibrateOptions, Families, Profile, calibrate};
+use lensblur::profile::Profile;
 use lensblur::psf::{Gaussian2, Kernel};
-use lensblur::simulate::PsfShape;
 use lensblur::simulate::capture::rggb_channel;
 use lensblur::simulate::dng::{DngInfo, write_dng};
 use lensblur::simulate::lens::VirtualLens;
+use lensblur::simulate::{PsfShape, SimulatedSession};
 use nalgebra::{DMatrix, DVector};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};

@@ -6,18 +6,19 @@
 //! per shot), which keeps these tests to seconds. The same figures on kernels measured
 //! from simulated shots come from `examples/calibration_figures.rs`.
 
+use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
 use lensblur::crossval::{
     CvOptions, HoldOut, cross_validate, cross_validate_fixed, param_ranges, percentile_sorted,
     prediction_errors,
 };
 use lensblur::job::JobContext;
 use lensblur::model::{
-    CentreGrid, Dataset, GlobalModel, LocalModel, LocalOptions, ModelError, ModelKind, SampleNoise,
-    SimulatedSession, local_coords, spaced, terms,
+    CentreGrid, Dataset, FittedModel, GlobalModel, LocalModel, LocalOptions, ModelError, ModelKind,
+    fit_model, local_coords, spaced, terms,
 };
 use lensblur::plane::{CameraIdentity, Channel, LensSetting};
-use lensblur::profile::{CalibrateOptions, Families, Profile, ProfileError, calibrate};
-use lensblur::simulate::VirtualLens;
+use lensblur::profile::{Profile, ProfileError};
+use lensblur::simulate::{SampleNoise, SimulatedSession, VirtualLens};
 
 const W: usize = 2400;
 const H: usize = 1600;
@@ -67,8 +68,6 @@ fn calibration_set() -> Dataset {
     }
     .dataset(&VirtualLens::demo(), &grid_settings(5, 5))
 }
-
-type Predictor = Box<dyn Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>>;
 
 fn p95(e: &[Vec<f64>; 3]) -> [f64; 3] {
     let mut out = [0.0; 3];
@@ -338,17 +337,8 @@ fn models_meet_the_bars_at_novel_settings() {
     let (best_kind, _, _) = report.best().unwrap();
 
     let t1 = std::time::Instant::now();
-    let fit = |kind: ModelKind, a: usize, b: usize| -> Predictor {
-        match kind {
-            ModelKind::Global => {
-                let m = GlobalModel::fit(&cal, a, b).unwrap();
-                Box::new(move |c, x, y, s| m.predict(c, x, y, s))
-            }
-            ModelKind::Local => {
-                let m = LocalModel::fit(&cal, a, b, &LocalOptions::default()).unwrap();
-                Box::new(move |c, x, y, s| m.predict(c, x, y, s))
-            }
-        }
+    let fit = |kind: ModelKind, a: usize, b: usize| {
+        fit_model(&cal, kind, a, b, &LocalOptions::default()).unwrap()
     };
     let models = [
         ("chosen global", ModelKind::Global, g.alpha, g.beta),
@@ -358,10 +348,10 @@ fn models_meet_the_bars_at_novel_settings() {
     ];
     let mut results = Vec::new();
     for (name, kind, a, b) in models {
-        let pred = fit(kind, a, b);
-        let vs_truth = prediction_errors(&test_truth, &ranges, &pred);
-        let vs_meas = prediction_errors(&test_measured, &ranges, &pred);
-        let vs_expected = prediction_errors(&test_expected, &ranges, &pred);
+        let model = fit(kind, a, b);
+        let vs_truth = prediction_errors(&test_truth, &ranges, model.as_ref());
+        let vs_meas = prediction_errors(&test_measured, &ranges, model.as_ref());
+        let vs_expected = prediction_errors(&test_expected, &ranges, model.as_ref());
         eprintln!(
             "{name} ({kind:?} {a},{b}): test error vs measured p95 {:.2?} % mean {:.2} %; vs truth p95 {:.2?} % mean {:.2} %; vs bias-only {:.3} %",
             p95(&vs_meas),
@@ -583,6 +573,150 @@ fn profile_round_trip_and_validation() {
             (corner.sigma_x / truth.sigma_x - 1.0).abs() < 0.25,
             "{kind:?}: {corner:?} vs {truth:?}"
         );
+    }
+}
+
+/// Damaged or hostile numbers in a profile file (sizes that overflow or are negative or
+/// not numbers, ranges that are not intervals, orders and counts that do not match,
+/// coefficient arrays of the wrong length): each is refused with one line naming the
+/// file, never a panic, a wrapped size or an allocation sized by the file.
+#[test]
+fn hostile_profiles_are_refused_naming_the_file() {
+    use serde_json::{Value, json};
+    let ds = session(1, 9).dataset(&VirtualLens::demo(), &grid_settings(3, 3));
+    let profile = Profile::new(
+        ds.identity.clone(),
+        Some(lensblur::chart::ChartSpec::default()),
+        ds.distinct_setting_pairs(),
+        Some(GlobalModel::fit(&ds, 2, 1).unwrap()),
+        Some(LocalModel::fit(&ds, 1, 1, &LocalOptions::default()).unwrap()),
+        None,
+        ModelKind::Local,
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("good.json");
+    profile.save(&good).unwrap();
+    assert!(Profile::load(&good).is_ok());
+    let original: Value = serde_json::from_str(&std::fs::read_to_string(&good).unwrap()).unwrap();
+    let global_cxx = original["global"]["channels"][0]["cxx"].clone();
+    let first_global_channel = original["global"]["channels"][0].clone();
+    type Tamper = Box<dyn Fn(&mut Value)>;
+    let cases: Vec<(&str, Tamper)> = vec![
+        (
+            "grid-product-overflows",
+            Box::new(|v| {
+                v["local"]["centres_x"] = json!(1u64 << 32);
+                v["local"]["centres_y"] = json!((1u64 << 32) + 1);
+            }),
+        ),
+        (
+            "grid-beyond-the-sensor",
+            Box::new(|v| v["local"]["centres_x"] = json!(1_000_000_000u64)),
+        ),
+        (
+            "grid-negative",
+            Box::new(|v| v["local"]["centres_x"] = json!(-3)),
+        ),
+        (
+            "grid-of-one",
+            Box::new(|v| v["local"]["centres_y"] = json!(1)),
+        ),
+        (
+            "radius-nan",
+            Box::new(|v| v["local"]["radius_px"] = json!(f64::NAN)),
+        ),
+        (
+            "radius-negative",
+            Box::new(|v| v["local"]["radius_px"] = json!(-40.0)),
+        ),
+        (
+            "radius-zero",
+            Box::new(|v| v["local"]["radius_px"] = json!(0.0)),
+        ),
+        ("width-negative", Box::new(|v| v["width"] = json!(-2400))),
+        ("width-zero", Box::new(|v| v["width"] = json!(0))),
+        ("width-huge", Box::new(|v| v["width"] = json!(u64::MAX))),
+        (
+            "height-fractional",
+            Box::new(|v| v["height"] = json!(1600.5)),
+        ),
+        (
+            "focal-range-nan",
+            Box::new(|v| v["focal_range_mm"] = json!([f64::NAN, 105.0])),
+        ),
+        (
+            "focal-range-negative",
+            Box::new(|v| v["focal_range_mm"] = json!([-24.0, 105.0])),
+        ),
+        (
+            "focal-range-reversed",
+            Box::new(|v| v["focal_range_mm"] = json!([105.0, 24.0])),
+        ),
+        (
+            "f-number-range-zero",
+            Box::new(|v| v["f_number_range"] = json!([0.0, 10.0])),
+        ),
+        (
+            "extent-inverted",
+            Box::new(|v| v["sampled_extent_px"] = json!([2000.0, 10.0, 100.0, 1500.0])),
+        ),
+        (
+            "calibrated-setting-negative",
+            Box::new(|v| v["calibrated_settings"][0]["focal_mm"] = json!(-50.0)),
+        ),
+        (
+            "alpha-huge",
+            Box::new(|v| v["global"]["alpha"] = json!(u64::MAX)),
+        ),
+        (
+            "beta-too-high",
+            Box::new(|v| v["global"]["beta"] = json!(16)),
+        ),
+        (
+            "term-count-huge",
+            Box::new(|v| v["global"]["terms"] = json!(1_000_000_000_000u64)),
+        ),
+        (
+            "local-term-count-zero",
+            Box::new(|v| v["local"]["terms"] = json!(0)),
+        ),
+        (
+            "coefficients-empty",
+            Box::new(|v| v["local"]["channels"][0]["cyy"] = json!("")),
+        ),
+        (
+            "coefficients-of-another-model",
+            Box::new(move |v| v["local"]["channels"][1]["cor"] = global_cxx.clone()),
+        ),
+        (
+            "coefficients-not-base64",
+            Box::new(|v| v["global"]["channels"][2]["cxx"] = json!("!!!!")),
+        ),
+        (
+            "channel-stored-twice",
+            Box::new(move |v| v["global"]["channels"][1] = first_global_channel.clone()),
+        ),
+        (
+            "chart-huge",
+            Box::new(|v| v["chart"]["cols"] = json!(1_000_000_000u64)),
+        ),
+    ];
+    for (name, tamper) in cases {
+        let mut v = original.clone();
+        tamper(&mut v);
+        let path = dir.path().join(format!("{name}.json"));
+        std::fs::write(&path, v.to_string()).unwrap();
+        let Err(e) = Profile::load(&path) else {
+            panic!("{name}: accepted");
+        };
+        let msg = e.to_string();
+        eprintln!("{msg}");
+        assert!(
+            msg.contains(&path.display().to_string()),
+            "{name}: the error does not name the file: {msg}"
+        );
+        assert!(!msg.contains('\n'), "{name}: more than one line: {msg}");
     }
 }
 

@@ -1100,7 +1100,7 @@ fn run_calibrate(app: &mut StudioApp) {
     let chart = session.chart.clone();
     let out_path = session.folder().join("profile.json");
     let cv_path = session.folder().join(CV_FILE);
-    let opts = crate::profile::CalibrateOptions {
+    let opts = crate::calibrate::CalibrateOptions {
         alpha: session.settings.alpha,
         beta: session.settings.beta,
         ..Default::default()
@@ -1109,7 +1109,7 @@ fn run_calibrate(app: &mut StudioApp) {
     let r = app.jobs.spawn_scoped("calibrate", scope, move |ctx, out| {
         // Every shot needs its setting: the error names the ones without.
         let ds = pipeline::dataset(&shots).map_err(|e| format!("calibration: {e}"))?;
-        let (profile, cv) = crate::profile::calibrate(&ds, Some(chart), &opts, ctx)
+        let (profile, cv) = crate::calibrate::calibrate(&ds, Some(chart), &opts, ctx)
             .map_err(|e| format!("calibration: {e}"))?;
         profile.save(&out_path).map_err(|e| e.to_string())?;
         match &cv {

@@ -7,12 +7,12 @@
 
 use super::common::{load_chart, progress_job, write_json};
 use anyhow::Result;
+use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
 use lensblur::chart::ChartSpec;
 use lensblur::crossval::{CvOptions, HoldOut};
 use lensblur::kernel::file::KernelsFile;
 use lensblur::model::{Dataset, LocalOptions};
 use lensblur::pipeline::{self, MeasuredShot, Provenance, ShotFile};
-use lensblur::profile::{CalibrateOptions, Families, calibrate};
 use lensblur::session::Session;
 use std::path::{Path, PathBuf};
 

@@ -89,15 +89,9 @@ pub fn run(args: Args) -> Result<()> {
         let t = evaluate_test_set(&ds, &test, &models, &opts.local, &report.ranges)?;
         for m in &t.models {
             eprintln!(
-                "test set: {} {}_{{{},{}}}: mean error {:.2} % of range; p95 C_xx {:.2}, C_yy {:.2}, C_or {:.2}",
+                "test set: {} {}: mean error {:.2} % of range; p95 C_xx {:.2}, C_yy {:.2}, C_or {:.2}",
                 m.label,
-                if m.kind == ModelKind::Global {
-                    "G"
-                } else {
-                    "L"
-                },
-                m.alpha,
-                m.beta,
+                m.kind.model_name(m.alpha, m.beta),
                 m.mean_pct,
                 m.p95_error_pct[0],
                 m.p95_error_pct[1],

@@ -42,6 +42,15 @@ pub enum KindArg {
     Local,
 }
 
+impl From<KindArg> for ModelKind {
+    fn from(k: KindArg) -> Self {
+        match k {
+            KindArg::Global => ModelKind::Global,
+            KindArg::Local => ModelKind::Local,
+        }
+    }
+}
+
 #[derive(Serialize)]
 struct Pred {
     focal_mm: f64,
@@ -76,13 +85,9 @@ pub fn run(args: Args) -> Result<()> {
         .with_context(|| format!("{}: cannot read", args.points.display()))?;
     let points: Vec<[f64; 2]> = serde_json::from_str(&text)
         .with_context(|| format!("{}: expected [[x, y], ...]", args.points.display()))?;
-    let kind = match args.model {
-        Some(KindArg::Global) => ModelKind::Global,
-        Some(KindArg::Local) => ModelKind::Local,
-        None => profile.preferred,
-    };
+    let kind = args.model.map_or(profile.preferred, ModelKind::from);
     let channels = if args.channels.is_empty() {
-        profile.channels()
+        profile.model(kind)?.channels()
     } else {
         args.channels.clone()
     };

@@ -137,11 +137,8 @@ fn settings(args: &Args, lens: &VirtualLens) -> Result<Vec<LensSetting>> {
         bail!("--grid must be 1–20 (got {})", args.grid);
     }
     let grid = lens.setting_grid(args.grid, args.grid);
-    let mut fs: Vec<f64> = grid.iter().map(|s| s.focal_mm).collect();
-    let mut as_: Vec<f64> = grid.iter().map(|s| s.f_number).collect();
-    fs.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
-    as_.sort_by(f64::total_cmp);
-    as_.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+    let mut fs = LensSetting::distinct_values(grid.iter().map(|s| s.focal_mm));
+    let mut as_ = LensSetting::distinct_values(grid.iter().map(|s| s.f_number));
     if !args.focal.is_empty() {
         fs.clone_from(&args.focal);
     }

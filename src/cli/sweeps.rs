@@ -5,7 +5,7 @@
 use super::calibrate::{SessionArgs, load_session};
 use super::common::{write_atomic, write_json};
 use anyhow::{Context, Result, bail};
-use lensblur::model::{Dataset, GlobalModel, LocalModel, LocalOptions, spaced};
+use lensblur::model::{Dataset, FittedModel, LocalOptions, ModelKind, ShotInfo, fit_model, spaced};
 use lensblur::plane::{Channel, LensSetting};
 use lensblur::profile::Profile;
 use serde::Serialize;
@@ -46,8 +46,27 @@ pub struct Args {
     pub steps: usize,
 }
 
-/// C_xx, C_yy, C_or at (channel, x, y, setting), from a profile or a fresh fit.
-type Predictor = Box<dyn Fn(Channel, f64, f64, LensSetting) -> Option<[f64; 3]>>;
+/// Where the model curves come from.
+enum Curves {
+    /// A profile's preferred model, as `lensblur predict` uses it: settings it would
+    /// refuse are left off the curve and predictions are kept physical.
+    Profile(Box<Profile>),
+    /// A model fitted to the session, as it is.
+    Fitted(Box<dyn FittedModel>),
+}
+
+impl Curves {
+    /// C_xx, C_yy, C_or at (channel, x, y, setting).
+    fn predict(&self, channel: Channel, x: f64, y: f64, s: LensSetting) -> Option<[f64; 3]> {
+        match self {
+            Self::Profile(p) => p
+                .predict(channel, x, y, s)
+                .ok()
+                .map(|g| [g.sigma_x, g.sigma_y, g.rho]),
+            Self::Fitted(m) => m.predict(channel, x, y, s),
+        }
+    }
+}
 
 #[derive(Serialize)]
 struct Point {
@@ -105,32 +124,17 @@ pub fn run(args: Args) -> Result<()> {
     let (ds, _) = load_session(&args.session)?;
     ds.validate()?;
     let (fs, as_) = ds.distinct_settings();
-    let predictor: Predictor;
-    let name;
-    if let Some(p) = &args.profile {
+    let (curves, name) = if let Some(p) = &args.profile {
         let profile = Profile::load(p)?;
-        name = format!("{:?} model of {}", profile.preferred, p.display()).to_lowercase();
-        predictor = Box::new(move |c, x, y, s| {
-            profile
-                .predict(c, x, y, s)
-                .ok()
-                .map(|g| [g.sigma_x, g.sigma_y, g.rho])
-        });
+        let name = format!("{:?} model of {}", profile.preferred, p.display()).to_lowercase();
+        (Curves::Profile(Box::new(profile)), name)
     } else {
         let beta = args.beta.unwrap_or(ds.setting_resolution() - 1);
-        match args.model {
-            super::predict::KindArg::Global => {
-                let m = GlobalModel::fit(&ds, args.alpha, beta)?;
-                name = format!("G_{{{},{beta}}}", args.alpha);
-                predictor = Box::new(move |c, x, y, s| m.predict(c, x, y, s));
-            }
-            super::predict::KindArg::Local => {
-                let m = LocalModel::fit(&ds, args.alpha, beta, &LocalOptions::default())?;
-                name = format!("L_{{{},{beta}}}", args.alpha);
-                predictor = Box::new(move |c, x, y, s| m.predict(c, x, y, s));
-            }
-        }
-    }
+        let kind = ModelKind::from(args.model);
+        let m = fit_model(&ds, kind, args.alpha, beta, &LocalOptions::default())?;
+        let name = m.name();
+        (Curves::Fitted(m), name)
+    };
     let locations: Vec<[f64; 2]> = match &args.points {
         Some(p) => {
             let t = std::fs::read_to_string(p)
@@ -168,9 +172,9 @@ pub fn run(args: Args) -> Result<()> {
             let series = |fixed_is_focal: bool| {
                 let measured = measured_near(&ds, ch, x, y, near_px, |s| {
                     if fixed_is_focal {
-                        (s.focal_mm - focal).abs() <= 1e-3 * focal
+                        LensSetting::same_value(s.focal_mm, focal)
                     } else {
-                        (s.f_number - aperture).abs() <= 1e-3 * aperture
+                        LensSetting::same_value(s.f_number, aperture)
                     }
                 });
                 let model: Vec<Point> = if fixed_is_focal { &a_curve } else { &f_curve }
@@ -187,7 +191,7 @@ pub fn run(args: Args) -> Result<()> {
                                 f_number: aperture,
                             }
                         };
-                        predictor(ch, x, y, s).map(|p| Point {
+                        curves.predict(ch, x, y, s).map(|p| Point {
                             focal_mm: s.focal_mm,
                             f_number: s.f_number,
                             cxx: p[0],
@@ -272,7 +276,7 @@ fn measured_near(
     x: f64,
     y: f64,
     near_px: f64,
-    keep: impl Fn(&lensblur::model::ShotInfo) -> bool,
+    keep: impl Fn(&ShotInfo) -> bool,
 ) -> Vec<Point> {
     let mut out = Vec::new();
     for (i, shot) in ds.shots.iter().enumerate() {

@@ -5,6 +5,7 @@ pub mod capture;
 pub mod dng;
 pub mod files;
 pub mod lens;
+pub mod session;
 
 pub use capture::{
     CaptureParams, NoiseModel, Pose, PsfField, ShotTruth, SimulateError, SimulatedShot,
@@ -13,3 +14,4 @@ pub use capture::{
 pub use dng::{DngCompression, DngLayout};
 pub use files::{ShotFormat, write_shot, write_shot_as};
 pub use lens::{PsfShape, VirtualLens};
+pub use session::{SampleNoise, SimulatedSession};

@@ -1,0 +1,144 @@
+//! Calibration (DESIGN.md §1.7–1.8): from a session's measured samples to a lens
+//! profile. Chooses the model orders by cross-validation (unless given), fits the
+//! requested families, reports how well fixed orders cross-validate, and prefers the
+//! family with the lower error.
+
+use crate::chart::ChartSpec;
+use crate::crossval::{
+    CvOptions, CvReport, Selection, assign_folds, cross_validate, cross_validate_fixed,
+    param_ranges,
+};
+use crate::job::JobContext;
+use crate::model::{Dataset, GlobalModel, LocalModel, ModelError, ModelKind, check_order};
+use crate::profile::{CvSummary, Profile};
+use serde::{Deserialize, Serialize};
+
+/// Which model families to fit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Families {
+    Global,
+    Local,
+    Both,
+}
+
+/// What `calibrate` fits.
+#[derive(Clone, Debug)]
+pub struct CalibrateOptions {
+    pub families: Families,
+    /// Fixed α (skips cross-validated selection); β defaults to N − 1.
+    pub alpha: Option<usize>,
+    pub beta: Option<usize>,
+    pub cv: CvOptions,
+}
+
+impl Default for CalibrateOptions {
+    fn default() -> Self {
+        Self {
+            families: Families::Both,
+            alpha: None,
+            beta: None,
+            cv: CvOptions::default(),
+        }
+    }
+}
+
+/// Fits the requested families (α, β chosen by cross-validation unless given) and
+/// assembles the profile. Returns the cross-validation report when one was run.
+///
+/// # Errors
+/// Unknown settings, β too large for the session, too few shots for cross-validation,
+/// too few samples, or cancellation.
+pub fn calibrate(
+    ds: &Dataset,
+    chart: Option<ChartSpec>,
+    opts: &CalibrateOptions,
+    job: &JobContext,
+) -> Result<(Profile, Option<CvReport>), ModelError> {
+    ds.validate()?;
+    let n = ds.setting_resolution();
+    if let Some(b) = opts.beta {
+        ds.check_beta(b)?;
+    }
+    if let Some(a) = opts.alpha {
+        check_order(a, opts.beta.unwrap_or(0))?;
+    }
+    let want_global = opts.families != Families::Local;
+    let want_local = opts.families != Families::Global;
+    let (report, g_ab, l_ab) = if let Some(alpha) = opts.alpha {
+        let beta = opts.beta.unwrap_or(n - 1);
+        (None, (alpha, beta), (alpha, beta))
+    } else {
+        let mut cv = opts.cv.clone();
+        cv.run_global = want_global;
+        cv.run_local = want_local;
+        let r = cross_validate(ds, &cv, job)?;
+        let pick = |s: &Option<Selection>| {
+            s.as_ref()
+                .map_or((1, 0), |s| (s.alpha, opts.beta.unwrap_or(s.beta)))
+        };
+        let (g, l) = (pick(&r.global), pick(&r.local));
+        (Some(r), g, l)
+    };
+    job.check()?;
+    job.report("fitting", 0, 2);
+    let global = if want_global {
+        Some(GlobalModel::fit(ds, g_ab.0, g_ab.1)?)
+    } else {
+        None
+    };
+    job.report("fitting", 1, 2);
+    let local = if want_local {
+        Some(LocalModel::fit(ds, l_ab.0, l_ab.1, &opts.cv.local)?)
+    } else {
+        None
+    };
+    job.report("fitting", 2, 2);
+    let settings = ds.distinct_setting_pairs();
+    let cv = match &report {
+        Some(r) => Some(CvSummary::from_report(r)),
+        // Fixed orders: still report how well they cross-validate, where there are
+        // shots to hold out.
+        None if ds.shots.len() >= 2 => {
+            let fixed = |kind: ModelKind, (a, b): (usize, usize)| {
+                cross_validate_fixed(ds, kind, a, b, &opts.cv).map(|r| r.0)
+            };
+            let global_cv = if want_global {
+                Some(fixed(ModelKind::Global, g_ab)?)
+            } else {
+                None
+            };
+            job.check()?;
+            let local_cv = if want_local {
+                Some(fixed(ModelKind::Local, l_ab)?)
+            } else {
+                None
+            };
+            Some(CvSummary {
+                folds: assign_folds(ds, opts.cv.folds, opts.cv.hold_out, opts.cv.seed).1,
+                ranges: param_ranges(ds),
+                global: global_cv,
+                local: local_cv,
+            })
+        }
+        None => None,
+    };
+    // The family that cross-validates better; without cross-validation, the local
+    // model where there is one (the smaller error in the paper's tests).
+    let preferred = match cv.as_ref().map(|c| (&c.global, &c.local)) {
+        Some((Some(g), Some(l))) if g.mean_pct < l.mean_pct => ModelKind::Global,
+        _ if want_local => ModelKind::Local,
+        _ => ModelKind::Global,
+    };
+    let profile = Profile::new(
+        ds.identity.clone(),
+        chart,
+        settings,
+        global,
+        local,
+        cv,
+        preferred,
+    )
+    .ok_or(ModelError::Empty)?;
+    Ok((profile, report))
+}
