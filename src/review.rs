@@ -1,8 +1,8 @@
 //! What the studio asks of a session's results, answered by the core so that the app
-//! only shows: measured sweep points (the paper's Fig. 4), the numbers behind one
-//! square, the kernels a photo is deblurred with, and deblurred crops of a photo region
-//! side by side (the paper's Fig. 7–8 comparison of predicted Gaussians and measured
-//! kernels).
+//! only shows: measured sweep points and the model and truth curves beside them (the
+//! paper's Fig. 4), predicted and true Gaussian fields, the numbers behind one square,
+//! the kernels a photo is deblurred with, and deblurred crops of a photo region side by
+//! side (the paper's Fig. 7–8 comparison of predicted Gaussians and measured kernels).
 //!
 //! This module is core: it never touches egui.
 
@@ -83,6 +83,81 @@ pub fn sweep_settings(
                 }
             }
         })
+        .collect()
+}
+
+/// A profile's predicted Gaussians on the `grid` (`nx`, `ny`) of a `width` × `height`
+/// sensor at `setting`, each with its sensor position; or why the profile has none
+/// there (the first failure, one line).
+///
+/// # Errors
+/// The profile cannot predict at some grid point (channel or setting outside it).
+pub fn predicted_field(
+    profile: &Profile,
+    channel: Channel,
+    (width, height): (usize, usize),
+    (nx, ny): (usize, usize),
+    setting: LensSetting,
+) -> Result<Vec<(f64, f64, Gaussian2)>, String> {
+    field_grid(width, height, nx, ny)
+        .into_iter()
+        .map(|[x, y]| {
+            profile
+                .predict(channel, x, y, setting)
+                .map(|g| (x, y, g))
+                .map_err(|e| e.to_string())
+        })
+        .collect()
+}
+
+/// A virtual lens's pixel-level Gaussians on the same grid as [`predicted_field`].
+#[must_use]
+pub fn truth_field(
+    lens: &crate::simulate::VirtualLens,
+    channel: Channel,
+    size: (usize, usize),
+    (nx, ny): (usize, usize),
+    setting: LensSetting,
+) -> Vec<(f64, f64, Gaussian2)> {
+    field_grid(size.0, size.1, nx, ny)
+        .into_iter()
+        .map(|[x, y]| {
+            (
+                x,
+                y,
+                truth_pixel_gaussian(lens, channel, (x, y), size, setting),
+            )
+        })
+        .collect()
+}
+
+/// A profile's model curve at sensor point (x, y) over `settings` (from
+/// [`sweep_settings`]); settings it cannot predict at are left out.
+#[must_use]
+pub fn model_curve(
+    profile: &Profile,
+    channel: Channel,
+    (x, y): (f64, f64),
+    settings: &[LensSetting],
+) -> Vec<(LensSetting, Gaussian2)> {
+    settings
+        .iter()
+        .filter_map(|&s| Some((s, profile.predict(channel, x, y, s).ok()?)))
+        .collect()
+}
+
+/// A virtual lens's pixel-level truth at sensor point (x, y) over `settings`.
+#[must_use]
+pub fn truth_curve(
+    lens: &crate::simulate::VirtualLens,
+    channel: Channel,
+    at: (f64, f64),
+    size: (usize, usize),
+    settings: &[LensSetting],
+) -> Vec<(LensSetting, Gaussian2)> {
+    settings
+        .iter()
+        .map(|&s| (s, truth_pixel_gaussian(lens, channel, at, size, s)))
         .collect()
 }
 
@@ -542,6 +617,30 @@ mod tests {
         let [x, y] = cp.sensor_from_plane(1.0, 2.0);
         let v = cp.plane.get(1, 2);
         assert_eq!(v, (x as usize + r.x0 + 1000 * (y as usize + r.y0)) as f32);
+    }
+
+    #[test]
+    fn truth_field_and_curve_are_the_pixel_truth_at_their_points() {
+        let lens = crate::simulate::VirtualLens::demo();
+        let size = (120, 80);
+        let s = LensSetting {
+            focal_mm: lens.focal_range_mm[0],
+            f_number: lens.f_number_range[0],
+        };
+        let field = truth_field(&lens, Channel::G, size, (3, 2), s);
+        let grid = field_grid(size.0, size.1, 3, 2);
+        assert_eq!(field.len(), grid.len());
+        for ((x, y, g), [gx, gy]) in field.iter().zip(&grid) {
+            assert_eq!((*x, *y), (*gx, *gy));
+            assert_eq!(
+                *g,
+                truth_pixel_gaussian(&lens, Channel::G, (*x, *y), size, s)
+            );
+        }
+        let settings = sweep_settings(lens.f_number_range, s.focal_mm, true, 4);
+        let curve = truth_curve(&lens, Channel::R, (10.0, 20.0), size, &settings);
+        assert_eq!(curve.len(), settings.len());
+        assert!(curve.iter().zip(&settings).all(|((a, _), b)| a == b));
     }
 
     #[test]

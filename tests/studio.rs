@@ -210,10 +210,14 @@ fn every_view_on_the_demo_session() {
             (centre[1] as f32 - (hgt - 1.0) / 2.0) * fit,
         );
     click_at(&mut h, pos);
+    // The crops are made on a job thread.
+    step_until(&mut h, "the inspector", Duration::from_secs(30), |a| {
+        a.views.inspection().is_some()
+    });
     let rms = h
         .state()
-        .inspection
-        .as_ref()
+        .views
+        .inspection()
         .filter(|i| i.square == (row, col))
         .map(|i| i.crops.residual_rms)
         .expect("the inspector opens on the clicked square");
@@ -250,8 +254,8 @@ fn every_view_on_the_demo_session() {
     // The inspector now shows the square's kernel and its Gaussian's numbers.
     assert!(
         h.state()
-            .inspection
-            .as_ref()
+            .views
+            .inspection()
             .is_some_and(|i| i.kernel.is_some())
     );
     h.get_by_label_contains("robust fit");
@@ -263,7 +267,7 @@ fn every_view_on_the_demo_session() {
     snapshot(&mut h, "studio_kernel_field");
     h.get_by_label("Kernel shapes").click();
     h.run_steps(3);
-    assert!(h.state().kernel_atlas.is_some());
+    assert!(h.state().views.kernel_atlas.is_some());
     snapshot(&mut h, "studio_kernel_field_kernels");
 
     // Measured points appear in the sweeps before any model exists.

@@ -1,9 +1,10 @@
-//! Applies commands and drains finished jobs. Never draws.
+//! Applies commands, drains finished jobs and keeps the session saved: owns every
+//! change to the app's state, and makes the textures of results when they arrive
+//! (shot previews, the photo, deblurred crops). What the views derive from that state
+//! is `view_data`'s. Never draws.
 
 use super::jobs::{Emitter, JobEvent, JobScope};
-use super::{
-    Command, ComparisonView, DeblurResult, JobOutput, KernelAtlas, Photo, ShotPreview, StudioApp,
-};
+use super::{Command, ComparisonView, DeblurResult, JobOutput, Photo, ShotPreview, StudioApp};
 use crate::deblur::{DeblurOptions, KernelSource, Method};
 use crate::detect::Detection;
 use crate::job::JobContext;
@@ -83,9 +84,6 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
                 }
             }
             app.previews.insert(id, preview);
-            if app.selected_shot == Some(id) {
-                update_inspection(app);
-            }
         }
         JobOutput::ShotUnreadable { shot, reason } => {
             if app.has_shot(shot) {
@@ -150,8 +148,6 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
             match result {
                 Ok(file) => {
                     app.measured.insert(id, file);
-                    app.measured_generation += 1;
-                    update_inspection(app);
                 }
                 Err(e) => app.error(e),
             }
@@ -181,11 +177,9 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
             save(app);
             app.detections = detections;
             app.measured = measured;
-            app.measured_generation += 1;
             if app.cv.is_none() {
                 app.cv = cv;
             }
-            update_inspection(app);
             spawn_dataset(app);
         }
         JobOutput::Detected { shot: id, result } => {
@@ -257,6 +251,9 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
                 textures,
             });
         }
+        JobOutput::SquareInspected { key, result } => {
+            super::view_data::inspected(app, key, result);
+        }
         JobOutput::DeblurExported(path) => {
             app.info(format!(
                 "deblurred photo written to {}",
@@ -280,21 +277,11 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         Command::SelectShot(i) => {
             app.selected_shot = Some(i);
             app.selected_square = None;
-            app.inspection = None;
             app.viewer.sensor_px_per_point = None;
         }
-        Command::SelectChannel(c) => {
-            app.channel = c;
-            update_inspection(app);
-        }
-        Command::ClearSquare => {
-            app.selected_square = None;
-            app.inspection = None;
-        }
-        Command::SelectSquare(sq) => {
-            app.selected_square = Some(sq);
-            update_inspection(app);
-        }
+        Command::SelectChannel(c) => app.channel = c,
+        Command::ClearSquare => app.selected_square = None,
+        Command::SelectSquare(sq) => app.selected_square = Some(sq),
         Command::AddShotsDialog => {
             if let Some(files) = rfd::FileDialog::new()
                 .set_title("Add calibration shots")
@@ -348,6 +335,11 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         Command::RunCalibrate => run_calibrate(app),
         Command::SetFieldSource(f) => app.field_source = f,
         Command::SetFieldShow(f) => app.field_show = f,
+        Command::SetFieldSetting { focal_mm, f_number } => {
+            app.field_focal_mm = focal_mm;
+            app.field_f_number = f_number;
+        }
+        Command::SetCompareUnits(on) => app.compare_units = on,
         Command::OpenPhotoDialog => {
             if let Some(p) = rfd::FileDialog::new()
                 .set_title("Open a photo to deblur")
@@ -534,11 +526,9 @@ fn remove_shot(app: &mut StudioApp, id: ShotId) {
     app.detections.remove(&id);
     app.measured.remove(&id);
     app.loading.remove(&id);
-    app.measured_generation += 1;
     if app.selected_shot == Some(id) {
         app.selected_shot = next;
         app.selected_square = None;
-        app.inspection = None;
     }
     save(app);
     spawn_dataset(app);
@@ -575,11 +565,9 @@ fn apply_settings(
     if chart_changed {
         app.detections.clear();
         app.selected_square = None;
-        app.inspection = None;
     }
     if kernels_changed {
         app.measured.clear();
-        app.measured_generation += 1;
         app.dataset = None;
     }
     app.settings_edit = None;
@@ -721,7 +709,7 @@ pub(super) fn rgb_texture(
 }
 
 /// The first plane of a channel (G1 for a Bayer G): enough for display.
-pub(crate) fn pooled_plane(capture: &Capture, channel: Channel) -> Option<ChannelPlane> {
+fn pooled_plane(capture: &Capture, channel: Channel) -> Option<ChannelPlane> {
     capture
         .planes
         .iter()
@@ -988,96 +976,6 @@ fn spawn_dataset(app: &mut StudioApp) {
     }
 }
 
-/// Recomputes the inspector's crops for the selected shot, square and channel.
-fn update_inspection(app: &mut StudioApp) {
-    app.inspection = None;
-    let (Some(shot), Some(sq)) = (app.selected_shot, app.selected_square) else {
-        return;
-    };
-    let (Some(preview), Some(det), Some(session)) = (
-        app.previews.get(&shot),
-        app.detections.get(&shot),
-        app.session.as_ref(),
-    ) else {
-        return;
-    };
-    let Some(square) = det.squares.iter().find(|s| (s.row, s.col) == sq) else {
-        return;
-    };
-    let channel = if preview
-        .capture
-        .planes
-        .iter()
-        .any(|p| p.channel == app.channel)
-    {
-        app.channel
-    } else {
-        match preview.capture.planes.first() {
-            Some(p) => p.channel,
-            None => return,
-        }
-    };
-    let Some(crops) =
-        crate::detect::inspect::inspect_square(&preview.capture, square, &session.chart, channel)
-    else {
-        return;
-    };
-    let facts = (square.status == crate::detect::SquareStatus::Ok)
-        .then(|| crate::review::square_facts(square));
-    let tex = |name: &str, plane: &Plane, map: &dyn Fn(f32) -> u8| {
-        let img = egui::ColorImage::from_gray_iter(
-            [plane.width, plane.height],
-            plane.data.iter().map(|&v| map(v)),
-        );
-        app.ctx
-            .load_texture(name, img, egui::TextureOptions::NEAREST)
-    };
-    // The residual is signed and small: mid-grey is zero, ±25 % of the square's
-    // contrast spans the grey range.
-    let contrast = {
-        let mut v = crops.observed.data.clone();
-        v.sort_by(f32::total_cmp);
-        (v[v.len() * 98 / 100] - v[v.len() * 2 / 100]).max(1e-3)
-    };
-    let textures = [
-        tex("inspect-observed", &crops.observed, &encode),
-        tex("inspect-synthetic", &crops.synthetic, &encode),
-        tex("inspect-residual", &crops.residual, &|r: f32| {
-            ((0.5 + 2.0 * r / contrast).clamp(0.0, 1.0) * 255.0) as u8
-        }),
-    ];
-    let kernel = app
-        .measured
-        .get(&shot)
-        .and_then(|file| {
-            let s = file
-                .samples
-                .iter()
-                .find(|s| s.channel == channel && s.row == Some(sq.0) && s.col == Some(sq.1))?;
-            s.kernel_at(file.oversample)
-        })
-        .map(|k| {
-            let peak = k.data.iter().copied().fold(1e-12, f64::max);
-            let img = egui::ColorImage::from_gray_iter(
-                [k.size, k.size],
-                k.data
-                    .iter()
-                    .map(|&v| ((v / peak).clamp(0.0, 1.0) * 255.0) as u8),
-            );
-            app.ctx
-                .load_texture("inspect-kernel", img, egui::TextureOptions::NEAREST)
-        });
-    app.inspection = Some(super::Inspection {
-        shot,
-        square: sq,
-        channel,
-        crops,
-        facts,
-        textures,
-        kernel,
-    });
-}
-
 /// The cross-validation report beside the profile, so a reopened session shows its
 /// curves without calibrating again.
 const CV_FILE: &str = "crossval.json";
@@ -1311,79 +1209,4 @@ fn run_export(app: &mut StudioApp, path: PathBuf, result: DeblurResult) {
     if let Err(e) = r {
         app.error(e);
     }
-}
-
-/// The measured kernels of the selected shot and channel packed into one texture: the
-/// central ±R px of each (R = 2.5 × the largest σ of the field, so every kernel shows
-/// the same extent and shapes compare), each scaled to its own peak (σ is in the tint).
-pub(super) fn ensure_kernel_atlas(app: &mut StudioApp) {
-    let Some(shot) = app.selected_shot else {
-        app.kernel_atlas = None;
-        return;
-    };
-    let key = (shot, app.channel, app.measured_generation);
-    if app.kernel_atlas.as_ref().is_some_and(|a| a.key == key) {
-        return;
-    }
-    app.kernel_atlas = None;
-    let Some(file) = app.measured.get(&shot) else {
-        return;
-    };
-    let samples: Vec<(usize, crate::psf::Kernel)> = file
-        .samples
-        .iter()
-        .enumerate()
-        .filter(|(_, s)| s.channel == app.channel)
-        .filter_map(|(i, s)| Some((i, s.kernel_at(file.oversample)?)))
-        .collect();
-    if samples.is_empty() {
-        return;
-    }
-    let max_sigma = file
-        .samples
-        .iter()
-        .filter(|s| s.channel == app.channel)
-        .filter_map(|s| Some(s.cxx?.max(s.cyy?)))
-        .fold(0.5, f64::max);
-    let extent_px = (2.5 * max_sigma).max(2.0);
-    let os = file.oversample.max(1);
-    let half = (extent_px * os as f64).ceil() as usize;
-    let cell = 2 * half + 1;
-    let per_row = (samples.len() as f64).sqrt().ceil().max(1.0) as usize;
-    let rows = samples.len().div_ceil(per_row);
-    let (w, h) = (per_row * cell, rows * cell);
-    let mut img = egui::ColorImage::filled([w, h], egui::Color32::TRANSPARENT);
-    let mut cells = Vec::with_capacity(samples.len());
-    for (n, (i, k)) in samples.iter().enumerate() {
-        let (cx, cy) = ((n % per_row) * cell, (n / per_row) * cell);
-        let c = (k.size / 2) as isize;
-        let peak = k.data.iter().copied().fold(1e-12, f64::max);
-        for j in 0..cell {
-            for q in 0..cell {
-                let (kx, ky) = (
-                    c + q as isize - half as isize,
-                    c + j as isize - half as isize,
-                );
-                if kx < 0 || ky < 0 || kx >= k.size as isize || ky >= k.size as isize {
-                    continue;
-                }
-                let v = (k.at(kx as usize, ky as usize) / peak).clamp(0.0, 1.0);
-                img[(cx + q, cy + j)] = egui::Color32::from_white_alpha((v * 255.0) as u8);
-            }
-        }
-        let uv = egui::Rect::from_min_size(
-            egui::Pos2::new(cx as f32 / w as f32, cy as f32 / h as f32),
-            egui::Vec2::new(cell as f32 / w as f32, cell as f32 / h as f32),
-        );
-        cells.push((*i, uv));
-    }
-    let texture = app
-        .ctx
-        .load_texture("kernel-atlas", img, egui::TextureOptions::NEAREST);
-    app.kernel_atlas = Some(KernelAtlas {
-        key,
-        texture,
-        cells,
-        extent_px: half as f64 / os as f64,
-    });
 }

@@ -1,12 +1,16 @@
 //! The studio: one window over the headless core (DESIGN.md §4).
 //!
-//! Split as `logic` (apply [`Command`]s, drain finished jobs, keep the session saved) and
-//! `ui` (draw; every drawing function ends in `_ui` and only emits commands). Every
-//! computation is a call into the core on a job thread; the app only shows and drives.
+//! Split as `logic` (apply [`Command`]s, drain finished jobs, keep the session saved),
+//! `view_data` (what the views show that takes computing: made when its inputs change,
+//! cached keyed by them, long work on a job thread) and `ui` (draw; every drawing
+//! function ends in `_ui`, only reads the app and emits commands, and shows a
+//! placeholder where view data is absent). Every computation is a call into the core;
+//! the app only shows and drives.
 
 pub mod jobs;
 mod logic;
 mod ui;
+pub mod view_data;
 
 use crate::chart::ChartSpec;
 use crate::crossval::CvReport;
@@ -136,6 +140,13 @@ pub enum Command {
     SaveProfileDialog,
     SetFieldSource(FieldSource),
     SetFieldShow(FieldShow),
+    /// The setting of the predicted and true fields and of the sweeps (the sliders).
+    SetFieldSetting {
+        focal_mm: f64,
+        f_number: f64,
+    },
+    /// Show the demo lens's second unit beside the first.
+    SetCompareUnits(bool),
     OpenSessionDialog,
     /// Opens (or creates) the session in a folder, or from a session file or manifest.
     OpenSession(PathBuf),
@@ -199,6 +210,11 @@ pub enum JobOutput {
         measured_from: Option<String>,
     },
     DeblurExported(PathBuf),
+    /// The crops of an inspected square (`None`: the square has none in that channel).
+    SquareInspected {
+        key: view_data::InspectKey,
+        result: Option<Box<view_data::InspectedSquare>>,
+    },
 }
 
 /// How the app starts.
@@ -270,18 +286,6 @@ pub enum FieldShow {
     Kernels,
 }
 
-/// The inspector's square: which one, its crops and their textures (observed,
-/// synthetic, residual), and its measured kernel's texture.
-pub struct Inspection {
-    pub shot: ShotId,
-    pub square: (usize, usize),
-    pub channel: Channel,
-    pub crops: crate::detect::inspect::SquareInspection,
-    pub facts: Option<crate::review::SquareFacts>,
-    pub textures: [egui::TextureHandle; 3],
-    pub kernel: Option<egui::TextureHandle>,
-}
-
 /// A loaded shot and its display textures per channel.
 pub struct ShotPreview {
     pub capture: Arc<Capture>,
@@ -340,18 +344,6 @@ pub struct DeblurState {
     /// Divider position in the slider layout, 0 (all result) to 1 (all original).
     pub slider: f32,
     pub slider_result: DeblurResult,
-}
-
-/// Measured kernels of one shot and channel packed into one texture for the Kernel
-/// field view: each cell holds the central ±`extent_px` of one kernel, scaled to its
-/// peak.
-pub struct KernelAtlas {
-    pub key: (ShotId, Channel, usize),
-    pub texture: egui::TextureHandle,
-    /// Per sample: its index in the kernels file and its cell's UV rectangle.
-    pub cells: Vec<(usize, egui::Rect)>,
-    /// Half the side every cell shows, sensor px.
-    pub extent_px: f64,
 }
 
 /// Frame intervals while jobs run, to show the UI stays responsive.
@@ -431,9 +423,8 @@ pub struct StudioApp {
     /// What the Kernel field view shows.
     pub field_source: FieldSource,
     pub field_show: FieldShow,
-    pub kernel_atlas: Option<KernelAtlas>,
-    /// Crops of the clicked square for the inspector.
-    pub inspection: Option<Inspection>,
+    /// What the views show that takes computing, cached by what it depends on.
+    pub views: view_data::ViewData,
     pub deblur: DeblurState,
     /// Settings being edited in the session panel, applied by its Apply button.
     pub settings_edit: Option<(ChartSpec, StageSettings)>,
@@ -446,8 +437,6 @@ pub struct StudioApp {
     /// Counts the sessions opened: results of jobs started for an earlier one are
     /// dropped when they arrive.
     session_generation: u64,
-    /// Bumped whenever measured kernels change, so cached textures are rebuilt.
-    measured_generation: usize,
     first_frame_logged: bool,
     ready_logged: bool,
 }
@@ -480,7 +469,6 @@ impl StudioApp {
             compare_units: false,
             detections: BTreeMap::new(),
             selected_square: None,
-            inspection: None,
             measured: BTreeMap::new(),
             dataset: None,
             profile: None,
@@ -488,7 +476,7 @@ impl StudioApp {
             cv: None,
             field_source: FieldSource::Measured,
             field_show: FieldShow::Ellipses,
-            kernel_atlas: None,
+            views: view_data::ViewData::default(),
             deblur: DeblurState {
                 photo: None,
                 crop_px: 160,
@@ -504,7 +492,6 @@ impl StudioApp {
             ctx: ctx.clone(),
             loading: std::collections::BTreeSet::new(),
             session_generation: 0,
-            measured_generation: 0,
             first_frame_logged: false,
             ready_logged: false,
         };
@@ -611,8 +598,7 @@ impl StudioApp {
         self.loading.clear();
         self.detections.clear();
         self.measured.clear();
-        self.measured_generation += 1;
-        self.kernel_atlas = None;
+        self.views = view_data::ViewData::default();
         self.dataset = None;
         self.cv = None;
         self.profile = None;
@@ -632,7 +618,6 @@ impl StudioApp {
             }
         }
         self.selected_square = None;
-        self.inspection = None;
         self.selected_shot = s.shots.first().map(|shot| shot.id);
         self.viewer.sensor_px_per_point = None;
         if let Some((f, a)) = middle_setting(&s) {
@@ -651,6 +636,7 @@ impl StudioApp {
             logic::apply(self, c);
         }
         logic::ensure_preview(self);
+        view_data::refresh(self);
         let ready = self
             .session
             .as_ref()

@@ -1,65 +1,16 @@
 //! The Kernel field view: measured kernels or Gaussian ellipses at their sensor
 //! positions, coloured by σ; the field a profile predicts at any setting; the demo
 //! lens's truth; two lens units side by side.
+//!
+//! Draws the panels `view_data` made (the fields, the kernel atlas) and the controls
+//! that choose them; computes nothing.
 
+use super::super::view_data::{FieldPanel, PanelContent, PanelOf};
 use super::super::{Command, FieldShow, FieldSource, StudioApp};
-use super::{ellipse_points, setting_sliders_ui, sigma_color, sigma_legend_ui, truth_gaussian};
-use crate::plane::{Channel, LensSetting};
-use crate::psf::Gaussian2;
+use super::{ellipse_points, setting_sliders_ui, sigma_color, sigma_legend_ui};
+use crate::plane::LensSetting;
 use crate::simulate::VirtualLens;
 use egui::{Color32, Rect, Sense, Stroke, Vec2};
-
-/// Grid of the predicted and true fields.
-const GRID: (usize, usize) = (12, 8);
-
-/// What one panel draws.
-enum PanelContent {
-    Ellipses(Vec<(f64, f64, Gaussian2)>),
-    /// Measured kernels of the selected shot: (position, fit, atlas cell UV) each, every
-    /// cell ±`extent_px` around its kernel's centre, drawn `cell_frac` of the chart's
-    /// square pitch wide.
-    Kernels {
-        cells: Vec<(f64, f64, Gaussian2, Rect)>,
-        extent_px: f64,
-        pitch_px: f64,
-    },
-}
-
-struct Panel {
-    title: String,
-    content: Result<PanelContent, String>,
-    /// Squares where no kernel could be measured (sensor px), with the reason.
-    failed: Vec<(f64, f64, String)>,
-}
-
-fn truth_field(
-    lens: &VirtualLens,
-    ch: Channel,
-    size: (usize, usize),
-    s: LensSetting,
-) -> Vec<(f64, f64, Gaussian2)> {
-    crate::review::field_grid(size.0, size.1, GRID.0, GRID.1)
-        .into_iter()
-        .map(|[x, y]| (x, y, truth_gaussian(lens, ch, x, y, size, s)))
-        .collect()
-}
-
-/// A profile's predicted field on the grid, or why it has none at this setting.
-fn predicted_field(
-    p: &crate::profile::Profile,
-    ch: Channel,
-    size: (usize, usize),
-    s: LensSetting,
-) -> Result<Vec<(f64, f64, Gaussian2)>, String> {
-    crate::review::field_grid(size.0, size.1, GRID.0, GRID.1)
-        .into_iter()
-        .map(|[x, y]| {
-            p.predict(ch, x, y, s)
-                .map(|g| (x, y, g))
-                .map_err(|e| e.to_string())
-        })
-        .collect()
-}
 
 pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ui.heading("Kernel field");
@@ -123,80 +74,8 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     };
     let size = super::sensor_size(app);
     let ch = app.channel;
-    let mut panels: Vec<Panel> = Vec::new();
     match app.field_source {
-        FieldSource::Measured => {
-            if app.field_show == FieldShow::Kernels {
-                super::super::logic::ensure_kernel_atlas(app);
-            }
-            let shot = app.selected_shot;
-            let name = shot
-                .and_then(|id| app.session.as_ref()?.shot(id))
-                .map_or_else(String::new, |s| {
-                    let setting = s.setting().map_or_else(String::new, |v| {
-                        format!(" ({:.0} mm f/{:.1})", v.focal_mm, v.f_number)
-                    });
-                    format!("{}{setting}", s.stem())
-                });
-            let file = shot.and_then(|i| app.measured.get(&i));
-            let content = match (file, app.field_show) {
-                (None, _) => Err(
-                    "No kernels measured on this shot yet — press Kernels (Ctrl+K) after Detect."
-                        .to_owned(),
-                ),
-                (Some(f), FieldShow::Ellipses) => Ok(PanelContent::Ellipses(
-                    f.samples
-                        .iter()
-                        .filter(|k| k.channel == ch)
-                        .filter_map(|k| {
-                            Some((
-                                k.x,
-                                k.y,
-                                Gaussian2 {
-                                    sigma_x: k.cxx?,
-                                    sigma_y: k.cyy?,
-                                    rho: k.cor?,
-                                },
-                            ))
-                        })
-                        .collect(),
-                )),
-                (Some(f), FieldShow::Kernels) => match &app.kernel_atlas {
-                    Some(atlas) => Ok(PanelContent::Kernels {
-                        cells: atlas
-                            .cells
-                            .iter()
-                            .filter_map(|&(i, uv)| {
-                                let k = f.samples.get(i)?;
-                                let g = Gaussian2 {
-                                    sigma_x: k.cxx.unwrap_or(1.0),
-                                    sigma_y: k.cyy.unwrap_or(1.0),
-                                    rho: k.cor.unwrap_or(0.0),
-                                };
-                                Some((k.x, k.y, g, uv))
-                            })
-                            .collect(),
-                        extent_px: atlas.extent_px,
-                        // Squares of the chart are about this far apart on the sensor.
-                        pitch_px: size.0 as f64
-                            / app.session.as_ref().map_or(12, |s| s.chart.cols + 2) as f64,
-                    }),
-                    None => Err("This kernels file holds Gaussians only, no kernel arrays.".into()),
-                },
-            };
-            let failed = file.map_or_else(Vec::new, |f| {
-                f.failed
-                    .iter()
-                    .filter(|k| k.channel == ch)
-                    .map(|k| (k.x, k.y, k.reason.clone()))
-                    .collect()
-            });
-            panels.push(Panel {
-                title: format!("measured on {name} — channel {ch}"),
-                content,
-                failed,
-            });
-        }
+        FieldSource::Measured => {}
         FieldSource::Predicted => {
             setting_sliders_ui(app, ui, &lens);
             ui.horizontal(|ui| {
@@ -208,34 +87,6 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                     app.commands.push(Command::LoadCompareProfileDialog);
                 }
             });
-            match &app.profile {
-                Some((path, p)) => panels.push(Panel {
-                    title: format!(
-                        "{} — {:.0} mm f/{:.1}, channel {ch}",
-                        app.shown_path(path),
-                        s.focal_mm,
-                        s.f_number
-                    ),
-                    content: predicted_field(p, ch, size, s).map(PanelContent::Ellipses),
-                    failed: Vec::new(),
-                }),
-                None => {
-                    panels.push(Panel {
-                        title: "predicted".into(),
-                        content: Err(
-                            "No profile yet: Calibrate (Ctrl+M) or load one in Models.".into()
-                        ),
-                        failed: Vec::new(),
-                    })
-                }
-            }
-            if let Some((path, p)) = &app.compare_profile {
-                panels.push(Panel {
-                    title: format!("{} — channel {ch}", app.shown_path(path)),
-                    content: predicted_field(p, ch, size, s).map(PanelContent::Ellipses),
-                    failed: Vec::new(),
-                });
-            }
         }
         FieldSource::Truth => {
             if !is_demo {
@@ -243,24 +94,61 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 return;
             }
             setting_sliders_ui(app, ui, &lens);
-            ui.checkbox(&mut app.compare_units, "Compare with a second unit")
-                .on_hover_text("Two copies of one lens model blur differently (the paper's two 17–40 mm units).");
-            ui.label("Ground truth of the demo's virtual lens: pixel-level Gaussians (optical blur plus the 1-px pixel integration).");
-            panels.push(Panel {
-                title: format!("{} {} — channel {ch}", lens.model, lens.serial),
-                content: Ok(PanelContent::Ellipses(truth_field(&lens, ch, size, s))),
-                failed: Vec::new(),
-            });
-            if app.compare_units {
-                let other = VirtualLens::demo_second_unit();
-                panels.push(Panel {
-                    title: format!("{} {} — channel {ch}", other.model, other.serial),
-                    content: Ok(PanelContent::Ellipses(truth_field(&other, ch, size, s))),
-                    failed: Vec::new(),
-                });
+            let mut compare = app.compare_units;
+            if ui
+                .checkbox(&mut compare, "Compare with a second unit")
+                .on_hover_text("Two copies of one lens model blur differently (the paper's two 17–40 mm units).")
+                .changed()
+            {
+                app.commands.push(Command::SetCompareUnits(compare));
             }
+            ui.label("Ground truth of the demo's virtual lens: pixel-level Gaussians (optical blur plus the 1-px pixel integration).");
         }
     }
+    let Some(field) = &app.views.field else {
+        ui.horizontal(|ui| {
+            ui.spinner();
+            ui.label("preparing the field…");
+        });
+        return;
+    };
+    let title = |p: &FieldPanel| match p.of {
+        PanelOf::Measured => {
+            let name = app
+                .selected_shot
+                .and_then(|id| app.session.as_ref()?.shot(id))
+                .map_or_else(String::new, |s| {
+                    let setting = s.setting().map_or_else(String::new, |v| {
+                        format!(" ({:.0} mm f/{:.1})", v.focal_mm, v.f_number)
+                    });
+                    format!("{}{setting}", s.stem())
+                });
+            format!("measured on {name} — channel {ch}")
+        }
+        PanelOf::Profile => match &app.profile {
+            Some((path, _)) => format!(
+                "{} — {:.0} mm f/{:.1}, channel {ch}",
+                app.shown_path(path),
+                s.focal_mm,
+                s.f_number
+            ),
+            None => "predicted".into(),
+        },
+        PanelOf::NoProfile => "predicted".into(),
+        PanelOf::CompareProfile => match &app.compare_profile {
+            Some((path, _)) => format!("{} — channel {ch}", app.shown_path(path)),
+            None => String::new(),
+        },
+        PanelOf::Truth { second_unit } => {
+            let unit = if second_unit {
+                VirtualLens::demo_second_unit()
+            } else {
+                VirtualLens::demo()
+            };
+            format!("{} {} — channel {ch}", unit.model, unit.serial)
+        }
+    };
+    let panels = &field.panels;
     let avail = ui.available_size();
     let cols = panels.len().max(1) as f32;
     let w = ((avail.x - 16.0 * cols) / cols)
@@ -269,24 +157,12 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     let panel_size = Vec2::new(w, w * size.1 as f32 / size.0 as f32);
     // One magnification for every panel so compared fields are comparable: the largest
     // 1-σ radius fills 45 % of a twelfth of the sensor width.
-    let max_sigma = panels
-        .iter()
-        .filter_map(|p| match &p.content {
-            Ok(PanelContent::Ellipses(v)) => Some(v.iter().map(|(_, _, g)| *g).collect::<Vec<_>>()),
-            Ok(PanelContent::Kernels { cells, .. }) => {
-                Some(cells.iter().map(|(_, _, g, _)| *g).collect())
-            }
-            Err(_) => None,
-        })
-        .flatten()
-        .map(|g| g.sigma_x.max(g.sigma_y))
-        .fold(1e-6, f64::max);
-    let scale = 0.45 * (panel_size.x / 12.0) / max_sigma as f32;
-    let atlas = app.kernel_atlas.as_ref().map(|a| a.texture.id());
+    let scale = 0.45 * (panel_size.x / 12.0) / field.max_sigma as f32;
+    let atlas = app.views.kernel_atlas.as_ref().map(|a| a.texture.id());
     ui.horizontal(|ui| {
-        for p in &panels {
+        for p in panels {
             ui.vertical(|ui| {
-                ui.label(&p.title);
+                ui.label(title(p));
                 match &p.content {
                     Ok(content) => {
                         field_panel_ui(ui, content, &p.failed, size, scale, panel_size, atlas)

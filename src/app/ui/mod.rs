@@ -1,4 +1,6 @@
-//! Drawing. Functions end in `_ui`; they read the app and push [`Command`]s.
+//! Drawing. Functions end in `_ui`; they read the app (its state and the view data
+//! `view_data` keeps current) and push [`Command`]s, and never compute what a view
+//! shows: where its view data is absent they show a placeholder.
 
 mod deblur;
 mod field;
@@ -7,8 +9,9 @@ mod session_panel;
 mod shot;
 mod sweeps;
 
+use super::view_data::{sensor_size, setting_ranges};
 use super::{Command, DeblurResult, StudioApp, View};
-use crate::plane::{Channel, LensSetting};
+use crate::plane::Channel;
 use crate::psf::Gaussian2;
 use crate::simulate::VirtualLens;
 use egui::{Color32, Key, KeyboardShortcut, Modifiers, Pos2, Rect, Sense, Vec2};
@@ -335,63 +338,32 @@ fn ellipse_points(centre: Pos2, g: &Gaussian2, scale: f32) -> Vec<Pos2> {
         .collect()
 }
 
-/// Pixel-level truth of the virtual lens: the optical Gaussian plus the 1-px box.
-fn truth_gaussian(
-    lens: &VirtualLens,
-    ch: Channel,
-    x: f64,
-    y: f64,
-    size: (usize, usize),
-    s: LensSetting,
-) -> Gaussian2 {
-    crate::review::truth_pixel_gaussian(lens, ch, (x, y), size, s)
-}
-
-/// The sensor the views draw on: the selected shot's, else the demo's.
-fn sensor_size(app: &StudioApp) -> (usize, usize) {
-    if let Some(p) = app.selected_shot.and_then(|i| app.previews.get(&i)) {
-        return (p.capture.width, p.capture.height);
-    }
-    if let Some(d) = app.dataset.as_ref() {
-        return (d.width, d.height);
-    }
-    (app.options.demo_spec.width, app.options.demo_spec.height)
-}
-
-/// Focal length and aperture ranges the sliders span: the profile's calibrated ones,
-/// else the session's, else the demo lens's.
-fn setting_ranges(app: &StudioApp, lens: &VirtualLens) -> ([f64; 2], [f64; 2]) {
-    if let Some((_, p)) = &app.profile {
-        return (p.norm.focal_range_mm, p.norm.f_number_range);
-    }
-    if let Some(s) = &app.session {
-        let (f, a) = s.setting_grid();
-        if let (Some(f0), Some(f1), Some(a0), Some(a1)) = (f.first(), f.last(), a.first(), a.last())
-            && f1 > f0
-            && a1 > a0
-        {
-            return ([*f0, *f1], [*a0, *a1]);
-        }
-    }
-    (lens.focal_range_mm, lens.f_number_range)
-}
-
 fn setting_sliders_ui(app: &mut StudioApp, ui: &mut egui::Ui, lens: &VirtualLens) {
     let (f_range, a_range) = setting_ranges(app, lens);
+    let (mut focal_mm, mut f_number) = (app.field_focal_mm, app.field_f_number);
+    let mut changed = false;
     ui.horizontal(|ui| {
-        ui.add(
-            egui::Slider::new(&mut app.field_focal_mm, f_range[0]..=f_range[1])
-                .suffix(" mm")
-                .fixed_decimals(0)
-                .text("focal length"),
-        );
+        changed |= ui
+            .add(
+                egui::Slider::new(&mut focal_mm, f_range[0]..=f_range[1])
+                    .suffix(" mm")
+                    .fixed_decimals(0)
+                    .text("focal length"),
+            )
+            .changed();
         ui.add_space(12.0);
-        ui.add(
-            egui::Slider::new(&mut app.field_f_number, a_range[0]..=a_range[1])
-                .prefix("f/")
-                .fixed_decimals(1)
-                .logarithmic(true)
-                .text("aperture"),
-        );
+        changed |= ui
+            .add(
+                egui::Slider::new(&mut f_number, a_range[0]..=a_range[1])
+                    .prefix("f/")
+                    .fixed_decimals(1)
+                    .logarithmic(true)
+                    .text("aperture"),
+            )
+            .changed();
     });
+    if changed {
+        app.commands
+            .push(Command::SetFieldSetting { focal_mm, f_number });
+    }
 }

@@ -1,8 +1,13 @@
 //! The Shot view: one shot per channel with zoom and pan, the detection's overlays, and
 //! the inspector of a clicked square.
+//!
+//! Draws the textures made when the shot loaded and the view data `view_data` keeps
+//! (the plane the viewer maps, the inspector's crops, kernel and truth); computes
+//! nothing.
 
+use super::super::view_data::Inspecting;
 use super::super::{Command, StudioApp};
-use super::{caption, ellipse_points, truth_gaussian};
+use super::{caption, ellipse_points};
 use crate::detect::{Detection, SquareStatus};
 use crate::session::StageStatus;
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
@@ -112,13 +117,25 @@ pub(super) fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         return;
     };
     let cap = &preview.capture;
-    let plane =
-        super::super::logic::pooled_plane(cap, app.channel).or_else(|| cap.planes.first().cloned());
+    let Some(shot_plane) = app.views.shot_plane.as_ref().filter(|p| p.shot() == index) else {
+        ui.horizontal(|ui| {
+            ui.spinner();
+            ui.label("preparing the shot…");
+        });
+        return;
+    };
+    let plane = shot_plane.index.and_then(|i| cap.planes.get(i));
     let (step, ox, oy) = plane.as_ref().map_or((1.0, 0.0, 0.0), |p| {
         (p.step as f64, p.offset_x as f64, p.offset_y as f64)
     });
 
-    let inspecting = app.inspection.as_ref().is_some_and(|i| i.shot == index);
+    // The inspector stands beside the viewer while its crops are made, so the viewer
+    // keeps its size when they arrive.
+    let inspecting = match &app.views.inspection {
+        Some(Inspecting::Running(k)) => k.shot == index,
+        Some(Inspecting::Ready(i)) => i.shot == index,
+        Some(Inspecting::Empty(_)) | None => false,
+    };
     let inspector_w = if inspecting { INSPECTOR_W } else { 0.0 };
     let avail = ui.available_size();
     let (rect, response) = ui.allocate_exact_size(
@@ -226,7 +243,7 @@ pub(super) fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     }
     if let Some(p) = response.hover_pos() {
         let [x, y] = view.to_sensor(p);
-        let v = plane.as_ref().and_then(|cp| {
+        let v = plane.and_then(|cp| {
             let [i, j] = cp.plane_from_sensor(f64::from(x), f64::from(y));
             cp.plane.get_checked(i.round() as i64, j.round() as i64)
         });
@@ -401,7 +418,29 @@ fn point_in_quad(p: [f64; 2], q: &[[f64; 2]; 4]) -> bool {
 /// their difference; its measured 3× kernel with the fitted Gaussian's ellipse; the
 /// numbers behind them.
 fn inspector_ui(app: &StudioApp, ui: &mut egui::Ui) -> Option<Command> {
-    let ins = app.inspection.as_ref()?;
+    let ins = match app.views.inspection.as_ref()? {
+        Inspecting::Ready(ins) => ins,
+        Inspecting::Running(key) => {
+            let mut out = None;
+            ui.horizontal(|ui| {
+                let (row, col) = key.square;
+                ui.strong(format!("Square row {row}, column {col} — {}", key.channel));
+                if ui
+                    .small_button("×")
+                    .on_hover_text("Close the inspector")
+                    .clicked()
+                {
+                    out = Some(Command::ClearSquare);
+                }
+            });
+            ui.horizontal(|ui| {
+                ui.spinner();
+                ui.label("inspecting the square…");
+            });
+            return out;
+        }
+        Inspecting::Empty(_) => return None,
+    };
     let (row, col) = ins.square;
     let mut out = None;
     ui.horizontal(|ui| {
@@ -492,23 +531,7 @@ fn inspector_ui(app: &StudioApp, ui: &mut egui::Ui) -> Option<Command> {
                     ));
                 }
             }
-            let truth = app
-                .session
-                .as_ref()
-                .filter(|s| s.is_demo)
-                .and_then(|session| session.shot(ins.shot)?.setting())
-                .zip(app.previews.get(&ins.shot))
-                .zip(ins.facts)
-                .map(|((setting, p), f)| {
-                    truth_gaussian(
-                        &crate::simulate::VirtualLens::demo(),
-                        ins.channel,
-                        f.centre[0],
-                        f.centre[1],
-                        (p.capture.width, p.capture.height),
-                        setting,
-                    )
-                });
+            let truth = ins.truth;
             egui::Grid::new("inspector-numbers")
                 .num_columns(4)
                 .striped(true)

@@ -1,0 +1,903 @@
+//! View data: everything a view shows that takes computing, made here (or on a job
+//! thread) when its inputs change and cached on the app keyed by exactly those inputs.
+//!
+//! Owns the shot viewer's plane choice, the Kernel field view's panels (measured
+//! ellipses, the kernel atlas texture, predicted and true fields), the Sweeps view's
+//! measured points and model and truth curves, and the square inspector (its crops come
+//! from a job; their textures, the kernel's texture and the truth beside it are made
+//! here when they arrive). [`refresh`] runs once per frame from the app's logic step and
+//! recomputes only what is stale; the draw code reads these caches and shows a
+//! placeholder where one is absent, never computing. The numbers come from the core
+//! (`crate::review`, `crate::detect::inspect`); this module only arranges them and
+//! makes textures.
+
+use super::jobs::JobScope;
+use super::{FieldShow, FieldSource, JobOutput, StudioApp, View};
+use crate::detect::Detection;
+use crate::detect::inspect::SquareInspection;
+use crate::kernel::file::KernelsFile;
+use crate::model::Dataset;
+use crate::plane::{Capture, Channel, LensSetting, Plane};
+use crate::profile::Profile;
+use crate::psf::Gaussian2;
+use crate::review::{SquareFacts, SweepPoint};
+use crate::session::ShotId;
+use crate::simulate::VirtualLens;
+use std::sync::Arc;
+
+/// Grid of the predicted and true fields.
+const FIELD_GRID: (usize, usize) = (12, 8);
+
+/// Points on each model and truth curve of the sweeps.
+const CURVE_STEPS: usize = 40;
+
+/// The sensor locations the sweeps follow: name and position as fractions of the
+/// sensor's width and height (the Sweeps view gives each its colour, in this order).
+pub const SWEEP_LOCATIONS: [(&str, f64, f64); 5] = [
+    ("centre", 0.5, 0.5),
+    ("top-left", 0.15, 0.15),
+    ("top-right", 0.85, 0.15),
+    ("bottom-left", 0.15, 0.85),
+    ("bottom-right", 0.85, 0.85),
+];
+
+/// An `Arc`'s identity as part of a cache key. The key holds the `Arc`, so the value
+/// stays alive and an equal pointer always means the same value.
+pub struct Same<T>(Option<Arc<T>>);
+
+impl<T> Same<T> {
+    fn of(v: Option<&Arc<T>>) -> Self {
+        Self(v.cloned())
+    }
+}
+
+impl<T> Clone for Same<T> {
+    fn clone(&self) -> Self {
+        Self(self.0.clone())
+    }
+}
+
+impl<T> PartialEq for Same<T> {
+    fn eq(&self, other: &Self) -> bool {
+        match (&self.0, &other.0) {
+            (Some(a), Some(b)) => Arc::ptr_eq(a, b),
+            (None, None) => true,
+            _ => false,
+        }
+    }
+}
+
+impl<T> std::fmt::Debug for Same<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.0 {
+            Some(a) => write!(f, "Same({:p})", Arc::as_ptr(a)),
+            None => write!(f, "Same(none)"),
+        }
+    }
+}
+
+/// Every view's cached data.
+#[derive(Default)]
+pub struct ViewData {
+    pub shot_plane: Option<ShotPlane>,
+    pub kernel_atlas: Option<KernelAtlas>,
+    pub field: Option<FieldData>,
+    pub sweeps: Option<SweepData>,
+    pub inspection: Option<Inspecting>,
+}
+
+impl ViewData {
+    /// The inspector's square once its crops are ready.
+    #[must_use]
+    pub fn inspection(&self) -> Option<&Inspection> {
+        match &self.inspection {
+            Some(Inspecting::Ready(i)) => Some(i),
+            _ => None,
+        }
+    }
+}
+
+/// Which plane of the selected shot the viewer maps onto the sensor (its step and
+/// offset) and reads hovered values from: the channel's first plane (G1 for a Bayer
+/// G), else the capture's first.
+pub struct ShotPlane {
+    key: (ShotId, Channel, Same<Capture>),
+    /// Index into the capture's planes.
+    pub index: Option<usize>,
+}
+
+impl ShotPlane {
+    #[must_use]
+    pub fn shot(&self) -> ShotId {
+        self.key.0
+    }
+}
+
+/// Measured kernels of one shot and channel packed into one texture for the Kernel
+/// field view: each cell holds the central ±`extent_px` of one kernel, scaled to its
+/// peak.
+pub struct KernelAtlas {
+    key: (ShotId, Channel, Same<KernelsFile>),
+    pub texture: egui::TextureHandle,
+    /// Per sample: its index in the kernels file and its cell's UV rectangle.
+    pub cells: Vec<(usize, egui::Rect)>,
+    /// Half the side every cell shows, sensor px.
+    pub extent_px: f64,
+}
+
+/// What one panel of the Kernel field view draws.
+pub enum PanelContent {
+    Ellipses(Vec<(f64, f64, Gaussian2)>),
+    /// Measured kernels of the selected shot: (position, fit, atlas cell UV) each, every
+    /// cell ±`extent_px` around its kernel's centre, drawn a fraction of the chart's
+    /// square pitch wide.
+    Kernels {
+        cells: Vec<(f64, f64, Gaussian2, egui::Rect)>,
+        extent_px: f64,
+        pitch_px: f64,
+    },
+}
+
+/// Whose field a panel shows (the view names it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PanelOf {
+    /// The selected shot's measured kernels.
+    Measured,
+    /// The profile in use, or `NoProfile` when there is none.
+    Profile,
+    NoProfile,
+    /// The second profile loaded to compare.
+    CompareProfile,
+    /// The demo lens, or its second unit.
+    Truth {
+        second_unit: bool,
+    },
+}
+
+pub struct FieldPanel {
+    pub of: PanelOf,
+    pub content: Result<PanelContent, String>,
+    /// Squares where no kernel could be measured (sensor px), with the reason.
+    pub failed: Vec<(f64, f64, String)>,
+}
+
+/// What the Kernel field view's panels depend on, per source.
+#[derive(Clone, Debug, PartialEq)]
+enum FieldKey {
+    Measured {
+        shot: Option<ShotId>,
+        file: Same<KernelsFile>,
+        channel: Channel,
+        show: FieldShow,
+        size: (usize, usize),
+        chart_cols: usize,
+        /// The atlas the kernel cells point into.
+        atlas: bool,
+    },
+    Predicted {
+        profile: Same<Profile>,
+        compare: Same<Profile>,
+        channel: Channel,
+        setting: [f64; 2],
+        size: (usize, usize),
+    },
+    Truth {
+        is_demo: bool,
+        compare_units: bool,
+        channel: Channel,
+        setting: [f64; 2],
+        size: (usize, usize),
+    },
+}
+
+/// The Kernel field view's panels.
+pub struct FieldData {
+    key: FieldKey,
+    pub panels: Vec<FieldPanel>,
+    /// The largest 1-σ radius over every panel, so compared fields share one
+    /// magnification.
+    pub max_sigma: f64,
+}
+
+/// One location's series in one sweep.
+pub struct LocationSweep {
+    /// Measured at the square nearest the location (absent without measurements).
+    pub measured: Option<Vec<SweepPoint>>,
+    /// The profile's model at that square (absent without a profile).
+    pub model: Option<Vec<(LensSetting, Gaussian2)>>,
+    /// The demo lens's truth at that square (demo sessions only).
+    pub truth: Option<Vec<(LensSetting, Gaussian2)>>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+struct SweepKey {
+    dataset: Same<Dataset>,
+    profile: Same<Profile>,
+    is_demo: bool,
+    channel: Channel,
+    setting: [f64; 2],
+    ranges: ([f64; 2], [f64; 2]),
+    size: (usize, usize),
+}
+
+/// The Sweeps view's series.
+pub struct SweepData {
+    key: SweepKey,
+    /// The focal length the aperture sweep holds (the measured one nearest the
+    /// slider), and the aperture the focal-length sweep holds.
+    pub fixed_f: f64,
+    pub fixed_a: f64,
+    /// Against aperture, then against focal length; one entry per
+    /// [`SWEEP_LOCATIONS`].
+    pub sweeps: [Vec<LocationSweep>; 2],
+}
+
+/// Which square's inspection, of what: results for another key are stale.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InspectKey {
+    pub session: u64,
+    pub shot: ShotId,
+    pub square: (usize, usize),
+    pub channel: Channel,
+    detection: Same<Detection>,
+}
+
+/// The inspector's state for the selected square.
+pub enum Inspecting {
+    /// The crops are being made on a job thread.
+    Running(InspectKey),
+    Ready(Box<Inspection>),
+    /// The square has no crop in this channel.
+    Empty(InspectKey),
+}
+
+impl Inspecting {
+    #[must_use]
+    pub fn key(&self) -> &InspectKey {
+        match self {
+            Inspecting::Running(k) | Inspecting::Empty(k) => k,
+            Inspecting::Ready(i) => &i.key,
+        }
+    }
+}
+
+/// What an inspection job hands back: the crops, the square's numbers and the crops'
+/// grey images (textures are made from them on the UI thread).
+pub struct InspectedSquare {
+    pub crops: SquareInspection,
+    pub facts: Option<SquareFacts>,
+    pub images: [egui::ColorImage; 3],
+}
+
+/// What the kernel texture and the truth beside it depend on.
+#[derive(Clone, Debug, PartialEq)]
+struct DetailsKey {
+    file: Same<KernelsFile>,
+    setting: Option<LensSetting>,
+    is_demo: bool,
+}
+
+/// The inspector's square: which one, its crops and their textures (observed,
+/// synthetic, residual), its measured kernel's texture and, on the demo session, the
+/// lens's true Gaussian at its centre.
+pub struct Inspection {
+    key: InspectKey,
+    pub shot: ShotId,
+    pub square: (usize, usize),
+    pub channel: Channel,
+    pub crops: SquareInspection,
+    pub facts: Option<SquareFacts>,
+    pub textures: [egui::TextureHandle; 3],
+    details: Option<DetailsKey>,
+    pub kernel: Option<egui::TextureHandle>,
+    pub truth: Option<Gaussian2>,
+}
+
+/// Recomputes what is stale; called once per frame after commands and job results.
+pub(super) fn refresh(app: &mut StudioApp) {
+    refresh_shot_plane(app);
+    refresh_inspection(app);
+    match app.view {
+        View::KernelField => {
+            refresh_kernel_atlas(app);
+            refresh_field(app);
+        }
+        View::Sweeps => refresh_sweeps(app),
+        View::Shot | View::Models | View::Deblur => {}
+    }
+}
+
+/// The sensor the views draw on: the selected shot's, else the measurements', else the
+/// demo's.
+pub(crate) fn sensor_size(app: &StudioApp) -> (usize, usize) {
+    if let Some(p) = app.selected_shot.and_then(|i| app.previews.get(&i)) {
+        return (p.capture.width, p.capture.height);
+    }
+    if let Some(d) = app.dataset.as_ref() {
+        return (d.width, d.height);
+    }
+    (app.options.demo_spec.width, app.options.demo_spec.height)
+}
+
+/// Focal length and aperture ranges the sliders span: the profile's calibrated ones,
+/// else the session's, else the demo lens's.
+pub(crate) fn setting_ranges(app: &StudioApp, lens: &VirtualLens) -> ([f64; 2], [f64; 2]) {
+    if let Some((_, p)) = &app.profile {
+        return (p.norm.focal_range_mm, p.norm.f_number_range);
+    }
+    if let Some(s) = &app.session {
+        let (f, a) = s.setting_grid();
+        if let (Some(f0), Some(f1), Some(a0), Some(a1)) = (f.first(), f.last(), a.first(), a.last())
+            && f1 > f0
+            && a1 > a0
+        {
+            return ([*f0, *f1], [*a0, *a1]);
+        }
+    }
+    (lens.focal_range_mm, lens.f_number_range)
+}
+
+fn is_demo(app: &StudioApp) -> bool {
+    app.session.as_ref().is_some_and(|s| s.is_demo)
+}
+
+fn refresh_shot_plane(app: &mut StudioApp) {
+    let Some((shot, preview)) = app
+        .selected_shot
+        .and_then(|id| Some((id, app.previews.get(&id)?)))
+    else {
+        app.views.shot_plane = None;
+        return;
+    };
+    let key = (shot, app.channel, Same::of(Some(&preview.capture)));
+    if app.views.shot_plane.as_ref().is_some_and(|p| p.key == key) {
+        return;
+    }
+    let planes = &preview.capture.planes;
+    let index = planes
+        .iter()
+        .position(|p| p.channel == app.channel)
+        .or_else(|| (!planes.is_empty()).then_some(0));
+    app.views.shot_plane = Some(ShotPlane { key, index });
+}
+
+/// The measured kernels of the selected shot and channel packed into one texture: the
+/// central ±R px of each (R = 2.5 × the largest σ of the field, so every kernel shows
+/// the same extent and shapes compare), each scaled to its own peak (σ is in the tint).
+fn refresh_kernel_atlas(app: &mut StudioApp) {
+    if app.field_source != FieldSource::Measured || app.field_show != FieldShow::Kernels {
+        return;
+    }
+    let Some(shot) = app.selected_shot else {
+        app.views.kernel_atlas = None;
+        return;
+    };
+    let file = app.measured.get(&shot);
+    let key = (shot, app.channel, Same::of(file));
+    if app
+        .views
+        .kernel_atlas
+        .as_ref()
+        .is_some_and(|a| a.key == key)
+    {
+        return;
+    }
+    app.views.kernel_atlas = None;
+    let Some(file) = file else {
+        return;
+    };
+    let samples: Vec<(usize, crate::psf::Kernel)> = file
+        .samples
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| s.channel == app.channel)
+        .filter_map(|(i, s)| Some((i, s.kernel_at(file.oversample)?)))
+        .collect();
+    if samples.is_empty() {
+        return;
+    }
+    let max_sigma = file
+        .samples
+        .iter()
+        .filter(|s| s.channel == app.channel)
+        .filter_map(|s| Some(s.cxx?.max(s.cyy?)))
+        .fold(0.5, f64::max);
+    let extent_px = (2.5 * max_sigma).max(2.0);
+    let os = file.oversample.max(1);
+    let half = (extent_px * os as f64).ceil() as usize;
+    let cell = 2 * half + 1;
+    let per_row = (samples.len() as f64).sqrt().ceil().max(1.0) as usize;
+    let rows = samples.len().div_ceil(per_row);
+    let (w, h) = (per_row * cell, rows * cell);
+    let mut img = egui::ColorImage::filled([w, h], egui::Color32::TRANSPARENT);
+    let mut cells = Vec::with_capacity(samples.len());
+    for (n, (i, k)) in samples.iter().enumerate() {
+        let (cx, cy) = ((n % per_row) * cell, (n / per_row) * cell);
+        let c = (k.size / 2) as isize;
+        let peak = k.data.iter().copied().fold(1e-12, f64::max);
+        for j in 0..cell {
+            for q in 0..cell {
+                let (kx, ky) = (
+                    c + q as isize - half as isize,
+                    c + j as isize - half as isize,
+                );
+                if kx < 0 || ky < 0 || kx >= k.size as isize || ky >= k.size as isize {
+                    continue;
+                }
+                let v = (k.at(kx as usize, ky as usize) / peak).clamp(0.0, 1.0);
+                img[(cx + q, cy + j)] = egui::Color32::from_white_alpha((v * 255.0) as u8);
+            }
+        }
+        let uv = egui::Rect::from_min_size(
+            egui::Pos2::new(cx as f32 / w as f32, cy as f32 / h as f32),
+            egui::Vec2::new(cell as f32 / w as f32, cell as f32 / h as f32),
+        );
+        cells.push((*i, uv));
+    }
+    let texture = app
+        .ctx
+        .load_texture("kernel-atlas", img, egui::TextureOptions::NEAREST);
+    app.views.kernel_atlas = Some(KernelAtlas {
+        key,
+        texture,
+        cells,
+        extent_px: half as f64 / os as f64,
+    });
+}
+
+fn field_key(app: &StudioApp) -> FieldKey {
+    let channel = app.channel;
+    let size = sensor_size(app);
+    let setting = [app.field_focal_mm, app.field_f_number];
+    match app.field_source {
+        FieldSource::Measured => FieldKey::Measured {
+            shot: app.selected_shot,
+            file: Same::of(app.selected_shot.and_then(|i| app.measured.get(&i))),
+            channel,
+            show: app.field_show,
+            size,
+            chart_cols: app.session.as_ref().map_or(10, |s| s.chart.cols),
+            atlas: app.views.kernel_atlas.is_some(),
+        },
+        FieldSource::Predicted => FieldKey::Predicted {
+            profile: Same::of(app.profile.as_ref().map(|p| &p.1)),
+            compare: Same::of(app.compare_profile.as_ref().map(|p| &p.1)),
+            channel,
+            setting,
+            size,
+        },
+        FieldSource::Truth => FieldKey::Truth {
+            is_demo: is_demo(app),
+            compare_units: app.compare_units,
+            channel,
+            setting,
+            size,
+        },
+    }
+}
+
+fn refresh_field(app: &mut StudioApp) {
+    let key = field_key(app);
+    if app.views.field.as_ref().is_some_and(|f| f.key == key) {
+        return;
+    }
+    let ch = app.channel;
+    let size = sensor_size(app);
+    let s = LensSetting {
+        focal_mm: app.field_focal_mm,
+        f_number: app.field_f_number,
+    };
+    let mut panels = Vec::new();
+    match app.field_source {
+        FieldSource::Measured => {
+            let file = app.selected_shot.and_then(|i| app.measured.get(&i));
+            let content = match (file, app.field_show) {
+                (None, _) => Err(
+                    "No kernels measured on this shot yet — press Kernels (Ctrl+K) after Detect."
+                        .to_owned(),
+                ),
+                (Some(f), FieldShow::Ellipses) => Ok(PanelContent::Ellipses(
+                    f.samples
+                        .iter()
+                        .filter(|k| k.channel == ch)
+                        .filter_map(|k| {
+                            Some((
+                                k.x,
+                                k.y,
+                                Gaussian2 {
+                                    sigma_x: k.cxx?,
+                                    sigma_y: k.cyy?,
+                                    rho: k.cor?,
+                                },
+                            ))
+                        })
+                        .collect(),
+                )),
+                (Some(f), FieldShow::Kernels) => match &app.views.kernel_atlas {
+                    Some(atlas) => Ok(PanelContent::Kernels {
+                        cells: atlas
+                            .cells
+                            .iter()
+                            .filter_map(|&(i, uv)| {
+                                let k = f.samples.get(i)?;
+                                let g = Gaussian2 {
+                                    sigma_x: k.cxx.unwrap_or(1.0),
+                                    sigma_y: k.cyy.unwrap_or(1.0),
+                                    rho: k.cor.unwrap_or(0.0),
+                                };
+                                Some((k.x, k.y, g, uv))
+                            })
+                            .collect(),
+                        extent_px: atlas.extent_px,
+                        // Squares of the chart are about this far apart on the sensor.
+                        pitch_px: size.0 as f64
+                            / app.session.as_ref().map_or(12, |s| s.chart.cols + 2) as f64,
+                    }),
+                    None => Err("This kernels file holds Gaussians only, no kernel arrays.".into()),
+                },
+            };
+            let failed = file.map_or_else(Vec::new, |f| {
+                f.failed
+                    .iter()
+                    .filter(|k| k.channel == ch)
+                    .map(|k| (k.x, k.y, k.reason.clone()))
+                    .collect()
+            });
+            panels.push(FieldPanel {
+                of: PanelOf::Measured,
+                content,
+                failed,
+            });
+        }
+        FieldSource::Predicted => {
+            let predicted = |p: &Profile| {
+                crate::review::predicted_field(p, ch, size, FIELD_GRID, s)
+                    .map(PanelContent::Ellipses)
+            };
+            panels.push(match &app.profile {
+                Some((_, p)) => FieldPanel {
+                    of: PanelOf::Profile,
+                    content: predicted(p),
+                    failed: Vec::new(),
+                },
+                None => FieldPanel {
+                    of: PanelOf::NoProfile,
+                    content: Err("No profile yet: Calibrate (Ctrl+M) or load one in Models.".into()),
+                    failed: Vec::new(),
+                },
+            });
+            if let Some((_, p)) = &app.compare_profile {
+                panels.push(FieldPanel {
+                    of: PanelOf::CompareProfile,
+                    content: predicted(p),
+                    failed: Vec::new(),
+                });
+            }
+        }
+        FieldSource::Truth => {
+            if is_demo(app) {
+                let mut units = vec![(false, VirtualLens::demo())];
+                if app.compare_units {
+                    units.push((true, VirtualLens::demo_second_unit()));
+                }
+                for (second_unit, lens) in units {
+                    panels.push(FieldPanel {
+                        of: PanelOf::Truth { second_unit },
+                        content: Ok(PanelContent::Ellipses(crate::review::truth_field(
+                            &lens, ch, size, FIELD_GRID, s,
+                        ))),
+                        failed: Vec::new(),
+                    });
+                }
+            }
+        }
+    }
+    let max_sigma = panels
+        .iter()
+        .filter_map(|p| match &p.content {
+            Ok(PanelContent::Ellipses(v)) => Some(v.iter().map(|(_, _, g)| *g).collect::<Vec<_>>()),
+            Ok(PanelContent::Kernels { cells, .. }) => {
+                Some(cells.iter().map(|(_, _, g, _)| *g).collect())
+            }
+            Err(_) => None,
+        })
+        .flatten()
+        .map(|g| g.sigma_x.max(g.sigma_y))
+        .fold(1e-6, f64::max);
+    app.views.field = Some(FieldData {
+        key,
+        panels,
+        max_sigma,
+    });
+}
+
+fn refresh_sweeps(app: &mut StudioApp) {
+    let lens = VirtualLens::demo();
+    let key = SweepKey {
+        dataset: Same::of(app.dataset.as_ref()),
+        profile: Same::of(app.profile.as_ref().map(|p| &p.1)),
+        is_demo: is_demo(app),
+        channel: app.channel,
+        setting: [app.field_focal_mm, app.field_f_number],
+        ranges: setting_ranges(app, &lens),
+        size: sensor_size(app),
+    };
+    if app.views.sweeps.as_ref().is_some_and(|s| s.key == key) {
+        return;
+    }
+    let ch = key.channel;
+    let (w, h) = key.size;
+    let (f_range, a_range) = key.ranges;
+    let (focals, apertures) = app
+        .dataset
+        .as_ref()
+        .map(|d| d.distinct_settings())
+        .unwrap_or_default();
+    // Measured points only exist at shot settings: the sweep holds the other setting at
+    // the calibrated value nearest the slider.
+    let fixed_f =
+        crate::review::nearest_value(&focals, app.field_focal_mm).unwrap_or(app.field_focal_mm);
+    let fixed_a =
+        crate::review::nearest_value(&apertures, app.field_f_number).unwrap_or(app.field_f_number);
+    let sweep = |vs_aperture: bool| -> Vec<LocationSweep> {
+        let settings = if vs_aperture {
+            crate::review::sweep_settings(a_range, fixed_f, true, CURVE_STEPS)
+        } else {
+            crate::review::sweep_settings(f_range, fixed_a, false, CURVE_STEPS)
+        };
+        let fixed = if vs_aperture { fixed_f } else { fixed_a };
+        SWEEP_LOCATIONS
+            .iter()
+            .map(|&(_, fx, fy)| {
+                let nominal = (fx * (w as f64 - 1.0), fy * (h as f64 - 1.0));
+                let measured = app
+                    .dataset
+                    .as_ref()
+                    .map(|ds| crate::review::sweep_points(ds, ch, nominal, vs_aperture, fixed));
+                // Curves where the points were measured (the square nearest the
+                // location), so the two compare.
+                let at = measured
+                    .as_ref()
+                    .and_then(|m| m.first())
+                    .map_or(nominal, |p| (p.x, p.y));
+                LocationSweep {
+                    model: app
+                        .profile
+                        .as_ref()
+                        .map(|(_, p)| crate::review::model_curve(p, ch, at, &settings)),
+                    truth: key
+                        .is_demo
+                        .then(|| crate::review::truth_curve(&lens, ch, at, (w, h), &settings)),
+                    measured,
+                }
+            })
+            .collect()
+    };
+    let sweeps = [sweep(true), sweep(false)];
+    app.views.sweeps = Some(SweepData {
+        key,
+        fixed_f,
+        fixed_a,
+        sweeps,
+    });
+}
+
+/// The inspection the selection asks for, if the shot is loaded and detected and has
+/// that square: in the selected channel, else the capture's first.
+fn wanted_inspection(app: &StudioApp) -> Option<InspectKey> {
+    let (shot, square) = (app.selected_shot?, app.selected_square?);
+    let preview = app.previews.get(&shot)?;
+    let det = app.detections.get(&shot)?;
+    app.session.as_ref()?;
+    if !det.squares.iter().any(|s| (s.row, s.col) == square) {
+        return None;
+    }
+    let planes = &preview.capture.planes;
+    let channel = if planes.iter().any(|p| p.channel == app.channel) {
+        app.channel
+    } else {
+        planes.first()?.channel
+    };
+    Some(InspectKey {
+        session: app.session_generation,
+        shot,
+        square,
+        channel,
+        detection: Same::of(Some(det)),
+    })
+}
+
+fn refresh_inspection(app: &mut StudioApp) {
+    let wanted = wanted_inspection(app);
+    let current = app.views.inspection.as_ref().map(Inspecting::key);
+    if wanted.as_ref() != current {
+        app.views.inspection = wanted.map(|key| spawn_inspection(app, key));
+    }
+    refresh_inspection_details(app);
+}
+
+/// Starts the crops of a square on a job thread (the core's inspection resamples the
+/// chart through the square's homography and blurs it: too slow for a frame).
+fn spawn_inspection(app: &mut StudioApp, key: InspectKey) -> Inspecting {
+    let (Some(preview), Some(det), Some(session)) = (
+        app.previews.get(&key.shot),
+        app.detections.get(&key.shot),
+        app.session.as_ref(),
+    ) else {
+        return Inspecting::Empty(key);
+    };
+    let capture = Arc::clone(&preview.capture);
+    let det = Arc::clone(det);
+    let chart = session.chart.clone();
+    let scope = JobScope::shots(key.session, vec![key.shot]);
+    let job_key = key.clone();
+    let r = app
+        .jobs
+        .spawn_scoped("inspect square", scope, move |_ctx, out| {
+            let result = det
+                .squares
+                .iter()
+                .find(|s| (s.row, s.col) == job_key.square)
+                .and_then(|square| {
+                    let crops = crate::detect::inspect::inspect_square(
+                        &capture,
+                        square,
+                        &chart,
+                        job_key.channel,
+                    )?;
+                    let facts = (square.status == crate::detect::SquareStatus::Ok)
+                        .then(|| crate::review::square_facts(square));
+                    let images = crop_images(&crops);
+                    Some(Box::new(InspectedSquare {
+                        crops,
+                        facts,
+                        images,
+                    }))
+                });
+            out.emit(JobOutput::SquareInspected {
+                key: job_key,
+                result,
+            });
+            // Never an error: a cancelled inspection (its shot removed, its session
+            // closed) has nothing to report.
+            Ok(())
+        });
+    match r {
+        Ok(_) => Inspecting::Running(key),
+        Err(e) => {
+            app.error(e);
+            Inspecting::Empty(key)
+        }
+    }
+}
+
+/// Grey images of the crops: observed and synthetic encoded for display; the residual
+/// signed and small, so mid-grey is zero and ±25 % of the square's contrast spans the
+/// grey range.
+fn crop_images(crops: &SquareInspection) -> [egui::ColorImage; 3] {
+    let img = |plane: &Plane, map: &dyn Fn(f32) -> u8| {
+        egui::ColorImage::from_gray_iter(
+            [plane.width, plane.height],
+            plane.data.iter().map(|&v| map(v)),
+        )
+    };
+    let contrast = {
+        let mut v = crops.observed.data.clone();
+        v.sort_by(f32::total_cmp);
+        v.get(v.len() * 98 / 100)
+            .zip(v.get(v.len() * 2 / 100))
+            .map_or(1e-3, |(hi, lo)| (hi - lo).max(1e-3))
+    };
+    let encode = super::logic::encode;
+    [
+        img(&crops.observed, &encode),
+        img(&crops.synthetic, &encode),
+        img(&crops.residual, &|r: f32| {
+            ((0.5 + 2.0 * r / contrast).clamp(0.0, 1.0) * 255.0) as u8
+        }),
+    ]
+}
+
+/// A finished inspection job: kept when it is still the one the selection asks for,
+/// its textures made now; dropped otherwise.
+pub(super) fn inspected(
+    app: &mut StudioApp,
+    key: InspectKey,
+    result: Option<Box<InspectedSquare>>,
+) {
+    let running = matches!(&app.views.inspection, Some(Inspecting::Running(k)) if *k == key);
+    if !running {
+        return;
+    }
+    let Some(done) = result else {
+        app.views.inspection = Some(Inspecting::Empty(key));
+        return;
+    };
+    let InspectedSquare {
+        crops,
+        facts,
+        images,
+    } = *done;
+    let [observed, synthetic, residual] = images;
+    let tex = |name: &str, img: egui::ColorImage| {
+        app.ctx
+            .load_texture(name, img, egui::TextureOptions::NEAREST)
+    };
+    let textures = [
+        tex("inspect-observed", observed),
+        tex("inspect-synthetic", synthetic),
+        tex("inspect-residual", residual),
+    ];
+    app.views.inspection = Some(Inspecting::Ready(Box::new(Inspection {
+        shot: key.shot,
+        square: key.square,
+        channel: key.channel,
+        key,
+        crops,
+        facts,
+        textures,
+        details: None,
+        kernel: None,
+        truth: None,
+    })));
+    refresh_inspection_details(app);
+}
+
+/// The inspected square's measured kernel as a texture (scaled to its peak) and, on the
+/// demo session, the lens's true Gaussian at the square's centre: remade when the
+/// shot's kernels or setting change.
+fn refresh_inspection_details(app: &mut StudioApp) {
+    let Some(Inspecting::Ready(ins)) = &app.views.inspection else {
+        return;
+    };
+    let shot = app.session.as_ref().and_then(|s| s.shot(ins.shot));
+    let file = app.measured.get(&ins.shot);
+    let key = DetailsKey {
+        file: Same::of(file),
+        setting: shot.and_then(crate::session::Shot::setting),
+        is_demo: is_demo(app),
+    };
+    if ins.details.as_ref() == Some(&key) {
+        return;
+    }
+    let (sq, channel) = (ins.square, ins.channel);
+    let kernel = file
+        .and_then(|file| {
+            let s = file
+                .samples
+                .iter()
+                .find(|s| s.channel == channel && s.row == Some(sq.0) && s.col == Some(sq.1))?;
+            s.kernel_at(file.oversample)
+        })
+        .map(|k| {
+            let peak = k.data.iter().copied().fold(1e-12, f64::max);
+            let img = egui::ColorImage::from_gray_iter(
+                [k.size, k.size],
+                k.data
+                    .iter()
+                    .map(|&v| ((v / peak).clamp(0.0, 1.0) * 255.0) as u8),
+            );
+            app.ctx
+                .load_texture("inspect-kernel", img, egui::TextureOptions::NEAREST)
+        });
+    let truth = key
+        .is_demo
+        .then_some(key.setting)
+        .flatten()
+        .zip(app.previews.get(&ins.shot))
+        .zip(ins.facts)
+        .map(|((setting, p), f)| {
+            crate::review::truth_pixel_gaussian(
+                &VirtualLens::demo(),
+                channel,
+                (f.centre[0], f.centre[1]),
+                (p.capture.width, p.capture.height),
+                setting,
+            )
+        });
+    if let Some(Inspecting::Ready(ins)) = &mut app.views.inspection {
+        ins.kernel = kernel;
+        ins.truth = truth;
+        ins.details = Some(key);
+    }
+}
