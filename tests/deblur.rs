@@ -2,7 +2,6 @@
 //! oracles, seams, image borders, the spatially varying field with a fitted lens
 //! profile, the Gaussian-approximation experiment, and the `deblur` command.
 
-use lensblur::deblur::fft::{Fft2, convolve_direct_circular};
 use lensblur::deblur::solve::{
     Deconvolver, HqsParams, IrlsParams, Method, WienerParams, deconvolve_block,
 };
@@ -14,6 +13,7 @@ use lensblur::experiment::{
     ExperimentOptions, MAX_FAILED_SHOTS_IN_A_ROW, MeasureError, MeasureOptions, dead_leaves,
     gaussian_approx, measured_kernels,
 };
+use lensblur::fft::{Fft2, convolve_direct_circular};
 use lensblur::job::JobContext;
 use lensblur::metrics::{SsimParams, psnr, reference_pair, ssim, ssim_f64};
 use lensblur::model::{SimulatedSession, spaced};

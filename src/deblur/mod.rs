@@ -7,9 +7,9 @@
 //! its neighbours by windows that are flat inside the tile and cross-fade over a short
 //! ramp at each shared border; the windows sum to one, so no seam shows. Tiles are
 //! independent: one row of them runs in parallel, each worker reusing its own FFT
-//! plans and buffers, and only that row's results are held before they are summed in.
+//! buffers (the plans are shared by the whole process), and only that row's results
+//! are held before they are summed in.
 
-pub mod fft;
 pub mod solve;
 pub mod source;
 
@@ -18,10 +18,10 @@ pub use source::{
     ConstantKernel, KernelSource, KernelsFile, ProfileKernels, ScatteredKernels, SourceError,
 };
 
+use crate::fft::good_size;
 use crate::job::{Cancelled, JobContext};
 use crate::plane::{Capture, ChannelPlane, Plane};
 use crate::psf::Kernel;
-use fft::fast_size;
 use rayon::prelude::*;
 use solve::Deconvolver;
 use std::sync::Mutex;
@@ -65,7 +65,7 @@ impl TileAxis {
         let count = (len / step_wanted.max(1)).max(1);
         let step = len.div_ceil(count).max(ramp).max(1);
         let count = len.div_ceil(step).max(1);
-        let block = fast_size(step + ramp + 2 * margin);
+        let block = good_size(step + ramp + 2 * margin);
         Self {
             len,
             step,
