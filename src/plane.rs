@@ -230,6 +230,16 @@ pub struct Capture {
 }
 
 impl Capture {
+    /// The channels this capture reports, in R, G, B, Y order (G once however many
+    /// green planes a mosaic has): the order a shot's kernels are listed in.
+    #[must_use]
+    pub fn channels(&self) -> Vec<Channel> {
+        [Channel::R, Channel::G, Channel::B, Channel::Y]
+            .into_iter()
+            .filter(|&ch| self.planes.iter().any(|p| p.channel == ch))
+            .collect()
+    }
+
     /// A full-resolution grey image for detection: an RGB/mono image's mean channel, or
     /// for a Bayer capture each pixel's own CFA value (the planes interleaved back), which
     /// keeps full resolution; the colour channels differ only in gain over a grey chart.
