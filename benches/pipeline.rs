@@ -9,9 +9,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use lensblur::chart::ChartSpec;
 use lensblur::detect::{DetectParams, detect};
 use lensblur::job::JobContext;
-use lensblur::kernel::{
-    KernelParams, Operator, SquareGeometry, channels_of, estimate_shot, estimate_square,
-};
+use lensblur::kernel::{KernelParams, Operator, SquareGeometry, estimate_shot, estimate_square};
 use lensblur::plane::LensSetting;
 use lensblur::raw::{LoadOptions, load_capture};
 use lensblur::simulate::{CaptureParams, ShotFormat, VirtualLens, simulate_shot, write_shot};
@@ -44,7 +42,7 @@ fn bench(c: &mut Criterion) {
 
     let detection = detect(&capture, &spec, &params, &job).expect("detect");
     let kp = KernelParams::default();
-    let channels = channels_of(&capture);
+    let channels = capture.channels();
     let mid = detection
         .ok_squares()
         .find(|s| s.row == spec.rows / 2 && s.col == spec.cols / 2)

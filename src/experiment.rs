@@ -3,8 +3,8 @@
 //! with the kernel itself, its robust Gaussian fit and its maximum-likelihood Gaussian,
 //! and compare by the SSIM error ratio of Eq. 1, (SSIM_non + 2) / (SSIM_gau + 2).
 
-use crate::deblur::fft::Fft2;
 use crate::deblur::solve::{Deconvolver, Method};
+use crate::fft::Fft2;
 use crate::gaussian::{FitParams, fit_gaussian};
 use crate::job::{Cancelled, JobContext};
 use crate::metrics::{SsimParams, ssim_f64};

@@ -5,6 +5,8 @@
 //! The core is one module per pipeline stage and never depends on egui; the studio lives
 //! in `app` behind the `gui` feature.
 
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used))]
+
 #[cfg(feature = "gui")]
 pub mod app;
 pub mod calibrate;

@@ -6,7 +6,7 @@
 //! K2 = 0.03, population (not sample) covariances, reflected borders for the local
 //! statistics, and the mean taken over the image less a 5-pixel border.
 
-use crate::plane::Plane;
+use crate::plane::{Plane, reflect};
 
 /// SSIM parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -28,17 +28,6 @@ impl Default for SsimParams {
             k2: 0.03,
             data_range: 1.0,
         }
-    }
-}
-
-#[inline]
-fn reflect(i: isize, n: usize) -> usize {
-    let n2 = 2 * n as isize;
-    let m = i.rem_euclid(n2);
-    if m >= n as isize {
-        (n2 - 1 - m) as usize
-    } else {
-        m as usize
     }
 }
 

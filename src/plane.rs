@@ -273,6 +273,16 @@ pub struct Capture {
 }
 
 impl Capture {
+    /// The channels this capture reports, in R, G, B, Y order (G once however many
+    /// green planes a mosaic has): the order a shot's kernels are listed in.
+    #[must_use]
+    pub fn channels(&self) -> Vec<Channel> {
+        [Channel::R, Channel::G, Channel::B, Channel::Y]
+            .into_iter()
+            .filter(|&ch| self.planes.iter().any(|p| p.channel == ch))
+            .collect()
+    }
+
     /// A full-resolution grey image for detection: an RGB/mono image's mean channel, or
     /// for a Bayer capture each pixel's own CFA value (the planes interleaved back), which
     /// keeps full resolution; the colour channels differ only in gain over a grey chart.
@@ -298,6 +308,20 @@ impl Capture {
             }
         }
         out
+    }
+}
+
+/// Half-sample symmetric reflection of the index `i` into `[0, n)`, repeated as needed
+/// (… 1 0 | 0 1 … n−1 | n−1 n−2 …): how filters and tiles read past an image's border.
+#[inline]
+#[must_use]
+pub fn reflect(i: isize, n: usize) -> usize {
+    let n2 = 2 * n as isize;
+    let m = i.rem_euclid(n2);
+    if m >= n as isize {
+        (n2 - 1 - m) as usize
+    } else {
+        m as usize
     }
 }
 
@@ -327,5 +351,14 @@ mod tests {
         let [x, y] = cp.sensor_from_plane(3.0, 4.0);
         assert_eq!([x, y], [7.0, 9.0]);
         assert_eq!(cp.plane_from_sensor(x, y), [3.0, 4.0]);
+    }
+
+    #[test]
+    fn reflection() {
+        assert_eq!(reflect(-1, 5), 0);
+        assert_eq!(reflect(5, 5), 4);
+        // Half-sample symmetric: … 3 4 4 3 2 1 0 | 0 1 2 3 4 | 4 3 …
+        assert_eq!(reflect(-7, 5), 3);
+        assert_eq!(reflect(12, 5), 2);
     }
 }

@@ -3,7 +3,6 @@
 //! profile, the Gaussian-approximation experiment, and the `deblur` command.
 
 use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
-use lensblur::deblur::fft::{Fft2, convolve_direct_circular};
 use lensblur::deblur::solve::{
     Deconvolver, HqsParams, IrlsParams, Method, WienerParams, deconvolve_block,
 };
@@ -15,6 +14,7 @@ use lensblur::experiment::{
     ExperimentOptions, MAX_FAILED_SHOTS_IN_A_ROW, MeasureError, MeasureOptions, dead_leaves,
     gaussian_approx, measured_kernels,
 };
+use lensblur::fft::{Fft2, convolve_direct_circular};
 use lensblur::job::JobContext;
 use lensblur::metrics::{SsimParams, psnr, reference_pair, ssim, ssim_f64};
 use lensblur::model::spaced;

@@ -12,8 +12,7 @@ use lensblur::chart::ChartSpec;
 use lensblur::detect::{DetectParams, detect};
 use lensblur::job::JobContext;
 use lensblur::kernel::{
-    KernelParams, Operator, ShotKernels, SquareGeometry, channels_of, estimate_shot,
-    estimate_square,
+    KernelParams, Operator, ShotKernels, SquareGeometry, estimate_shot, estimate_square,
 };
 use lensblur::plane::{Channel, LensSetting};
 use lensblur::psf::{Gaussian2, Kernel};
@@ -441,7 +440,7 @@ fn direct_and_fft_operators_give_the_same_kernels() {
     let job = JobContext::silent();
     let shot = simulate_shot(&spec, &lens, &cp, &job).expect("simulate");
     let detection = detect(&shot.capture, &spec, &DetectParams::default(), &job).expect("detect");
-    let channels = channels_of(&shot.capture);
+    let channels = shot.capture.channels();
     // Largest differences in kernel samples (of the peak), σ (relative) and ρ.
     let compare = |iterations: usize| {
         let direct = KernelParams {

@@ -7,9 +7,9 @@
 //! its neighbours by windows that are flat inside the tile and cross-fade over a short
 //! ramp at each shared border; the windows sum to one, so no seam shows. Tiles are
 //! independent: one row of them runs in parallel, each worker reusing its own FFT
-//! plans and buffers, and only that row's results are held before they are summed in.
+//! buffers (the plans are shared by the whole process), and only that row's results
+//! are held before they are summed in.
 
-pub mod fft;
 pub mod solve;
 pub mod source;
 
@@ -18,10 +18,10 @@ pub use source::{
     ConstantKernel, KernelSource, KernelsFile, ProfileKernels, ScatteredKernels, SourceError,
 };
 
+use crate::fft::good_size;
 use crate::job::{Cancelled, JobContext};
-use crate::plane::{Capture, ChannelPlane, Plane};
+use crate::plane::{Capture, ChannelPlane, Plane, reflect};
 use crate::psf::Kernel;
-use fft::fast_size;
 use rayon::prelude::*;
 use solve::Deconvolver;
 use std::sync::Mutex;
@@ -65,7 +65,7 @@ impl TileAxis {
         let count = (len / step_wanted.max(1)).max(1);
         let step = len.div_ceil(count).max(ramp).max(1);
         let count = len.div_ceil(step).max(1);
-        let block = fast_size(step + ramp + 2 * margin);
+        let block = good_size(step + ramp + 2 * margin);
         Self {
             len,
             step,
@@ -174,18 +174,6 @@ impl TileGrid {
     #[must_use]
     pub fn tiles(&self) -> usize {
         self.x.count * self.y.count
-    }
-}
-
-/// Half-sample symmetric reflection of an index into [0, n), repeated as needed.
-#[inline]
-fn reflect(i: isize, n: usize) -> usize {
-    let n2 = 2 * n as isize;
-    let m = i.rem_euclid(n2);
-    if m >= n as isize {
-        (n2 - 1 - m) as usize
-    } else {
-        m as usize
     }
 }
 
@@ -525,14 +513,5 @@ mod tests {
         let small = TileGrid::for_plane(384, 256, 10, None);
         assert!(small.x.step >= 40, "{small:?}");
         assert!(TileGrid::margin_for(10) > 2 * 10);
-    }
-
-    #[test]
-    fn reflection() {
-        assert_eq!(reflect(-1, 5), 0);
-        assert_eq!(reflect(5, 5), 4);
-        // Half-sample symmetric: … 3 4 4 3 2 1 0 | 0 1 2 3 4 | 4 3 …
-        assert_eq!(reflect(-7, 5), 3);
-        assert_eq!(reflect(12, 5), 2);
     }
 }

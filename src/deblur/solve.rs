@@ -6,7 +6,7 @@
 //! λ/2 ‖k ∗ x − y‖² + Σ |∇x|^α with circular boundaries; the tiler makes blocks periodic
 //! (reflection padding plus an edge taper) before they get here.
 
-use super::fft::Fft2;
+use crate::fft::Fft2;
 use crate::psf::Kernel;
 use rustfft::num_complex::Complex64;
 use serde::{Deserialize, Serialize};
@@ -152,12 +152,12 @@ impl Deconvolver {
 
     #[must_use]
     pub fn width(&self) -> usize {
-        self.fft.width
+        self.fft.width()
     }
 
     #[must_use]
     pub fn height(&self) -> usize {
-        self.fft.height
+        self.fft.height()
     }
 
     /// The FFT this deconvolver works with (for convolving blocks of the same size).

@@ -488,7 +488,7 @@ pub fn align_square(
     }
     let sigma_px = st.var.iter().map(|v| v.sqrt()).sum::<f64>() / np as f64;
     let mut sigma_by_channel: Vec<(Channel, f64)> = Vec::new();
-    for ch in crate::kernel::channels_of(capture) {
+    for ch in capture.channels() {
         let sigmas: Vec<f64> = capture
             .planes
             .iter()

@@ -146,7 +146,7 @@ pub struct SquareKernels {
     pub row: usize,
     pub col: usize,
     pub centre: [f64; 2],
-    /// One per channel of the capture, in [`channels_of`] order.
+    /// One per channel of the capture, in [`Capture::channels`] order.
     pub estimates: Vec<(Channel, Result<KernelEstimate, KernelFailure>)>,
 }
 
@@ -165,18 +165,6 @@ pub enum KernelError {
     Cancelled(#[from] crate::job::Cancelled),
     #[error("invalid kernel parameters: {0}")]
     Params(String),
-}
-
-/// The channels a capture reports: R, G, B (G pooling every green plane), or Y.
-#[must_use]
-pub fn channels_of(capture: &Capture) -> Vec<Channel> {
-    let mut out: Vec<Channel> = Vec::new();
-    for ch in [Channel::R, Channel::G, Channel::B, Channel::Y] {
-        if capture.planes.iter().any(|p| p.channel == ch) {
-            out.push(ch);
-        }
-    }
-    out
 }
 
 /// Checks parameters once, before any square.
@@ -665,7 +653,7 @@ pub fn estimate_shot(
     use rayon::prelude::*;
     use std::sync::atomic::{AtomicUsize, Ordering};
     validate(params)?;
-    let channels = channels_of(capture);
+    let channels = capture.channels();
     let aligned: Vec<&crate::detect::SquareAlignment> = detection.ok_squares().collect();
     let total = aligned.len() * channels.len();
     let done = AtomicUsize::new(0);

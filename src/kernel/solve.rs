@@ -8,7 +8,7 @@
 //! Aᵀ diag(w) A k = Aᵀ t.
 
 use crate::fft::{Fft2, good_size};
-use realfft::num_complex::Complex;
+use rustfft::num_complex::Complex;
 
 /// A symmetric positive semi-definite system `N x = r` given by its action.
 pub trait NormalEquations {
@@ -48,16 +48,16 @@ impl LeastSquares {
             "raster smaller than the kernel"
         );
         let m = good_size(nx.max(ny));
-        let mut fft = Fft2::new(m);
+        let mut fft = Fft2::new(m, m);
         let mut padded = vec![0.0; m * m];
         for y in 0..ny {
             for x in 0..nx {
                 padded[y * m + x] = f64::from(sharp[y * nx + x]);
             }
         }
-        let mut sharp_spectrum = vec![Complex::default(); fft.spectrum_len()];
-        fft.forward(&padded, 0..ny, &mut sharp_spectrum);
-        let spectrum = vec![Complex::default(); fft.spectrum_len()];
+        let mut sharp_spectrum = fft.new_spectrum();
+        fft.forward_rows(&padded, 0..ny, &mut sharp_spectrum);
+        let spectrum = fft.new_spectrum();
         Self {
             m,
             k_size,
@@ -121,24 +121,26 @@ impl LeastSquares {
         for j in 0..k {
             self.image[j * m..j * m + k].copy_from_slice(&kernel[j * k..(j + 1) * k]);
         }
-        self.fft.forward(&self.image, 0..k, &mut self.spectrum);
+        self.fft.forward_rows(&self.image, 0..k, &mut self.spectrum);
         for (s, x) in self.spectrum.iter_mut().zip(&self.sharp_spectrum) {
             *s *= x;
         }
         let rows = self.obs_rows();
-        self.fft.inverse(&mut self.spectrum, rows, &mut self.image);
+        self.fft
+            .inverse_rows(&mut self.spectrum, rows, &mut self.image);
     }
 
     /// `out_k = Aᵀ z` for the image in `self.image` (zero outside the observed rows).
     fn correlate_into(&mut self, out: &mut [f64]) {
         let m = self.m;
         let rows = self.obs_rows();
-        self.fft.forward(&self.image, rows, &mut self.spectrum);
+        self.fft.forward_rows(&self.image, rows, &mut self.spectrum);
         for (s, x) in self.spectrum.iter_mut().zip(&self.sharp_spectrum) {
             *s *= x.conj();
         }
         let k = self.k_size;
-        self.fft.inverse(&mut self.spectrum, 0..k, &mut self.image);
+        self.fft
+            .inverse_rows(&mut self.spectrum, 0..k, &mut self.image);
         for j in 0..k {
             out[j * k..(j + 1) * k].copy_from_slice(&self.image[j * m..j * m + k]);
         }

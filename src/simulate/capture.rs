@@ -20,6 +20,7 @@
 
 use super::lens::{PsfShape, VirtualLens};
 use crate::chart::{ChartSpec, rasterize};
+use crate::fft::{Fft2, good_size};
 use crate::geometry::Homography;
 use crate::job::{Cancelled, JobContext};
 use crate::plane::{CameraIdentity, Capture, Channel, ChannelPlane, LensSetting, Plane};
@@ -29,9 +30,7 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, Normal, Poisson};
 use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
-use rustfft::{Fft, FftPlanner};
 use serde::{Deserialize, Serialize};
-use std::sync::Arc;
 
 /// Where the chart sits in the frame.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -318,40 +317,6 @@ fn hat_weights(grid: &[f64], tile: f64, p: f64) -> [(usize, f64); 2] {
     [(i, 1.0 - f), (i + 1, f)]
 }
 
-fn smooth_size(n: usize) -> usize {
-    let mut m = n.max(1);
-    loop {
-        let mut r = m;
-        for p in [2, 3, 5] {
-            while r.is_multiple_of(p) {
-                r /= p;
-            }
-        }
-        if r == 1 {
-            return m;
-        }
-        m += 1;
-    }
-}
-
-/// In-place 2-D FFT of an n × n row-major buffer (not normalised).
-fn fft2(data: &mut [Complex32], n: usize, fft: &Arc<dyn Fft<f32>>, scratch: &mut Vec<Complex32>) {
-    fft.process(data);
-    transpose(data, n, scratch);
-    fft.process(data);
-    transpose(data, n, scratch);
-}
-
-fn transpose(data: &mut [Complex32], n: usize, scratch: &mut Vec<Complex32>) {
-    scratch.clear();
-    scratch.extend_from_slice(data);
-    for j in 0..n {
-        for i in 0..n {
-            data[i * n + j] = scratch[j * n + i];
-        }
-    }
-}
-
 /// Frequency (cycles per sample) of DFT bin k of length n.
 #[inline]
 fn freq(k: usize, n: usize) -> f64 {
@@ -429,12 +394,12 @@ pub fn simulate_shot(
         }
     }
     let margin = radius_px.ceil() as usize + 2;
-    let m = smooth_size(2 * tile + 1 + 2 * margin);
+    let m = good_size(2 * tile + 1 + 2 * margin);
     let n = m * s;
-    let mut planner = FftPlanner::<f32>::new();
-    let fwd = planner.plan_fft_forward(n);
-    let fwd_kernel = Arc::clone(&fwd);
-    let inv_small = planner.plan_fft_inverse(m);
+    // The oversampled window's transform and the pixel-resolution inverse; each worker
+    // clones its own (the plans are shared, the scratch is not).
+    let window_fft = Fft2::<f32>::new(n, n);
+    let pixel_fft = Fft2::<f32>::new(m, m);
     let sf = s as f64;
 
     // Transfer function of the s-point sub-pixel average that makes pixel j of the
@@ -457,102 +422,102 @@ pub fn simulate_shot(
         job.report("simulate", jy, total_rows);
         let row: Vec<(usize, [Vec<f32>; 3], i64, i64)> = (0..xs.len())
             .into_par_iter()
-            .map(|ix| {
-                let c = &centres[jy * xs.len() + ix];
-                let cx = c.x;
-                let x0 = cx as i64 - tile as i64 - margin as i64;
-                let y0 = cy as i64 - tile as i64 - margin as i64;
-                // Sub-pixel (a, b) of the window has its centre at sensor
-                // (x0 + (a − (s−1)/2)/s, …).
-                let off = (sf - 1.0) / (2.0 * sf);
-                let sensor_from_sub = Homography::translation(x0 as f64 - off, y0 as f64 - off)
-                    .compose(&Homography::scaling(1.0 / sf, 1.0 / sf));
-                let sub_from_sensor = sensor_from_sub
-                    .inverse()
-                    .unwrap_or_else(Homography::identity);
-                let sharp = rasterize(
-                    spec,
-                    &sub_from_sensor.compose(&image_from_chart),
-                    n,
-                    n,
-                    params.paper_background,
-                );
-                let mut spectrum: Vec<Complex32> =
-                    sharp.data.iter().map(|&v| Complex32::new(v, 0.0)).collect();
-                let mut scratch = Vec::with_capacity(n * n);
-                fft2(&mut spectrum, n, &fwd, &mut scratch);
-                let mut results: [Vec<f32>; 3] = [Vec::new(), Vec::new(), Vec::new()];
-                let fold: Vec<usize> = (0..n).map(|k| k % m).collect();
-                let mut small = vec![Complex32::new(0.0, 0.0); m * m];
-                let mut small_scratch = Vec::with_capacity(m * m);
-                for (ci, psf) in c.psfs.iter().enumerate() {
-                    let kernel_tf: Option<Vec<Complex32>> = psf.kernel.as_ref().map(|k| {
-                        let mut buf = vec![Complex32::new(0.0, 0.0); n * n];
-                        let half = k.size / 2;
-                        for j in 0..k.size {
-                            for i in 0..k.size {
-                                let a = (i + n - half % n) % n;
-                                let b = (j + n - half % n) % n;
-                                buf[b * n + a] += Complex32::new(k.at(i, j) as f32, 0.0);
+            .map_init(
+                || (window_fft.clone(), pixel_fft.clone()),
+                |(window_fft, pixel_fft), ix| {
+                    let c = &centres[jy * xs.len() + ix];
+                    let cx = c.x;
+                    let x0 = cx as i64 - tile as i64 - margin as i64;
+                    let y0 = cy as i64 - tile as i64 - margin as i64;
+                    // Sub-pixel (a, b) of the window has its centre at sensor
+                    // (x0 + (a − (s−1)/2)/s, …).
+                    let off = (sf - 1.0) / (2.0 * sf);
+                    let sensor_from_sub = Homography::translation(x0 as f64 - off, y0 as f64 - off)
+                        .compose(&Homography::scaling(1.0 / sf, 1.0 / sf));
+                    let sub_from_sensor = sensor_from_sub
+                        .inverse()
+                        .unwrap_or_else(Homography::identity);
+                    let sharp = rasterize(
+                        spec,
+                        &sub_from_sensor.compose(&image_from_chart),
+                        n,
+                        n,
+                        params.paper_background,
+                    );
+                    let mut spectrum: Vec<Complex32> =
+                        sharp.data.iter().map(|&v| Complex32::new(v, 0.0)).collect();
+                    window_fft.forward_complex(&mut spectrum);
+                    let mut results: [Vec<f32>; 3] = [Vec::new(), Vec::new(), Vec::new()];
+                    let fold: Vec<usize> = (0..n).map(|k| k % m).collect();
+                    let mut small = vec![Complex32::new(0.0, 0.0); m * m];
+                    for (ci, psf) in c.psfs.iter().enumerate() {
+                        let kernel_tf: Option<Vec<Complex32>> = psf.kernel.as_ref().map(|k| {
+                            let mut buf = vec![Complex32::new(0.0, 0.0); n * n];
+                            let half = k.size / 2;
+                            for j in 0..k.size {
+                                for i in 0..k.size {
+                                    let a = (i + n - half % n) % n;
+                                    let b = (j + n - half % n) % n;
+                                    buf[b * n + a] += Complex32::new(k.at(i, j) as f32, 0.0);
+                                }
                             }
-                        }
-                        let mut sc = Vec::with_capacity(n * n);
-                        fft2(&mut buf, n, &fwd_kernel, &mut sc);
-                        buf
-                    });
-                    // σ in sub-pixels for the analytic Gaussian transfer function.
-                    let [vx, vy, cxy] = psf.cov;
-                    let (vx, vy, cxy) = (vx * sf * sf, vy * sf * sf, cxy * sf * sf);
-                    small.iter_mut().for_each(|v| *v = Complex32::new(0.0, 0.0));
-                    let two_pi2 = 2.0 * std::f64::consts::PI.powi(2);
-                    // Beyond these frequencies the Gaussian's transfer is below e^−18
-                    // (the quadratic form is at least the conditional variance × f²).
-                    const CUTOFF: f64 = 18.0;
-                    let cond_x = (vx - cxy * cxy / vy.max(1e-12)).max(1e-12);
-                    let cond_y = (vy - cxy * cxy / vx.max(1e-12)).max(1e-12);
-                    let (fx_max, fy_max) = match &kernel_tf {
-                        Some(_) => (1.0, 1.0),
-                        None => (
-                            (CUTOFF / (two_pi2 * cond_x)).sqrt(),
-                            (CUTOFF / (two_pi2 * cond_y)).sqrt(),
-                        ),
-                    };
-                    let ex: Vec<f64> = (0..n)
-                        .map(|k| (-two_pi2 * vx * freq(k, n).powi(2)).exp())
-                        .collect();
-                    for kb in 0..n {
-                        let fy = freq(kb, n);
-                        if fy.abs() > fy_max {
-                            continue;
-                        }
-                        let ey = (-two_pi2 * vy * fy * fy).exp();
-                        let row_tf = box_tf[kb];
-                        let dst_row = fold[kb] * m;
-                        let cross = -2.0 * two_pi2 * cxy * fy;
-                        for ka in 0..n {
-                            let fx = freq(ka, n);
-                            if fx.abs() > fx_max {
+                            window_fft.forward_complex(&mut buf);
+                            buf
+                        });
+                        // σ in sub-pixels for the analytic Gaussian transfer function.
+                        let [vx, vy, cxy] = psf.cov;
+                        let (vx, vy, cxy) = (vx * sf * sf, vy * sf * sf, cxy * sf * sf);
+                        small.iter_mut().for_each(|v| *v = Complex32::new(0.0, 0.0));
+                        let two_pi2 = 2.0 * std::f64::consts::PI.powi(2);
+                        // Beyond these frequencies the Gaussian's transfer is below e^−18
+                        // (the quadratic form is at least the conditional variance × f²).
+                        const CUTOFF: f64 = 18.0;
+                        let cond_x = (vx - cxy * cxy / vy.max(1e-12)).max(1e-12);
+                        let cond_y = (vy - cxy * cxy / vx.max(1e-12)).max(1e-12);
+                        let (fx_max, fy_max) = match &kernel_tf {
+                            Some(_) => (1.0, 1.0),
+                            None => (
+                                (CUTOFF / (two_pi2 * cond_x)).sqrt(),
+                                (CUTOFF / (two_pi2 * cond_y)).sqrt(),
+                            ),
+                        };
+                        let ex: Vec<f64> = (0..n)
+                            .map(|k| (-two_pi2 * vx * freq(k, n).powi(2)).exp())
+                            .collect();
+                        for kb in 0..n {
+                            let fy = freq(kb, n);
+                            if fy.abs() > fy_max {
                                 continue;
                             }
-                            let t = match &kernel_tf {
-                                Some(tf) => tf[kb * n + ka],
-                                None => {
-                                    let e = ex[ka] * ey * (cross * fx).exp();
-                                    Complex32::new(e as f32, 0.0)
+                            let ey = (-two_pi2 * vy * fy * fy).exp();
+                            let row_tf = box_tf[kb];
+                            let dst_row = fold[kb] * m;
+                            let cross = -2.0 * two_pi2 * cxy * fy;
+                            for ka in 0..n {
+                                let fx = freq(ka, n);
+                                if fx.abs() > fx_max {
+                                    continue;
                                 }
-                            };
-                            let v = spectrum[kb * n + ka] * t * box_tf[ka] * row_tf;
-                            small[dst_row + fold[ka]] += v;
+                                let t = match &kernel_tf {
+                                    Some(tf) => tf[kb * n + ka],
+                                    None => {
+                                        let e = ex[ka] * ey * (cross * fx).exp();
+                                        Complex32::new(e as f32, 0.0)
+                                    }
+                                };
+                                let v = spectrum[kb * n + ka] * t * box_tf[ka] * row_tf;
+                                small[dst_row + fold[ka]] += v;
+                            }
                         }
+                        pixel_fft.inverse_complex(&mut small);
+                        // 1/n² from the inverse DFT of size n, folded into m² bins: the
+                        // decimated image is (1/(s² m²)) Σ, i.e. 1/n².
+                        let norm = 1.0 / (n * n) as f32;
+                        results[ci] = small.iter().map(|v| v.re * norm).collect();
                     }
-                    fft2(&mut small, m, &inv_small, &mut small_scratch);
-                    // 1/n² from the inverse DFT of size n, folded into m² bins: the
-                    // decimated image is (1/(s² m²)) Σ, i.e. 1/n².
-                    let norm = 1.0 / (n * n) as f32;
-                    results[ci] = small.iter().map(|v| v.re * norm).collect();
-                }
-                (ix, results, x0, y0)
-            })
+                    (ix, results, x0, y0)
+                },
+            )
             .collect();
         for (ix, results, x0, y0) in row {
             let cx = xs[ix];

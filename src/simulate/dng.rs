@@ -40,6 +40,10 @@ pub enum DngCompression {
 
 /// The lossless-JPEG code of a `w × h` block of CFA samples (`w` even) with `bits` of
 /// precision.
+// The encoder refuses only a buffer shorter than its header's size, `h` rows of
+// `w / 2` two-component samples; both sides are truncated to 16 bits, so that size is
+// at most `w · h`, and every caller passes exactly `w · h` samples.
+#[allow(clippy::expect_used)]
 fn ljpeg_block(block: &[u16], w: usize, h: usize, bits: ljpeg::Bitdepth) -> Vec<u8> {
     let encoder = ljpeg::Encoder::new(
         (w / 2) as u16,
