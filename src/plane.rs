@@ -325,6 +325,25 @@ pub fn reflect(i: isize, n: usize) -> usize {
     }
 }
 
+/// `n` values from `lo` to `hi`, evenly spaced (geometrically when `log`).
+#[must_use]
+pub fn spaced(lo: f64, hi: f64, n: usize, log: bool) -> Vec<f64> {
+    (0..n)
+        .map(|i| {
+            let t = if n > 1 {
+                i as f64 / (n - 1) as f64
+            } else {
+                0.5
+            };
+            if log {
+                (lo.ln() + t * (hi.ln() - lo.ln())).exp()
+            } else {
+                lo + t * (hi - lo)
+            }
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -755,43 +755,14 @@ fn clear_demo_files(dir: &Path) -> Result<(), SessionError> {
     Ok(())
 }
 
-/// A linear 16-bit RGB PNG of a capture's R, G, B planes (black 0, white 65535).
+/// A linear 16-bit RGB PNG of a capture's R, G, B planes (black 0, white 65535), as the
+/// simulator writes its PNG shots.
 fn write_rgb16_png(path: &Path, capture: &crate::plane::Capture) -> Result<(), SessionError> {
-    use crate::plane::Channel;
-    let (w, h) = (capture.width, capture.height);
-    let plane = |c: Channel| {
-        capture
-            .planes
-            .iter()
-            .find(|p| p.channel == c && p.step == 1)
-    };
-    let (Some(r), Some(g), Some(b)) = (plane(Channel::R), plane(Channel::G), plane(Channel::B))
-    else {
-        return Err(SessionError::Parse {
+    let bytes = crate::simulate::files::rgb16_bytes(capture, crate::simulate::ShotFormat::Png)
+        .map_err(|reason| SessionError::Parse {
             path: path.to_path_buf(),
-            reason: "a demo shot needs full R, G and B planes".into(),
-        });
-    };
-    let mut data = Vec::with_capacity(w * h * 3);
-    for i in 0..w * h {
-        for p in [r, g, b] {
-            data.push((p.plane.data[i].clamp(0.0, 1.0) * 65535.0).round() as u16);
-        }
-    }
-    let img = image::ImageBuffer::<image::Rgb<u16>, Vec<u16>>::from_raw(w as u32, h as u32, data)
-        .ok_or_else(|| SessionError::Parse {
-        path: path.to_path_buf(),
-        reason: "image size does not match its data".into(),
-    })?;
-    let mut bytes = Vec::new();
-    img.write_to(
-        &mut std::io::Cursor::new(&mut bytes),
-        image::ImageFormat::Png,
-    )
-    .map_err(|e| SessionError::Write {
-        path: path.to_path_buf(),
-        source: std::io::Error::other(e),
-    })?;
+            reason,
+        })?;
     write_atomic(path, &bytes)
 }
 

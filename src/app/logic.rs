@@ -451,6 +451,9 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
                 apply(app, Command::OpenSession(dir));
             }
         }
+        Command::SetViewer(v) => app.viewer = v,
+        Command::SetSlider(t) => app.deblur.slider = t.clamp(0.0, 1.0),
+        Command::EditSettings(edit) => app.settings_edit = edit,
         Command::OpenSession(path) => match crate::session::Session::open(&path) {
             Ok(s) => {
                 app.set_session(s);

@@ -150,6 +150,12 @@ pub enum Command {
     OpenSessionDialog,
     /// Opens (or creates) the session in a folder, or from a session file or manifest.
     OpenSession(PathBuf),
+    /// The shot viewer's zoom, pan and overlays, as the user moved them.
+    SetViewer(ViewerState),
+    /// The slider layout's divider, 0 (all result) to 1 (all original).
+    SetSlider(f32),
+    /// The chart and stage settings being edited (not yet applied); `None` reverts.
+    EditSettings(Option<(ChartSpec, StageSettings)>),
     Cancel(u64),
     CancelAll,
     SetDark(bool),
@@ -295,7 +301,7 @@ pub struct ShotPreview {
 
 /// Zoom and pan of the shot viewer: sensor pixel per screen point and the sensor point
 /// at the viewer's centre.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ViewerState {
     /// `None` while the shot is fitted to the viewer (it stays fitted as the viewer
     /// resizes); set once the user zooms or pans.

@@ -161,24 +161,8 @@ impl VirtualLens {
     /// lengths evenly spaced, apertures evenly spaced in stops (log f-number).
     #[must_use]
     pub fn setting_grid(&self, nf: usize, na: usize) -> Vec<LensSetting> {
-        let spread = |lo: f64, hi: f64, n: usize, log: bool| -> Vec<f64> {
-            (0..n)
-                .map(|i| {
-                    let t = if n > 1 {
-                        i as f64 / (n - 1) as f64
-                    } else {
-                        0.5
-                    };
-                    if log {
-                        (lo.ln() + t * (hi.ln() - lo.ln())).exp()
-                    } else {
-                        lo + t * (hi - lo)
-                    }
-                })
-                .collect()
-        };
-        let fs = spread(self.focal_range_mm[0], self.focal_range_mm[1], nf, false);
-        let as_ = spread(self.f_number_range[0], self.f_number_range[1], na, true);
+        let fs = crate::plane::spaced(self.focal_range_mm[0], self.focal_range_mm[1], nf, false);
+        let as_ = crate::plane::spaced(self.f_number_range[0], self.f_number_range[1], na, true);
         fs.iter()
             .flat_map(|&f| {
                 as_.iter().map(move |&a| LensSetting {

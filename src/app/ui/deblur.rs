@@ -317,12 +317,13 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         .max(0.1);
     let (rect, response) = ui.allocate_exact_size(size * scale, Sense::click_and_drag());
     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Slider, true, "divider"));
+    let mut t = app.deblur.slider;
     if (response.dragged() || response.clicked())
         && let Some(p) = response.interact_pointer_pos()
     {
-        app.deblur.slider = ((p.x - rect.left()) / rect.width()).clamp(0.0, 1.0);
+        t = ((p.x - rect.left()) / rect.width()).clamp(0.0, 1.0);
+        app.commands.push(Command::SetSlider(t));
     }
-    let t = app.deblur.slider;
     let split = rect.left() + t * rect.width();
     let painter = ui.painter_at(rect);
     painter.image(

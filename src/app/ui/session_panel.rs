@@ -212,7 +212,10 @@ fn settings_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     egui::CollapsingHeader::new("Settings")
         .default_open(false)
         .show(ui, |ui| {
-            let (chart, s) = app.settings_edit.get_or_insert_with(|| current.clone());
+            // The draft is edited here and handed back as a command; the app keeps it.
+            let before = app.settings_edit.clone().unwrap_or_else(|| current.clone());
+            let mut draft = before.clone();
+            let (chart, s) = (&mut draft.0, &mut draft.1);
             ui.strong("Chart");
             egui::Grid::new("chart-settings").num_columns(2).show(ui, |ui| {
                 ui.label("squares across");
@@ -297,9 +300,12 @@ fn settings_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                     });
                 }
                 if ui.add_enabled(changed, egui::Button::new("Revert")).clicked() {
-                    app.settings_edit = None;
+                    app.commands.push(Command::EditSettings(None));
                 }
             });
+            if draft != before {
+                app.commands.push(Command::EditSettings(Some(draft)));
+            }
             if load_chart {
                 app.commands.push(Command::LoadChartDialog);
             }

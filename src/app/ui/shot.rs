@@ -6,7 +6,7 @@
 //! nothing.
 
 use super::super::view_data::Inspecting;
-use super::super::{Command, StudioApp};
+use super::super::{Command, StudioApp, ViewerState};
 use super::{caption, ellipse_points};
 use crate::detect::{Detection, SquareStatus};
 use crate::session::StageStatus;
@@ -37,6 +37,15 @@ impl SensorView {
 const INSPECTOR_W: f32 = 270.0;
 
 pub(super) fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    // Zoom, pan and overlays change on a copy, handed back as one command.
+    let mut viewer = app.viewer;
+    shot_body_ui(app, ui, &mut viewer);
+    if viewer != app.viewer {
+        app.commands.push(Command::SetViewer(viewer));
+    }
+}
+
+fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState) {
     let Some(session) = &app.session else {
         ui.label("No session yet.");
         return;
@@ -85,11 +94,11 @@ pub(super) fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         }
         if detected.is_some() {
             ui.separator();
-            ui.checkbox(&mut app.viewer.show_squares, "squares")
+            ui.checkbox(&mut viewer.show_squares, "squares")
                 .on_hover_text("Each square's refined outline, coloured by its alignment residual");
-            ui.checkbox(&mut app.viewer.show_circles, "circles & corners")
+            ui.checkbox(&mut viewer.show_circles, "circles & corners")
                 .on_hover_text("The chart's circles projected through each square's own homography, and its corners (when zoomed in, or on the selected square)");
-            ui.checkbox(&mut app.viewer.show_grid, "chart grid")
+            ui.checkbox(&mut viewer.show_grid, "chart grid")
                 .on_hover_text("The whole chart's grid projected through the global homography");
             residual_legend_ui(ui);
         }
@@ -163,14 +172,14 @@ pub(super) fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         (cap.width as f32 - 1.0) / 2.0,
         (cap.height as f32 - 1.0) / 2.0,
     ];
-    let fitted = app.viewer.sensor_px_per_point.is_none();
+    let fitted = viewer.sensor_px_per_point.is_none();
     let mut view = SensorView {
         rect,
-        points_per_px: app.viewer.sensor_px_per_point.map_or(fit, |s| 1.0 / s),
+        points_per_px: viewer.sensor_px_per_point.map_or(fit, |s| 1.0 / s),
         centre: if fitted {
             sensor_centre
         } else {
-            app.viewer.centre_sensor
+            viewer.centre_sensor
         },
     };
     let mut moved = false;
@@ -197,11 +206,11 @@ pub(super) fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     if response.double_clicked() {
         view.points_per_px = fit;
         view.centre = sensor_centre;
-        app.viewer.sensor_px_per_point = None;
+        viewer.sensor_px_per_point = None;
     } else if moved || !fitted {
-        app.viewer.sensor_px_per_point = Some(1.0 / view.points_per_px);
+        viewer.sensor_px_per_point = Some(1.0 / view.points_per_px);
     }
-    app.viewer.centre_sensor = view.centre;
+    viewer.centre_sensor = view.centre;
 
     let painter = ui.painter_at(rect);
     painter.rect_filled(rect, 0.0, Color32::from_gray(20));
@@ -225,9 +234,9 @@ pub(super) fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             .flatten()
             .map(|p| view.to_sensor(p));
         let overlay = Overlay {
-            squares: app.viewer.show_squares,
-            circles: app.viewer.show_circles,
-            grid: app.viewer.show_grid,
+            squares: viewer.show_squares,
+            circles: viewer.show_circles,
+            grid: viewer.show_grid,
         };
         if let Some(sq) = detection_overlay(
             &painter,
