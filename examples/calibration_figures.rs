@@ -34,11 +34,11 @@ use lensblur::crossval::{
     CvOptions, CvReport, Ranges, TestReport, cross_validate_fixed, evaluate_test_set,
     paper_test_models, percentile_sorted,
 };
-use lensblur::detect::{DetectParams, detect};
 use lensblur::job::JobContext;
+use lensblur::kernel::KernelParams;
 use lensblur::kernel::file::KernelsFile;
-use lensblur::kernel::{KernelParams, estimate_shot};
 use lensblur::model::{BlurSample, Dataset, GlobalModel, LocalModel, LocalOptions, ModelKind};
+use lensblur::pipeline;
 use lensblur::plane::LensSetting;
 use lensblur::profile::Profile;
 use lensblur::simulate::{CaptureParams, Pose, ShotTruth, VirtualLens, simulate_shot};
@@ -159,22 +159,21 @@ fn measure(
             &info,
         )?;
     }
+    // The shot is measured in memory through the same pipeline as every front end.
+    let m = pipeline::Measurement::new(chart.clone(), KernelParams::default());
+    let name = Path::new(&plan.name);
     let t1 = Instant::now();
-    let det = detect(&shot.capture, chart, &DetectParams::default(), &job)
-        .with_context(|| format!("{}: detection", plan.name))?;
+    let det = pipeline::detect(&shot.capture, name, &m, &job)?;
     let detect_s = t1.elapsed().as_secs_f64();
     let t2 = Instant::now();
-    let kernels = estimate_shot(&shot.capture, &det, chart, &KernelParams::default(), &job)?;
+    let given = pipeline::GivenSetting {
+        focal_mm: Some(plan.setting.focal_mm),
+        f_number: Some(plan.setting.f_number),
+    };
+    let file = pipeline::estimate(&shot.capture, &det, name, given, &m, false, &job)?;
     let kernels_s = t2.elapsed().as_secs_f64();
-    let file = KernelsFile::from_shot(
-        &kernels,
-        Some(plan.setting.focal_mm),
-        Some(plan.setting.f_number),
-        Some(shot.capture.identity.clone()),
-        false,
-    );
-    std::fs::write(&kernels_path, serde_json::to_vec(&file)?)?;
-    std::fs::write(&truth_path, serde_json::to_vec(&shot.truth)?)?;
+    lensblur::io::write_json(&kernels_path, &file)?;
+    lensblur::io::write_json(&truth_path, &shot.truth)?;
     Ok((
         file,
         shot.truth,
@@ -619,7 +618,7 @@ fn main() -> Result<()> {
 
     report.test = Some(vs_measured.clone());
     let cv_path = args.out.join("cv.json");
-    std::fs::write(&cv_path, serde_json::to_vec_pretty(&report)?)?;
+    lensblur::io::write_json(&cv_path, &report)?;
     write_csv(&cv_path, &report)?;
     let figures = Figures {
         width: args.width,
@@ -640,31 +639,27 @@ fn main() -> Result<()> {
         chosen_no_worse_than_g83_l13: no_worse,
     };
     let path = args.out.join("figures.json");
-    std::fs::write(&path, serde_json::to_vec_pretty(&figures)?)?;
+    lensblur::io::write_json(&path, &figures)?;
     eprintln!("wrote {}", path.display());
     Ok(())
 }
 
 /// Manifests of the saved DNG shots: the calibration set and the test set.
 fn write_manifests(dir: &Path, chart: &ChartSpec, plans: &[ShotPlan], n_cal: usize) -> Result<()> {
-    let manifest = |plans: &[ShotPlan]| {
-        serde_json::json!({
-            "chart": chart,
-            "shots": plans.iter().map(|p| serde_json::json!({
-                "path": format!("{}.dng", p.name),
-                "focal_mm": p.setting.focal_mm,
-                "f_number": p.setting.f_number,
-            })).collect::<Vec<_>>()
-        })
+    use lensblur::manifest::{ChartRef, Manifest, ManifestShot};
+    let manifest = |plans: &[ShotPlan]| Manifest {
+        chart: Some(ChartRef::Spec(chart.clone())),
+        shots: plans
+            .iter()
+            .map(|p| ManifestShot {
+                path: PathBuf::from(format!("{}.dng", p.name)),
+                focal_mm: Some(p.setting.focal_mm),
+                f_number: Some(p.setting.f_number),
+            })
+            .collect(),
     };
-    std::fs::write(
-        dir.join("calibration.json"),
-        serde_json::to_vec_pretty(&manifest(&plans[..n_cal]))?,
-    )?;
-    std::fs::write(
-        dir.join("test.json"),
-        serde_json::to_vec_pretty(&manifest(&plans[n_cal..]))?,
-    )?;
+    manifest(&plans[..n_cal]).save(&dir.join("calibration.json"))?;
+    manifest(&plans[n_cal..]).save(&dir.join("test.json"))?;
     Ok(())
 }
 
