@@ -663,3 +663,58 @@ fn a_session_measured_on_the_command_line_calibrates_in_the_studio() {
     });
     assert_same_profile(&folder.join("profile.json"), &cli_profile);
 }
+
+#[test]
+fn a_second_studio_on_an_open_session_is_refused_and_the_command_line_too() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let folder = dir.path().join("session");
+    make_demo(&folder, &test_demo(), &JobContext::silent())
+        .expect("session")
+        .save()
+        .expect("save");
+    let mut first = new_harness(&dir.path().join("demo"), Some(&folder));
+    first.run_steps(2);
+    assert!(first.state().session.is_some());
+
+    // A second window on the same folder: refused with who holds it, nothing opened.
+    let mut second = new_harness(&dir.path().join("demo"), Some(&folder));
+    second.run_steps(2);
+    assert!(second.state().session.is_none());
+    let refusal = second
+        .state()
+        .messages
+        .iter()
+        .find(|m| m.is_error)
+        .map(|m| m.text.clone())
+        .unwrap_or_default();
+    assert!(
+        refusal.contains("in use by the lensblur studio"),
+        "{:?}",
+        second.state().messages
+    );
+
+    // The command line too, in one line, and it writes nothing.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_lensblur"))
+        .args(["calibrate", "--manifest"])
+        .arg(&folder)
+        .arg("--out")
+        .arg(folder.join("profile.json"))
+        .output()
+        .expect("run lensblur");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("in use by the lensblur studio"),
+        "{err}"
+    );
+    assert!(!folder.join("profile.json").exists());
+
+    // Closed, the folder is free again.
+    drop(first);
+    let mut third = new_harness(&dir.path().join("demo"), Some(&folder));
+    third.run_steps(2);
+    assert!(
+        third.state().session.is_some(),
+        "{:?}",
+        third.state().messages
+    );
+}
