@@ -288,9 +288,20 @@ fn every_view_on_the_demo_session() {
         "profile and cross-validation saved in the session"
     );
     // The command line calibrates the studio's session from the same cache, measuring
-    // nothing again, to the same profile.
+    // nothing again, to the same profile: on a copy of the folder, since the open
+    // session's folder is the studio's while it is open (it refuses a second writer).
     let cli_profile = dir.path().join("cli-profile.json");
-    let cli = calibrate_on_the_command_line(&demo_dir, &cli_profile);
+    let refused = std::process::Command::new(env!("CARGO_BIN_EXE_lensblur"))
+        .args(["calibrate", "--manifest"])
+        .arg(&demo_dir)
+        .arg("--out")
+        .arg(&cli_profile)
+        .output()
+        .expect("run lensblur calibrate");
+    assert!(!refused.status.success() && !cli_profile.exists());
+    let copy = dir.path().join("copy");
+    copy_folder(&demo_dir, &copy);
+    let cli = calibrate_on_the_command_line(&copy, &cli_profile);
     assert!(
         cli.contains(&format!("0 shots measured, {n_shots} from the cache")),
         "{cli}"
@@ -518,6 +529,19 @@ fn assert_same_profile(a: &Path, b: &Path) {
 fn short(v: &serde_json::Value) -> String {
     let t = v.to_string();
     t.chars().take(300).collect()
+}
+
+/// A session folder copied, results and all, without the open session's lock.
+fn copy_folder(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).expect("copy folder");
+    for e in std::fs::read_dir(from).expect("read folder").flatten() {
+        let (p, q) = (e.path(), to.join(e.file_name()));
+        if p.is_dir() {
+            copy_folder(&p, &q);
+        } else if e.file_name() != lensblur::lock::LOCK_FILE {
+            std::fs::copy(&p, &q).expect("copy file");
+        }
+    }
 }
 
 /// Runs `lensblur calibrate` on a session folder's manifest; returns its stderr.
