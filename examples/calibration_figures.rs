@@ -647,16 +647,18 @@ fn main() -> Result<()> {
 /// Manifests of the saved DNG shots: the calibration set and the test set.
 fn write_manifests(dir: &Path, chart: &ChartSpec, plans: &[ShotPlan], n_cal: usize) -> Result<()> {
     use lensblur::manifest::{ChartRef, Manifest, ManifestShot};
-    let manifest = |plans: &[ShotPlan]| Manifest {
-        chart: Some(ChartRef::Spec(chart.clone())),
-        shots: plans
-            .iter()
-            .map(|p| ManifestShot {
-                path: PathBuf::from(format!("{}.dng", p.name)),
-                focal_mm: Some(p.setting.focal_mm),
-                f_number: Some(p.setting.f_number),
-            })
-            .collect(),
+    let manifest = |plans: &[ShotPlan]| {
+        Manifest::new(
+            Some(ChartRef::Spec(chart.clone())),
+            plans
+                .iter()
+                .map(|p| ManifestShot {
+                    path: PathBuf::from(format!("{}.dng", p.name)),
+                    focal_mm: Some(p.setting.focal_mm),
+                    f_number: Some(p.setting.f_number),
+                })
+                .collect(),
+        )
     };
     manifest(&plans[..n_cal]).save(&dir.join("calibration.json"))?;
     manifest(&plans[n_cal..]).save(&dir.join("test.json"))?;

@@ -1,5 +1,6 @@
-//! Writing files so that nothing is ever half-written: every file lensblur writes goes
-//! through here.
+//! Reading and writing files: every file lensblur writes goes through here, so that
+//! nothing is ever half-written, and every file it reads whole is read through a size
+//! limit, so that nothing is read past what [`crate::limits`] allows.
 //!
 //! A write goes to a temporary file beside the target, is flushed to the disk
 //! (`fsync`), renamed over the target, and then the folder itself is flushed, so that
@@ -17,6 +18,102 @@ use std::sync::atomic::{AtomicU64, Ordering};
 pub struct WriteError {
     pub path: PathBuf,
     pub source: std::io::Error,
+}
+
+/// A file that could not be read, naming it.
+#[derive(Debug, thiserror::Error)]
+pub enum ReadError {
+    #[error("{}: cannot read: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{}: {bytes} bytes, above the limit of {limit} bytes for this kind of file", path.display())]
+    TooLarge {
+        path: PathBuf,
+        bytes: u64,
+        limit: u64,
+    },
+}
+
+/// Reads a whole file of at most `limit` bytes. The length is checked before anything
+/// is allocated, and the read stops past the limit should the file grow meanwhile.
+///
+/// # Errors
+/// The file cannot be opened or read, or is longer than `limit`.
+pub fn read_limited(path: &Path, limit: u64) -> Result<Vec<u8>, ReadError> {
+    use std::io::Read;
+    let io = |source| ReadError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let too_large = |bytes| ReadError::TooLarge {
+        path: path.to_path_buf(),
+        bytes,
+        limit,
+    };
+    let file = std::fs::File::open(path).map_err(io)?;
+    let len = file.metadata().map_err(io)?.len();
+    if len > limit {
+        return Err(too_large(len));
+    }
+    let mut bytes = Vec::with_capacity(usize::try_from(len).unwrap_or(0));
+    file.take(limit + 1).read_to_end(&mut bytes).map_err(io)?;
+    if bytes.len() as u64 > limit {
+        return Err(too_large(bytes.len() as u64));
+    }
+    Ok(bytes)
+}
+
+/// Reads a whole UTF-8 text file of at most `limit` bytes (see [`read_limited`]).
+///
+/// # Errors
+/// As [`read_limited`], or the file is not UTF-8.
+pub fn read_text_limited(path: &Path, limit: u64) -> Result<String, ReadError> {
+    let bytes = read_limited(path, limit)?;
+    String::from_utf8(bytes).map_err(|e| ReadError::Io {
+        path: path.to_path_buf(),
+        source: std::io::Error::new(std::io::ErrorKind::InvalidData, e.utf8_error()),
+    })
+}
+
+/// Reads a JSON file lensblur wrote or a person wrote for it, within
+/// [`crate::limits::MAX_JSON_BYTES`].
+///
+/// # Errors
+/// As [`read_text_limited`].
+pub fn read_json_text(path: &Path) -> Result<String, ReadError> {
+    read_text_limited(path, crate::limits::MAX_JSON_BYTES)
+}
+
+/// Whether a file name is one of [`write_atomic`]'s temporary files: what a writer
+/// killed before its rename leaves behind. Never a result; whoever holds the folder's
+/// lock may delete it.
+#[must_use]
+pub fn is_temporary(name: &str) -> bool {
+    name.starts_with('.')
+        && name.rsplit_once(".tmp").is_some_and(|(_, tail)| {
+            tail.split_once('-').is_some_and(|(pid, n)| {
+                !pid.is_empty()
+                    && pid.bytes().all(|b| b.is_ascii_digit())
+                    && !n.is_empty()
+                    && n.bytes().all(|b| b.is_ascii_digit())
+            })
+        })
+}
+
+/// Removes the temporary files of writers that died in `dir` (see [`is_temporary`]);
+/// only whoever holds the folder's lock may call this, or a live writer's file would go.
+/// Returns how many were removed.
+pub fn remove_stale_temporaries(dir: &Path) -> usize {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    entries
+        .flatten()
+        .filter(|e| is_temporary(&e.file_name().to_string_lossy()))
+        .filter(|e| std::fs::remove_file(e.path()).is_ok())
+        .count()
 }
 
 /// Distinguishes temporary files of concurrent writers in one process (two job
@@ -126,5 +223,35 @@ mod tests {
         let p = dir.path().join("missing-folder").join("a.json");
         let e = write_atomic(&p, b"x").unwrap_err().to_string();
         assert!(e.contains("a.json") && e.contains("cannot write"), "{e}");
+    }
+
+    #[test]
+    fn reads_refuse_past_the_limit_with_the_numbers() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("big.json");
+        std::fs::write(&p, vec![b' '; 100]).unwrap();
+        assert_eq!(read_limited(&p, 100).unwrap().len(), 100);
+        let e = read_limited(&p, 99).unwrap_err().to_string();
+        assert!(
+            e.contains("big.json") && e.contains("100") && e.contains("99"),
+            "{e}"
+        );
+        std::fs::write(&p, [0xff, 0xfe]).unwrap();
+        assert!(read_text_limited(&p, 10).is_err());
+    }
+
+    #[test]
+    fn temporary_names_are_recognised_and_swept() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("session.json");
+        write_atomic(&p, b"{}").unwrap();
+        let stale = dir.path().join(".session.json.tmp4242-7");
+        std::fs::write(&stale, b"{\"half").unwrap();
+        assert!(is_temporary(".session.json.tmp4242-7"));
+        assert!(!is_temporary("session.json"));
+        assert!(!is_temporary(".session.json.tmp-"));
+        assert!(!is_temporary(".hidden.tmpx-1"));
+        assert_eq!(remove_stale_temporaries(dir.path()), 1);
+        assert!(!stale.exists() && p.exists());
     }
 }

@@ -41,8 +41,18 @@ impl ManifestShot {
     }
 }
 
+/// The manifest's version. Manifests written by hand or before the field existed have
+/// no schema and are version 1.
+pub const MANIFEST_SCHEMA: crate::format::Schema = crate::format::Schema {
+    kind: "manifest",
+    current: 1,
+    unversioned: Some(1),
+};
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Manifest {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub schema: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub chart: Option<ChartRef>,
     pub shots: Vec<ManifestShot>,
@@ -50,11 +60,8 @@ pub struct Manifest {
 
 #[derive(Debug, thiserror::Error)]
 pub enum ManifestError {
-    #[error("{}: cannot read: {source}", path.display())]
-    Read {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    #[error("{reason}")]
+    Read { path: PathBuf, reason: String },
     #[error("{}: not a session manifest: {reason}", path.display())]
     Parse { path: PathBuf, reason: String },
     #[error("{}: cannot write: {source}", path.display())]
@@ -70,19 +77,46 @@ impl Manifest {
     /// # Errors
     /// Unreadable file, malformed JSON, or no shots.
     pub fn load(path: &Path) -> Result<Self, ManifestError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ManifestError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        let m: Manifest = serde_json::from_str(&text).map_err(|e| ManifestError::Parse {
+        let text = crate::io::read_json_text(path).map_err(|e| ManifestError::Read {
             path: path.to_path_buf(),
             reason: e.to_string(),
         })?;
+        Self::from_json(path, &text)
+    }
+
+    /// A manifest of this version.
+    #[must_use]
+    pub fn new(chart: Option<ChartRef>, shots: Vec<ManifestShot>) -> Self {
+        Self {
+            schema: Some(MANIFEST_SCHEMA.tag()),
+            chart,
+            shots,
+        }
+    }
+
+    /// Parses and checks a manifest's text; `path` names it in errors.
+    ///
+    /// # Errors
+    /// Malformed JSON, a newer version, no shots or more than
+    /// [`crate::limits::MAX_SESSION_SHOTS`].
+    pub fn from_json(path: &Path, text: &str) -> Result<Self, ManifestError> {
+        let parse = |reason: String| ManifestError::Parse {
+            path: path.to_path_buf(),
+            reason,
+        };
+        MANIFEST_SCHEMA
+            .version_of_json(text)
+            .map_err(|e| parse(e.to_string()))?;
+        let m: Manifest = serde_json::from_str(text).map_err(|e| parse(e.to_string()))?;
         if m.shots.is_empty() {
-            return Err(ManifestError::Parse {
-                path: path.to_path_buf(),
-                reason: "it lists no shots".into(),
-            });
+            return Err(parse("it lists no shots".into()));
+        }
+        if m.shots.len() > crate::limits::MAX_SESSION_SHOTS {
+            return Err(parse(format!(
+                "{} shots, above the limit of {}",
+                m.shots.len(),
+                crate::limits::MAX_SESSION_SHOTS
+            )));
         }
         Ok(m)
     }

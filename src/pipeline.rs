@@ -216,7 +216,7 @@ impl Measurement {
 /// A session folder's cache of stage results (see the module documentation).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ResultCache {
-    dir: PathBuf,
+    pub dir: PathBuf,
 }
 
 impl ResultCache {
@@ -264,9 +264,9 @@ impl ResultCache {
         let Some(text) = read_if_present(&path)? else {
             return Ok(None);
         };
-        let file: DetectFile = serde_json::from_str(&text).map_err(|e| PipelineError::Cache {
+        let file = DetectFile::from_json(&text).map_err(|reason| PipelineError::Cache {
             path: path.clone(),
-            reason: e.to_string(),
+            reason,
         })?;
         Ok(Some(Detection::from_file(&file)))
     }
@@ -294,12 +294,16 @@ impl ResultCache {
 }
 
 fn read_if_present(path: &Path) -> Result<Option<String>, PipelineError> {
-    match std::fs::read_to_string(path) {
+    match crate::io::read_json_text(path) {
         Ok(t) => Ok(Some(t)),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-        Err(source) => Err(PipelineError::Read {
+        Err(crate::io::ReadError::Io { source, .. })
+            if source.kind() == std::io::ErrorKind::NotFound =>
+        {
+            Ok(None)
+        }
+        Err(e) => Err(PipelineError::Cache {
             path: path.to_path_buf(),
-            source,
+            reason: e.to_string(),
         }),
     }
 }
@@ -467,7 +471,9 @@ pub fn measure_shot(
     cache: &ResultCache,
     job: &JobContext,
 ) -> Result<(KernelsFile, Provenance), PipelineError> {
-    if let Some(k) = cache.kernels(shot, m)? {
+    // A cached result that cannot be read (edited or damaged by hand: our own writes
+    // are atomic) is measured again and overwritten; a survey names it to the user.
+    if let Some(k) = usable(cache.kernels(shot, m))? {
         if require_setting {
             GivenSetting {
                 focal_mm: given.focal_mm.or(k.focal_mm),
@@ -482,12 +488,20 @@ pub fn measure_shot(
         given.or_exif(&capture).require(&shot.path)?;
     }
     job.check()?;
-    let det = match cache.detection(shot, m)? {
+    let det = match usable(cache.detection(shot, m))? {
         Some(d) => d,
         None => detect_shot(&capture, shot, m, cache, job)?,
     };
     let k = kernels_of_shot(&capture, &det, shot, given, m, cache, job)?;
     Ok((k, Provenance::Measured))
+}
+
+/// A cache lookup with an unreadable entry taken as absent.
+fn usable<T>(found: Result<Option<T>, PipelineError>) -> Result<Option<T>, PipelineError> {
+    match found {
+        Err(PipelineError::Cache { .. }) => Ok(None),
+        other => other,
+    }
 }
 
 /// One measured shot as calibration takes it.

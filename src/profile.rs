@@ -24,23 +24,22 @@ use crate::psf::Gaussian2;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-pub const PROFILE_SCHEMA: &str = "lensblur.profile/1";
+/// The profile's version.
+pub const PROFILE: crate::format::Schema = crate::format::Schema {
+    kind: "profile",
+    current: 1,
+    unversioned: None,
+};
 
-/// The longest sensor side a profile may describe, in pixels: several times any camera
-/// sensor, and small enough that sizes derived from it cannot overflow.
-pub const MAX_SENSOR_SIDE_PX: usize = 1 << 17;
-
-/// The most centres a local model may have: far more than a fit on any chart produces
-/// (one every few squares), and a bound on what a file can make a reader allocate.
-pub const MAX_LOCAL_CENTRES: usize = 1_000_000;
+use crate::limits::{MAX_LOCAL_CENTRES, MAX_SENSOR_SIDE_PX};
 
 /// Errors of reading, writing and using a profile.
 #[derive(Debug, thiserror::Error)]
 pub enum ProfileError {
     #[error("{path}: {reason}")]
     File { path: String, reason: String },
-    #[error("{path}: schema '{found}', expected '{PROFILE_SCHEMA}'")]
-    Schema { path: String, found: String },
+    #[error("{path}: {reason}")]
+    Schema { path: String, reason: String },
     #[error("{path}: invalid profile: {reason}")]
     Invalid { path: String, reason: String },
     #[error(
@@ -387,7 +386,7 @@ impl Profile {
 
     fn to_file(&self) -> ProfileFile {
         ProfileFile {
-            schema: PROFILE_SCHEMA.into(),
+            schema: PROFILE.tag(),
             identity: self.identity.clone(),
             chart: self.chart.clone(),
             width: self.norm.width,
@@ -458,9 +457,12 @@ impl Profile {
     /// Unreadable file, not JSON, a wrong schema or version, or inconsistent models.
     pub fn load(path: &Path) -> Result<Self, ProfileError> {
         let p = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| ProfileError::File {
+        let text = crate::io::read_json_text(path).map_err(|e| ProfileError::File {
             path: p.clone(),
-            reason: e.to_string(),
+            reason: match e {
+                crate::io::ReadError::Io { source, .. } => source.to_string(),
+                too_large => too_large.to_string(),
+            },
         })?;
         Self::from_json(&text, &p)
     }
@@ -471,27 +473,17 @@ impl Profile {
     /// As [`Profile::load`].
     pub fn from_json(text: &str, origin: &str) -> Result<Self, ProfileError> {
         // The schema first, so another version is named as such rather than reported
-        // as whichever field it lacks; a light pass that builds no tree.
-        #[derive(Deserialize)]
-        struct SchemaOnly {
-            #[serde(default)]
-            schema: Option<serde_json::Value>,
-        }
-        let head: SchemaOnly = serde_json::from_str(text).map_err(|e| ProfileError::File {
+        // as whichever field it lacks.
+        serde_json::from_str::<serde::de::IgnoredAny>(text).map_err(|e| ProfileError::File {
             path: origin.into(),
             reason: format!("not JSON: {e}"),
         })?;
-        let schema = head
-            .schema
-            .as_ref()
-            .and_then(|s| s.as_str())
-            .unwrap_or("(none)");
-        if schema != PROFILE_SCHEMA {
-            return Err(ProfileError::Schema {
+        PROFILE
+            .version_of_json(text)
+            .map_err(|e| ProfileError::Schema {
                 path: origin.into(),
-                found: schema.into(),
-            });
-        }
+                reason: e.to_string(),
+            })?;
         let file: ProfileFile = serde_json::from_str(text).map_err(|e| ProfileError::Invalid {
             path: origin.into(),
             reason: e.to_string(),

@@ -5,14 +5,9 @@
 //! demosaicing or colour matrixing. 16-bit and float PNG/TIFF are taken as linear;
 //! 8-bit images are sRGB-decoded unless the caller says they are linear.
 
+use crate::limits;
 use crate::plane::{Capture, Channel, ChannelPlane, Plane};
 use std::path::{Path, PathBuf};
-
-/// Largest side we accept: past this a file is corrupt or not a photo, and allocating
-/// its planes would exhaust memory before failing.
-pub const MAX_SIDE: usize = 100_000;
-/// Smallest side worth loading.
-pub const MIN_SIDE: usize = 16;
 
 #[derive(Debug, thiserror::Error)]
 pub enum LoadError {
@@ -20,12 +15,23 @@ pub enum LoadError {
     Unreadable { path: PathBuf, reason: String },
     #[error("{}: unsupported or corrupt file: {reason}", path.display())]
     Corrupt { path: PathBuf, reason: String },
-    #[error("{}: absurd image size {width} × {height}", path.display())]
-    AbsurdSize {
-        path: PathBuf,
-        width: usize,
-        height: usize,
-    },
+    #[error("{}: {reason}", path.display())]
+    TooLarge { path: PathBuf, reason: String },
+}
+
+impl From<crate::io::ReadError> for LoadError {
+    fn from(e: crate::io::ReadError) -> Self {
+        match e {
+            crate::io::ReadError::Io { path, source } => LoadError::Unreadable {
+                path,
+                reason: source.to_string(),
+            },
+            crate::io::ReadError::TooLarge { path, bytes, limit } => LoadError::TooLarge {
+                path,
+                reason: format!("{bytes} bytes, above the limit of {limit} bytes for an image"),
+            },
+        }
+    }
 }
 
 /// How an 8-bit image's values map to light.
@@ -45,59 +51,80 @@ pub struct LoadOptions {
 
 /// Loads a shot or photo: RAW formats through the RAW decoder, PNG/TIFF/JPEG through
 /// `image`. Focal length and f-number are filled from EXIF where the file has them.
+///
+/// # Errors
+/// The file cannot be read, is larger than [`limits::MAX_IMAGE_FILE_BYTES`], declares
+/// an image outside [`limits::check_image_size`], or is not an image we read.
 pub fn load_capture(path: &Path, options: &LoadOptions) -> Result<Capture, LoadError> {
-    let head = read_head(path)?;
-    let is_png = head.starts_with(b"\x89PNG");
-    let is_jpeg = head.starts_with(&[0xFF, 0xD8]);
-    let is_tiff = head.starts_with(b"II*\0") || head.starts_with(b"MM\0*");
-    let mut capture = if is_png || is_jpeg {
-        load_image(path, options)?
-    } else if is_tiff {
-        let bytes = std::fs::read(path).map_err(|e| LoadError::Unreadable {
-            path: path.to_path_buf(),
-            reason: e.to_string(),
-        })?;
-        let ifd = tiff_ifd0(&bytes).map_err(|reason| LoadError::Corrupt {
-            path: path.to_path_buf(),
-            reason,
-        })?;
-        if ifd.contains_key(&TAG_DNG_VERSION)
-            || ifd
-                .get(&TAG_PHOTOMETRIC)
-                .is_some_and(|v| v.first() == Some(&32803.0))
-        {
-            load_raw(path, Some((&bytes, &ifd)))?
-        } else {
-            load_image(path, options)?
-        }
-    } else {
-        // Every other camera format goes to the RAW decoder, which names what it cannot
-        // read.
-        load_raw(path, None)?
-    };
-    fill_exif(path, &mut capture);
-    Ok(capture)
+    let bytes = crate::io::read_limited(path, limits::MAX_IMAGE_FILE_BYTES)?;
+    decode_capture(path, &bytes, options)
 }
 
-fn read_head(path: &Path) -> Result<Vec<u8>, LoadError> {
-    use std::io::Read;
-    let mut f = std::fs::File::open(path).map_err(|e| LoadError::Unreadable {
-        path: path.to_path_buf(),
-        reason: e.to_string(),
-    })?;
-    let mut head = vec![0u8; 16];
-    let n = f.read(&mut head).map_err(|e| LoadError::Unreadable {
-        path: path.to_path_buf(),
-        reason: e.to_string(),
-    })?;
-    if n == 0 {
+/// [`load_capture`] on a file's bytes; `path` only names the file in messages.
+///
+/// # Errors
+/// As [`load_capture`].
+pub fn decode_capture(
+    path: &Path,
+    bytes: &[u8],
+    options: &LoadOptions,
+) -> Result<Capture, LoadError> {
+    if bytes.is_empty() {
         return Err(LoadError::Corrupt {
             path: path.to_path_buf(),
             reason: "the file is empty".into(),
         });
     }
-    head.truncate(n);
-    Ok(head)
+    let is_png = bytes.starts_with(b"\x89PNG");
+    let is_jpeg = bytes.starts_with(&[0xFF, 0xD8]);
+    let mut capture = if is_png || is_jpeg {
+        load_image(path, bytes, options)?
+    } else if is_tiff(bytes) {
+        let ifd = tiff_ifd0(bytes).map_err(|reason| LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason,
+        })?;
+        if is_raw_ifd(&ifd) {
+            load_raw(path, bytes, Some(&ifd))?
+        } else {
+            load_image(path, bytes, options)?
+        }
+    } else {
+        // Every other camera format goes to the RAW decoder, which names what it cannot
+        // read.
+        load_raw(path, bytes, None)?
+    };
+    read_exif(bytes).fill(&mut capture);
+    Ok(capture)
+}
+
+/// A RAW file's bytes (DNG or a camera's own format) into CFA planes, without EXIF:
+/// the part of [`decode_capture`] that is ours and rawloader's.
+///
+/// # Errors
+/// As [`load_capture`].
+pub fn decode_raw(path: &Path, bytes: &[u8]) -> Result<Capture, LoadError> {
+    if is_tiff(bytes) {
+        let ifd = tiff_ifd0(bytes).map_err(|reason| LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason,
+        })?;
+        load_raw(path, bytes, Some(&ifd))
+    } else {
+        load_raw(path, bytes, None)
+    }
+}
+
+fn is_tiff(bytes: &[u8]) -> bool {
+    bytes.starts_with(b"II*\0") || bytes.starts_with(b"MM\0*")
+}
+
+/// A DNG, or a TIFF holding a CFA image.
+fn is_raw_ifd(ifd: &Ifd) -> bool {
+    ifd.contains_key(&TAG_DNG_VERSION)
+        || ifd
+            .get(&TAG_PHOTOMETRIC)
+            .is_some_and(|v| v.first() == Some(&32803.0))
 }
 
 const TAG_PHOTOMETRIC: u16 = 262;
@@ -179,28 +206,52 @@ fn tiff_ifd0(b: &[u8]) -> Result<Ifd, String> {
 }
 
 /// A RAW file: an uncompressed DNG that rawloader would misread by our own reader of its
-/// first directory, everything else through rawloader.
-fn load_raw(path: &Path, tiff: Option<(&[u8], &Ifd)>) -> Result<Capture, LoadError> {
-    if let Some((bytes, ifd)) = tiff
+/// first directory, everything else through rawloader, whose declared size is checked
+/// against our limits before it allocates the image.
+fn load_raw(path: &Path, bytes: &[u8], ifd: Option<&Ifd>) -> Result<Capture, LoadError> {
+    if let Some(ifd) = ifd
         && needs_own_reader(ifd)
     {
         return read_uncompressed_dng(path, bytes, ifd);
     }
-    let decoded = {
-        let _quiet = QuietPanics::new();
-        std::panic::catch_unwind(|| rawloader::decode_file(path))
+    let decoder_error = |e: rawloader::RawLoaderError| LoadError::Corrupt {
+        path: path.to_path_buf(),
+        reason: format!("RAW decoder: {}", one_line(&e.to_string())),
     };
-    match decoded {
-        Ok(Ok(img)) => from_rawloader(path, &img),
-        Ok(Err(e)) => Err(LoadError::Corrupt {
+    let panicked = || LoadError::Corrupt {
+        path: path.to_path_buf(),
+        reason: "the RAW decoder failed on this file".into(),
+    };
+    let _quiet = QuietPanics::new();
+    // A first pass that parses the headers only (rawloader's "dummy" decode allocates
+    // no image), so the sizes are ours to refuse before the real decode allocates.
+    let head =
+        std::panic::catch_unwind(|| rawloader::decode_dummy(&mut std::io::Cursor::new(bytes)))
+            .map_err(|_| panicked())?
+            .map_err(decoder_error)?;
+    check_size(path, head.width, head.height)?;
+    // No lossless coding spends less than a bit on a sample: a file that claims more
+    // samples than it has bits is truncated, and is refused before the decoder
+    // allocates its image (a few kB claiming 300 MP would otherwise take 600 MB).
+    let samples = head
+        .width
+        .saturating_mul(head.height)
+        .saturating_mul(head.cpp.max(1));
+    if bytes.len().saturating_mul(8) < samples {
+        return Err(LoadError::Corrupt {
             path: path.to_path_buf(),
-            reason: format!("RAW decoder: {}", one_line(&e.to_string())),
-        }),
-        Err(_) => Err(LoadError::Corrupt {
-            path: path.to_path_buf(),
-            reason: "the RAW decoder failed on this file".into(),
-        }),
+            reason: format!(
+                "truncated: a {} × {} image cannot be coded in {} bytes",
+                head.width,
+                head.height,
+                bytes.len()
+            ),
+        });
     }
+    let decoded = std::panic::catch_unwind(|| rawloader::decode(&mut std::io::Cursor::new(bytes)))
+        .map_err(|_| panicked())?
+        .map_err(decoder_error)?;
+    from_rawloader(path, &decoded)
 }
 
 const TAG_COMPRESSION: u16 = 259;
@@ -396,6 +447,15 @@ fn read_uncompressed_dng(path: &Path, b: &[u8], ifd: &Ifd) -> Result<Capture, Lo
     }
     let (w, h) = (one(256)? as usize, one(257)? as usize);
     check_size(path, w, h)?;
+    // Uncompressed, every sample is in the file: a file shorter than its samples is
+    // truncated, and is refused before the image is allocated.
+    let needed = 2 * w * h;
+    if b.len() < needed {
+        return Err(err(format!(
+            "truncated: a {w} × {h} 16-bit image needs {needed} bytes, the file has {}",
+            b.len()
+        )));
+    }
     let tiled = ifd.contains_key(&TAG_TILE_OFFSETS);
     let (tw, th, offsets_tag) = if tiled {
         (one(322)? as usize, one(323)? as usize, TAG_TILE_OFFSETS)
@@ -406,7 +466,7 @@ fn read_uncompressed_dng(path: &Path, b: &[u8], ifd: &Ifd) -> Result<Capture, Lo
             .map_or(h, |r| (r as usize).min(h));
         (w, rows, TAG_STRIP_OFFSETS)
     };
-    if tw == 0 || th == 0 || tw > MAX_SIDE || th > MAX_SIDE {
+    if tw == 0 || th == 0 || tw > limits::MAX_IMAGE_SIDE || th > limits::MAX_IMAGE_SIDE {
         return Err(err(format!("absurd tile or strip size {tw} × {th}")));
     }
     let offsets = ifd.get(&offsets_tag).cloned().unwrap_or_default();
@@ -467,15 +527,37 @@ fn read_uncompressed_dng(path: &Path, b: &[u8], ifd: &Ifd) -> Result<Capture, Lo
     cfa_capture(path, &values, (w, h), &color_at, &black, white)
 }
 
-/// Focal length, f-number and identity from EXIF, by tag number: DNGs often keep
-/// these in IFD0, where they are not the EXIF-context tags a lookup by name expects.
-fn fill_exif(path: &Path, capture: &mut Capture) {
-    let Ok(file) = std::fs::File::open(path) else {
-        return;
-    };
-    let mut reader = std::io::BufReader::new(file);
-    let Ok(exif) = exif::Reader::new().read_from_container(&mut reader) else {
-        return;
+/// What lensblur takes from a file's EXIF.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ExifInfo {
+    pub focal_mm: Option<f64>,
+    pub f_number: Option<f64>,
+    pub identity: crate::plane::CameraIdentity,
+}
+
+impl ExifInfo {
+    /// Fills what the capture does not already have (settings) or has less exactly
+    /// (EXIF's make and model win over the RAW decoder's cleaned names).
+    fn fill(self, capture: &mut Capture) {
+        capture.setting_focal_mm = capture.setting_focal_mm.or(self.focal_mm);
+        capture.setting_f_number = capture.setting_f_number.or(self.f_number);
+        let id = &mut capture.identity;
+        id.make = self.identity.make.or(id.make.take());
+        id.model = self.identity.model.or(id.model.take());
+        id.body_serial = self.identity.body_serial.or(id.body_serial.take());
+        id.lens_model = self.identity.lens_model.or(id.lens_model.take());
+        id.lens_serial = self.identity.lens_serial.or(id.lens_serial.take());
+    }
+}
+
+/// Focal length, f-number and identity from a file's EXIF, by tag number: DNGs often
+/// keep these in IFD0, where they are not the EXIF-context tags a lookup by name
+/// expects. A file without EXIF, or with EXIF we cannot parse, has none.
+#[must_use]
+pub fn read_exif(bytes: &[u8]) -> ExifInfo {
+    let mut info = ExifInfo::default();
+    let Ok(exif) = exif::Reader::new().read_from_container(&mut std::io::Cursor::new(bytes)) else {
+        return info;
     };
     for f in exif.fields() {
         let number = f.tag.number();
@@ -495,33 +577,33 @@ fn fill_exif(path: &Path, capture: &mut Capture) {
                     String::from_utf8_lossy(s)
                         .trim_end_matches('\0')
                         .trim()
-                        .to_owned()
+                        .chars()
+                        .take(256)
+                        .collect::<String>()
                 })
                 .filter(|s| !s.is_empty()),
             _ => None,
         };
+        let id = &mut info.identity;
         match number {
-            37386 => capture.setting_focal_mm = capture.setting_focal_mm.or(rational),
-            33437 => capture.setting_f_number = capture.setting_f_number.or(rational),
-            271 => capture.identity.make = text.or(capture.identity.make.take()),
-            272 => capture.identity.model = text.or(capture.identity.model.take()),
-            42033 => capture.identity.body_serial = text,
-            42036 => capture.identity.lens_model = text,
-            42037 => capture.identity.lens_serial = text,
+            37386 => info.focal_mm = info.focal_mm.or(rational),
+            33437 => info.f_number = info.f_number.or(rational),
+            271 => id.make = id.make.take().or(text),
+            272 => id.model = id.model.take().or(text),
+            42033 => id.body_serial = id.body_serial.take().or(text),
+            42036 => id.lens_model = id.lens_model.take().or(text),
+            42037 => id.lens_serial = id.lens_serial.take().or(text),
             _ => {}
         }
     }
+    info
 }
 
 fn check_size(path: &Path, width: usize, height: usize) -> Result<(), LoadError> {
-    if !(MIN_SIDE..=MAX_SIDE).contains(&width) || !(MIN_SIDE..=MAX_SIDE).contains(&height) {
-        return Err(LoadError::AbsurdSize {
-            path: path.to_path_buf(),
-            width,
-            height,
-        });
-    }
-    Ok(())
+    limits::check_image_size(width, height).map_err(|reason| LoadError::TooLarge {
+        path: path.to_path_buf(),
+        reason,
+    })
 }
 
 fn srgb_decode(v: f32) -> f32 {
@@ -533,41 +615,68 @@ fn srgb_decode(v: f32) -> f32 {
 }
 
 /// PNG/TIFF/JPEG into linear planes: one `Y` plane for grey images, R, G, B otherwise.
-fn load_image(path: &Path, options: &LoadOptions) -> Result<Capture, LoadError> {
-    let reader = image::ImageReader::open(path)
-        .map_err(|e| LoadError::Unreadable {
-            path: path.to_path_buf(),
-            reason: e.to_string(),
-        })?
-        .with_guessed_format()
-        .map_err(|e| LoadError::Unreadable {
-            path: path.to_path_buf(),
-            reason: e.to_string(),
-        })?;
-    let (w, h) = reader
+/// The size is checked from the header before anything is decoded, and the decoder is
+/// held to the same limits (image-rs's own default would refuse a 100 MP 16-bit TIFF).
+fn load_image(path: &Path, bytes: &[u8], options: &LoadOptions) -> Result<Capture, LoadError> {
+    let corrupt = |e: image::ImageError| LoadError::Corrupt {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    };
+    let reader = || -> Result<_, LoadError> {
+        let mut r = image::ImageReader::new(std::io::Cursor::new(bytes))
+            .with_guessed_format()
+            .map_err(|e| LoadError::Unreadable {
+                path: path.to_path_buf(),
+                reason: e.to_string(),
+            })?;
+        let mut l = image::Limits::default();
+        l.max_image_width = u32::try_from(limits::MAX_IMAGE_SIDE).ok();
+        l.max_image_height = u32::try_from(limits::MAX_IMAGE_SIDE).ok();
+        // RGBA at 16 bits is the widest buffer a photo decodes to.
+        l.max_alloc = Some(limits::MAX_IMAGE_PIXELS as u64 * 8);
+        r.limits(l);
+        Ok(r)
+    };
+    let (w, h) = reader()?
         .into_dimensions()
         .map(|(w, h)| (w as usize, h as usize))
-        .map_err(|e| LoadError::Corrupt {
-            path: path.to_path_buf(),
-            reason: e.to_string(),
-        })?;
+        .map_err(corrupt)?;
     check_size(path, w, h)?;
-    let img = image::ImageReader::open(path)
-        .and_then(|r| r.with_guessed_format())
-        .map_err(|e| LoadError::Unreadable {
+    let img = reader()?.decode().map_err(corrupt)?;
+    if (img.width() as usize, img.height() as usize) != (w, h) {
+        return Err(LoadError::Corrupt {
             path: path.to_path_buf(),
-            reason: e.to_string(),
-        })?
-        .decode()
-        .map_err(|e| LoadError::Corrupt {
+            reason: "the decoded image differs in size from its header".into(),
+        });
+    }
+    let color = img.color();
+    let grey = !color.has_color();
+    let decode_srgb =
+        color.bytes_per_pixel() / color.channel_count() == 1 && options.encoding == Encoding::Auto;
+    // Straight from the decoder's buffer, not through a converted copy: a 100 MP photo
+    // would otherwise hold a third full-size image in memory while its planes are made.
+    let (data, cc) = (img.as_bytes(), usize::from(color.channel_count()));
+    let bytes_per_sample = usize::from(color.bytes_per_pixel()) / cc;
+    let float = matches!(color, image::ColorType::Rgb32F | image::ColorType::Rgba32F);
+    let sample = |k: usize| -> f32 {
+        match bytes_per_sample {
+            1 => f32::from(data[k]) / 255.0,
+            2 => f32::from(u16::from_ne_bytes([data[2 * k], data[2 * k + 1]])) / 65535.0,
+            4 if float => f32::from_ne_bytes([
+                data[4 * k],
+                data[4 * k + 1],
+                data[4 * k + 2],
+                data[4 * k + 3],
+            ]),
+            _ => 0.0,
+        }
+    };
+    if !matches!(bytes_per_sample, 1 | 2) && !float {
+        return Err(LoadError::Corrupt {
             path: path.to_path_buf(),
-            reason: e.to_string(),
-        })?;
-    use image::ColorType as C;
-    let eight_bit = matches!(img.color(), C::L8 | C::La8 | C::Rgb8 | C::Rgba8);
-    let grey = matches!(img.color(), C::L8 | C::La8 | C::L16 | C::La16);
-    let decode_srgb = eight_bit && options.encoding == Encoding::Auto;
-    let rgb = img.into_rgb32f();
+            reason: format!("unsupported sample format {color:?}"),
+        });
+    }
     let channels: &[(Channel, usize)] = if grey {
         &[(Channel::Y, 0)]
     } else {
@@ -578,7 +687,7 @@ fn load_image(path: &Path, options: &LoadOptions) -> Result<Capture, LoadError> 
         .map(|&(channel, c)| ChannelPlane {
             channel,
             plane: Plane::from_fn(w, h, |x, y| {
-                let v = rgb.get_pixel(x as u32, y as u32)[c];
+                let v = sample((y * w + x) * cc + c);
                 if decode_srgb { srgb_decode(v) } else { v }
             }),
             step: 1,

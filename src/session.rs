@@ -21,9 +21,12 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 pub const SESSION_FILE: &str = "session.json";
-pub const SCHEMA: &str = "lensblur.session/2";
-/// The first version: shots without ids (they are given ids in list order on reading).
-const SCHEMA_V1: &str = "lensblur.session/1";
+/// The session file's version. Version 1 had no shot ids.
+pub const SESSION: crate::format::Schema = crate::format::Schema {
+    kind: "session",
+    current: 2,
+    unversioned: None,
+};
 
 /// File types a shot may have (RAW formats rawloader reads, DNG, TIFF, PNG, JPEG).
 pub const SHOT_EXTENSIONS: &[&str] = &[
@@ -51,6 +54,35 @@ pub enum SessionError {
     Duplicate { path: PathBuf },
     #[error("{path}: no such file")]
     Missing { path: PathBuf },
+}
+
+/// What [`Session::survey`] found in a session folder.
+#[derive(Clone, Debug, Default)]
+pub struct Survey {
+    pub detections: std::collections::BTreeMap<ShotId, crate::detect::Detection>,
+    pub kernels: std::collections::BTreeMap<ShotId, crate::kernel::file::KernelsFile>,
+    /// What was left out, one line each, naming the file and why.
+    pub dropped: Vec<String>,
+}
+
+/// A detection's one-line status.
+#[must_use]
+pub fn detect_summary(d: &crate::detect::Detection) -> String {
+    format!(
+        "{} of {} squares aligned",
+        d.ok_squares().count(),
+        d.squares.len()
+    )
+}
+
+/// A kernels file's one-line status.
+#[must_use]
+pub fn kernels_summary(file: &crate::kernel::file::KernelsFile) -> String {
+    format!(
+        "{} kernels, {} failed",
+        file.samples.len(),
+        file.failed.len()
+    )
 }
 
 /// Parameters of the stages, as the user set them.
@@ -229,7 +261,7 @@ impl Session {
             .file_name()
             .map_or_else(|| "session".into(), |s| s.to_string_lossy().into_owned());
         Self {
-            schema: SCHEMA.into(),
+            schema: SESSION.tag(),
             name,
             chart: ChartSpec::default(),
             settings: StageSettings::default(),
@@ -270,71 +302,84 @@ impl Session {
                 path: path.to_path_buf(),
             });
         }
-        let text = std::fs::read_to_string(path).map_err(|source| SessionError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        let folder = path
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."))
-            .to_path_buf();
-        let value: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| SessionError::Parse {
+        let text = crate::io::read_json_text(path).map_err(|e| match e {
+            crate::io::ReadError::Io { path, source } => SessionError::Read { path, source },
+            too_large => SessionError::Parse {
                 path: path.to_path_buf(),
-                reason: e.to_string(),
-            })?;
-        let parse_err = |e: serde_json::Error| SessionError::Parse {
+                reason: too_large.to_string(),
+            },
+        })?;
+        Self::from_json(path, &text)
+    }
+
+    /// A session (or a manifest, which becomes a session) from the text of the file at
+    /// `path`, whose folder is the session's.
+    ///
+    /// # Errors
+    /// The text is neither a session nor a manifest, a newer version, or lists more
+    /// than [`crate::limits::MAX_SESSION_SHOTS`] shots.
+    pub fn from_json(path: &Path, text: &str) -> Result<Self, SessionError> {
+        let folder = crate::io::parent_dir(path).to_path_buf();
+        let parse = |reason: String| SessionError::Parse {
             path: path.to_path_buf(),
-            reason: e.to_string(),
+            reason,
         };
-        match value.get("schema").and_then(|s| s.as_str()) {
-            Some(SCHEMA) => {
-                let mut s: Session = serde_json::from_value(value).map_err(parse_err)?;
-                s.folder = folder;
-                s.number_shots();
-                return Ok(s);
-            }
-            Some(SCHEMA_V1) => {
-                // Version 1 kept results by list position: the ids are new, and results
-                // are found again by content in the cache.
-                let mut s: Session = serde_json::from_value(value).map_err(parse_err)?;
-                s.schema = SCHEMA.into();
-                s.folder = folder;
-                for shot in &mut s.shots {
-                    shot.id = ShotId(0);
-                    shot.detect = StageStatus::Pending;
-                    shot.kernels = StageStatus::Pending;
-                }
-                s.number_shots();
-                return Ok(s);
-            }
-            Some(other) if other.starts_with("lensblur.session/") => {
-                return Err(SessionError::Parse {
-                    path: path.to_path_buf(),
-                    reason: format!(
-                        "session version '{other}' is newer than this lensblur reads ('{SCHEMA}')"
-                    ),
+        let value: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| parse(e.to_string()))?;
+        let schema = value.get("schema").and_then(|s| s.as_str());
+        let is_session = schema.is_some_and(|s| s.starts_with("lensblur.session/"));
+        let count = value
+            .get("shots")
+            .and_then(|v| v.as_array())
+            .map_or(0, Vec::len);
+        if count > crate::limits::MAX_SESSION_SHOTS {
+            return Err(parse(format!(
+                "{count} shots, above the limit of {}",
+                crate::limits::MAX_SESSION_SHOTS
+            )));
+        }
+        if !is_session {
+            let m = Manifest::from_json(path, text).map_err(|e| match e {
+                crate::manifest::ManifestError::Parse { reason, .. } => parse(reason),
+                other => parse(other.to_string()),
+            })?;
+            let mut s = Self::new(&folder);
+            s.chart = m.chart_spec(&folder).map_err(|e| parse(e.to_string()))?;
+            for ms in m.shots {
+                let id = s.new_shot_id();
+                s.shots.push(Shot {
+                    id,
+                    path: ms.path,
+                    focal_mm: ms.focal_mm,
+                    f_number: ms.f_number,
+                    ..Shot::blank()
                 });
             }
-            _ => {}
+            return Ok(s);
         }
-        let m: Manifest = serde_json::from_value(value).map_err(parse_err)?;
-        let mut s = Self::new(&folder);
-        s.chart = m.chart_spec(&folder).map_err(|e| SessionError::Parse {
-            path: path.to_path_buf(),
-            reason: e.to_string(),
-        })?;
-        for ms in m.shots {
-            let id = s.new_shot_id();
-            s.shots.push(Shot {
-                id,
-                path: ms.path,
-                focal_mm: ms.focal_mm,
-                f_number: ms.f_number,
-                ..Shot::blank()
-            });
+        let version = SESSION
+            .version_of(schema)
+            .map_err(|e| parse(e.to_string()))?;
+        let mut s: Session = serde_json::from_value(value).map_err(|e| parse(e.to_string()))?;
+        s.chart.validate().map_err(|e| parse(e.to_string()))?;
+        // Ids count up from 1 by one per shot ever added; past 2⁴⁸ a file was edited
+        // into nonsense, and counting on from it could overflow.
+        const MAX_ID: u64 = 1 << 48;
+        if s.next_shot_id > MAX_ID || s.shots.iter().any(|x| x.id.0 > MAX_ID) {
+            return Err(parse(format!("shot ids above {MAX_ID}")));
         }
+        if version == 1 {
+            // Version 1 kept results by list position: the ids are new, and results are
+            // found again by content in the cache.
+            for shot in &mut s.shots {
+                shot.id = ShotId(0);
+                shot.detect = StageStatus::Pending;
+                shot.kernels = StageStatus::Pending;
+            }
+        }
+        s.schema = SESSION.tag();
+        s.folder = folder;
+        s.number_shots();
         Ok(s)
     }
 
@@ -398,7 +443,7 @@ impl Session {
     /// and makes sure later ids stay unused.
     fn number_shots(&mut self) {
         let top = self.shots.iter().map(|s| s.id.0).max().unwrap_or(0);
-        self.next_shot_id = self.next_shot_id.max(top + 1);
+        self.next_shot_id = self.next_shot_id.max(top.saturating_add(1));
         let mut seen = std::collections::BTreeSet::new();
         for i in 0..self.shots.len() {
             let id = self.shots[i].id;
@@ -411,7 +456,7 @@ impl Session {
 
     fn new_shot_id(&mut self) -> ShotId {
         let id = ShotId(self.next_shot_id.max(1));
-        self.next_shot_id = id.0 + 1;
+        self.next_shot_id = id.0.saturating_add(1);
         id
     }
 
@@ -454,6 +499,106 @@ impl Session {
         crate::pipeline::ResultCache::in_folder(&self.folder)
     }
 
+    /// Takes the session folder's lock for `who` (see [`crate::lock`]) and, holding
+    /// it, removes what writers killed mid-write left behind (temporary files, never a
+    /// result). Returns the lock and how many such files went.
+    ///
+    /// # Errors
+    /// Another studio or command holds the folder, or it cannot be locked.
+    pub fn lock(
+        &self,
+        who: &str,
+    ) -> Result<(crate::lock::FolderLock, usize), crate::lock::LockError> {
+        let lock = crate::lock::FolderLock::acquire(&self.folder, who)?;
+        let swept = crate::io::remove_stale_temporaries(&self.folder)
+            + crate::io::remove_stale_temporaries(&self.cache().dir);
+        Ok((lock, swept))
+    }
+
+    /// What the session folder holds for each shot, read from the result cache, and
+    /// what had to be dropped on the way, each with its reason: a shot file that is
+    /// gone or unreadable (renamed by hand?), a cached result that cannot be read (it is
+    /// measured again), a result the session recorded that is no longer there.
+    ///
+    /// # Errors
+    /// Only cancellation: everything else is a dropped entry.
+    pub fn survey(&self, job: &crate::job::JobContext) -> Result<Survey, crate::job::Cancelled> {
+        use crate::pipeline::ShotFile;
+        let (m, cache) = (self.measurement(), self.cache());
+        let mut survey = Survey::default();
+        let total = self.shots.len();
+        for (k, shot) in self.shots.iter().enumerate() {
+            job.check()?;
+            job.report("reading results", k, total);
+            let path = self.path_of(shot);
+            let name = shot.name();
+            let file = match ShotFile::read(&path) {
+                Ok(f) => f,
+                Err(e) => {
+                    let why = if path.exists() {
+                        e.to_string()
+                    } else {
+                        format!("{}: not found (renamed or removed?)", path.display())
+                    };
+                    survey
+                        .dropped
+                        .push(format!("{why}: its results are left out until it is back"));
+                    continue;
+                }
+            };
+            match cache.detection(&file, &m) {
+                Ok(Some(d)) => {
+                    survey.detections.insert(shot.id, d);
+                }
+                Ok(None) if shot.detect.is_done() => survey.dropped.push(format!(
+                    "{name}: its recorded detection is gone from the results: pending again"
+                )),
+                Ok(None) => {}
+                Err(e) => survey
+                    .dropped
+                    .push(format!("{e}: left out, detected again when needed")),
+            }
+            match cache.kernels(&file, &m) {
+                Ok(Some(k)) => {
+                    survey.kernels.insert(shot.id, k);
+                }
+                Ok(None) if shot.kernels.is_done() => survey.dropped.push(format!(
+                    "{name}: its recorded kernels are gone from the results: pending again"
+                )),
+                Ok(None) => {}
+                Err(e) => survey
+                    .dropped
+                    .push(format!("{e}: left out, measured again when needed")),
+            }
+        }
+        job.report("reading results", total, total);
+        Ok(survey)
+    }
+
+    /// Each shot's stage status as a [`Survey`] found it: done where a result exists,
+    /// pending where a recorded result has gone, a recorded failure kept.
+    pub fn settle(&mut self, survey: &Survey) {
+        fn settle(status: &StageStatus, found: Option<String>) -> StageStatus {
+            match (found, status) {
+                (Some(summary), _) => StageStatus::Done { summary },
+                (None, StageStatus::Failed { reason }) => StageStatus::Failed {
+                    reason: reason.clone(),
+                },
+                (None, _) => StageStatus::Pending,
+            }
+        }
+        for shot in &mut self.shots {
+            shot.detect = settle(
+                &shot.detect,
+                survey.detections.get(&shot.id).map(detect_summary),
+            );
+            shot.kernels = settle(
+                &shot.kernels,
+                survey.kernels.get(&shot.id).map(kernels_summary),
+            );
+        }
+    }
+
     /// The absolute (or working-directory-relative) path of shot `index`.
     #[must_use]
     pub fn shot_path(&self, index: usize) -> PathBuf {
@@ -465,10 +610,9 @@ impl Session {
     /// command line names each shot as the studio does.
     #[must_use]
     pub fn manifest(&self) -> Manifest {
-        Manifest {
-            chart: Some(ChartRef::Spec(self.chart.clone())),
-            shots: self
-                .shots
+        Manifest::new(
+            Some(ChartRef::Spec(self.chart.clone())),
+            self.shots
                 .iter()
                 .map(|s| ManifestShot {
                     path: s.path.clone(),
@@ -476,7 +620,7 @@ impl Session {
                     f_number: s.f_number,
                 })
                 .collect(),
-        }
+        )
     }
 
     /// Writes the manifest beside `session.json` and returns its path.
@@ -690,7 +834,11 @@ pub fn make_demo(
                 reason: e.to_string(),
             })?;
             write_rgb16_png(&path, &shot.capture)?;
-            let truth = serde_json::to_vec(&shot.truth).map_err(|e| SessionError::Write {
+            let truth = serde_json::to_vec(&crate::format::Versioned::new(
+                &crate::format::TRUTH,
+                &shot.truth,
+            ))
+            .map_err(|e| SessionError::Write {
                 path: truth_path.clone(),
                 source: std::io::Error::other(e),
             })?;
@@ -892,7 +1040,7 @@ mod tests {
         });
         std::fs::write(&file, serde_json::to_vec(&v1).unwrap()).unwrap();
         let s = Session::open(dir.path()).unwrap();
-        assert_eq!(s.schema, SCHEMA);
+        assert_eq!(s.schema, SESSION.tag());
         let ids: Vec<ShotId> = s.shots.iter().map(|x| x.id).collect();
         assert_eq!(ids, vec![ShotId(1), ShotId(2)]);
         assert_eq!(s.shots[0].focal_mm, Some(24.0));
@@ -903,7 +1051,7 @@ mod tests {
         std::fs::write(&file, serde_json::to_vec(&newer).unwrap()).unwrap();
         let e = Session::open(dir.path()).unwrap_err().to_string();
         assert!(
-            e.contains("lensblur.session/9") && e.contains(SCHEMA),
+            e.contains("version 9") && e.contains("up to version 2"),
             "{e}"
         );
     }

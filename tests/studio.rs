@@ -288,9 +288,20 @@ fn every_view_on_the_demo_session() {
         "profile and cross-validation saved in the session"
     );
     // The command line calibrates the studio's session from the same cache, measuring
-    // nothing again, to the same profile.
+    // nothing again, to the same profile: on a copy of the folder, since the open
+    // session's folder is the studio's while it is open (it refuses a second writer).
     let cli_profile = dir.path().join("cli-profile.json");
-    let cli = calibrate_on_the_command_line(&demo_dir, &cli_profile);
+    let refused = std::process::Command::new(env!("CARGO_BIN_EXE_lensblur"))
+        .args(["calibrate", "--manifest"])
+        .arg(&demo_dir)
+        .arg("--out")
+        .arg(&cli_profile)
+        .output()
+        .expect("run lensblur calibrate");
+    assert!(!refused.status.success() && !cli_profile.exists());
+    let copy = dir.path().join("copy");
+    copy_folder(&demo_dir, &copy);
+    let cli = calibrate_on_the_command_line(&copy, &cli_profile);
     assert!(
         cli.contains(&format!("0 shots measured, {n_shots} from the cache")),
         "{cli}"
@@ -520,6 +531,19 @@ fn short(v: &serde_json::Value) -> String {
     t.chars().take(300).collect()
 }
 
+/// A session folder copied, results and all, without the open session's lock.
+fn copy_folder(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).expect("copy folder");
+    for e in std::fs::read_dir(from).expect("read folder").flatten() {
+        let (p, q) = (e.path(), to.join(e.file_name()));
+        if p.is_dir() {
+            copy_folder(&p, &q);
+        } else if e.file_name() != lensblur::lock::LOCK_FILE {
+            std::fs::copy(&p, &q).expect("copy file");
+        }
+    }
+}
+
 /// Runs `lensblur calibrate` on a session folder's manifest; returns its stderr.
 fn calibrate_on_the_command_line(folder: &Path, out: &Path) -> String {
     let o = std::process::Command::new(env!("CARGO_BIN_EXE_lensblur"))
@@ -662,4 +686,59 @@ fn a_session_measured_on_the_command_line_calibrates_in_the_studio() {
         a.profile.is_some() && idle(a)
     });
     assert_same_profile(&folder.join("profile.json"), &cli_profile);
+}
+
+#[test]
+fn a_second_studio_on_an_open_session_is_refused_and_the_command_line_too() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let folder = dir.path().join("session");
+    make_demo(&folder, &test_demo(), &JobContext::silent())
+        .expect("session")
+        .save()
+        .expect("save");
+    let mut first = new_harness(&dir.path().join("demo"), Some(&folder));
+    first.run_steps(2);
+    assert!(first.state().session.is_some());
+
+    // A second window on the same folder: refused with who holds it, nothing opened.
+    let mut second = new_harness(&dir.path().join("demo"), Some(&folder));
+    second.run_steps(2);
+    assert!(second.state().session.is_none());
+    let refusal = second
+        .state()
+        .messages
+        .iter()
+        .find(|m| m.is_error)
+        .map(|m| m.text.clone())
+        .unwrap_or_default();
+    assert!(
+        refusal.contains("in use by the lensblur studio"),
+        "{:?}",
+        second.state().messages
+    );
+
+    // The command line too, in one line, and it writes nothing.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_lensblur"))
+        .args(["calibrate", "--manifest"])
+        .arg(&folder)
+        .arg("--out")
+        .arg(folder.join("profile.json"))
+        .output()
+        .expect("run lensblur");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("in use by the lensblur studio"),
+        "{err}"
+    );
+    assert!(!folder.join("profile.json").exists());
+
+    // Closed, the folder is free again.
+    drop(first);
+    let mut third = new_harness(&dir.path().join("demo"), Some(&folder));
+    third.run_steps(2);
+    assert!(
+        third.state().session.is_some(),
+        "{:?}",
+        third.state().messages
+    );
 }

@@ -12,7 +12,6 @@ use crate::kernel::file::KernelsFile;
 use crate::pipeline::{self, GivenSetting, MeasuredShot, ShotFile};
 use crate::plane::{Capture, Channel, ChannelPlane, Plane};
 use crate::session::{Session, ShotId, StageStatus};
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -58,7 +57,9 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
     match output {
         JobOutput::DemoReady(s) => {
             let n = s.shots.len();
-            app.set_session(*s);
+            if !app.set_session(*s) {
+                return;
+            }
             app.info(format!(
                 "demo session ready: {n} simulated shots of the virtual lens"
             ));
@@ -136,7 +137,7 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
             let result = result.map_err(|e| app.shorten_paths(e));
             let status = match &result {
                 Ok(file) => StageStatus::Done {
-                    summary: kernels_summary(file),
+                    summary: crate::session::kernels_summary(file),
                 },
                 Err(reason) => StageStatus::Failed {
                     reason: reason.clone(),
@@ -154,29 +155,27 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
             save(app);
         }
         JobOutput::DatasetReady(ds) => app.dataset = ds,
-        JobOutput::ResultsRead {
-            detections,
-            measured,
-            cv,
-        } => {
+        JobOutput::ResultsRead { survey, cv } => {
             // The cache decides what is done: results measured elsewhere (another
             // front end, an earlier version of the session) count, and a status whose
             // result has gone is pending again.
             if let Some(s) = app.session.as_mut() {
-                for shot in &mut s.shots {
-                    shot.detect = settle(
-                        &shot.detect,
-                        detections.get(&shot.id).map(|d| detect_summary(d)),
-                    );
-                    shot.kernels = settle(
-                        &shot.kernels,
-                        measured.get(&shot.id).map(|k| kernels_summary(k)),
-                    );
-                }
+                s.settle(&survey);
             }
             save(app);
-            app.detections = detections;
-            app.measured = measured;
+            for line in &survey.dropped {
+                app.info(line.clone());
+            }
+            app.detections = survey
+                .detections
+                .into_iter()
+                .map(|(id, d)| (id, Arc::new(d)))
+                .collect();
+            app.measured = survey
+                .kernels
+                .into_iter()
+                .map(|(id, k)| (id, Arc::new(k)))
+                .collect();
             if app.cv.is_none() {
                 app.cv = cv;
             }
@@ -189,7 +188,7 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
             let result = result.map_err(|e| app.shorten_paths(e));
             let status = match &result {
                 Ok(d) => StageStatus::Done {
-                    summary: detect_summary(d),
+                    summary: crate::session::detect_summary(d),
                 },
                 Err(reason) => StageStatus::Failed {
                     reason: reason.clone(),
@@ -456,8 +455,9 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         Command::EditSettings(edit) => app.settings_edit = edit,
         Command::OpenSession(path) => match crate::session::Session::open(&path) {
             Ok(s) => {
-                app.set_session(s);
-                save(app);
+                if app.set_session(s) {
+                    save(app);
+                }
             }
             Err(e) => app.error(e.to_string()),
         },
@@ -853,80 +853,26 @@ fn run_detect(app: &mut StudioApp, which: Option<ShotId>) {
 /// `lensblur calibrate`), off the UI thread: shots are fingerprinted, and kernels files
 /// with their arrays run to megabytes.
 pub(super) fn read_results(app: &mut StudioApp, session: &Session) {
-    let shots: Vec<(ShotId, PathBuf)> = session
-        .shots
-        .iter()
-        .map(|shot| (shot.id, session.path_of(shot)))
-        .collect();
     let cv_path = session.folder().join(CV_FILE);
-    if shots.is_empty() && !cv_path.is_file() {
+    if session.shots.is_empty() && !cv_path.is_file() {
         return;
     }
-    let m = session.measurement();
-    let cache = session.cache();
+    let session = session.clone();
     let scope = JobScope::session(app.session_generation);
     let r = app
         .jobs
         .spawn_scoped("read results", scope, move |ctx, out| {
-            let total = shots.len();
-            let mut detections = BTreeMap::new();
-            let mut measured = BTreeMap::new();
-            for (k, (id, path)) in shots.into_iter().enumerate() {
-                ctx.check().map_err(|e| e.to_string())?;
-                ctx.report("reading results", k, total);
-                // A shot that cannot be read has no results; loading it says why.
-                let Ok(file) = ShotFile::read(&path) else {
-                    continue;
-                };
-                if let Some(d) = cache.detection(&file, &m).map_err(|e| e.to_string())? {
-                    detections.insert(id, Arc::new(d));
-                }
-                if let Some(k) = cache.kernels(&file, &m).map_err(|e| e.to_string())? {
-                    measured.insert(id, Arc::new(k));
-                }
-            }
-            let cv = std::fs::read_to_string(&cv_path)
+            let survey = session.survey(ctx).map_err(|e| e.to_string())?;
+            let cv = crate::io::read_json_text(&cv_path)
                 .ok()
                 .and_then(|t| serde_json::from_str(&t).ok())
                 .map(Arc::new);
-            out.emit(JobOutput::ResultsRead {
-                detections,
-                measured,
-                cv,
-            });
+            out.emit(JobOutput::ResultsRead { survey, cv });
             Ok(())
         });
     if let Err(e) = r {
         app.error(e);
     }
-}
-
-/// A stage's status once the cache has been read: done where a result exists, pending
-/// where a recorded result has gone, a recorded failure kept.
-fn settle(status: &StageStatus, found: Option<String>) -> StageStatus {
-    match (found, status) {
-        (Some(summary), _) => StageStatus::Done { summary },
-        (None, StageStatus::Failed { reason }) => StageStatus::Failed {
-            reason: reason.clone(),
-        },
-        (None, _) => StageStatus::Pending,
-    }
-}
-
-fn detect_summary(d: &Detection) -> String {
-    format!(
-        "{} of {} squares aligned",
-        d.ok_squares().count(),
-        d.squares.len()
-    )
-}
-
-fn kernels_summary(file: &KernelsFile) -> String {
-    format!(
-        "{} kernels, {} failed",
-        file.samples.len(),
-        file.failed.len()
-    )
 }
 
 /// The shots with measured kernels, in session order, as calibration takes them.

@@ -187,8 +187,7 @@ pub enum JobOutput {
     DatasetReady(Option<Arc<Dataset>>),
     /// Results a reopened session already has in its cache.
     ResultsRead {
-        detections: BTreeMap<ShotId, Arc<Detection>>,
-        measured: BTreeMap<ShotId, Arc<KernelsFile>>,
+        survey: crate::session::Survey,
         cv: Option<Arc<CvReport>>,
     },
     /// Calibration finished: the measurements it used, the profile and the
@@ -443,6 +442,8 @@ pub struct StudioApp {
     /// Counts the sessions opened: results of jobs started for an earlier one are
     /// dropped when they arrive.
     session_generation: u64,
+    /// The open session folder's lock: one studio or command writes there at a time.
+    session_lock: Option<crate::lock::FolderLock>,
     first_frame_logged: bool,
     ready_logged: bool,
 }
@@ -498,6 +499,7 @@ impl StudioApp {
             ctx: ctx.clone(),
             loading: std::collections::BTreeSet::new(),
             session_generation: 0,
+            session_lock: None,
             first_frame_logged: false,
             ready_logged: false,
         };
@@ -505,8 +507,9 @@ impl StudioApp {
         match &options.session {
             Some(path) => match Session::open(path) {
                 Ok(s) => {
-                    app.set_session(s);
-                    logic::save(&mut app);
+                    if app.set_session(s) {
+                        logic::save(&mut app);
+                    }
                 }
                 Err(e) => app.error(e.to_string()),
             },
@@ -595,7 +598,40 @@ impl StudioApp {
         }
     }
 
-    pub(crate) fn set_session(&mut self, s: Session) {
+    /// Opens a session in the window, holding its folder's lock while it is open.
+    /// Returns false, keeping the session that was open, when another studio or
+    /// command is working in that folder.
+    pub(crate) fn set_session(&mut self, s: Session) -> bool {
+        let same_folder = self
+            .session_lock
+            .as_ref()
+            .is_some_and(|l| l.dir() == s.folder());
+        if !same_folder {
+            // Let go of the old folder first: a lock is per open file, so reopening the
+            // same folder elsewhere would otherwise refuse itself.
+            let old = self.session_lock.take();
+            match s.lock("the lensblur studio") {
+                Ok((lock, swept)) => {
+                    drop(old);
+                    self.session_lock = Some(lock);
+                    if swept > 0 {
+                        self.info(format!(
+                            "{}: removed {swept} unfinished temporary files left by an interrupted write",
+                            s.folder().display()
+                        ));
+                    }
+                }
+                Err(e @ crate::lock::LockError::Held { .. }) => {
+                    self.session_lock = old;
+                    self.error(e.to_string());
+                    return false;
+                }
+                Err(e) => {
+                    // A read-only folder: it is shown, and saving it will say why not.
+                    self.info(format!("{e}: opened without a lock"));
+                }
+            }
+        }
         // Work on the session being closed stops, and what it still sends is dropped.
         self.jobs.cancel_session_jobs();
         self.session_generation += 1;
@@ -632,6 +668,7 @@ impl StudioApp {
         }
         logic::read_results(self, &s);
         self.session = Some(s);
+        true
     }
 
     /// Runs one frame's logic without drawing (also what tests call between steps).

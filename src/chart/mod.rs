@@ -84,13 +84,18 @@ impl Default for ChartSpec {
     }
 }
 
+/// The chart spec file's version. A spec written by hand, or inline in a manifest or
+/// session, has no schema and is version 1.
+pub const CHART_SCHEMA: crate::format::Schema = crate::format::Schema {
+    kind: "chart",
+    current: 1,
+    unversioned: Some(1),
+};
+
 #[derive(Debug, thiserror::Error)]
 pub enum ChartError {
-    #[error("{path}: cannot read chart spec: {source}")]
-    Read {
-        path: String,
-        source: std::io::Error,
-    },
+    #[error("{reason}")]
+    Read { path: String, reason: String },
     #[error("{path}: not a chart spec: {reason}")]
     Parse { path: String, reason: String },
     #[error("invalid chart spec: {0}")]
@@ -103,19 +108,48 @@ impl ChartSpec {
     /// # Errors
     /// Unreadable file, malformed JSON, or a spec that [`ChartSpec::validate`] refuses.
     pub fn load(path: &Path) -> Result<Self, ChartError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ChartError::Read {
-            path: path.display().to_string(),
-            source,
-        })?;
-        let spec: ChartSpec = serde_json::from_str(&text).map_err(|e| ChartError::Parse {
+        let text = crate::io::read_json_text(path).map_err(|e| ChartError::Read {
             path: path.display().to_string(),
             reason: e.to_string(),
         })?;
-        spec.validate().map_err(|e| ChartError::Parse {
-            path: path.display().to_string(),
-            reason: e.to_string(),
-        })?;
+        Self::from_json(&path.display().to_string(), &text)
+    }
+
+    /// Parses and validates a chart spec file's text; `origin` names it in errors.
+    ///
+    /// # Errors
+    /// As [`ChartSpec::load`].
+    pub fn from_json(origin: &str, text: &str) -> Result<Self, ChartError> {
+        let parse = |reason: String| ChartError::Parse {
+            path: origin.into(),
+            reason,
+        };
+        CHART_SCHEMA
+            .version_of_json(text)
+            .map_err(|e| parse(e.to_string()))?;
+        let spec: ChartSpec = serde_json::from_str(text).map_err(|e| parse(e.to_string()))?;
+        spec.validate().map_err(|e| parse(e.to_string()))?;
         Ok(spec)
+    }
+
+    /// Writes the spec as a chart spec file (with its schema), atomically.
+    ///
+    /// # Errors
+    /// The file cannot be written.
+    pub fn save(&self, path: &Path) -> Result<(), crate::io::WriteError> {
+        #[derive(Serialize)]
+        struct File<'a> {
+            schema: String,
+            #[serde(flatten)]
+            spec: &'a ChartSpec,
+        }
+        crate::io::write_json(
+            path,
+            &File {
+                schema: CHART_SCHEMA.tag(),
+                spec: self,
+            },
+        )
     }
 
     /// Checks that the chart is one we can print and detect.

@@ -10,10 +10,11 @@ use anyhow::Result;
 use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
 use lensblur::chart::ChartSpec;
 use lensblur::crossval::{CvOptions, HoldOut};
+use lensblur::job::JobContext;
 use lensblur::kernel::file::KernelsFile;
 use lensblur::model::{Dataset, LocalOptions};
 use lensblur::pipeline::{self, MeasuredShot, Provenance, ShotFile};
-use lensblur::session::Session;
+use lensblur::session::{SESSION_FILE, Session};
 use std::path::{Path, PathBuf};
 
 /// Where a session's measurements come from (shared by calibrate, crossval, sweeps).
@@ -37,13 +38,13 @@ pub struct SessionArgs {
 
 fn is_kernels_file(path: &Path) -> bool {
     path.to_string_lossy().ends_with(".kernels.json")
-        || std::fs::read_to_string(path)
+        || lensblur::io::read_json_text(path)
             .ok()
             .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
             .and_then(|v| {
                 v.get("schema")
                     .and_then(|s| s.as_str())
-                    .map(|s| s == lensblur::kernel::file::KERNELS_SCHEMA)
+                    .map(|s| s.starts_with("lensblur.kernels/"))
             })
             .unwrap_or(false)
 }
@@ -51,15 +52,38 @@ fn is_kernels_file(path: &Path) -> bool {
 /// Loads a session's measured Gaussians, measuring (or taking from the cache) every
 /// shot of a manifest.
 pub fn load_session(args: &SessionArgs) -> Result<(Dataset, Option<ChartSpec>)> {
+    load_session_locked(args).map(|(ds, chart, _)| (ds, chart))
+}
+
+/// [`load_session`], returning the session folder's lock (held while shots are
+/// measured into it) for a caller that goes on writing there.
+pub fn load_session_locked(
+    args: &SessionArgs,
+) -> Result<(
+    Dataset,
+    Option<ChartSpec>,
+    Option<lensblur::lock::FolderLock>,
+)> {
     let Some(manifest_path) = &args.manifest else {
         let mut chart = None;
         if args.chart.is_some() {
             chart = Some(load_chart(args.chart.as_deref())?);
         }
         let paths: Vec<&Path> = args.kernels.iter().map(PathBuf::as_path).collect();
-        return Ok((Dataset::from_kernels_files(&paths, &[])?, chart));
+        return Ok((Dataset::from_kernels_files(&paths, &[])?, chart, None));
     };
     let mut session = Session::open(manifest_path)?;
+    // A session (not a bare manifest) gets each shot's status saved as it is measured,
+    // so the studio opens it with the work done.
+    let is_session = session.folder().join(SESSION_FILE).is_file()
+        && (manifest_path.is_dir() || manifest_path.file_name().is_some_and(|n| n == SESSION_FILE));
+    let (lock, swept) = session.lock("lensblur calibrate")?;
+    if swept > 0 {
+        eprintln!(
+            "{}: removed {swept} unfinished temporary files left by an interrupted write",
+            session.folder().display()
+        );
+    }
     if args.chart.is_some() {
         session.chart = load_chart(args.chart.as_deref())?;
     }
@@ -69,14 +93,25 @@ pub fn load_session(args: &SessionArgs) -> Result<(Dataset, Option<ChartSpec>)> 
     let measurement = session.measurement();
     let cache = session.cache();
     let job = progress_job();
+    let mut survey = session
+        .survey(&JobContext::silent())
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    for line in &survey.dropped {
+        eprintln!("note: {line}");
+    }
     let total = session.shots.len();
     let (mut measured, mut cached) = (0, 0);
     let mut shots = Vec::with_capacity(total);
-    for (i, shot) in session.shots.iter().enumerate() {
+    for i in 0..total {
+        let shot = &session.shots[i];
+        let id = shot.id;
         job.report("measuring", i, total);
         let path = session.path_of(shot);
         let kernels = if is_kernels_file(&path) {
             KernelsFile::load(&path)?
+        } else if let Some(k) = survey.kernels.remove(&id).filter(|_| !args.no_cache) {
+            cached += 1;
+            k
         } else {
             let file = ShotFile::read(&path)?;
             if args.no_cache {
@@ -101,16 +136,23 @@ pub fn load_session(args: &SessionArgs) -> Result<(Dataset, Option<ChartSpec>)> 
             }
             k
         };
+        let shot = &session.shots[i];
         shots.push(MeasuredShot {
             name: shot.name(),
             kernels,
             given: shot.given_setting(),
         });
+        if is_session && let Some(shot) = session.shot_mut(id) {
+            shot.kernels = lensblur::session::StageStatus::Done {
+                summary: lensblur::session::kernels_summary(&shots[i].kernels),
+            };
+            session.save()?;
+        }
     }
     job.report("measuring", total, total);
     eprintln!("{measured} shots measured, {cached} from the cache");
     let ds = pipeline::dataset(&shots)?;
-    Ok((ds, Some(session.chart)))
+    Ok((ds, Some(session.chart), Some(lock)))
 }
 
 #[derive(clap::Args, Default)]
@@ -182,7 +224,8 @@ impl From<ModelArg> for Families {
 
 pub fn run(args: Args) -> Result<()> {
     let t0 = std::time::Instant::now();
-    let (ds, chart) = load_session(&args.session)?;
+    // The folder stays locked until the profile is written (it may be written there).
+    let (ds, chart, _lock) = load_session_locked(&args.session)?;
     let opts = CalibrateOptions {
         families: args.model.into(),
         alpha: args.alpha,

@@ -1,7 +1,7 @@
 //! `lensblur chart --out chart.{svg,pdf,png} [--cols C --rows R --square-mm S --dpi D]
 //! [--spec-out chart.json]`: the calibration chart for printing, and its spec.
 
-use super::common::{write_atomic, write_json};
+use super::common::write_atomic;
 use anyhow::{Result, bail};
 use lensblur::chart::ChartSpec;
 use lensblur::chart::export::{to_pdf, to_plane, to_svg};
@@ -72,7 +72,7 @@ pub fn run(args: Args) -> Result<()> {
         spec.square_mm
     );
     if let Some(p) = &args.spec_out {
-        write_json(p, &spec)?;
+        spec.save(p)?;
     }
     Ok(())
 }

@@ -136,7 +136,10 @@ fn gaussian_approx_cmd(a: GaussianApproxArgs) -> Result<()> {
         ..ExperimentOptions::default()
     };
     let report = gaussian_approx(&kernels, &opts, &job)?;
-    write_json(&a.out.join("report.json"), &report)?;
+    write_json(
+        &a.out.join("report.json"),
+        &lensblur::format::Versioned::new(&lensblur::format::EXPERIMENT, &report),
+    )?;
     write_atomic(&a.out.join("cdf.csv"), cdf_csv(&report).as_bytes())?;
     for s in &report.summary {
         println!(

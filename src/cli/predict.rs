@@ -133,10 +133,13 @@ pub fn run(args: Args) -> Result<()> {
     }
     write_json(
         &args.out,
-        &Pred {
-            focal_mm: args.focal,
-            f_number: args.aperture,
-            samples,
-        },
+        &lensblur::format::Versioned::new(
+            &lensblur::format::PREDICTION,
+            &Pred {
+                focal_mm: args.focal,
+                f_number: args.aperture,
+                samples,
+            },
+        ),
     )
 }

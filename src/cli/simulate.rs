@@ -208,7 +208,10 @@ pub fn run(args: Args) -> Result<()> {
     let settings = settings(&args, &lens)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("{}: cannot create", args.out.display()))?;
-    write_json(&args.out.join("lens.json"), &lens)?;
+    write_json(
+        &args.out.join("lens.json"),
+        &lensblur::format::Versioned::new(&lensblur::format::LENS, &lens),
+    )?;
     let job = progress_job();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(args.seed);
     let mut shots = Vec::new();
@@ -259,17 +262,17 @@ pub fn run(args: Args) -> Result<()> {
         let shot = simulate_shot(&chart, &lens, &params, &job)
             .with_context(|| format!("{}: simulating", args.out.join(&file).display()))?;
         write_shot_as(&args.out.join(&file), &shot, format, dng_layout)?;
-        write_json(&args.out.join(format!("{name}.truth.json")), &shot.truth)?;
+        write_json(
+            &args.out.join(format!("{name}.truth.json")),
+            &lensblur::format::Versioned::new(&lensblur::format::TRUTH, &shot.truth),
+        )?;
         shots.push(ManifestShot {
             path: PathBuf::from(file),
             focal_mm: Some(setting.focal_mm),
             f_number: Some(setting.f_number),
         });
     }
-    let manifest = Manifest {
-        chart: Some(ChartRef::Spec(chart)),
-        shots,
-    };
+    let manifest = Manifest::new(Some(ChartRef::Spec(chart)), shots);
     manifest.save(&args.out.join("manifest.json"))?;
     eprintln!(
         "{}: {total} shots, manifest.json, lens.json and ground truth written",

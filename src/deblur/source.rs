@@ -54,9 +54,7 @@ pub fn load_kernels(path: &Path) -> Result<KernelsFile, SourceError> {
     })
 }
 
-/// Largest kernel radius a file may describe, sensor pixels: far past any lens blur a
-/// deconvolver can undo, and it keeps a corrupt file from sizing absurd tiles.
-pub const MAX_KERNEL_RADIUS_PX: f64 = 64.0;
+pub use crate::limits::MAX_KERNEL_RADIUS_PX;
 
 /// Why a kernels-file sample cannot be used, or `None`.
 fn sample_problem(
@@ -309,7 +307,7 @@ mod tests {
     #[test]
     fn gaussians_interpolate_between_samples() {
         let file = KernelsFile {
-            schema: "lensblur.kernels/1".into(),
+            schema: crate::kernel::file::KERNELS.tag(),
             width: 100,
             height: 100,
             focal_mm: None,

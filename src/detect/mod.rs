@@ -304,14 +304,43 @@ pub struct SquareRecord {
     pub residual_rms: Option<f64>,
 }
 
-pub const DETECT_SCHEMA: &str = "lensblur.detect/1";
+/// The detection file's version.
+pub const DETECT: crate::format::Schema = crate::format::Schema {
+    kind: "detect",
+    current: 1,
+    unversioned: None,
+};
+
+impl DetectFile {
+    /// Parses and checks a detection file's text.
+    ///
+    /// # Errors
+    /// The reason it is not a usable detection file.
+    pub fn from_json(text: &str) -> Result<Self, String> {
+        DETECT.version_of_json(text).map_err(|e| e.to_string())?;
+        let f: DetectFile =
+            serde_json::from_str(text).map_err(|e| format!("not a detection file: {e}"))?;
+        crate::limits::check_image_size(f.width, f.height)?;
+        let corners_finite = f.squares.iter().all(|q| {
+            q.corners
+                .iter()
+                .chain(&q.bootstrap_corners)
+                .flatten()
+                .all(|v| v.is_finite())
+        });
+        if !corners_finite {
+            return Err("a square's corners are not finite numbers".into());
+        }
+        Ok(f)
+    }
+}
 
 impl Detection {
     /// The file form.
     #[must_use]
     pub fn to_file(&self) -> DetectFile {
         DetectFile {
-            schema: DETECT_SCHEMA.into(),
+            schema: DETECT.tag(),
             width: self.width,
             height: self.height,
             source: None,

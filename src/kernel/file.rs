@@ -8,7 +8,13 @@ use crate::psf::Kernel;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-pub const KERNELS_SCHEMA: &str = "lensblur.kernels/1";
+/// The kernels file's version. Files from before the field was written have none and
+/// are version 1.
+pub const KERNELS: crate::format::Schema = crate::format::Schema {
+    kind: "kernels",
+    current: 1,
+    unversioned: Some(1),
+};
 
 /// A kernel array as stored: odd `size`, `size²` values row-major at the file's
 /// oversampling, summing to 1.
@@ -146,7 +152,7 @@ impl KernelsFile {
             }
         }
         Self {
-            schema: KERNELS_SCHEMA.into(),
+            schema: KERNELS.tag(),
             width: shot.width,
             height: shot.height,
             focal_mm,
@@ -169,38 +175,62 @@ impl KernelsFile {
             path: path.display().to_string(),
             reason,
         };
-        let text = std::fs::read_to_string(path).map_err(|e| err(e.to_string()))?;
+        let text = crate::io::read_json_text(path).map_err(|e| KernelsFileError {
+            path: path.display().to_string(),
+            reason: match e {
+                crate::io::ReadError::Io { source, .. } => source.to_string(),
+                too_large => too_large.to_string(),
+            },
+        })?;
+        Self::from_json(&text).map_err(err)
+    }
+
+    /// Parses and checks a kernels file's text.
+    ///
+    /// # Errors
+    /// The reason it is not a usable kernels file.
+    pub fn from_json(text: &str) -> Result<Self, String> {
+        KERNELS.version_of_json(text).map_err(|e| e.to_string())?;
         let f: KernelsFile =
-            serde_json::from_str(&text).map_err(|e| err(format!("not a kernels file: {e}")))?;
-        f.check().map_err(err)?;
+            serde_json::from_str(text).map_err(|e| format!("not a kernels file: {e}"))?;
+        f.check()?;
         Ok(f)
     }
 
     /// # Errors
     /// The reason the contents are unusable.
     pub fn check(&self) -> Result<(), String> {
-        if !self.schema.is_empty() && self.schema != KERNELS_SCHEMA {
+        use crate::limits::{MAX_IMAGE_SIDE, MAX_KERNEL_SIDE, MAX_OVERSAMPLE};
+        KERNELS
+            .version_of(Some(&self.schema))
+            .map_err(|e| e.to_string())?;
+        if !(1..=MAX_OVERSAMPLE).contains(&self.oversample) {
             return Err(format!(
-                "schema '{}', expected '{KERNELS_SCHEMA}'",
-                self.schema
+                "oversample {} is not 1–{MAX_OVERSAMPLE}",
+                self.oversample
             ));
         }
-        if !(1..=9).contains(&self.oversample) {
-            return Err(format!("oversample {} is not 1–9", self.oversample));
-        }
-        if self.width == 0 || self.height == 0 || self.width > 100_000 || self.height > 100_000 {
+        if !(1..=MAX_IMAGE_SIDE).contains(&self.width)
+            || !(1..=MAX_IMAGE_SIDE).contains(&self.height)
+        {
             return Err(format!(
-                "absurd sensor size {} × {}",
+                "sensor size {} × {}: each side must be 1–{MAX_IMAGE_SIDE} px",
                 self.width, self.height
             ));
         }
         for (i, s) in self.samples.iter().enumerate() {
-            if let Some(k) = &s.kernel
-                && (k.size % 2 == 0 || k.data.len() != k.size * k.size)
-            {
-                return Err(format!(
-                    "sample {i}: kernel must be odd-sized with size² values"
-                ));
+            if let Some(k) = &s.kernel {
+                if k.size > MAX_KERNEL_SIDE {
+                    return Err(format!(
+                        "sample {i}: a {0} × {0} kernel is above the limit of {MAX_KERNEL_SIDE}",
+                        k.size
+                    ));
+                }
+                if k.size % 2 == 0 || k.data.len() != k.size * k.size {
+                    return Err(format!(
+                        "sample {i}: kernel must be odd-sized with size² values"
+                    ));
+                }
             }
         }
         Ok(())

@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 
 /// The highest polynomial order, in any coordinate, a model may have: the basis tables
 /// are sized for it, and a profile asking for more is refused.
-pub const MAX_ORDER: usize = 15;
+pub const MAX_ORDER: usize = crate::limits::MAX_MODEL_ORDER;
 
 /// Refuses orders the basis cannot evaluate.
 ///
