@@ -14,6 +14,8 @@ pub mod chart;
 pub mod crossval;
 pub mod deblur;
 pub mod detect;
+pub mod develop;
+pub mod dng;
 pub mod experiment;
 pub mod fft;
 pub mod format;

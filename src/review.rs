@@ -368,6 +368,7 @@ pub fn crop_capture(cap: &Capture, region: Region) -> Capture {
         setting_f_number: cap.setting_f_number,
         identity: cap.identity.clone(),
         is_raw: cap.is_raw,
+        raw: cap.raw.clone(),
     }
 }
 
@@ -610,6 +611,7 @@ mod tests {
             setting_f_number: None,
             identity: CameraIdentity::default(),
             is_raw: true,
+            raw: None,
         };
         let r = Region::around(20.0, 15.0, 10, w, h);
         let c = crop_capture(&cap, r);

@@ -1,11 +1,14 @@
-//! `lensblur deblur PHOTO --out OUT.{tiff,png} (--profile P.json | --kernels K.json)
+//! `lensblur deblur PHOTO --out OUT.{tiff,png,dng} (--profile P.json | --kernels K.json)
 //! [--focal F --aperture A] [--method hqs|irls|wiener]`: remove the lens blur with the
-//! kernels a profile predicts at the photo's settings, or a kernels file's.
+//! kernels a profile predicts at the photo's settings, or a kernels file's. A RAW photo
+//! can be written back as a DNG (its CFA deblurred, its metadata kept) for a RAW editor.
 
 use super::common::progress_job;
 use anyhow::{Context, Result, bail};
 use lensblur::deblur::source::{Prefer, ScatteredKernels, load_kernels};
 use lensblur::deblur::{DeblurOptions, KernelSource, Method, ProfileKernels, deblur_capture};
+use lensblur::develop::{Orient, develop, save_png};
+use lensblur::plane::Capture;
 use lensblur::plane::LensSetting;
 use lensblur::profile::Profile;
 use lensblur::raw::{LoadOptions, full_planes, load_capture, save_planes};
@@ -15,8 +18,10 @@ use std::path::{Path, PathBuf};
 pub struct Args {
     /// The photo: a RAW file, or a linear 16-bit PNG/TIFF (8-bit images are sRGB-decoded).
     pub photo: PathBuf,
-    /// Where to write the result (.tiff/.tif or .png, 16-bit linear). A RAW photo also
-    /// gets an 8-bit sRGB preview beside it (`<name>.preview.png`).
+    /// Where to write the result: .tiff/.tif or .png (16-bit linear RGB), or, for a RAW
+    /// photo, .dng (the deblurred CFA with the original's metadata, for a RAW editor).
+    /// A RAW photo also gets a developed 8-bit sRGB preview beside it
+    /// (`<name>.preview.png`).
     #[arg(long)]
     pub out: PathBuf,
     /// A lens profile (lensblur calibrate): kernels predicted at the photo's settings.
@@ -72,9 +77,9 @@ pub fn run(args: Args) -> Result<()> {
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
-    if !matches!(ext.as_str(), "png" | "tif" | "tiff") {
+    if !matches!(ext.as_str(), "png" | "tif" | "tiff" | "dng") {
         bail!(
-            "{}: the output must be .tiff, .tif or .png (16-bit linear)",
+            "{}: the output must be .tiff, .tif or .png (16-bit linear), or .dng for a RAW photo",
             args.out.display()
         );
     }
@@ -97,10 +102,17 @@ pub fn run(args: Args) -> Result<()> {
         );
     }
     let capture = load_capture(&args.photo, &LoadOptions::default())?;
+    if ext == "dng" && (!capture.is_raw || capture.raw.is_none()) {
+        bail!(
+            "{}: only a RAW photo can be written as a DNG (give .tiff or .png)",
+            args.photo.display()
+        );
+    }
     let photo_setting = (
         args.focal.or(capture.setting_focal_mm),
         args.aperture.or(capture.setting_f_number),
     );
+    let described: String;
     let source: Box<dyn KernelSource> = match (&args.profile, &args.kernels) {
         (Some(p), _) => {
             let mut profile = Profile::load(p)?;
@@ -139,6 +151,10 @@ pub fn run(args: Args) -> Result<()> {
                     "lensblur: warning: f = {focal_mm} mm, f/{f_number} is outside the calibrated range; extrapolating"
                 );
             }
+            described = format!(
+                "the profile {} at {focal_mm} mm, f/{f_number}",
+                file_name(p)
+            );
             Box::new(ProfileKernels { profile, setting })
         }
         (None, Some(k)) => {
@@ -167,6 +183,7 @@ pub fn run(args: Args) -> Result<()> {
                 PreferArg::Kernels => Prefer::default(),
                 PreferArg::Gaussians => Prefer::Gaussian,
             };
+            described = format!("the kernels {}", file_name(k));
             Box::new(ScatteredKernels::checked(
                 file,
                 prefer,
@@ -182,13 +199,12 @@ pub fn run(args: Args) -> Result<()> {
     };
     let out = deblur_capture(&capture, source.as_ref(), &opts, &job)
         .with_context(|| args.photo.display().to_string())?;
-    let planes = full_planes(&out);
-    save_planes(&args.out, &planes, false)?;
-    if capture.is_raw {
-        let preview = preview_path(&args.out);
-        save_planes(&preview, &planes, true)?;
-        eprintln!("{}: preview {}", args.out.display(), preview.display());
-    }
+    let note = format!(
+        "Deblurred by {} ({}) with {described}",
+        lensblur::dng::SOFTWARE,
+        method.name()
+    );
+    write_output(&args.out, &args.photo, &out, &note)?;
     eprintln!(
         "{}: deblurred ({}) to {}",
         args.photo.display(),
@@ -196,6 +212,41 @@ pub fn run(args: Args) -> Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// Writes a deblurred capture where `out`'s extension says: a DNG (RAW photos only) or
+/// linear 16-bit planes; a RAW photo also gets its developed preview beside it.
+fn write_output(out: &Path, photo: &Path, deblurred: &Capture, note: &str) -> Result<()> {
+    let is_dng = out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("dng"));
+    if is_dng {
+        lensblur::dng::write_capture_dng(out, deblurred, note, Some(file_name(photo)))?;
+    } else {
+        save_planes(out, &full_planes(deblurred), false)?;
+    }
+    if deblurred.is_raw {
+        let preview = preview_path(out);
+        match develop(deblurred, None, Orient::AsShot) {
+            Ok(image) => save_png(&preview, &image)?,
+            Err(e) => {
+                eprintln!(
+                    "lensblur: warning: {}: {e}; the preview shows the linear planes instead",
+                    photo.display()
+                );
+                save_planes(&preview, &full_planes(deblurred), true)?;
+            }
+        }
+        eprintln!("{}: preview {}", out.display(), preview.display());
+    }
+    Ok(())
+}
+
+fn file_name(p: &Path) -> String {
+    p.file_name().map_or_else(
+        || p.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    )
 }
 
 /// Whether two paths name one existing file.
