@@ -93,17 +93,6 @@ fn raw_image(
     for site in (0..4).rev() {
         blacklevels[usize::from(meta.cfa[site]).min(3)] = meta.black[site];
     }
-    // Camera multipliers are the reciprocal of the neutral; NaN marks the fourth colour
-    // a 3-colour sensor lacks, as rawloader's DNG decoder does. Without a neutral,
-    // imagepipe balances for daylight from the matrix.
-    let wb_coeffs = meta.as_shot_neutral.map_or([f32::NAN; 4], |n| {
-        [
-            (1.0 / n[0]) as f32,
-            (1.0 / n[1]) as f32,
-            (1.0 / n[2]) as f32,
-            f32::NAN,
-        ]
-    });
     let mut xyz_to_cam = [[0.0f32; 3]; 4];
     // Without a matrix, camera RGB is taken as sRGB (what the simulator's sensor is).
     let m = meta
@@ -114,6 +103,26 @@ fn raw_image(
             *o = v as f32;
         }
     }
+    // imagepipe scales each row of the matrix to sum to one, which puts a white-balanced
+    // camera white at XYZ (1, 1, 1), and then takes Lab relative to D65: every neutral
+    // would come out pink. So the multipliers we hand it take the as-shot neutral to the
+    // camera response of D65 under that scaled matrix, not to (1, 1, 1): white paper
+    // develops white. NaN marks the fourth colour a 3-colour sensor lacks, as
+    // rawloader's DNG decoder does; without a neutral imagepipe balances for daylight.
+    let d65 = [0.950_47, 1.0, 1.088_83];
+    let d65_camera: [f64; 3] = std::array::from_fn(|r| {
+        let sum: f64 = m[r].iter().sum();
+        let row = m[r].iter().zip(&d65).map(|(a, b)| a * b).sum::<f64>();
+        if sum.abs() > 1e-9 { row / sum } else { 1.0 }
+    });
+    let wb_coeffs = meta.as_shot_neutral.map_or([f32::NAN; 4], |n| {
+        [
+            (d65_camera[0] / n[0]) as f32,
+            (d65_camera[1] / n[1]) as f32,
+            (d65_camera[2] / n[2]) as f32,
+            f32::NAN,
+        ]
+    });
     let orientation = match orient {
         Orient::Sensor => rawloader::Orientation::Normal,
         Orient::AsShot => rawloader::Orientation::from_u16(meta.orientation),

@@ -9,6 +9,7 @@
 use crate::deblur::source::{Prefer, ScatteredKernels};
 use crate::deblur::{DeblurError, DeblurOptions, KernelSource, ProfileKernels, SourceError};
 use crate::detect::SquareAlignment;
+use crate::develop::{DevelopError, Developed, Orient, develop};
 use crate::job::JobContext;
 use crate::kernel::file::KernelsFile;
 use crate::model::Dataset;
@@ -398,6 +399,19 @@ pub fn deblur_region(
     opts: &DeblurOptions,
     job: &JobContext,
 ) -> Result<Vec<(Channel, Plane)>, DeblurError> {
+    deblur_region_capture(cap, region, source, opts, job)
+        .map(|(out, outer)| inner_planes(&out, region, outer))
+}
+
+/// [`deblur_region`]'s result before it is cut to the region: the deblurred capture of
+/// the grown region, and that region.
+fn deblur_region_capture(
+    cap: &Capture,
+    region: Region,
+    source: &dyn KernelSource,
+    opts: &DeblurOptions,
+    job: &JobContext,
+) -> Result<(Capture, Region), DeblurError> {
     let outer = region.grown(48, cap.width, cap.height);
     let crop = crop_capture(cap, outer);
     let shifted = Shifted {
@@ -406,7 +420,31 @@ pub fn deblur_region(
         dy: outer.y0 as f64,
     };
     let out = crate::deblur::deblur_capture(&crop, &shifted, opts, job)?;
-    Ok(inner_planes(&out, region, outer))
+    Ok((out, outer))
+}
+
+/// `region` of a RAW capture of the grown region `outer`, developed (imagepipe): what
+/// a photographer compares. Developed with its margin, so demosaicing has neighbours
+/// at the region's edges, then cut.
+fn developed_region(
+    cap: &Capture,
+    region: Region,
+    outer: Region,
+) -> Result<Developed, DevelopError> {
+    let full = develop(cap, None, Orient::Sensor)?;
+    let (dx, dy) = (region.x0 - outer.x0, region.y0 - outer.y0);
+    let w = region.width.min(full.width.saturating_sub(dx));
+    let h = region.height.min(full.height.saturating_sub(dy));
+    let mut rgb = Vec::with_capacity(w * h * 3);
+    for y in dy..dy + h {
+        let row = (y * full.width + dx) * 3;
+        rgb.extend_from_slice(&full.rgb[row..row + w * 3]);
+    }
+    Ok(Developed {
+        width: w,
+        height: h,
+        rgb,
+    })
 }
 
 fn inner_planes(cap: &Capture, region: Region, outer: Region) -> Vec<(Channel, Plane)> {
@@ -456,6 +494,10 @@ pub struct DeblurComparison {
     pub original: Vec<(Channel, Plane)>,
     pub predicted: Result<Vec<(Channel, Plane)>, String>,
     pub measured: Result<Vec<(Channel, Plane)>, String>,
+    /// For a RAW photo, the original, predicted and measured crops developed as a RAW
+    /// editor shows them (each absent where its planes are); `Err` says why the photo
+    /// could not be developed. `None` for an RGB photo.
+    pub developed: Option<Result<[Option<Developed>; 3], String>>,
 }
 
 /// Deblurs `region` with both sources (each may be absent, with its reason).
@@ -472,11 +514,24 @@ pub fn compare_deblur(
 ) -> Result<DeblurComparison, crate::job::Cancelled> {
     let predicted = deblur_or_reason(cap, region, predicted, opts, &job.prefixed("predicted: "))?;
     let measured = deblur_or_reason(cap, region, measured, opts, &job.prefixed("measured: "))?;
+    let outer = region.grown(48, cap.width, cap.height);
+    let developed = cap.is_raw.then(|| {
+        let original = developed_region(&crop_capture(cap, outer), region, outer)
+            .map_err(|e| e.to_string())?;
+        let result = |r: &Result<(Capture, Region), String>| {
+            r.as_ref()
+                .ok()
+                .and_then(|(c, o)| developed_region(c, region, *o).ok())
+        };
+        Ok([Some(original), result(&predicted), result(&measured)])
+    });
+    let planes = |r: Result<(Capture, Region), String>| r.map(|(c, o)| inner_planes(&c, region, o));
     Ok(DeblurComparison {
         region,
         original: region_planes(cap, region),
-        predicted,
-        measured,
+        predicted: planes(predicted),
+        measured: planes(measured),
+        developed,
     })
 }
 
@@ -488,12 +543,12 @@ fn deblur_or_reason(
     source: Result<&dyn KernelSource, String>,
     opts: &DeblurOptions,
     job: &JobContext,
-) -> Result<Result<Vec<(Channel, Plane)>, String>, crate::job::Cancelled> {
+) -> Result<Result<(Capture, Region), String>, crate::job::Cancelled> {
     let source = match source {
         Ok(s) => s,
         Err(reason) => return Ok(Err(reason)),
     };
-    match deblur_region(cap, region, source, opts, job) {
+    match deblur_region_capture(cap, region, source, opts, job) {
         Ok(p) => Ok(Ok(p)),
         Err(DeblurError::Cancelled(c)) => Err(c),
         Err(e) => Ok(Err(e.to_string())),
@@ -555,8 +610,9 @@ pub fn measured_source(file: &KernelsFile) -> Result<ScatteredKernels, String> {
     Ok(ScatteredKernels::new(file.clone(), Prefer::Kernel))
 }
 
-/// Deblurs a whole capture and writes it (16-bit linear PNG or TIFF, full resolution,
-/// RAW mosaics interpolated).
+/// Deblurs a whole capture and writes it as `out` says: 16-bit linear PNG or TIFF (full
+/// resolution, RAW mosaics interpolated), or DNG for a RAW photo
+/// ([`crate::deblur::output::write_deblurred`]).
 ///
 /// # Errors
 /// The source failed, the file cannot be written, or the job was cancelled.
@@ -565,11 +621,14 @@ pub fn export_deblurred(
     source: &dyn KernelSource,
     opts: &DeblurOptions,
     out: &Path,
+    original_file_name: Option<String>,
+    note: &str,
     job: &JobContext,
-) -> Result<(), String> {
+) -> Result<crate::deblur::output::Written, String> {
     let done = crate::deblur::deblur_capture(cap, source, opts, job)
         .map_err(|e| format!("{}: {e}", out.display()))?;
-    crate::raw::save_planes(out, &crate::raw::full_planes(&done), false).map_err(|e| e.to_string())
+    crate::deblur::output::write_deblurred(out, original_file_name, &done, note)
+        .map_err(|e| e.to_string())
 }
 
 #[cfg(test)]

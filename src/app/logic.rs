@@ -7,6 +7,7 @@ use super::jobs::{Emitter, JobEvent, JobScope};
 use super::{Command, ComparisonView, DeblurResult, JobOutput, Photo, ShotPreview, StudioApp};
 use crate::deblur::{DeblurOptions, KernelSource, Method};
 use crate::detect::Detection;
+use crate::develop::Developed;
 use crate::job::JobContext;
 use crate::kernel::file::KernelsFile;
 use crate::pipeline::{self, GivenSetting, MeasuredShot, ShotFile};
@@ -64,11 +65,15 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
                 "demo session ready: {n} simulated shots of the virtual lens"
             ));
         }
-        JobOutput::ShotLoaded { shot: id, capture } => {
+        JobOutput::ShotLoaded {
+            shot: id,
+            capture,
+            developed,
+        } => {
             if !app.has_shot(id) {
                 return;
             }
-            let preview = make_preview(&app.ctx, id, &capture);
+            let preview = make_preview(&app.ctx, id, &capture, developed);
             if let Some(shot) = app.session.as_mut().and_then(|s| s.shot_mut(id)) {
                 // EXIF fills what the user has not typed.
                 let mut changed = false;
@@ -205,8 +210,20 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
             }
             save(app);
         }
-        JobOutput::PhotoLoaded { path, capture } => {
+        JobOutput::PhotoLoaded {
+            path,
+            capture,
+            developed,
+        } => {
             let texture = rgb_texture(&app.ctx, "photo", &crate::raw::full_planes(&capture), None);
+            let developed =
+                developed.map(|d| d.map(|d| developed_texture(&app.ctx, "photo-developed", &d)));
+            if let Some(Err(reason)) = &developed {
+                app.error(format!(
+                    "{}: cannot develop it ({reason}); showing the linear planes",
+                    app.shown_path(&path)
+                ));
+            }
             // Settings: EXIF first, then the session's record of the same file.
             let recorded = app.session.as_ref().and_then(|s| {
                 s.shots
@@ -225,6 +242,7 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
                 f_number: capture.setting_f_number.or(ra),
                 capture,
                 texture,
+                developed,
             });
             app.deblur.comparison = None;
             apply(app, Command::DeblurAt(centre));
@@ -244,10 +262,18 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
             let textures = textures.map(|planes| {
                 planes.and_then(|p| rgb_texture(&app.ctx, "deblur-crop", p, Some(&whites)))
             });
+            let developed = match &comparison.developed {
+                Some(Ok(crops)) => crops.each_ref().map(|d| {
+                    d.as_ref()
+                        .map(|d| developed_texture(&app.ctx, "deblur-crop-developed", d))
+                }),
+                _ => [None, None, None],
+            };
             app.deblur.comparison = Some(ComparisonView {
                 comparison,
                 measured_from,
                 textures,
+                developed,
             });
         }
         JobOutput::SquareInspected { key, result } => {
@@ -352,10 +378,12 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
             let r = app.jobs.spawn("open photo", move |ctx, out| {
                 ctx.report("loading", 0, 1);
                 let capture = load_capture(&path)?;
+                let developed = develop_for_display(&capture);
                 ctx.report("loading", 1, 1);
                 out.emit(JobOutput::PhotoLoaded {
                     path,
                     capture: Arc::new(capture),
+                    developed,
                 });
                 Ok(())
             });
@@ -385,10 +413,22 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
                 DeblurResult::Predicted => "predicted",
                 DeblurResult::Measured => "measured",
             };
-            let mut dialog = rfd::FileDialog::new()
-                .set_title("Export the deblurred photo (16-bit linear)")
+            // A RAW photo goes back to a RAW editor as a DNG; TIFF/PNG stay offered.
+            let raw = photo.capture.raw.is_some();
+            let mut dialog = rfd::FileDialog::new().set_title(if raw {
+                "Export the deblurred photo (DNG for a RAW editor, or 16-bit linear)"
+            } else {
+                "Export the deblurred photo (16-bit linear)"
+            });
+            if raw {
+                dialog = dialog.add_filter("DNG", &["dng"]);
+            }
+            dialog = dialog
                 .add_filter("TIFF or PNG", &["tiff", "tif", "png"])
-                .set_file_name(format!("{stem}.deblurred-{which}.tiff"));
+                .set_file_name(format!(
+                    "{stem}.deblurred-{which}.{}",
+                    if raw { "dng" } else { "tiff" }
+                ));
             if let Some(dir) = photo.path.parent() {
                 dialog = dialog.set_directory(dir);
             }
@@ -607,9 +647,11 @@ pub(super) fn ensure_preview(app: &mut StudioApp) {
         match load_capture(&path) {
             Ok(capture) => {
                 ctx.check().map_err(|e| e.to_string())?;
+                let developed = develop_for_display(&capture);
                 out.emit(JobOutput::ShotLoaded {
                     shot: id,
                     capture: Arc::new(capture),
+                    developed,
                 });
             }
             Err(reason) => out.emit(JobOutput::ShotUnreadable { shot: id, reason }),
@@ -720,7 +762,27 @@ fn pooled_plane(capture: &Capture, channel: Channel) -> Option<ChannelPlane> {
         .cloned()
 }
 
-fn make_preview(ctx: &egui::Context, id: ShotId, capture: &Arc<Capture>) -> ShotPreview {
+/// A RAW capture developed at full resolution in sensor orientation (overlays are
+/// drawn in sensor pixels), or why it could not be; `None` for an RGB image.
+fn develop_for_display(capture: &Capture) -> Option<Result<Developed, String>> {
+    capture.is_raw.then(|| {
+        crate::develop::develop(capture, None, crate::develop::Orient::Sensor)
+            .map_err(|e| e.to_string())
+    })
+}
+
+/// A texture of a developed (8-bit sRGB) image.
+fn developed_texture(ctx: &egui::Context, name: &str, image: &Developed) -> egui::TextureHandle {
+    let img = egui::ColorImage::from_rgb([image.width, image.height], &image.rgb);
+    ctx.load_texture(name, img, egui::TextureOptions::NEAREST)
+}
+
+fn make_preview(
+    ctx: &egui::Context,
+    id: ShotId,
+    capture: &Arc<Capture>,
+    developed: Option<Result<Developed, String>>,
+) -> ShotPreview {
     let index = id.0;
     let mut textures = std::collections::BTreeMap::new();
     let mut channels: Vec<Channel> = capture.planes.iter().map(|p| p.channel).collect();
@@ -741,9 +803,12 @@ fn make_preview(ctx: &egui::Context, id: ShotId, capture: &Arc<Capture>) -> Shot
     );
     let thumbnail =
         Some(ctx.load_texture(format!("thumb{index}"), thumb, egui::TextureOptions::LINEAR));
+    let developed =
+        developed.map(|d| d.map(|d| developed_texture(ctx, &format!("shot{index}-developed"), &d)));
     ShotPreview {
         capture: Arc::clone(capture),
         textures,
+        developed,
         thumbnail,
     }
 }
@@ -1150,8 +1215,18 @@ fn run_export(app: &mut StudioApp, path: PathBuf, result: DeblurResult) {
     };
     let cap = Arc::clone(&photo.capture);
     let opts = deblur_options(app);
+    let original = photo
+        .path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned());
+    let note = format!(
+        "Deblurred by {} ({}) with {} in the studio",
+        crate::dng::SOFTWARE,
+        opts.method.name(),
+        result.label()
+    );
     let r = app.jobs.spawn("export", move |ctx, out| {
-        crate::review::export_deblurred(&cap, source.as_ref(), &opts, &path, ctx)?;
+        crate::review::export_deblurred(&cap, source.as_ref(), &opts, &path, original, &note, ctx)?;
         out.emit(JobOutput::DeblurExported(path));
         Ok(())
     });

@@ -15,6 +15,7 @@ pub mod view_data;
 use crate::chart::ChartSpec;
 use crate::crossval::CvReport;
 use crate::detect::Detection;
+use crate::develop::Developed;
 use crate::job::JobContext;
 use crate::kernel::file::KernelsFile;
 use crate::model::Dataset;
@@ -168,6 +169,8 @@ pub enum JobOutput {
     ShotLoaded {
         shot: ShotId,
         capture: Arc<Capture>,
+        /// A RAW shot developed for display (or why not); `None` for RGB.
+        developed: Option<Result<Developed, String>>,
     },
     /// A shot that cannot be read: the one-line reason names the file.
     ShotUnreadable {
@@ -177,6 +180,7 @@ pub enum JobOutput {
     PhotoLoaded {
         path: PathBuf,
         capture: Arc<Capture>,
+        developed: Option<Result<Developed, String>>,
     },
     /// A shot's kernels finished (or failed).
     KernelsMeasured {
@@ -295,6 +299,8 @@ pub enum FieldShow {
 pub struct ShotPreview {
     pub capture: Arc<Capture>,
     pub textures: BTreeMap<Channel, egui::TextureHandle>,
+    /// A RAW shot developed, at full resolution, or why it could not be.
+    pub developed: Option<Result<egui::TextureHandle, String>>,
     pub thumbnail: Option<egui::TextureHandle>,
 }
 
@@ -310,6 +316,9 @@ pub struct ViewerState {
     pub show_squares: bool,
     pub show_circles: bool,
     pub show_grid: bool,
+    /// RAW shots and photos shown as imagepipe develops them; off, as the linear CFA
+    /// planes that are measured (the Deblur view's crops follow the same switch).
+    pub developed: bool,
 }
 
 /// The photo open in the Deblur view.
@@ -317,12 +326,23 @@ pub struct Photo {
     pub path: PathBuf,
     pub capture: Arc<Capture>,
     pub texture: Option<egui::TextureHandle>,
+    /// A RAW photo developed, or why it could not be; `None` for an RGB photo.
+    pub developed: Option<Result<egui::TextureHandle, String>>,
     /// From EXIF, the session's record of the shot, or typed.
     pub focal_mm: Option<f64>,
     pub f_number: Option<f64>,
 }
 
 impl Photo {
+    /// The texture to show: developed where asked and available.
+    #[must_use]
+    pub fn shown(&self, developed: bool) -> Option<&egui::TextureHandle> {
+        match &self.developed {
+            Some(Ok(t)) if developed => Some(t),
+            _ => self.texture.as_ref(),
+        }
+    }
+
     #[must_use]
     pub fn setting(&self) -> Option<crate::plane::LensSetting> {
         Some(crate::plane::LensSetting {
@@ -337,6 +357,20 @@ pub struct ComparisonView {
     pub comparison: Arc<DeblurComparison>,
     pub measured_from: Option<String>,
     pub textures: [Option<egui::TextureHandle>; 3],
+    /// The same crops developed (a RAW photo's).
+    pub developed: [Option<egui::TextureHandle>; 3],
+}
+
+impl ComparisonView {
+    /// The crops to show: developed where asked and the photo was.
+    #[must_use]
+    pub fn shown(&self, developed: bool) -> &[Option<egui::TextureHandle>; 3] {
+        if developed && self.developed[0].is_some() {
+            &self.developed
+        } else {
+            &self.textures
+        }
+    }
 }
 
 /// The Deblur view's state.
@@ -470,6 +504,7 @@ impl StudioApp {
                 show_squares: true,
                 show_circles: true,
                 show_grid: false,
+                developed: true,
             },
             field_focal_mm: 50.0,
             field_f_number: 5.6,

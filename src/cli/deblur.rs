@@ -5,13 +5,13 @@
 
 use super::common::progress_job;
 use anyhow::{Context, Result, bail};
+use lensblur::deblur::output::write_deblurred;
 use lensblur::deblur::source::{Prefer, ScatteredKernels, load_kernels};
 use lensblur::deblur::{DeblurOptions, KernelSource, Method, ProfileKernels, deblur_capture};
-use lensblur::develop::{Orient, develop, save_png};
 use lensblur::plane::Capture;
 use lensblur::plane::LensSetting;
 use lensblur::profile::Profile;
-use lensblur::raw::{LoadOptions, full_planes, load_capture, save_planes};
+use lensblur::raw::{LoadOptions, load_capture};
 use std::path::{Path, PathBuf};
 
 #[derive(clap::Args, Default)]
@@ -214,30 +214,15 @@ pub fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
-/// Writes a deblurred capture where `out`'s extension says: a DNG (RAW photos only) or
-/// linear 16-bit planes; a RAW photo also gets its developed preview beside it.
+/// Writes a deblurred capture where `out`'s extension says (a RAW photo's developed
+/// preview beside it), and says so.
 fn write_output(out: &Path, photo: &Path, deblurred: &Capture, note: &str) -> Result<()> {
-    let is_dng = out
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("dng"));
-    if is_dng {
-        lensblur::dng::write_capture_dng(out, deblurred, note, Some(file_name(photo)))?;
-    } else {
-        save_planes(out, &full_planes(deblurred), false)?;
+    let written = write_deblurred(out, Some(file_name(photo)), deblurred, note)?;
+    if let Some(w) = &written.warning {
+        eprintln!("lensblur: warning: {}: {w}", photo.display());
     }
-    if deblurred.is_raw {
-        let preview = preview_path(out);
-        match develop(deblurred, None, Orient::AsShot) {
-            Ok(image) => save_png(&preview, &image)?,
-            Err(e) => {
-                eprintln!(
-                    "lensblur: warning: {}: {e}; the preview shows the linear planes instead",
-                    photo.display()
-                );
-                save_planes(&preview, &full_planes(deblurred), true)?;
-            }
-        }
-        eprintln!("{}: preview {}", out.display(), preview.display());
+    if let Some(p) = &written.preview {
+        eprintln!("{}: preview {}", out.display(), p.display());
     }
     Ok(())
 }
@@ -255,11 +240,4 @@ fn same_file(a: &Path, b: &Path) -> bool {
         (Ok(a), Ok(b)) => a == b,
         _ => false,
     }
-}
-
-fn preview_path(out: &Path) -> PathBuf {
-    let stem = out
-        .file_stem()
-        .map_or_else(|| "out".into(), |s| s.to_string_lossy().into_owned());
-    out.with_file_name(format!("{stem}.preview.png"))
 }
