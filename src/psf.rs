@@ -316,7 +316,9 @@ impl Gaussian2 {
         let mean = 0.5 * (a + c);
         let (largest, smallest) = (mean + radius, mean - radius);
         let det = a * c - b * b;
-        let worst_deg = (0.5 * (2.0 * b).atan2(a - c)).to_degrees().rem_euclid(180.0);
+        let worst_deg = (0.5 * (2.0 * b).atan2(a - c))
+            .to_degrees()
+            .rem_euclid(180.0);
         Some(Mtf50 {
             worst: mtf50_of_variance(largest)?,
             best: mtf50_of_variance(smallest)?,
@@ -358,9 +360,8 @@ pub struct Mtf50 {
 /// a direction has an MTF of one half; `None` unless the variance is positive.
 #[must_use]
 pub fn mtf50_of_variance(var_px2: f64) -> Option<f64> {
-    (var_px2.is_finite() && var_px2 > 0.0).then(|| {
-        (std::f64::consts::LN_2 / (2.0 * std::f64::consts::PI.powi(2) * var_px2)).sqrt()
-    })
+    (var_px2.is_finite() && var_px2 > 0.0)
+        .then(|| (std::f64::consts::LN_2 / (2.0 * std::f64::consts::PI.powi(2) * var_px2)).sqrt())
 }
 
 impl Mtf50 {
@@ -459,14 +460,20 @@ mod tests {
         let worst = m.worst_deg.to_radians();
         for k in 0..180 {
             let a = f64::from(k).to_radians();
-            assert!(g.variance_along(a) <= g.variance_along(worst) + 1e-12, "{k}°");
+            assert!(
+                g.variance_along(a) <= g.variance_along(worst) + 1e-12,
+                "{k}°"
+            );
         }
         assert!(m.worst < m.isotropic && m.isotropic < m.best);
         assert!((m.isotropic - (m.worst * m.best).sqrt()).abs() < 1e-12);
         // Against the transform of the point-sampled 3× kernel: only its truncation
         // at 4σ and aliasing (both far below 1e-3 here) separate the two.
         let k = g.kernel(3);
-        for (angle, want) in [(worst, m.worst), (worst + std::f64::consts::FRAC_PI_2, m.best)] {
+        for (angle, want) in [
+            (worst, m.worst),
+            (worst + std::f64::consts::FRAC_PI_2, m.best),
+        ] {
             let got = k.mtf50_along(angle).expect("crosses");
             assert!((got / want - 1.0).abs() < 1e-3, "{got} vs {want}");
         }

@@ -3,12 +3,12 @@
 
 use super::common::{write_atomic, write_json};
 use anyhow::{Context, Result};
-use std::fmt::Write as _;
 use lensblur::model::ModelKind;
 use lensblur::plane::{Channel, LensSetting};
 use lensblur::profile::Profile;
 use lensblur::psf::Mtf50Record;
 use serde::Serialize;
+use std::fmt::Write as _;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Default)]

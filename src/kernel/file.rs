@@ -369,7 +369,10 @@ mod tests {
         // σ = 1 px isotropic: √(ln 2 / 2) / π cycles/px, × 2000 px of picture height.
         assert!((m["worst"].as_f64().expect("worst") - 0.187_390).abs() < 1e-6);
         assert!((m["isotropic_lp_ph"].as_f64().expect("lp/ph") - 374.78).abs() < 0.01);
-        assert!(v["samples"][1].get("mtf50").is_none(), "no Gaussian, no MTF50");
+        assert!(
+            v["samples"][1].get("mtf50").is_none(),
+            "no Gaussian, no MTF50"
+        );
         assert_eq!(v["samples"][0]["cxx"], 1.0);
         assert_eq!(KernelsFile::from_json(&text).expect("read back"), file);
     }
