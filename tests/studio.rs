@@ -8,7 +8,7 @@
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use lensblur::app::{AppOptions, Command, FieldSource, StudioApp, View};
+use lensblur::app::{AppOptions, Command, FieldSource, StudioApp, SweepAxis, View};
 use lensblur::job::JobContext;
 use lensblur::pipeline::ShotFile;
 use lensblur::session::{DemoSpec, Session, ShotId, StageStatus, make_demo};
@@ -312,6 +312,11 @@ fn every_view_on_the_demo_session() {
     h.get_by_label("Sweeps").click();
     h.run_steps(3);
     snapshot(&mut h, "studio_sweeps");
+    // The same sweeps as MTF50.
+    h.get_by_label("MTF50").click();
+    h.run_steps(3);
+    assert_eq!(h.state().sweep_axis, SweepAxis::Mtf50);
+    snapshot(&mut h, "studio_sweeps_mtf50");
 
     // Predict: the profile's field at the sliders' setting.
     h.get_by_label("Kernel field").click();

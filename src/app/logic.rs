@@ -360,6 +360,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         Command::RunCalibrate => run_calibrate(app),
         Command::SetFieldSource(f) => app.field_source = f,
         Command::SetFieldShow(f) => app.field_show = f,
+        Command::SetSweepAxis(a) => app.sweep_axis = a,
         Command::SetFieldSetting { focal_mm, f_number } => {
             app.field_focal_mm = focal_mm;
             app.field_f_number = f_number;

@@ -141,6 +141,7 @@ pub enum Command {
     SaveProfileDialog,
     SetFieldSource(FieldSource),
     SetFieldShow(FieldShow),
+    SetSweepAxis(SweepAxis),
     /// The setting of the predicted and true fields and of the sweeps (the sliders).
     SetFieldSetting {
         focal_mm: f64,
@@ -293,6 +294,15 @@ pub enum FieldShow {
     Ellipses,
     /// The measured non-parametric kernels themselves.
     Kernels,
+}
+
+/// What the Sweeps view plots against the settings.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SweepAxis {
+    /// C_xx, C_yy, C_or.
+    Sigma,
+    /// MTF50 along the worst and best directions and of the isotropic equivalent.
+    Mtf50,
 }
 
 /// A loaded shot and its display textures per channel.
@@ -462,6 +472,7 @@ pub struct StudioApp {
     /// What the Kernel field view shows.
     pub field_source: FieldSource,
     pub field_show: FieldShow,
+    pub sweep_axis: SweepAxis,
     /// What the views show that takes computing, cached by what it depends on.
     pub views: view_data::ViewData,
     pub deblur: DeblurState,
@@ -518,6 +529,7 @@ impl StudioApp {
             cv: None,
             field_source: FieldSource::Measured,
             field_show: FieldShow::Ellipses,
+            sweep_axis: SweepAxis::Sigma,
             views: view_data::ViewData::default(),
             deblur: DeblurState {
                 photo: None,

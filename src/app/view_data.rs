@@ -19,7 +19,7 @@ use crate::kernel::file::KernelsFile;
 use crate::model::Dataset;
 use crate::plane::{Capture, Channel, LensSetting, Plane};
 use crate::profile::Profile;
-use crate::psf::Gaussian2;
+use crate::psf::{Gaussian2, Mtf50, Mtf50Record};
 use crate::review::{SquareFacts, SweepPoint};
 use crate::session::ShotId;
 use crate::simulate::VirtualLens;
@@ -154,9 +154,21 @@ pub enum PanelOf {
     },
 }
 
+/// What hovering a drawn Gaussian shows: its position, σ = √(C_xx·C_yy) and MTF50.
+pub struct FieldPoint {
+    pub x: f64,
+    pub y: f64,
+    pub sigma: f64,
+    /// In cycles/px and line pairs per picture height of the sensor shown; absent for a
+    /// degenerate Gaussian.
+    pub mtf50: Option<Mtf50Record>,
+}
+
 pub struct FieldPanel {
     pub of: PanelOf,
     pub content: Result<PanelContent, String>,
+    /// Every drawn Gaussian's hover facts, made once with the panel.
+    pub points: Vec<FieldPoint>,
     /// Squares where no kernel could be measured (sensor px), with the reason.
     pub failed: Vec<(f64, f64, String)>,
 }
@@ -202,11 +214,19 @@ pub struct FieldData {
 /// One location's series in one sweep.
 pub struct LocationSweep {
     /// Measured at the square nearest the location (absent without measurements).
-    pub measured: Option<Vec<SweepPoint>>,
+    pub measured: Option<Vec<(SweepPoint, Option<Mtf50>)>>,
     /// The profile's model at that square (absent without a profile).
-    pub model: Option<Vec<(LensSetting, Gaussian2)>>,
+    pub model: Option<Vec<CurvePoint>>,
     /// The demo lens's truth at that square (demo sessions only).
-    pub truth: Option<Vec<(LensSetting, Gaussian2)>>,
+    pub truth: Option<Vec<CurvePoint>>,
+}
+
+/// One point of a model or truth curve, with the MTF50 of its Gaussian (absent for a
+/// degenerate one).
+pub type CurvePoint = (LensSetting, Gaussian2, Option<Mtf50>);
+
+fn with_mtf50(curve: Vec<(LensSetting, Gaussian2)>) -> Vec<CurvePoint> {
+    curve.into_iter().map(|(s, g)| (s, g, g.mtf50())).collect()
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -546,6 +566,7 @@ fn refresh_field(app: &mut StudioApp) {
             panels.push(FieldPanel {
                 of: PanelOf::Measured,
                 content,
+                points: Vec::new(),
                 failed,
             });
         }
@@ -558,11 +579,13 @@ fn refresh_field(app: &mut StudioApp) {
                 Some((_, p)) => FieldPanel {
                     of: PanelOf::Profile,
                     content: predicted(p),
+                    points: Vec::new(),
                     failed: Vec::new(),
                 },
                 None => FieldPanel {
                     of: PanelOf::NoProfile,
                     content: Err("No profile yet: Calibrate (Ctrl+M) or load one in Models.".into()),
+                    points: Vec::new(),
                     failed: Vec::new(),
                 },
             });
@@ -570,6 +593,7 @@ fn refresh_field(app: &mut StudioApp) {
                 panels.push(FieldPanel {
                     of: PanelOf::CompareProfile,
                     content: predicted(p),
+                    points: Vec::new(),
                     failed: Vec::new(),
                 });
             }
@@ -586,11 +610,30 @@ fn refresh_field(app: &mut StudioApp) {
                         content: Ok(PanelContent::Ellipses(crate::review::truth_field(
                             &lens, ch, size, FIELD_GRID, s,
                         ))),
+                        points: Vec::new(),
                         failed: Vec::new(),
                     });
                 }
             }
         }
+    }
+    for panel in &mut panels {
+        let drawn: Vec<(f64, f64, Gaussian2)> = match &panel.content {
+            Ok(PanelContent::Ellipses(v)) => v.clone(),
+            Ok(PanelContent::Kernels { cells, .. }) => {
+                cells.iter().map(|&(x, y, g, _)| (x, y, g)).collect()
+            }
+            Err(_) => Vec::new(),
+        };
+        panel.points = drawn
+            .into_iter()
+            .map(|(x, y, g)| FieldPoint {
+                x,
+                y,
+                sigma: g.sigma(),
+                mtf50: g.mtf50().map(|m| m.record(size.1)),
+            })
+            .collect();
     }
     let max_sigma = panels
         .iter()
@@ -650,24 +693,29 @@ fn refresh_sweeps(app: &mut StudioApp) {
             .iter()
             .map(|&(_, fx, fy)| {
                 let nominal = (fx * (w as f64 - 1.0), fy * (h as f64 - 1.0));
-                let measured = app
-                    .dataset
-                    .as_ref()
-                    .map(|ds| crate::review::sweep_points(ds, ch, nominal, vs_aperture, fixed));
+                let measured = app.dataset.as_ref().map(|ds| {
+                    crate::review::sweep_points(ds, ch, nominal, vs_aperture, fixed)
+                        .into_iter()
+                        .map(|p| {
+                            let m = p.gaussian.mtf50();
+                            (p, m)
+                        })
+                        .collect::<Vec<_>>()
+                });
                 // Curves where the points were measured (the square nearest the
                 // location), so the two compare.
                 let at = measured
                     .as_ref()
                     .and_then(|m| m.first())
-                    .map_or(nominal, |p| (p.x, p.y));
+                    .map_or(nominal, |(p, _)| (p.x, p.y));
                 LocationSweep {
                     model: app
                         .profile
                         .as_ref()
-                        .map(|(_, p)| crate::review::model_curve(p, ch, at, &settings)),
-                    truth: key
-                        .is_demo
-                        .then(|| crate::review::truth_curve(&lens, ch, at, (w, h), &settings)),
+                        .map(|(_, p)| with_mtf50(crate::review::model_curve(p, ch, at, &settings))),
+                    truth: key.is_demo.then(|| {
+                        with_mtf50(crate::review::truth_curve(&lens, ch, at, (w, h), &settings))
+                    }),
                     measured,
                 }
             })

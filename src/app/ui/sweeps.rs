@@ -1,19 +1,29 @@
 //! The Sweeps view (the paper's Fig. 4): C_xx, C_yy, C_or against aperture at a fixed
 //! focal length and against focal length at a fixed aperture, one colour per sensor
-//! location: measured points, the profile's model curves, the demo lens's truth.
+//! location: measured points, the profile's model curves, the demo lens's truth; or,
+//! switched, the MTF50 of the same Gaussians.
 //!
 //! Plots the series `view_data` made for the sliders' setting; computes nothing.
 
-use super::super::StudioApp;
 use super::super::view_data::SWEEP_LOCATIONS;
+use super::super::{Command, StudioApp, SweepAxis};
 use super::{TIP_COR, TIP_CXX, TIP_CYY, setting_sliders_ui};
 use crate::plane::LensSetting;
-use crate::psf::Gaussian2;
+use crate::psf::{Gaussian2, Mtf50};
 use crate::simulate::VirtualLens;
 use egui::Color32;
 
-/// A plotted parameter: its name, its tooltip and how to read it from a Gaussian.
-type Param = (&'static str, &'static str, fn(&Gaussian2) -> f64);
+/// A plotted parameter: its name, its tooltip, its unit and how to read it from a
+/// Gaussian and its MTF50 (view data made both; NaN, left out of the plot, where a
+/// degenerate Gaussian has no MTF50).
+type Param = (
+    &'static str,
+    &'static str,
+    &'static str,
+    fn(&Gaussian2, Option<&Mtf50>) -> f64,
+);
+
+const TIP_MTF50: &str = "MTF50 in cycles per sensor pixel, from the Gaussian: the frequency at which its contrast falls to one half, √(ln 2 / (2π² uᵀCu)) along a direction u. The Gaussian is the pixel-level PSF, so the pixel's aperture is in it; sampling and demosaicing are not.";
 
 /// Each location's colour, in the order of [`SWEEP_LOCATIONS`].
 const LOCATION_COLORS: [Color32; 5] = [
@@ -63,17 +73,50 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     };
     let ch = app.channel;
     let (fixed_f, fixed_a) = (data.fixed_f, data.fixed_a);
-    let params: [Param; 3] = [
-        ("C_xx", TIP_CXX, |g| g.sigma_x),
-        ("C_yy", TIP_CYY, |g| g.sigma_y),
-        ("C_or", TIP_COR, |g| g.rho),
-    ];
+    ui.horizontal(|ui| {
+        ui.label("Plot:");
+        for (axis, label, tip) in [
+            (SweepAxis::Sigma, "σ (C_xx, C_yy, C_or)", "The Gaussian's parameters"),
+            (
+                SweepAxis::Mtf50,
+                "MTF50",
+                "MTF50 of the same Gaussians: along the worst and best directions and of the isotropic equivalent (σ = det(C)^¼)",
+            ),
+        ] {
+            if ui
+                .selectable_label(app.sweep_axis == axis, label)
+                .on_hover_text(tip)
+                .clicked()
+            {
+                app.commands.push(Command::SetSweepAxis(axis));
+            }
+        }
+    });
+    let params: [Param; 3] = match app.sweep_axis {
+        SweepAxis::Sigma => [
+            ("C_xx", TIP_CXX, "σ, px", |g, _| g.sigma_x),
+            ("C_yy", TIP_CYY, "σ, px", |g, _| g.sigma_y),
+            ("C_or", TIP_COR, "ρ", |g, _| g.rho),
+        ],
+        SweepAxis::Mtf50 => [
+            ("MTF50 worst", TIP_MTF50, "cycles/px", |_, m| {
+                m.map_or(f64::NAN, |m| m.worst)
+            }),
+            ("MTF50 best", TIP_MTF50, "cycles/px", |_, m| {
+                m.map_or(f64::NAN, |m| m.best)
+            }),
+            ("MTF50 isotropic", TIP_MTF50, "cycles/px", |_, m| {
+                m.map_or(f64::NAN, |m| m.isotropic)
+            }),
+        ],
+    };
+
     let avail = ui.available_size();
     let plot_w = (avail.x - 24.0) / 3.0;
     let plot_h = ((avail.y - 72.0) / 2.0).max(120.0);
     for (vs_aperture, sweep) in [true, false].into_iter().zip(&data.sweeps) {
         ui.horizontal(|ui| {
-            for (name, tip, get) in params {
+            for (name, tip, unit, get) in params {
                 ui.vertical(|ui| {
                     let title = if vs_aperture {
                         format!("{name} vs aperture at {fixed_f:.0} mm, channel {ch}")
@@ -81,7 +124,6 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                         format!("{name} vs focal length at f/{fixed_a:.1}, channel {ch}")
                     };
                     ui.label(title).on_hover_text(tip);
-                    let unit = if name == "C_or" { "ρ" } else { "σ, px" };
                     let x_label = if vs_aperture {
                         "aperture (f-number)"
                     } else {
@@ -89,8 +131,10 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                     };
                     let abscissa =
                         |s: LensSetting| if vs_aperture { s.f_number } else { s.focal_mm };
-                    let curve = |c: &[(LensSetting, Gaussian2)]| -> Vec<[f64; 2]> {
-                        c.iter().map(|(s, g)| [abscissa(*s), get(g)]).collect()
+                    let curve = |c: &[(LensSetting, Gaussian2, Option<Mtf50>)]| -> Vec<[f64; 2]> {
+                        c.iter()
+                            .map(|(s, g, m)| [abscissa(*s), get(g, m.as_ref())])
+                            .collect()
                     };
                     Plot::new(format!("sweep-{name}-{vs_aperture}"))
                         .width(plot_w)
@@ -105,7 +149,9 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                                 if let Some(m) = &series.measured {
                                     let pts: Vec<[f64; 2]> = m
                                         .iter()
-                                        .map(|p| [abscissa(p.setting), get(&p.gaussian)])
+                                        .map(|(p, m)| {
+                                            [abscissa(p.setting), get(&p.gaussian, m.as_ref())]
+                                        })
                                         .collect();
                                     plot.points(
                                         Points::new(
