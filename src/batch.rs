@@ -500,6 +500,7 @@ pub enum Outcome {
         extrapolated: bool,
     },
     Skipped(Skip),
+    /// Why, without the photo's name where the reason allows (the outcome names it).
     Failed(String),
     Cancelled,
 }
@@ -738,7 +739,7 @@ fn deblur_photo(
     deblur_one: &DeblurOne<'_>,
 ) -> Outcome {
     let Some(entry) = library.profiles.get(pick.index) else {
-        return Outcome::Failed(format!("{}: no profile {}", p.photo.display(), pick.index));
+        return Outcome::Failed(format!("no profile {} in the library", pick.index));
     };
     let capture = match crate::raw::load_capture(&p.photo, &LoadOptions::default()) {
         Ok(c) => c,
@@ -746,10 +747,8 @@ fn deblur_photo(
     };
     if (capture.width, capture.height) != (entry.profile.norm.width, entry.profile.norm.height) {
         return Outcome::Failed(format!(
-            "{}: decodes to {} × {}, not the size its header declared",
-            p.photo.display(),
-            capture.width,
-            capture.height
+            "decodes to {} × {}, not the size its header declared",
+            capture.width, capture.height
         ));
     }
     let mut profile = entry.profile.clone();
@@ -765,7 +764,7 @@ fn deblur_photo(
             extrapolated: pick.extrapolated,
         },
         Err(_) if job.is_cancelled() => Outcome::Cancelled,
-        Err(e) => Outcome::Failed(format!("{}: {e}", p.photo.display())),
+        Err(e) => Outcome::Failed(e),
     }
 }
 
