@@ -196,7 +196,7 @@ impl ProfileLibrary {
             };
             let tag = crate::profile::PROFILE.tag();
             let kind = tag.split('/').next().unwrap_or_default();
-            if !schema.is_some_and(|s| s.split('/').next() == Some(kind)) {
+            if schema.is_none_or(|s| s.split('/').next() != Some(kind)) {
                 continue;
             }
             match Profile::from_json(&text, &path.display().to_string()) {
@@ -204,8 +204,10 @@ impl ProfileLibrary {
                 Err(e) => warnings.push(format!("{e}; left out")),
             }
         }
-        let mut library = Self::default();
-        library.warnings = warnings;
+        let mut library = Self {
+            profiles: Vec::new(),
+            warnings,
+        };
         for p in profiles {
             library.add(p);
         }
@@ -251,7 +253,7 @@ impl ProfileLibrary {
             .enumerate()
             .filter_map(|(i, p)| rank(&p.profile, photo, setting).map(|r| (r, i)))
             .collect();
-        ranked.sort_by(|a, b| b.0.cmp(&a.0));
+        ranked.sort_by_key(|r| std::cmp::Reverse(r.0));
         let Some(&(best, index)) = ranked.first() else {
             return Err(Skip::NoProfile {
                 photo: format!(
