@@ -9,6 +9,7 @@
 
 #[cfg(feature = "gui")]
 pub mod app;
+pub mod batch;
 pub mod calibrate;
 pub mod chart;
 pub mod crossval;

@@ -319,6 +319,58 @@ impl RawMeta {
     }
 }
 
+impl CameraIdentity {
+    /// Every field with its name, camera and lens type first, then the unit's serials.
+    #[must_use]
+    pub fn fields(&self) -> [(&'static str, Option<&str>); 5] {
+        [
+            ("make", self.make.as_deref()),
+            ("model", self.model.as_deref()),
+            ("lens", self.lens_model.as_deref()),
+            ("body serial", self.body_serial.as_deref()),
+            ("lens serial", self.lens_serial.as_deref()),
+        ]
+    }
+
+    /// The one rule for two recorded values of a field being the same: equal once the
+    /// padding some cameras write around them is trimmed.
+    #[must_use]
+    pub fn same_value(a: &str, b: &str) -> bool {
+        a.trim() == b.trim()
+    }
+
+    /// What a person would call it, for messages: "Make Model, Lens (lens serial S)".
+    #[must_use]
+    pub fn describe(&self) -> String {
+        let camera = [self.make.as_deref(), self.model.as_deref()]
+            .into_iter()
+            .flatten()
+            .collect::<Vec<_>>()
+            .join(" ");
+        let mut parts = Vec::new();
+        parts.push(if camera.is_empty() {
+            "unknown camera".to_string()
+        } else {
+            camera
+        });
+        parts.push(
+            self.lens_model
+                .clone()
+                .unwrap_or_else(|| "unknown lens".into()),
+        );
+        let mut out = parts.join(", ");
+        for (name, v) in [
+            ("body serial", &self.body_serial),
+            ("lens serial", &self.lens_serial),
+        ] {
+            if let Some(v) = v {
+                out.push_str(&format!(" ({name} {v})"));
+            }
+        }
+        out
+    }
+}
+
 /// A loaded shot: its channel planes in linear units (black 0, white 1), the sensor
 /// size, and what is known of its settings and origin.
 #[derive(Clone, Debug)]

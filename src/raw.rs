@@ -98,6 +98,107 @@ pub fn decode_capture(
     Ok(capture)
 }
 
+/// What a photo's header says, read without decoding its image: enough to decide what
+/// to do with it (which profile, whether its output is already there) before paying
+/// for the decode.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Header {
+    /// The active area, as [`load_capture`] would load it.
+    pub width: usize,
+    pub height: usize,
+    pub is_raw: bool,
+    pub exif: ExifInfo,
+}
+
+/// Reads a photo's [`Header`]: the file's bytes, but only its headers parsed (the RAW
+/// decoder's header-only pass, image-rs's dimensions), and its EXIF.
+///
+/// # Errors
+/// As [`load_capture`], for what the headers show.
+pub fn read_header(path: &Path) -> Result<Header, LoadError> {
+    let bytes = crate::io::read_limited(path, limits::MAX_IMAGE_FILE_BYTES)?;
+    decode_header(path, &bytes)
+}
+
+/// [`read_header`] on a file's bytes; `path` only names the file in messages.
+///
+/// # Errors
+/// As [`read_header`].
+pub fn decode_header(path: &Path, bytes: &[u8]) -> Result<Header, LoadError> {
+    if bytes.is_empty() {
+        return Err(LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: "the file is empty".into(),
+        });
+    }
+    let corrupt = |reason: String| LoadError::Corrupt {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let mut exif = read_exif(bytes);
+    let ((width, height), is_raw) =
+        if bytes.starts_with(b"\x89PNG") || bytes.starts_with(&[0xFF, 0xD8]) {
+            (image_dimensions(path, bytes)?, false)
+        } else if is_tiff(bytes) {
+            let ifd = tiff_ifd0(bytes).map_err(corrupt)?;
+            if !is_raw_ifd(&ifd) {
+                (image_dimensions(path, bytes)?, false)
+            } else if needs_own_reader(&ifd) {
+                let one = |tag: u16| {
+                    ifd.get(&tag)
+                        .and_then(|v| v.first().copied())
+                        .ok_or_else(|| corrupt(format!("DNG without tag {tag}")))
+                };
+                ((one(256)? as usize, one(257)? as usize), true)
+            } else {
+                (raw_dimensions(path, bytes, &mut exif)?, true)
+            }
+        } else {
+            (raw_dimensions(path, bytes, &mut exif)?, true)
+        };
+    check_size(path, width, height)?;
+    Ok(Header {
+        width,
+        height,
+        is_raw,
+        exif,
+    })
+}
+
+/// The active area rawloader's header-only pass finds, and its camera names where EXIF
+/// gave none (as [`load_capture`] fills them).
+fn raw_dimensions(
+    path: &Path,
+    bytes: &[u8],
+    exif: &mut ExifInfo,
+) -> Result<(usize, usize), LoadError> {
+    let _quiet = QuietPanics::new();
+    let head =
+        std::panic::catch_unwind(|| rawloader::decode_dummy(&mut std::io::Cursor::new(bytes)))
+            .map_err(|_| LoadError::Corrupt {
+                path: path.to_path_buf(),
+                reason: "the RAW decoder failed on this file".into(),
+            })?
+            .map_err(|e| LoadError::Corrupt {
+                path: path.to_path_buf(),
+                reason: format!("RAW decoder: {}", one_line(&e.to_string())),
+            })?;
+    let [top, right, bottom, left] = head.crops;
+    let id = &mut exif.identity;
+    id.make = id
+        .make
+        .take()
+        .or(Some(head.clean_make.clone()).filter(|s| !s.is_empty()));
+    id.model = id
+        .model
+        .take()
+        .or(Some(head.clean_model.clone()).filter(|s| !s.is_empty()));
+    Ok((
+        head.width.saturating_sub(left + right),
+        head.height.saturating_sub(top + bottom),
+    ))
+}
+
 /// A RAW file's bytes (DNG or a camera's own format) into CFA planes, without EXIF:
 /// the part of [`decode_capture`] that is ours and rawloader's.
 ///
@@ -738,6 +839,38 @@ fn srgb_decode(v: f32) -> f32 {
     }
 }
 
+/// image-rs's reader of a PNG/TIFF/JPEG, held to our limits (its own default would
+/// refuse a 100 MP 16-bit TIFF).
+fn image_reader<'a>(
+    path: &Path,
+    bytes: &'a [u8],
+) -> Result<image::ImageReader<std::io::Cursor<&'a [u8]>>, LoadError> {
+    let mut r = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| LoadError::Unreadable {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+    let mut l = image::Limits::default();
+    l.max_image_width = u32::try_from(limits::MAX_IMAGE_SIDE).ok();
+    l.max_image_height = u32::try_from(limits::MAX_IMAGE_SIDE).ok();
+    // RGBA at 16 bits is the widest buffer a photo decodes to.
+    l.max_alloc = Some(limits::MAX_IMAGE_PIXELS as u64 * 8);
+    r.limits(l);
+    Ok(r)
+}
+
+/// A PNG/TIFF/JPEG's size from its header alone.
+fn image_dimensions(path: &Path, bytes: &[u8]) -> Result<(usize, usize), LoadError> {
+    image_reader(path, bytes)?
+        .into_dimensions()
+        .map(|(w, h)| (w as usize, h as usize))
+        .map_err(|e| LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })
+}
+
 /// PNG/TIFF/JPEG into linear planes: one `Y` plane for grey images, R, G, B otherwise.
 /// The size is checked from the header before anything is decoded, and the decoder is
 /// held to the same limits (image-rs's own default would refuse a 100 MP 16-bit TIFF).
@@ -746,27 +879,9 @@ fn load_image(path: &Path, bytes: &[u8], options: &LoadOptions) -> Result<Captur
         path: path.to_path_buf(),
         reason: e.to_string(),
     };
-    let reader = || -> Result<_, LoadError> {
-        let mut r = image::ImageReader::new(std::io::Cursor::new(bytes))
-            .with_guessed_format()
-            .map_err(|e| LoadError::Unreadable {
-                path: path.to_path_buf(),
-                reason: e.to_string(),
-            })?;
-        let mut l = image::Limits::default();
-        l.max_image_width = u32::try_from(limits::MAX_IMAGE_SIDE).ok();
-        l.max_image_height = u32::try_from(limits::MAX_IMAGE_SIDE).ok();
-        // RGBA at 16 bits is the widest buffer a photo decodes to.
-        l.max_alloc = Some(limits::MAX_IMAGE_PIXELS as u64 * 8);
-        r.limits(l);
-        Ok(r)
-    };
-    let (w, h) = reader()?
-        .into_dimensions()
-        .map(|(w, h)| (w as usize, h as usize))
-        .map_err(corrupt)?;
+    let (w, h) = image_dimensions(path, bytes)?;
     check_size(path, w, h)?;
-    let img = reader()?.decode().map_err(corrupt)?;
+    let img = image_reader(path, bytes)?.decode().map_err(corrupt)?;
     if (img.width() as usize, img.height() as usize) != (w, h) {
         return Err(LoadError::Corrupt {
             path: path.to_path_buf(),

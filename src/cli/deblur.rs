@@ -2,14 +2,15 @@
 //! [--focal F --aperture A] [--method hqs|irls|wiener]`: remove the lens blur with the
 //! kernels a profile predicts at the photo's settings, or a kernels file's. A RAW photo
 //! can be written back as a DNG (its CFA deblurred, its metadata kept) for a RAW editor.
+//! With `--out-dir` and `--profiles`, many photos at once (`deblur_batch`).
 
 use super::common::progress_job;
 use anyhow::{Context, Result, bail};
 use lensblur::deblur::output::write_deblurred;
 use lensblur::deblur::source::{Prefer, ScatteredKernels, load_kernels};
 use lensblur::deblur::{DeblurOptions, KernelSource, Method, ProfileKernels, deblur_capture};
-use lensblur::plane::Capture;
-use lensblur::plane::LensSetting;
+use lensblur::job::JobContext;
+use lensblur::plane::{Capture, LensSetting};
 use lensblur::profile::Profile;
 use lensblur::raw::{LoadOptions, load_capture};
 use std::path::{Path, PathBuf};
@@ -17,15 +18,21 @@ use std::path::{Path, PathBuf};
 #[derive(clap::Args, Default)]
 pub struct Args {
     /// The photo: a RAW file, or a linear 16-bit PNG/TIFF (8-bit images are sRGB-decoded).
-    pub photo: PathBuf,
+    /// With --out-dir: photos and folders of photos.
+    #[arg(required = true, num_args = 1..)]
+    pub photos: Vec<PathBuf>,
     /// Where to write the result: .tiff/.tif or .png (16-bit linear RGB), or, for a RAW
     /// photo, .dng (the deblurred CFA with the original's metadata, for a RAW editor).
     /// A RAW photo also gets a developed 8-bit sRGB preview beside it
     /// (`<name>.preview.png`).
-    #[arg(long)]
-    pub out: PathBuf,
+    #[arg(long, required_unless_present = "out_dir")]
+    pub out: Option<PathBuf>,
     /// A lens profile (lensblur calibrate): kernels predicted at the photo's settings.
-    #[arg(long, conflicts_with = "kernels", required_unless_present = "kernels")]
+    #[arg(
+        long,
+        conflicts_with = "kernels",
+        required_unless_present_any = ["kernels", "profiles"]
+    )]
     pub profile: Option<PathBuf>,
     /// A kernels file (lensblur kernels, or any lensblur.kernels/1 file).
     #[arg(long)]
@@ -48,6 +55,8 @@ pub struct Args {
     /// Use a profile at a focal length or aperture outside its calibrated range.
     #[arg(long)]
     pub allow_extrapolation: bool,
+    #[command(flatten)]
+    pub batch: super::deblur_batch::BatchArgs,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Default, PartialEq, Eq)]
@@ -64,6 +73,16 @@ pub fn run(args: Args) -> Result<()> {
             args.method
         );
     };
+    let opts = DeblurOptions {
+        method,
+        ..DeblurOptions::default()
+    };
+    if args.batch.out_dir.is_some() {
+        return super::deblur_batch::run(&args, &opts);
+    }
+    let (Some(out), [photo]) = (&args.out, args.photos.as_slice()) else {
+        bail!("one photo and --out, or photos and folders with --out-dir and --profiles");
+    };
     for (name, v) in [("--focal", args.focal), ("--aperture", args.aperture)] {
         if let Some(v) = v
             && !(v.is_finite() && v > 0.0)
@@ -72,40 +91,35 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     // Refuse an output we cannot write before the work, not after it.
-    let ext = args
-        .out
+    let ext = out
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
-    if !matches!(ext.as_str(), "png" | "tif" | "tiff" | "dng") {
+    if !output_supported(&ext) {
         bail!(
             "{}: the output must be .tiff, .tif or .png (16-bit linear), or .dng for a RAW photo",
-            args.out.display()
+            out.display()
         );
     }
-    let out_dir = args
-        .out
+    let out_dir = out
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
     if !out_dir.is_dir() {
         bail!(
             "{}: the folder {} does not exist",
-            args.out.display(),
+            out.display(),
             out_dir.display()
         );
     }
-    if same_file(&args.photo, &args.out) {
-        bail!(
-            "{}: the output would overwrite the photo",
-            args.out.display()
-        );
+    if same_file(photo, out) {
+        bail!("{}: the output would overwrite the photo", out.display());
     }
-    let capture = load_capture(&args.photo, &LoadOptions::default())?;
+    let capture = load_capture(photo, &LoadOptions::default())?;
     if ext == "dng" && (!capture.is_raw || capture.raw.is_none()) {
         bail!(
             "{}: only a RAW photo can be written as a DNG (give .tiff or .png)",
-            args.photo.display()
+            photo.display()
         );
     }
     let photo_setting = (
@@ -119,13 +133,13 @@ pub fn run(args: Args) -> Result<()> {
             let (Some(focal_mm), Some(f_number)) = photo_setting else {
                 bail!(
                     "{}: focal length or aperture unknown (not in EXIF): give --focal and --aperture",
-                    args.photo.display()
+                    photo.display()
                 );
             };
             if (profile.norm.width, profile.norm.height) != (capture.width, capture.height) {
                 bail!(
                     "{}: the photo is {} × {} but the profile {} is for a {} × {} sensor (another camera?)",
-                    args.photo.display(),
+                    photo.display(),
                     capture.width,
                     capture.height,
                     p.display(),
@@ -137,12 +151,12 @@ pub fn run(args: Args) -> Result<()> {
             // and nothing else.
             let identity_warnings = profile
                 .check_identity(&capture.identity, args.force)
-                .with_context(|| format!("{} and {}", args.photo.display(), p.display()))?;
+                .with_context(|| format!("{} and {}", photo.display(), p.display()))?;
             let setting = LensSetting { focal_mm, f_number };
             profile.allow_extrapolation = args.allow_extrapolation;
             profile
                 .check_setting(setting)
-                .with_context(|| format!("{}: {}", args.photo.display(), p.display()))?;
+                .with_context(|| format!("{}: {}", photo.display(), p.display()))?;
             if !identity_warnings.is_empty() {
                 eprintln!("lensblur: warning: {}", identity_warnings.join("; "));
             }
@@ -151,10 +165,7 @@ pub fn run(args: Args) -> Result<()> {
                     "lensblur: warning: f = {focal_mm} mm, f/{f_number} is outside the calibrated range; extrapolating"
                 );
             }
-            described = format!(
-                "the profile {} at {focal_mm} mm, f/{f_number}",
-                file_name(p)
-            );
+            described = profile_described(p, setting);
             Box::new(ProfileKernels { profile, setting })
         }
         (None, Some(k)) => {
@@ -162,7 +173,7 @@ pub fn run(args: Args) -> Result<()> {
             if (file.width, file.height) != (capture.width, capture.height) {
                 bail!(
                     "{}: the photo is {} × {} but {} was measured on {} × {}",
-                    args.photo.display(),
+                    photo.display(),
                     capture.width,
                     capture.height,
                     k.display(),
@@ -193,38 +204,68 @@ pub fn run(args: Args) -> Result<()> {
         (None, None) => bail!("give --profile or --kernels"),
     };
     let job = progress_job();
-    let opts = DeblurOptions {
-        method,
-        ..DeblurOptions::default()
-    };
-    let out = deblur_capture(&capture, source.as_ref(), &opts, &job)
-        .with_context(|| args.photo.display().to_string())?;
-    let note = format!(
-        "Deblurred by {} ({}) with {described}",
-        lensblur::dng::SOFTWARE,
-        method.name()
-    );
-    write_output(&args.out, &args.photo, &out, &note)?;
+    if let Some(preview) = deblur_one(
+        photo,
+        &capture,
+        source.as_ref(),
+        &opts,
+        out,
+        &described,
+        &job,
+    )? {
+        eprintln!("{}: preview {}", out.display(), preview.display());
+    }
     eprintln!(
         "{}: deblurred ({}) to {}",
-        args.photo.display(),
+        photo.display(),
         method.name(),
-        args.out.display()
+        out.display()
     );
     Ok(())
 }
 
-/// Writes a deblurred capture where `out`'s extension says (a RAW photo's developed
-/// preview beside it), and says so.
-fn write_output(out: &Path, photo: &Path, deblurred: &Capture, note: &str) -> Result<()> {
-    let written = write_deblurred(out, Some(file_name(photo)), deblurred, note)?;
+/// Deblurs one loaded photo with a chosen source and writes it: the step the single
+/// photo and every photo of a batch go through. `described` names the kernels (a
+/// DNG's note of what was done says it). Returns the preview written, if any.
+///
+/// # Errors
+/// The deblurring failed, or the output cannot be written.
+pub fn deblur_one(
+    photo: &Path,
+    capture: &Capture,
+    source: &dyn KernelSource,
+    opts: &DeblurOptions,
+    out: &Path,
+    described: &str,
+    job: &JobContext,
+) -> Result<Option<PathBuf>> {
+    let deblurred =
+        deblur_capture(capture, source, opts, job).with_context(|| photo.display().to_string())?;
+    let note = format!(
+        "Deblurred by {} ({}) with {described}",
+        lensblur::dng::SOFTWARE,
+        opts.method.name()
+    );
+    let written = write_deblurred(out, Some(file_name(photo)), &deblurred, &note)?;
     if let Some(w) = &written.warning {
         eprintln!("lensblur: warning: {}: {w}", photo.display());
     }
-    if let Some(p) = &written.preview {
-        eprintln!("{}: preview {}", out.display(), p.display());
-    }
-    Ok(())
+    Ok(written.preview)
+}
+
+/// Whether [`deblur_one`] writes a file of this extension (lower case).
+pub fn output_supported(ext: &str) -> bool {
+    matches!(ext, "png" | "tif" | "tiff" | "dng")
+}
+
+/// What a DNG's note says of a profile's kernels.
+pub fn profile_described(profile: &Path, setting: LensSetting) -> String {
+    format!(
+        "the profile {} at {} mm, f/{}",
+        file_name(profile),
+        setting.focal_mm,
+        setting.f_number
+    )
 }
 
 fn file_name(p: &Path) -> String {

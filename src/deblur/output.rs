@@ -42,11 +42,8 @@ pub fn write_deblurred(
     deblurred: &Capture,
     note: &str,
 ) -> Result<Written, OutputError> {
-    if is_dng(out) {
-        crate::dng::write_capture_dng(out, deblurred, note, original_file_name)?;
-    } else {
-        crate::raw::save_planes(out, &crate::raw::full_planes(deblurred), false)?;
-    }
+    // The preview first: an output that exists implies its preview does, so a batch
+    // that finds the output complete may skip the photo.
     let mut written = Written::default();
     if deblurred.is_raw {
         let preview = preview_path(out);
@@ -58,6 +55,11 @@ pub fn write_deblurred(
             }
         }
         written.preview = Some(preview);
+    }
+    if is_dng(out) {
+        crate::dng::write_capture_dng(out, deblurred, note, original_file_name)?;
+    } else {
+        crate::raw::save_planes(out, &crate::raw::full_planes(deblurred), false)?;
     }
     Ok(written)
 }
