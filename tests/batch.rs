@@ -270,3 +270,63 @@ fn a_photos_header_says_what_its_decode_will() {
         assert_eq!(h.exif.identity.model, c.identity.model);
     }
 }
+
+#[test]
+fn a_dng_batch_writes_raw_photos_back_as_dngs_and_skips_the_others() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let d = |p: &str| dir.path().join(p);
+    for f in ["photos", "profiles"] {
+        std::fs::create_dir(d(f)).expect("mkdir");
+    }
+    profile(unit("1001"), 3)
+        .save(&d("profiles/zoom-1001.json"))
+        .expect("save");
+    // A RAW photo of that lens unit, its EXIF in its own directory as cameras write it.
+    let mut info = lensblur::dng::DngInfo::simulated(
+        "Acme",
+        "A1",
+        512,
+        16383,
+        Some(LensSetting {
+            focal_mm: 35.0,
+            f_number: 5.6,
+        }),
+        lensblur::dng::DngLayout::default(),
+    );
+    info.identity = unit("1001");
+    info.exif_in_ifd0 = false;
+    let cfa: Vec<u16> = (0..W * H)
+        .map(|i| 512 + ((i * 7919) % 9000) as u16)
+        .collect();
+    lensblur::dng::write_dng(&d("photos/raw.dng"), &cfa, W, H, &info).expect("dng");
+    tiff_photo(&d("photos/rgb.tif"), &unit("1001"), 35, 56);
+
+    let args = [
+        "deblur".into(),
+        d("photos"),
+        "--out-dir".into(),
+        d("out"),
+        "--profiles".into(),
+        d("profiles"),
+        "--format".into(),
+        "dng".into(),
+    ];
+    let args: Vec<&Path> = args.iter().map(PathBuf::as_path).collect();
+    let (ok, stderr) = lensblur(&args);
+    assert!(ok, "{stderr}");
+    assert!(
+        line_of(&stderr, "rgb.tif").contains("not a RAW photo"),
+        "{stderr}"
+    );
+    assert!(!d("out/rgb.dng").exists());
+    let out = lensblur::raw::load_capture(&d("out/raw.dng"), &Default::default()).expect("DNG");
+    assert!(out.is_raw);
+    assert_eq!(out.identity, unit("1001"));
+    assert_eq!(
+        (out.setting_focal_mm, out.setting_f_number),
+        (Some(35.0), Some(5.6))
+    );
+    let note = out.raw.and_then(|r| r.description).unwrap_or_default();
+    assert!(note.contains("zoom-1001.json"), "{note}");
+    assert!(d("out/raw.preview.png").is_file());
+}
