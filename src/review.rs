@@ -631,6 +631,113 @@ pub fn export_deblurred(
         .map_err(|e| e.to_string())
 }
 
+/// A plot's data as the studio draws it, for saving beside its picture: the axes'
+/// titles and every named series of (x, y) points.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlotTable {
+    pub x_label: String,
+    pub y_label: String,
+    pub series: Vec<(String, Vec<[f64; 2]>)>,
+}
+
+/// A CSV field, quoted when it holds a comma, a quote or a line break (axis titles
+/// such as "σ, px" do).
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_owned()
+    }
+}
+
+/// The table as CSV: a header `series,<x axis>,<y axis>`, then one row per point.
+/// Points with a non-finite coordinate are not drawn, so they are left out here too.
+#[must_use]
+pub fn plot_csv(table: &PlotTable) -> String {
+    let mut out = format!(
+        "series,{},{}\n",
+        csv_field(&table.x_label),
+        csv_field(&table.y_label)
+    );
+    for (name, points) in &table.series {
+        let name = csv_field(name);
+        for [x, y] in points
+            .iter()
+            .filter(|p| p[0].is_finite() && p[1].is_finite())
+        {
+            out.push_str(&format!("{name},{x},{y}\n"));
+        }
+    }
+    out
+}
+
+/// A cross-validation curve's points: mean error against α, or against β.
+#[must_use]
+pub fn cv_curve(sel: &crate::crossval::Selection, by_alpha: bool) -> Vec<[f64; 2]> {
+    let curve = if by_alpha {
+        &sel.alpha_curve
+    } else {
+        &sel.beta_curve
+    };
+    curve
+        .iter()
+        .map(|p| [if by_alpha { p.alpha } else { p.beta } as f64, p.mean_pct])
+        .collect()
+}
+
+/// The error CDF's curves of one chosen model, one per parameter: (error, percentile).
+#[must_use]
+pub fn cv_cdf_curves(sel: &crate::crossval::Selection) -> [(&'static str, Vec<[f64; 2]>); 3] {
+    let cdf = &sel.error_cdf;
+    let curve = |q: &[f64]| -> Vec<[f64; 2]> {
+        q.iter()
+            .zip(&cdf.percentiles)
+            .map(|(&e, &p)| [e, p])
+            .collect()
+    };
+    [
+        ("C_xx", curve(&cdf.cxx)),
+        ("C_yy", curve(&cdf.cyy)),
+        ("C_or", curve(&cdf.cor)),
+    ]
+}
+
+/// Writes a rectangle `[x0, y0, x1, y1]` (pixels, clamped to the image) of an RGBA
+/// image `width` × `height` as a PNG, atomically: a plot cut out of a window's
+/// screenshot.
+pub fn write_png_crop(
+    path: &Path,
+    rgba: Vec<u8>,
+    width: usize,
+    height: usize,
+    rect: [usize; 4],
+) -> Result<(), String> {
+    let to_u32 =
+        |v: usize| u32::try_from(v).map_err(|_| format!("an image {v} px wide is too large"));
+    let img = image::RgbaImage::from_raw(to_u32(width)?, to_u32(height)?, rgba)
+        .ok_or_else(|| format!("the screenshot's pixels do not fill {width} × {height}"))?;
+    let (x0, y0) = (rect[0].min(width), rect[1].min(height));
+    let (x1, y1) = (rect[2].clamp(x0, width), rect[3].clamp(y0, height));
+    if x1 == x0 || y1 == y0 {
+        return Err("the plot is not on screen".into());
+    }
+    let crop = image::imageops::crop_imm(
+        &img,
+        to_u32(x0)?,
+        to_u32(y0)?,
+        to_u32(x1 - x0)?,
+        to_u32(y1 - y0)?,
+    )
+    .to_image();
+    let mut bytes = Vec::new();
+    crop.write_to(
+        &mut std::io::Cursor::new(&mut bytes),
+        image::ImageFormat::Png,
+    )
+    .map_err(|e| format!("cannot encode the PNG: {e}"))?;
+    crate::io::write_atomic(path, &bytes).map_err(|e| e.to_string())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -739,5 +846,21 @@ mod tests {
         );
         assert!(sweep_points(&ds, Channel::R, (0.0, 0.0), false, 4.0).is_empty());
         assert_eq!(nearest_value(&[4.0, 5.6, 10.0], 6.0), Some(5.6));
+    }
+
+    #[test]
+    fn plot_csv_quotes_axis_titles_and_leaves_out_undrawn_points() {
+        let t = PlotTable {
+            x_label: "aperture (f-number)".into(),
+            y_label: "C_xx (σ, px)".into(),
+            series: vec![(
+                "model centre".into(),
+                vec![[4.0, 1.5], [5.6, f64::NAN], [8.0, 2.0]],
+            )],
+        };
+        assert_eq!(
+            plot_csv(&t),
+            "series,aperture (f-number),\"C_xx (σ, px)\"\nmodel centre,4,1.5\nmodel centre,8,2\n"
+        );
     }
 }

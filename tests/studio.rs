@@ -8,7 +8,7 @@
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use lensblur::app::{AppOptions, Command, FieldSource, StudioApp, SweepAxis, View};
+use lensblur::app::{AppOptions, Command, FieldSource, PlotId, StudioApp, SweepAxis, View};
 use lensblur::job::JobContext;
 use lensblur::pipeline::ShotFile;
 use lensblur::session::{DemoSpec, Session, ShotId, StageStatus, make_demo};
@@ -74,6 +74,60 @@ fn snapshot(h: &mut Harness<'_, StudioApp>, name: &str) {
     h.remove_cursor();
     h.run_steps(2);
     h.snapshot(name);
+}
+
+/// Saves a plot's CSV and PNG as the dialogs would, and waits for both files.
+fn save_plot(h: &mut Harness<'_, StudioApp>, plot: PlotId, csv: &Path, png: &Path) {
+    let dir = csv.parent().expect("a folder");
+    let path = csv.to_path_buf();
+    h.state_mut()
+        .commands
+        .push(Command::SavePlotCsv { plot, path });
+    let path = png.to_path_buf();
+    h.state_mut()
+        .commands
+        .push(Command::SavePlotPng { plot, path });
+    step_until(h, "the plot's files", Duration::from_secs(20), |a| {
+        csv.is_file() && png.is_file() && a.plot_png.is_none()
+    });
+    assert!(
+        h.state()
+            .messages
+            .iter()
+            .any(|m| m.text.contains("plot saved to")),
+        "{:?}",
+        h.state().messages
+    );
+    // The messages name the temporary folder, which differs between runs: off the
+    // snapshots that follow.
+    h.state_mut()
+        .messages
+        .retain(|m| !m.text.contains(&*dir.to_string_lossy()));
+    // The plot and its axes: a third of the window's width, less than half its height
+    // in the Sweeps view.
+    let img = image::open(png).expect("the plot's PNG decodes");
+    assert!(
+        (200..=1280).contains(&img.width()) && (100..=800).contains(&img.height()),
+        "{} × {}",
+        img.width(),
+        img.height()
+    );
+}
+
+/// The CSV has this header and `rows` rows of a series name and two numbers.
+fn assert_plot_csv(path: &Path, header: &str, rows: usize) {
+    let text = std::fs::read_to_string(path).expect("the plot's CSV");
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some(header));
+    let body: Vec<&str> = lines.collect();
+    assert_eq!(body.len(), rows);
+    for line in body {
+        let fields: Vec<&str> = line.rsplitn(3, ',').collect();
+        assert_eq!(fields.len(), 3, "{line}");
+        for v in &fields[..2] {
+            assert!(v.parse::<f64>().is_ok_and(f64::is_finite), "{line}");
+        }
+    }
 }
 
 /// A primary click at a screen position, as the window would deliver it.
@@ -308,10 +362,40 @@ fn every_view_on_the_demo_session() {
     );
     assert_same_profile(&cli_profile, &demo_dir.join("profile.json"));
     snapshot(&mut h, "studio_models");
+    // Save the error CDF's data and picture without the dialogs.
+    let cdf = (dir.path().join("cdf.csv"), dir.path().join("cdf.png"));
+    save_plot(&mut h, PlotId::CvCdf, &cdf.0, &cdf.1);
+    // A header naming the axes, then 101 percentiles of three parameters per family.
+    let families = h.state().cv.as_ref().map_or(0, |cv| {
+        usize::from(cv.global.is_some()) + usize::from(cv.local.is_some())
+    });
+    assert_plot_csv(
+        &cdf.0,
+        "series,error (% of range),held-out samples (%)",
+        families * 3 * 101,
+    );
 
     h.get_by_label("Sweeps").click();
     h.run_steps(3);
     snapshot(&mut h, "studio_sweeps");
+    let sweep = (dir.path().join("sweep.csv"), dir.path().join("sweep.png"));
+    let plot = PlotId::Sweep {
+        vs_aperture: true,
+        param: 0,
+    };
+    save_plot(&mut h, plot, &sweep.0, &sweep.1);
+    // Per location: both measured apertures, and the model's and the truth's curves.
+    let rows = std::fs::read_to_string(&sweep.0)
+        .expect("sweep CSV")
+        .lines()
+        .count()
+        - 1;
+    assert_plot_csv(
+        &sweep.0,
+        "series,aperture (f-number),\"C_xx (σ, px)\"",
+        rows,
+    );
+    assert!(rows >= 5 * 2, "{rows} rows");
     // The same sweeps as MTF50.
     h.get_by_label("MTF50").click();
     h.run_steps(3);

@@ -142,6 +142,20 @@ pub enum Command {
     SetFieldSource(FieldSource),
     SetFieldShow(FieldShow),
     SetSweepAxis(SweepAxis),
+    /// Asks where to save a plot, as a PNG of it on screen or as CSV of its data.
+    SavePlotDialog {
+        plot: PlotId,
+        png: bool,
+    },
+    SavePlotCsv {
+        plot: PlotId,
+        path: PathBuf,
+    },
+    /// Takes a screenshot and saves the plot's part of it once it arrives.
+    SavePlotPng {
+        plot: PlotId,
+        path: PathBuf,
+    },
     /// The setting of the predicted and true fields and of the sweeps (the sliders).
     SetFieldSetting {
         focal_mm: f64,
@@ -294,6 +308,64 @@ pub enum FieldShow {
     Ellipses,
     /// The measured non-parametric kernels themselves.
     Kernels,
+}
+
+/// A plot of the studio, for saving it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum PlotId {
+    /// A Sweeps plot: against aperture or focal length; the index of its parameter in
+    /// [`view_data::sweep_params`] (for the axis shown).
+    Sweep {
+        vs_aperture: bool,
+        param: usize,
+    },
+    /// The Models view's cross-validation error against α, against β, and the error CDF.
+    CvAlpha,
+    CvBeta,
+    CvCdf,
+}
+
+impl PlotId {
+    /// The view the plot is drawn in.
+    #[must_use]
+    pub fn view(self) -> View {
+        match self {
+            Self::Sweep { .. } => View::Sweeps,
+            Self::CvAlpha | Self::CvBeta | Self::CvCdf => View::Models,
+        }
+    }
+
+    /// A file name stem the save dialog proposes.
+    #[must_use]
+    pub fn file_stem(self, axis: SweepAxis) -> String {
+        match self {
+            Self::Sweep { vs_aperture, param } => {
+                let name = view_data::sweep_params(axis)
+                    .get(param)
+                    .map_or("sweep", |p| p.name)
+                    .replace(' ', "-");
+                let against = if vs_aperture { "aperture" } else { "focal" };
+                format!("sweep-{name}-vs-{against}")
+            }
+            Self::CvAlpha => "cv-alpha".into(),
+            Self::CvBeta => "cv-beta".into(),
+            Self::CvCdf => "cv-error-cdf".into(),
+        }
+    }
+
+    /// Where the draw code keeps the plot's last screen rectangle, in egui's memory.
+    #[must_use]
+    pub fn rect_id(self) -> egui::Id {
+        egui::Id::unique(("plot rect", self))
+    }
+}
+
+/// A plot PNG waiting for the screenshot it is cut from.
+pub struct PendingPlotPng {
+    pub path: PathBuf,
+    /// The plot's rectangle, in points.
+    pub rect: egui::Rect,
+    pub image: std::sync::mpsc::Receiver<Arc<egui::ColorImage>>,
 }
 
 /// What the Sweeps view plots against the settings.
@@ -473,6 +545,7 @@ pub struct StudioApp {
     pub field_source: FieldSource,
     pub field_show: FieldShow,
     pub sweep_axis: SweepAxis,
+    pub plot_png: Option<PendingPlotPng>,
     /// What the views show that takes computing, cached by what it depends on.
     pub views: view_data::ViewData,
     pub deblur: DeblurState,
@@ -530,6 +603,7 @@ impl StudioApp {
             field_source: FieldSource::Measured,
             field_show: FieldShow::Ellipses,
             sweep_axis: SweepAxis::Sigma,
+            plot_png: None,
             views: view_data::ViewData::default(),
             deblur: DeblurState {
                 photo: None,
@@ -721,6 +795,7 @@ impl StudioApp {
     /// Runs one frame's logic without drawing (also what tests call between steps).
     pub fn logic_step(&mut self) {
         logic::drain_jobs(self);
+        logic::finish_plot_png(self);
         let commands = std::mem::take(&mut self.commands);
         for c in commands {
             logic::apply(self, c);

@@ -12,7 +12,7 @@
 //! makes textures.
 
 use super::jobs::JobScope;
-use super::{FieldShow, FieldSource, JobOutput, StudioApp, View};
+use super::{FieldShow, FieldSource, JobOutput, StudioApp, SweepAxis, View};
 use crate::detect::Detection;
 use crate::detect::inspect::SquareInspection;
 use crate::kernel::file::KernelsFile;
@@ -20,7 +20,7 @@ use crate::model::Dataset;
 use crate::plane::{Capture, Channel, LensSetting, Plane};
 use crate::profile::Profile;
 use crate::psf::{Gaussian2, Mtf50, Mtf50Record};
-use crate::review::{SquareFacts, SweepPoint};
+use crate::review::{PlotTable, SquareFacts, SweepPoint};
 use crate::session::ShotId;
 use crate::simulate::VirtualLens;
 use std::sync::Arc;
@@ -250,6 +250,138 @@ pub struct SweepData {
     /// Against aperture, then against focal length; one entry per
     /// [`SWEEP_LOCATIONS`].
     pub sweeps: [Vec<LocationSweep>; 2],
+}
+
+/// A parameter the Sweeps view plots: its name, its unit and how to read it from a
+/// Gaussian and its MTF50 (NaN, left out of the plot, where a degenerate Gaussian has
+/// no MTF50).
+#[derive(Clone, Copy)]
+pub struct SweepParam {
+    pub name: &'static str,
+    pub unit: &'static str,
+    pub get: fn(&Gaussian2, Option<&Mtf50>) -> f64,
+}
+
+/// The three plots of each sweep for an axis choice, in the view's order.
+#[must_use]
+pub fn sweep_params(axis: SweepAxis) -> [SweepParam; 3] {
+    let p = |name, unit, get| SweepParam { name, unit, get };
+    match axis {
+        SweepAxis::Sigma => [
+            p("C_xx", "σ, px", |g, _| g.sigma_x),
+            p("C_yy", "σ, px", |g, _| g.sigma_y),
+            p("C_or", "ρ", |g, _| g.rho),
+        ],
+        SweepAxis::Mtf50 => [
+            p("MTF50 worst", "cycles/px", |_, m| {
+                m.map_or(f64::NAN, |m| m.worst)
+            }),
+            p("MTF50 best", "cycles/px", |_, m| {
+                m.map_or(f64::NAN, |m| m.best)
+            }),
+            p("MTF50 isotropic", "cycles/px", |_, m| {
+                m.map_or(f64::NAN, |m| m.isotropic)
+            }),
+        ],
+    }
+}
+
+/// What a sweep series is: drawn as dots, a solid line or a dashed line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SweepKind {
+    Measured,
+    Model,
+    Truth,
+}
+
+/// One series of one sweep plot, for the index of its location in [`SWEEP_LOCATIONS`].
+pub struct SweepSeries {
+    pub location: usize,
+    pub kind: SweepKind,
+    pub name: String,
+    pub points: Vec<[f64; 2]>,
+}
+
+/// The x axis's title of the sweep against aperture, or against focal length.
+#[must_use]
+pub fn sweep_x_label(vs_aperture: bool) -> &'static str {
+    if vs_aperture {
+        "aperture (f-number)"
+    } else {
+        "focal length (mm)"
+    }
+}
+
+/// The y axis's title of a sweep plot.
+#[must_use]
+pub fn sweep_y_label(param: &SweepParam) -> String {
+    format!("{} ({})", param.name, param.unit)
+}
+
+/// The series one sweep plot draws, in drawing order: per location, the measured
+/// points, the model and the truth (those that exist).
+#[must_use]
+pub fn sweep_series(data: &SweepData, vs_aperture: bool, param: &SweepParam) -> Vec<SweepSeries> {
+    let sweep = &data.sweeps[usize::from(!vs_aperture)];
+    let abscissa = |s: LensSetting| if vs_aperture { s.f_number } else { s.focal_mm };
+    let get = param.get;
+    let curve = |c: &[CurvePoint]| -> Vec<[f64; 2]> {
+        c.iter()
+            .map(|(s, g, m)| [abscissa(*s), get(g, m.as_ref())])
+            .collect()
+    };
+    let mut out = Vec::new();
+    for (location, ((loc, _, _), series)) in SWEEP_LOCATIONS.iter().zip(sweep).enumerate() {
+        if let Some(m) = &series.measured {
+            out.push(SweepSeries {
+                location,
+                kind: SweepKind::Measured,
+                name: format!("measured {loc}"),
+                points: m
+                    .iter()
+                    .map(|(p, m)| [abscissa(p.setting), get(&p.gaussian, m.as_ref())])
+                    .collect(),
+            });
+        }
+        for (kind, c) in [
+            (SweepKind::Model, &series.model),
+            (SweepKind::Truth, &series.truth),
+        ] {
+            if let Some(c) = c {
+                let what = if kind == SweepKind::Model {
+                    "model"
+                } else {
+                    "truth"
+                };
+                out.push(SweepSeries {
+                    location,
+                    kind,
+                    name: format!("{what} {loc}"),
+                    points: curve(c),
+                });
+            }
+        }
+    }
+    out
+}
+
+/// One sweep plot's data, as drawn, for saving as CSV.
+#[must_use]
+pub fn sweep_table(
+    data: &SweepData,
+    axis: SweepAxis,
+    vs_aperture: bool,
+    param: usize,
+) -> Option<PlotTable> {
+    let param = sweep_params(axis).get(param).copied()?;
+    Some(PlotTable {
+        x_label: sweep_x_label(vs_aperture).to_owned(),
+        y_label: sweep_y_label(&param),
+        series: sweep_series(data, vs_aperture, &param)
+            .into_iter()
+            .map(|s| (s.name, s.points))
+            .collect(),
+    })
 }
 
 /// Which square's inspection, of what: results for another key are stale.
