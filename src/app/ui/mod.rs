@@ -279,8 +279,9 @@ fn y_axis<'a>(label: &str) -> egui_plot::AxisHints<'a> {
         .label_spacing(16.0..=24.0)
 }
 
-/// A plot's title row: "Save PNG…" and "Save CSV…", then the title, cut short to the
-/// plot's width so that the row never pushes the plots beside it off the window.
+/// A plot's title row: the "PNG" and "CSV" save buttons (short, so the title keeps the
+/// room), then the title, cut short to the plot's width so that the row never pushes
+/// the plots beside it off the window.
 fn plot_title_ui(
     commands: &mut Vec<Command>,
     ui: &mut egui::Ui,
@@ -302,13 +303,13 @@ fn plot_save_buttons(commands: &mut Vec<Command>, ui: &mut egui::Ui, plot: PlotI
     for (png, label, tip) in [
         (
             true,
-            "Save PNG…",
-            "Save the plot as it appears here, as a PNG image",
+            "PNG",
+            "Save the plot as it appears here, as a PNG image…",
         ),
         (
             false,
-            "Save CSV…",
-            "Save the plot's data: every series' points, with the axes named in the header",
+            "CSV",
+            "Save the plot's data as CSV: every series' points, with the axes named in the header…",
         ),
     ] {
         if ui.small_button(label).on_hover_text(tip).clicked() {
