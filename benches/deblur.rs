@@ -67,6 +67,7 @@ fn bench(c: &mut Criterion) {
         setting_f_number: Some(4.5),
         identity: Default::default(),
         is_raw: false,
+        raw: None,
     };
     let deblur_opts = DeblurOptions::default();
     let job = JobContext::silent();

@@ -143,15 +143,15 @@ fn measure(
     if args.save_shots && !args.rgb {
         let shots = args.out.join("shots");
         std::fs::create_dir_all(&shots)?;
-        let info = lensblur::simulate::dng::DngInfo {
-            make: lens.make.clone(),
-            model: lens.model.clone(),
-            black: params.black_level,
-            white: params.white_level,
-            setting: Some(plan.setting),
-            layout: lensblur::simulate::dng::DngLayout::default(),
-        };
-        lensblur::simulate::dng::write_dng(
+        let info = lensblur::dng::DngInfo::simulated(
+            &lens.make,
+            &lens.model,
+            params.black_level,
+            params.white_level,
+            Some(plan.setting),
+            lensblur::dng::DngLayout::default(),
+        );
+        lensblur::dng::write_dng(
             &shots.join(format!("{}.dng", plan.name)),
             &shot.cfa,
             args.width,

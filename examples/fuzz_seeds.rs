@@ -3,11 +3,11 @@
 //! pipeline, so every JSON seed is a file lensblur really wrote.
 //!
 //! Usage: cargo run --example fuzz_seeds -- fuzz/seeds
+use lensblur::dng::{DngCompression, DngInfo, DngLayout, dng_bytes};
 use lensblur::fuzz::Target;
 use lensblur::job::JobContext;
 use lensblur::pipeline::{self, GivenSetting, MeasuredShot, ShotFile};
 use lensblur::session::{DemoSpec, make_demo};
-use lensblur::simulate::dng::{DngCompression, DngInfo, DngLayout, dng_bytes};
 use std::path::{Path, PathBuf};
 
 fn main() -> anyhow::Result<()> {
@@ -33,17 +33,17 @@ fn main() -> anyhow::Result<()> {
         ("ljpeg.dng", None, DngCompression::LosslessJpeg),
         ("ljpeg-tiles.dng", Some(16), DngCompression::LosslessJpeg),
     ] {
-        let info = DngInfo {
-            make: "Simulated".into(),
-            model: "Fuzz".into(),
-            black: 512,
-            white: 16383,
-            setting: Some(lensblur::plane::LensSetting {
+        let info = DngInfo::simulated(
+            "Simulated",
+            "Fuzz",
+            512,
+            16383,
+            Some(lensblur::plane::LensSetting {
                 focal_mm: 35.0,
                 f_number: 5.6,
             }),
-            layout: DngLayout { tile, compression },
-        };
+            DngLayout { tile, compression },
+        );
         let bytes = dng_bytes(&cfa, w, h, &info);
         for t in [Target::Dng, Target::Load, Target::Exif] {
             put(t, name, &bytes)?;

@@ -96,6 +96,16 @@ impl JobContext {
         }
     }
 
+    /// The same job's cancellation without its progress: work run several at a time
+    /// under one progress (photos of a batch) would otherwise fight over the bar.
+    #[must_use]
+    pub fn without_progress(&self) -> JobContext {
+        JobContext {
+            sink: None,
+            ..self.clone()
+        }
+    }
+
     /// # Errors
     /// [`Cancelled`] once the job has been cancelled.
     pub fn check(&self) -> Result<(), Cancelled> {

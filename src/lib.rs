@@ -9,11 +9,14 @@
 
 #[cfg(feature = "gui")]
 pub mod app;
+pub mod batch;
 pub mod calibrate;
 pub mod chart;
 pub mod crossval;
 pub mod deblur;
 pub mod detect;
+pub mod develop;
+pub mod dng;
 pub mod experiment;
 pub mod fft;
 pub mod format;

@@ -257,6 +257,120 @@ pub struct CameraIdentity {
     pub lens_serial: Option<String>,
 }
 
+/// What a RAW file says about its samples and its shot beyond the image and the
+/// camera's identity: everything a RAW editor needs to develop the file again, kept so
+/// a deblurred RAW can be written back as a DNG with it (`dng`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RawMeta {
+    /// Colour (0 R, 1 G, 2 B) of the CFA sites at (x mod 2, y mod 2), in the order
+    /// (0, 0), (1, 0), (0, 1), (1, 1).
+    pub cfa: [u8; 4],
+    /// Black level of each CFA site, same order.
+    pub black: [u16; 4],
+    pub white: u16,
+    /// XYZ → camera RGB under [`RawMeta::calibration_illuminant`] (DNG ColorMatrix), when
+    /// the file or the decoder's camera data has one.
+    pub color_matrix: Option<[[f64; 3]; 3]>,
+    /// EXIF LightSource code of the matrix (21: D65).
+    pub calibration_illuminant: u16,
+    /// The white balance as shot: camera RGB of a neutral, green 1 (DNG AsShotNeutral).
+    pub as_shot_neutral: Option<[f64; 3]>,
+    /// EXIF orientation, 1–8 (1: as stored).
+    pub orientation: u16,
+    pub exposure_s: Option<f64>,
+    pub iso: Option<u32>,
+    /// EXIF DateTimeOriginal, as written ("YYYY:MM:DD HH:MM:SS").
+    pub date_time_original: Option<String>,
+    pub lens_make: Option<String>,
+    /// The file's ImageDescription: for a DNG lensblur wrote, how it was made.
+    pub description: Option<String>,
+}
+
+impl RawMeta {
+    /// An RGGB mosaic with one black level, camera RGB taken as linear sRGB (the
+    /// simulator's sensor) and a daylight white balance.
+    #[must_use]
+    pub fn rggb(black: u16, white: u16) -> Self {
+        Self {
+            cfa: [0, 1, 1, 2],
+            black: [black; 4],
+            white,
+            // XYZ (D65) → linear sRGB.
+            color_matrix: Some([
+                [3.2406, -1.5372, -0.4986],
+                [-0.9689, 1.8758, 0.0415],
+                [0.0557, -0.2040, 1.0570],
+            ]),
+            calibration_illuminant: 21,
+            as_shot_neutral: Some([0.82, 1.0, 0.74]),
+            orientation: 1,
+            exposure_s: None,
+            iso: None,
+            date_time_original: None,
+            lens_make: None,
+            description: None,
+        }
+    }
+
+    /// The CFA site index (0–3) of sensor pixel (x, y).
+    #[must_use]
+    pub fn site(x: usize, y: usize) -> usize {
+        (y % 2) * 2 + x % 2
+    }
+}
+
+impl CameraIdentity {
+    /// Every field with its name, camera and lens type first, then the unit's serials.
+    #[must_use]
+    pub fn fields(&self) -> [(&'static str, Option<&str>); 5] {
+        [
+            ("make", self.make.as_deref()),
+            ("model", self.model.as_deref()),
+            ("lens", self.lens_model.as_deref()),
+            ("body serial", self.body_serial.as_deref()),
+            ("lens serial", self.lens_serial.as_deref()),
+        ]
+    }
+
+    /// The one rule for two recorded values of a field being the same: equal once the
+    /// padding some cameras write around them is trimmed.
+    #[must_use]
+    pub fn same_value(a: &str, b: &str) -> bool {
+        a.trim() == b.trim()
+    }
+
+    /// What a person would call it, for messages: "Make Model, Lens (lens serial S)".
+    #[must_use]
+    pub fn describe(&self) -> String {
+        let camera = [self.make.as_deref(), self.model.as_deref()]
+            .into_iter()
+            .flatten()
+            .collect::<Vec<_>>()
+            .join(" ");
+        let mut parts = Vec::new();
+        parts.push(if camera.is_empty() {
+            "unknown camera".to_string()
+        } else {
+            camera
+        });
+        parts.push(
+            self.lens_model
+                .clone()
+                .unwrap_or_else(|| "unknown lens".into()),
+        );
+        let mut out = parts.join(", ");
+        for (name, v) in [
+            ("body serial", &self.body_serial),
+            ("lens serial", &self.lens_serial),
+        ] {
+            if let Some(v) = v {
+                out.push_str(&format!(" ({name} {v})"));
+            }
+        }
+        out
+    }
+}
+
 /// A loaded shot: its channel planes in linear units (black 0, white 1), the sensor
 /// size, and what is known of its settings and origin.
 #[derive(Clone, Debug)]
@@ -270,6 +384,9 @@ pub struct Capture {
     pub identity: CameraIdentity,
     /// True for a RAW (CFA) source.
     pub is_raw: bool,
+    /// A RAW source's levels, colour and shot metadata; `None` for other images (and
+    /// for shots made in memory).
+    pub raw: Option<RawMeta>,
 }
 
 impl Capture {

@@ -675,29 +675,15 @@ impl Profile {
         photo: &CameraIdentity,
         force: bool,
     ) -> Result<Vec<String>, ProfileError> {
-        let fields = [
-            ("make", &self.identity.make, &photo.make),
-            ("model", &self.identity.model, &photo.model),
-            (
-                "body serial",
-                &self.identity.body_serial,
-                &photo.body_serial,
-            ),
-            ("lens", &self.identity.lens_model, &photo.lens_model),
-            (
-                "lens serial",
-                &self.identity.lens_serial,
-                &photo.lens_serial,
-            ),
-        ];
+        let fields = self.identity.fields().into_iter().zip(photo.fields());
         let mut warnings = Vec::new();
-        for (name, mine, theirs) in fields {
+        for ((name, mine), (_, theirs)) in fields {
             match (mine, theirs) {
-                (Some(a), Some(b)) if a.trim() != b.trim() => {
+                (Some(a), Some(b)) if !CameraIdentity::same_value(a, b) => {
                     let e = ProfileError::IdentityMismatch {
                         field: name.into(),
-                        profile: a.clone(),
-                        photo: b.clone(),
+                        profile: a.to_owned(),
+                        photo: b.to_owned(),
                     };
                     if force {
                         warnings.push(e.to_string());
@@ -719,7 +705,7 @@ impl Profile {
     /// # Errors
     /// [`ProfileError::OutOfRange`] unless extrapolation is allowed.
     pub fn check_setting(&self, s: LensSetting) -> Result<(), ProfileError> {
-        if self.allow_extrapolation {
+        if self.allow_extrapolation || self.covers(s) {
             return Ok(());
         }
         if !self.norm.contains(s) {
@@ -739,6 +725,14 @@ impl Profile {
             });
         }
         Ok(())
+    }
+
+    /// Whether the profile was calibrated for a setting: inside the ranges and among
+    /// the calibrated settings ([`Profile::in_calibrated_hull`]), whatever
+    /// `allow_extrapolation` says.
+    #[must_use]
+    pub fn covers(&self, s: LensSetting) -> bool {
+        self.norm.contains(s) && self.in_calibrated_hull(s)
     }
 
     /// Whether a setting lies among the calibrated ones: inside their convex hull in

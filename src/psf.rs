@@ -154,6 +154,56 @@ impl Kernel {
             + (get(u0, v0 + 1.0) * (1.0 - fu) + get(u0 + 1.0, v0 + 1.0) * fu) * fv
     }
 
+    /// |K(ν u)|: the modulus of the kernel's Fourier transform at `nu` cycles per px
+    /// along the unit direction at `angle_rad` from +x towards +y, the kernel's samples
+    /// taken as point values at their offsets (what an FFT of the array samples on its
+    /// grid, evaluated here on the line itself rather than between bins).
+    #[must_use]
+    pub fn mtf_along(&self, angle_rad: f64, nu: f64) -> f64 {
+        let (s, c) = angle_rad.sin_cos();
+        let half = (self.size / 2) as f64;
+        let os = self.oversample as f64;
+        let (mut re, mut im, mut sum) = (0.0, 0.0, 0.0);
+        for j in 0..self.size {
+            for i in 0..self.size {
+                let w = self.at(i, j);
+                let along = ((i as f64 - half) * c + (j as f64 - half) * s) / os;
+                let phase = -std::f64::consts::TAU * nu * along;
+                re += w * phase.cos();
+                im += w * phase.sin();
+                sum += w;
+            }
+        }
+        if sum > 0.0 { re.hypot(im) / sum } else { 0.0 }
+    }
+
+    /// The lowest frequency (cycles per px) at which [`Kernel::mtf_along`] falls to
+    /// one half, found on steps of 0.005 cycles/px and refined by bisection; `None` if
+    /// it stays above one half up to the kernel's Nyquist frequency.
+    #[must_use]
+    pub fn mtf50_along(&self, angle_rad: f64) -> Option<f64> {
+        let nyquist = 0.5 * self.oversample as f64;
+        let step = 0.005;
+        let mut lo = 0.0;
+        while lo < nyquist {
+            let hi = lo + step;
+            if self.mtf_along(angle_rad, hi) <= 0.5 {
+                let (mut a, mut b) = (lo, hi);
+                for _ in 0..40 {
+                    let m = 0.5 * (a + b);
+                    if self.mtf_along(angle_rad, m) > 0.5 {
+                        a = m;
+                    } else {
+                        b = m;
+                    }
+                }
+                return Some(0.5 * (a + b));
+            }
+            lo = hi;
+        }
+        None
+    }
+
     /// The same PSF resampled at another oversampling (area-preserving: the result sums
     /// to 1). Going from 3× to 1× gives the pixel-level kernel a deconvolver uses.
     #[must_use]
@@ -241,12 +291,114 @@ impl Gaussian2 {
         (n_sigma * self.sigma_x.max(self.sigma_y)).max(1.0)
     }
 
+    /// σ = √(C_xx·C_yy), the one number the studio colours blur by (px).
+    #[must_use]
+    pub fn sigma(&self) -> f64 {
+        (self.sigma_x * self.sigma_y).sqrt()
+    }
+
+    /// The variance (px²) along the unit direction at `angle_rad` from +x towards +y:
+    /// uᵀCu.
+    #[must_use]
+    pub fn variance_along(&self, angle_rad: f64) -> f64 {
+        let (s, c) = angle_rad.sin_cos();
+        c * c * self.sigma_x.powi(2) + 2.0 * c * s * self.cov_xy() + s * s * self.sigma_y.powi(2)
+    }
+
+    /// MTF50 along the worst and best directions and of the isotropic equivalent
+    /// ([`Mtf50`]); `None` for a degenerate Gaussian (C not positive definite, or not
+    /// finite).
+    #[must_use]
+    pub fn mtf50(&self) -> Option<Mtf50> {
+        let (a, c, b) = (self.sigma_x.powi(2), self.sigma_y.powi(2), self.cov_xy());
+        let half_diff = 0.5 * (a - c);
+        let radius = half_diff.hypot(b);
+        let mean = 0.5 * (a + c);
+        let (largest, smallest) = (mean + radius, mean - radius);
+        let det = a * c - b * b;
+        let worst_deg = (0.5 * (2.0 * b).atan2(a - c))
+            .to_degrees()
+            .rem_euclid(180.0);
+        Some(Mtf50 {
+            worst: mtf50_of_variance(largest)?,
+            best: mtf50_of_variance(smallest)?,
+            isotropic: mtf50_of_variance(det.max(0.0).sqrt())?,
+            worst_deg,
+        })
+    }
+
     /// Point-sampled kernel at `oversample`×, wide enough for 4σ.
     #[must_use]
     pub fn kernel(&self, oversample: usize) -> Kernel {
         let half = (self.radius_px(4.0) * oversample as f64).ceil() as usize;
         Kernel::from_fn(2 * half + 1, oversample, |dx, dy| self.density(dx, dy))
     }
+}
+
+/// MTF50 of a Gaussian PSF, in cycles per full-resolution sensor pixel.
+///
+/// The MTF of a Gaussian with covariance C along a unit direction u is
+/// exp(−2π² ν² uᵀCu), so it falls to one half at ν50 = √(ln 2 / (2π² uᵀCu)). The
+/// Gaussians lensblur measures and predicts are of the pixel-level PSF, so this
+/// includes the pixel's own aperture (as the 1/12 px² of variance it adds per axis)
+/// but not sampling: aliasing, the Bayer pattern and demosaicing are outside it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Mtf50 {
+    /// Along the direction the PSF is widest (the largest eigenvalue of C): the
+    /// lowest MTF50 over all directions, so every direction resolves at least this.
+    pub worst: f64,
+    /// Along the narrowest direction (the smallest eigenvalue): the highest.
+    pub best: f64,
+    /// Of the isotropic Gaussian with the same determinant, σ_eff = det(C)^¼: the
+    /// geometric mean of `worst` and `best`.
+    pub isotropic: f64,
+    /// The worst direction, degrees from +x towards +y (y points down), in [0, 180).
+    pub worst_deg: f64,
+}
+
+/// The frequency (cycles per px) at which a Gaussian of variance `var_px2` (px²) along
+/// a direction has an MTF of one half; `None` unless the variance is positive.
+#[must_use]
+pub fn mtf50_of_variance(var_px2: f64) -> Option<f64> {
+    (var_px2.is_finite() && var_px2 > 0.0)
+        .then(|| (std::f64::consts::LN_2 / (2.0 * std::f64::consts::PI.powi(2) * var_px2)).sqrt())
+}
+
+impl Mtf50 {
+    /// `cycles_per_px` as line pairs per picture height (one line pair is one cycle).
+    #[must_use]
+    pub fn lp_per_picture_height(cycles_per_px: f64, height_px: usize) -> f64 {
+        cycles_per_px * height_px as f64
+    }
+
+    /// This MTF50 as files report it, with line pairs per picture height for an image
+    /// `height_px` tall.
+    #[must_use]
+    pub fn record(&self, height_px: usize) -> Mtf50Record {
+        let lp = |v| Self::lp_per_picture_height(v, height_px);
+        Mtf50Record {
+            worst: self.worst,
+            best: self.best,
+            isotropic: self.isotropic,
+            worst_deg: self.worst_deg,
+            worst_lp_ph: lp(self.worst),
+            best_lp_ph: lp(self.best),
+            isotropic_lp_ph: lp(self.isotropic),
+        }
+    }
+}
+
+/// The `mtf50` object of the kernels file and the predictions (docs/formats.md): the
+/// three MTF50s in cycles/px and in line pairs per picture height.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Mtf50Record {
+    pub worst: f64,
+    pub best: f64,
+    pub isotropic: f64,
+    pub worst_deg: f64,
+    pub worst_lp_ph: f64,
+    pub best_lp_ph: f64,
+    pub isotropic_lp_ph: f64,
 }
 
 #[cfg(test)]
@@ -295,5 +447,53 @@ mod tests {
         }
         .convolved_variance(1.0 / 12.0, 1.0 / 12.0, 0.0);
         assert!((g.sigma_x - (0.49f64 + 1.0 / 12.0).sqrt()).abs() < 1e-12);
+    }
+    #[test]
+    fn mtf50_of_a_gaussian_is_where_its_sampled_kernel_transform_crosses_one_half() {
+        let g = Gaussian2 {
+            sigma_x: 1.7,
+            sigma_y: 0.8,
+            rho: 0.45,
+        };
+        let m = g.mtf50().expect("positive definite");
+        // The worst direction is the one of largest variance.
+        let worst = m.worst_deg.to_radians();
+        for k in 0..180 {
+            let a = f64::from(k).to_radians();
+            assert!(
+                g.variance_along(a) <= g.variance_along(worst) + 1e-12,
+                "{k}°"
+            );
+        }
+        assert!(m.worst < m.isotropic && m.isotropic < m.best);
+        assert!((m.isotropic - (m.worst * m.best).sqrt()).abs() < 1e-12);
+        // Against the transform of the point-sampled 3× kernel: only its truncation
+        // at 4σ and aliasing (both far below 1e-3 here) separate the two.
+        let k = g.kernel(3);
+        for (angle, want) in [
+            (worst, m.worst),
+            (worst + std::f64::consts::FRAC_PI_2, m.best),
+        ] {
+            let got = k.mtf50_along(angle).expect("crosses");
+            assert!((got / want - 1.0).abs() < 1e-3, "{got} vs {want}");
+        }
+    }
+
+    #[test]
+    fn isotropic_mtf50_and_degenerate_gaussians() {
+        // σ = 1 px: ν50 = √(ln 2 / 2) / π.
+        let m = Gaussian2::isotropic(1.0).mtf50().expect("mtf");
+        assert!((m.worst - 0.187_390).abs() < 1e-6, "{}", m.worst);
+        assert!((m.best - m.worst).abs() < 1e-12);
+        let r = m.record(1000);
+        assert!((r.worst_lp_ph - 187.390).abs() < 1e-3);
+        assert!(Gaussian2::isotropic(0.0).mtf50().is_none());
+        assert!(Gaussian2::isotropic(f64::NAN).mtf50().is_none());
+        let line = Gaussian2 {
+            sigma_x: 1.0,
+            sigma_y: 1.0,
+            rho: 1.0,
+        };
+        assert!(line.mtf50().is_none(), "a line PSF has no best direction");
     }
 }

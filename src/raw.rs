@@ -6,7 +6,7 @@
 //! 8-bit images are sRGB-decoded unless the caller says they are linear.
 
 use crate::limits;
-use crate::plane::{Capture, Channel, ChannelPlane, Plane};
+use crate::plane::{Capture, Channel, ChannelPlane, Plane, RawMeta};
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
@@ -98,6 +98,107 @@ pub fn decode_capture(
     Ok(capture)
 }
 
+/// What a photo's header says, read without decoding its image: enough to decide what
+/// to do with it (which profile, whether its output is already there) before paying
+/// for the decode.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Header {
+    /// The active area, as [`load_capture`] would load it.
+    pub width: usize,
+    pub height: usize,
+    pub is_raw: bool,
+    pub exif: ExifInfo,
+}
+
+/// Reads a photo's [`Header`]: the file's bytes, but only its headers parsed (the RAW
+/// decoder's header-only pass, image-rs's dimensions), and its EXIF.
+///
+/// # Errors
+/// As [`load_capture`], for what the headers show.
+pub fn read_header(path: &Path) -> Result<Header, LoadError> {
+    let bytes = crate::io::read_limited(path, limits::MAX_IMAGE_FILE_BYTES)?;
+    decode_header(path, &bytes)
+}
+
+/// [`read_header`] on a file's bytes; `path` only names the file in messages.
+///
+/// # Errors
+/// As [`read_header`].
+pub fn decode_header(path: &Path, bytes: &[u8]) -> Result<Header, LoadError> {
+    if bytes.is_empty() {
+        return Err(LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: "the file is empty".into(),
+        });
+    }
+    let corrupt = |reason: String| LoadError::Corrupt {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let mut exif = read_exif(bytes);
+    let ((width, height), is_raw) =
+        if bytes.starts_with(b"\x89PNG") || bytes.starts_with(&[0xFF, 0xD8]) {
+            (image_dimensions(path, bytes)?, false)
+        } else if is_tiff(bytes) {
+            let ifd = tiff_ifd0(bytes).map_err(corrupt)?;
+            if !is_raw_ifd(&ifd) {
+                (image_dimensions(path, bytes)?, false)
+            } else if needs_own_reader(&ifd) {
+                let one = |tag: u16| {
+                    ifd.get(&tag)
+                        .and_then(|v| v.first().copied())
+                        .ok_or_else(|| corrupt(format!("DNG without tag {tag}")))
+                };
+                ((one(256)? as usize, one(257)? as usize), true)
+            } else {
+                (raw_dimensions(path, bytes, &mut exif)?, true)
+            }
+        } else {
+            (raw_dimensions(path, bytes, &mut exif)?, true)
+        };
+    check_size(path, width, height)?;
+    Ok(Header {
+        width,
+        height,
+        is_raw,
+        exif,
+    })
+}
+
+/// The active area rawloader's header-only pass finds, and its camera names where EXIF
+/// gave none (as [`load_capture`] fills them).
+fn raw_dimensions(
+    path: &Path,
+    bytes: &[u8],
+    exif: &mut ExifInfo,
+) -> Result<(usize, usize), LoadError> {
+    let _quiet = QuietPanics::new();
+    let head =
+        std::panic::catch_unwind(|| rawloader::decode_dummy(&mut std::io::Cursor::new(bytes)))
+            .map_err(|_| LoadError::Corrupt {
+                path: path.to_path_buf(),
+                reason: "the RAW decoder failed on this file".into(),
+            })?
+            .map_err(|e| LoadError::Corrupt {
+                path: path.to_path_buf(),
+                reason: format!("RAW decoder: {}", one_line(&e.to_string())),
+            })?;
+    let [top, right, bottom, left] = head.crops;
+    let id = &mut exif.identity;
+    id.make = id
+        .make
+        .take()
+        .or(Some(head.clean_make.clone()).filter(|s| !s.is_empty()));
+    id.model = id
+        .model
+        .take()
+        .or(Some(head.clean_model.clone()).filter(|s| !s.is_empty()));
+    Ok((
+        head.width.saturating_sub(left + right),
+        head.height.saturating_sub(top + bottom),
+    ))
+}
+
 /// A RAW file's bytes (DNG or a camera's own format) into CFA planes, without EXIF:
 /// the part of [`decode_capture`] that is ours and rawloader's.
 ///
@@ -128,6 +229,7 @@ fn is_raw_ifd(ifd: &Ifd) -> bool {
 }
 
 const TAG_PHOTOMETRIC: u16 = 262;
+const TAG_ORIENTATION: u16 = 274;
 const TAG_DNG_VERSION: u16 = 50706;
 
 /// A TIFF directory's tags as numbers (RATIONALs as quotients), with the byte order.
@@ -251,7 +353,7 @@ fn load_raw(path: &Path, bytes: &[u8], ifd: Option<&Ifd>) -> Result<Capture, Loa
     let decoded = std::panic::catch_unwind(|| rawloader::decode(&mut std::io::Cursor::new(bytes)))
         .map_err(|_| panicked())?
         .map_err(decoder_error)?;
-    from_rawloader(path, &decoded)
+    from_rawloader(path, &decoded, ifd)
 }
 
 const TAG_COMPRESSION: u16 = 259;
@@ -387,10 +489,15 @@ fn cfa_capture(
         setting_f_number: None,
         identity: Default::default(),
         is_raw: true,
+        raw: None,
     })
 }
 
-fn from_rawloader(path: &Path, img: &rawloader::RawImage) -> Result<Capture, LoadError> {
+fn from_rawloader(
+    path: &Path,
+    img: &rawloader::RawImage,
+    ifd: Option<&Ifd>,
+) -> Result<Capture, LoadError> {
     if img.cpp != 1 {
         return Err(LoadError::Corrupt {
             path: path.to_path_buf(),
@@ -422,12 +529,92 @@ fn from_rawloader(path: &Path, img: &rawloader::RawImage) -> Result<Capture, Loa
         values.extend_from_slice(&data[row..row + w]);
     }
     let color_at = |x: usize, y: usize| img.cfa.color_at(y + top, x + left);
-    let black = |x: usize, y: usize| f32::from(img.blacklevels[color_at(x, y).min(3)]);
+    // rawloader keeps one black level per colour, reading a DNG's per-site levels (a
+    // 2 × 2 BlackLevelRepeatDim, what Adobe's converter writes) as if they were per
+    // colour; where the raw image is in IFD0 we take them per site ourselves.
+    let site_blacks = ifd.and_then(site_black_levels);
+    let black = |x: usize, y: usize| match site_blacks {
+        Some(b) => b[RawMeta::site(x + left, y + top)],
+        None => f32::from(img.blacklevels[color_at(x, y).min(3)]),
+    };
     let white = f32::from(img.whitelevels[0]);
     let mut c = cfa_capture(path, &values, (w, h), &color_at, &black, white)?;
+    let sites = [(0, 0), (1, 0), (0, 1), (1, 1)];
+    let matrix: [[f64; 3]; 3] =
+        std::array::from_fn(|r| std::array::from_fn(|k| f64::from(img.xyz_to_cam[r][k])));
+    let wb = img.wb_coeffs;
+    c.raw = Some(RawMeta {
+        cfa: sites.map(|(x, y)| color_at(x, y).min(3) as u8),
+        black: sites.map(|(x, y)| black(x, y) as u16),
+        white: img.whitelevels[0],
+        // A DNG's own values where it has them (rawloader rounds them to f32).
+        color_matrix: ifd
+            .and_then(dng_matrix)
+            .or_else(|| matrix.iter().flatten().any(|v| *v != 0.0).then_some(matrix)),
+        calibration_illuminant: ifd.map_or(21, matrix_illuminant),
+        as_shot_neutral: ifd.and_then(dng_neutral).or_else(|| {
+            (wb[..3].iter().all(|v| v.is_normal() && *v > 0.0)).then(|| {
+                let g = f64::from(wb[1]);
+                [g / f64::from(wb[0]), 1.0, g / f64::from(wb[2])]
+            })
+        }),
+        orientation: match img.orientation.to_u16() {
+            0 => 1,
+            o => o,
+        },
+        exposure_s: None,
+        iso: None,
+        date_time_original: None,
+        lens_make: None,
+        description: None,
+    });
     c.identity.make = Some(img.clean_make.clone()).filter(|s| !s.is_empty());
     c.identity.model = Some(img.clean_model.clone()).filter(|s| !s.is_empty());
     Ok(c)
+}
+
+/// Per-site black levels of a CFA image in this directory with a 2 × 2 black pattern,
+/// in [`RawMeta::site`] order.
+fn site_black_levels(ifd: &Ifd) -> Option<[f32; 4]> {
+    let first = |tag: u16| ifd.get(&tag).and_then(|v| v.first().copied());
+    if first(TAG_PHOTOMETRIC) != Some(32803.0) || ifd.get(&50713)? != &vec![2.0, 2.0] {
+        return None;
+    }
+    let b = ifd.get(&50714).filter(|b| b.len() == 4)?;
+    b.iter()
+        .all(|v| v.is_finite() && (0.0..=65535.0).contains(v))
+        .then(|| [b[0] as f32, b[1] as f32, b[2] as f32, b[3] as f32])
+}
+
+/// A DNG's XYZ → camera matrix: ColorMatrix2 where there are two (as rawloader picks),
+/// else ColorMatrix1; 3 × 3 (a 3-colour sensor's).
+fn dng_matrix(ifd: &Ifd) -> Option<[[f64; 3]; 3]> {
+    ifd.get(&50722)
+        .or_else(|| ifd.get(&50721))
+        .filter(|m| m.len() == 9 && m.iter().all(|v| v.is_finite()))
+        .map(|m| std::array::from_fn(|r| std::array::from_fn(|k| m[3 * r + k])))
+}
+
+/// A DNG's AsShotNeutral.
+fn dng_neutral(ifd: &Ifd) -> Option<[f64; 3]> {
+    ifd.get(&50728)
+        .filter(|n| n.len() == 3 && n.iter().all(|v| v.is_finite() && *v > 0.0))
+        .map(|n| [n[0], n[1], n[2]])
+}
+
+/// The EXIF light source of the colour matrix a DNG reader uses: rawloader (and we)
+/// take ColorMatrix2 where there are two (usually D65), ColorMatrix1 otherwise; D65
+/// where the file does not say (a camera RAW, whose matrix is rawloader's D65 one).
+fn matrix_illuminant(ifd: &Ifd) -> u16 {
+    let tag = if ifd.contains_key(&50722) {
+        50779
+    } else {
+        50778
+    };
+    ifd.get(&tag)
+        .and_then(|v| v.first().copied())
+        .filter(|v| (1.0..=255.0).contains(v))
+        .map_or(21, |v| v as u16)
 }
 
 /// An uncompressed 16-bit CFA DNG whose raw image is in the first directory, in tiles
@@ -524,7 +711,27 @@ fn read_uncompressed_dng(path: &Path, b: &[u8], ifd: &Ifd) -> Result<Capture, Lo
         .get(&50717)
         .and_then(|v| v.first().copied())
         .unwrap_or(65535.0) as f32;
-    cfa_capture(path, &values, (w, h), &color_at, &black, white)
+    let mut c = cfa_capture(path, &values, (w, h), &color_at, &black, white)?;
+    let sites = [(0, 0), (1, 0), (0, 1), (1, 1)];
+    c.raw = Some(RawMeta {
+        cfa: sites.map(|(x, y)| color_at(x, y).min(3) as u8),
+        black: sites.map(|(x, y)| black(x, y).clamp(0.0, 65535.0) as u16),
+        white: white.clamp(0.0, 65535.0) as u16,
+        color_matrix: dng_matrix(ifd),
+        calibration_illuminant: matrix_illuminant(ifd),
+        as_shot_neutral: dng_neutral(ifd),
+        orientation: ifd
+            .get(&TAG_ORIENTATION)
+            .and_then(|v| v.first().copied())
+            .filter(|v| (1.0..=8.0).contains(v))
+            .map_or(1, |v| v as u16),
+        exposure_s: None,
+        iso: None,
+        date_time_original: None,
+        lens_make: None,
+        description: None,
+    });
+    Ok(c)
 }
 
 /// What lensblur takes from a file's EXIF.
@@ -533,6 +740,11 @@ pub struct ExifInfo {
     pub focal_mm: Option<f64>,
     pub f_number: Option<f64>,
     pub identity: crate::plane::CameraIdentity,
+    pub exposure_s: Option<f64>,
+    pub iso: Option<u32>,
+    pub date_time_original: Option<String>,
+    pub lens_make: Option<String>,
+    pub description: Option<String>,
 }
 
 impl ExifInfo {
@@ -547,6 +759,13 @@ impl ExifInfo {
         id.body_serial = self.identity.body_serial.or(id.body_serial.take());
         id.lens_model = self.identity.lens_model.or(id.lens_model.take());
         id.lens_serial = self.identity.lens_serial.or(id.lens_serial.take());
+        if let Some(raw) = &mut capture.raw {
+            raw.exposure_s = self.exposure_s;
+            raw.iso = self.iso;
+            raw.date_time_original = self.date_time_original;
+            raw.lens_make = self.lens_make;
+            raw.description = self.description;
+        }
     }
 }
 
@@ -587,6 +806,12 @@ pub fn read_exif(bytes: &[u8]) -> ExifInfo {
         let id = &mut info.identity;
         match number {
             37386 => info.focal_mm = info.focal_mm.or(rational),
+            33434 => info.exposure_s = info.exposure_s.or(rational),
+            // ISOSpeedRatings; PhotographicSensitivity in EXIF 2.3.
+            34855 => info.iso = info.iso.or(rational.map(|v| v.round() as u32)),
+            36867 => info.date_time_original = info.date_time_original.take().or(text),
+            42035 => info.lens_make = info.lens_make.take().or(text),
+            270 => info.description = info.description.take().or(text),
             33437 => info.f_number = info.f_number.or(rational),
             271 => id.make = id.make.take().or(text),
             272 => id.model = id.model.take().or(text),
@@ -614,6 +839,38 @@ fn srgb_decode(v: f32) -> f32 {
     }
 }
 
+/// image-rs's reader of a PNG/TIFF/JPEG, held to our limits (its own default would
+/// refuse a 100 MP 16-bit TIFF).
+fn image_reader<'a>(
+    path: &Path,
+    bytes: &'a [u8],
+) -> Result<image::ImageReader<std::io::Cursor<&'a [u8]>>, LoadError> {
+    let mut r = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| LoadError::Unreadable {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+    let mut l = image::Limits::default();
+    l.max_image_width = u32::try_from(limits::MAX_IMAGE_SIDE).ok();
+    l.max_image_height = u32::try_from(limits::MAX_IMAGE_SIDE).ok();
+    // RGBA at 16 bits is the widest buffer a photo decodes to.
+    l.max_alloc = Some(limits::MAX_IMAGE_PIXELS as u64 * 8);
+    r.limits(l);
+    Ok(r)
+}
+
+/// A PNG/TIFF/JPEG's size from its header alone.
+fn image_dimensions(path: &Path, bytes: &[u8]) -> Result<(usize, usize), LoadError> {
+    image_reader(path, bytes)?
+        .into_dimensions()
+        .map(|(w, h)| (w as usize, h as usize))
+        .map_err(|e| LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })
+}
+
 /// PNG/TIFF/JPEG into linear planes: one `Y` plane for grey images, R, G, B otherwise.
 /// The size is checked from the header before anything is decoded, and the decoder is
 /// held to the same limits (image-rs's own default would refuse a 100 MP 16-bit TIFF).
@@ -622,27 +879,9 @@ fn load_image(path: &Path, bytes: &[u8], options: &LoadOptions) -> Result<Captur
         path: path.to_path_buf(),
         reason: e.to_string(),
     };
-    let reader = || -> Result<_, LoadError> {
-        let mut r = image::ImageReader::new(std::io::Cursor::new(bytes))
-            .with_guessed_format()
-            .map_err(|e| LoadError::Unreadable {
-                path: path.to_path_buf(),
-                reason: e.to_string(),
-            })?;
-        let mut l = image::Limits::default();
-        l.max_image_width = u32::try_from(limits::MAX_IMAGE_SIDE).ok();
-        l.max_image_height = u32::try_from(limits::MAX_IMAGE_SIDE).ok();
-        // RGBA at 16 bits is the widest buffer a photo decodes to.
-        l.max_alloc = Some(limits::MAX_IMAGE_PIXELS as u64 * 8);
-        r.limits(l);
-        Ok(r)
-    };
-    let (w, h) = reader()?
-        .into_dimensions()
-        .map(|(w, h)| (w as usize, h as usize))
-        .map_err(corrupt)?;
+    let (w, h) = image_dimensions(path, bytes)?;
     check_size(path, w, h)?;
-    let img = reader()?.decode().map_err(corrupt)?;
+    let img = image_reader(path, bytes)?.decode().map_err(corrupt)?;
     if (img.width() as usize, img.height() as usize) != (w, h) {
         return Err(LoadError::Corrupt {
             path: path.to_path_buf(),
@@ -703,6 +942,7 @@ fn load_image(path: &Path, bytes: &[u8], options: &LoadOptions) -> Result<Captur
         setting_f_number: None,
         identity: Default::default(),
         is_raw: false,
+        raw: None,
     })
 }
 

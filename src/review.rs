@@ -9,6 +9,7 @@
 use crate::deblur::source::{Prefer, ScatteredKernels};
 use crate::deblur::{DeblurError, DeblurOptions, KernelSource, ProfileKernels, SourceError};
 use crate::detect::SquareAlignment;
+use crate::develop::{DevelopError, Developed, Orient, develop};
 use crate::job::JobContext;
 use crate::kernel::file::KernelsFile;
 use crate::model::Dataset;
@@ -368,6 +369,7 @@ pub fn crop_capture(cap: &Capture, region: Region) -> Capture {
         setting_f_number: cap.setting_f_number,
         identity: cap.identity.clone(),
         is_raw: cap.is_raw,
+        raw: cap.raw.clone(),
     }
 }
 
@@ -397,6 +399,19 @@ pub fn deblur_region(
     opts: &DeblurOptions,
     job: &JobContext,
 ) -> Result<Vec<(Channel, Plane)>, DeblurError> {
+    deblur_region_capture(cap, region, source, opts, job)
+        .map(|(out, outer)| inner_planes(&out, region, outer))
+}
+
+/// [`deblur_region`]'s result before it is cut to the region: the deblurred capture of
+/// the grown region, and that region.
+fn deblur_region_capture(
+    cap: &Capture,
+    region: Region,
+    source: &dyn KernelSource,
+    opts: &DeblurOptions,
+    job: &JobContext,
+) -> Result<(Capture, Region), DeblurError> {
     let outer = region.grown(48, cap.width, cap.height);
     let crop = crop_capture(cap, outer);
     let shifted = Shifted {
@@ -405,7 +420,31 @@ pub fn deblur_region(
         dy: outer.y0 as f64,
     };
     let out = crate::deblur::deblur_capture(&crop, &shifted, opts, job)?;
-    Ok(inner_planes(&out, region, outer))
+    Ok((out, outer))
+}
+
+/// `region` of a RAW capture of the grown region `outer`, developed (imagepipe): what
+/// a photographer compares. Developed with its margin, so demosaicing has neighbours
+/// at the region's edges, then cut.
+fn developed_region(
+    cap: &Capture,
+    region: Region,
+    outer: Region,
+) -> Result<Developed, DevelopError> {
+    let full = develop(cap, None, Orient::Sensor)?;
+    let (dx, dy) = (region.x0 - outer.x0, region.y0 - outer.y0);
+    let w = region.width.min(full.width.saturating_sub(dx));
+    let h = region.height.min(full.height.saturating_sub(dy));
+    let mut rgb = Vec::with_capacity(w * h * 3);
+    for y in dy..dy + h {
+        let row = (y * full.width + dx) * 3;
+        rgb.extend_from_slice(&full.rgb[row..row + w * 3]);
+    }
+    Ok(Developed {
+        width: w,
+        height: h,
+        rgb,
+    })
 }
 
 fn inner_planes(cap: &Capture, region: Region, outer: Region) -> Vec<(Channel, Plane)> {
@@ -455,6 +494,10 @@ pub struct DeblurComparison {
     pub original: Vec<(Channel, Plane)>,
     pub predicted: Result<Vec<(Channel, Plane)>, String>,
     pub measured: Result<Vec<(Channel, Plane)>, String>,
+    /// For a RAW photo, the original, predicted and measured crops developed as a RAW
+    /// editor shows them (each absent where its planes are); `Err` says why the photo
+    /// could not be developed. `None` for an RGB photo.
+    pub developed: Option<Result<[Option<Developed>; 3], String>>,
 }
 
 /// Deblurs `region` with both sources (each may be absent, with its reason).
@@ -471,11 +514,24 @@ pub fn compare_deblur(
 ) -> Result<DeblurComparison, crate::job::Cancelled> {
     let predicted = deblur_or_reason(cap, region, predicted, opts, &job.prefixed("predicted: "))?;
     let measured = deblur_or_reason(cap, region, measured, opts, &job.prefixed("measured: "))?;
+    let outer = region.grown(48, cap.width, cap.height);
+    let developed = cap.is_raw.then(|| {
+        let original = developed_region(&crop_capture(cap, outer), region, outer)
+            .map_err(|e| e.to_string())?;
+        let result = |r: &Result<(Capture, Region), String>| {
+            r.as_ref()
+                .ok()
+                .and_then(|(c, o)| developed_region(c, region, *o).ok())
+        };
+        Ok([Some(original), result(&predicted), result(&measured)])
+    });
+    let planes = |r: Result<(Capture, Region), String>| r.map(|(c, o)| inner_planes(&c, region, o));
     Ok(DeblurComparison {
         region,
         original: region_planes(cap, region),
-        predicted,
-        measured,
+        predicted: planes(predicted),
+        measured: planes(measured),
+        developed,
     })
 }
 
@@ -487,12 +543,12 @@ fn deblur_or_reason(
     source: Result<&dyn KernelSource, String>,
     opts: &DeblurOptions,
     job: &JobContext,
-) -> Result<Result<Vec<(Channel, Plane)>, String>, crate::job::Cancelled> {
+) -> Result<Result<(Capture, Region), String>, crate::job::Cancelled> {
     let source = match source {
         Ok(s) => s,
         Err(reason) => return Ok(Err(reason)),
     };
-    match deblur_region(cap, region, source, opts, job) {
+    match deblur_region_capture(cap, region, source, opts, job) {
         Ok(p) => Ok(Ok(p)),
         Err(DeblurError::Cancelled(c)) => Err(c),
         Err(e) => Ok(Err(e.to_string())),
@@ -554,8 +610,9 @@ pub fn measured_source(file: &KernelsFile) -> Result<ScatteredKernels, String> {
     Ok(ScatteredKernels::new(file.clone(), Prefer::Kernel))
 }
 
-/// Deblurs a whole capture and writes it (16-bit linear PNG or TIFF, full resolution,
-/// RAW mosaics interpolated).
+/// Deblurs a whole capture and writes it as `out` says: 16-bit linear PNG or TIFF (full
+/// resolution, RAW mosaics interpolated), or DNG for a RAW photo
+/// ([`crate::deblur::output::write_deblurred`]).
 ///
 /// # Errors
 /// The source failed, the file cannot be written, or the job was cancelled.
@@ -564,11 +621,121 @@ pub fn export_deblurred(
     source: &dyn KernelSource,
     opts: &DeblurOptions,
     out: &Path,
+    original_file_name: Option<String>,
+    note: &str,
     job: &JobContext,
-) -> Result<(), String> {
+) -> Result<crate::deblur::output::Written, String> {
     let done = crate::deblur::deblur_capture(cap, source, opts, job)
         .map_err(|e| format!("{}: {e}", out.display()))?;
-    crate::raw::save_planes(out, &crate::raw::full_planes(&done), false).map_err(|e| e.to_string())
+    crate::deblur::output::write_deblurred(out, original_file_name, &done, note)
+        .map_err(|e| e.to_string())
+}
+
+/// A plot's data as the studio draws it, for saving beside its picture: the axes'
+/// titles and every named series of (x, y) points.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlotTable {
+    pub x_label: String,
+    pub y_label: String,
+    pub series: Vec<(String, Vec<[f64; 2]>)>,
+}
+
+/// A CSV field, quoted when it holds a comma, a quote or a line break (axis titles
+/// such as "σ, px" do).
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_owned()
+    }
+}
+
+/// The table as CSV: a header `series,<x axis>,<y axis>`, then one row per point.
+/// Points with a non-finite coordinate are not drawn, so they are left out here too.
+#[must_use]
+pub fn plot_csv(table: &PlotTable) -> String {
+    let mut out = format!(
+        "series,{},{}\n",
+        csv_field(&table.x_label),
+        csv_field(&table.y_label)
+    );
+    for (name, points) in &table.series {
+        let name = csv_field(name);
+        for [x, y] in points
+            .iter()
+            .filter(|p| p[0].is_finite() && p[1].is_finite())
+        {
+            out.push_str(&format!("{name},{x},{y}\n"));
+        }
+    }
+    out
+}
+
+/// A cross-validation curve's points: mean error against α, or against β.
+#[must_use]
+pub fn cv_curve(sel: &crate::crossval::Selection, by_alpha: bool) -> Vec<[f64; 2]> {
+    let curve = if by_alpha {
+        &sel.alpha_curve
+    } else {
+        &sel.beta_curve
+    };
+    curve
+        .iter()
+        .map(|p| [if by_alpha { p.alpha } else { p.beta } as f64, p.mean_pct])
+        .collect()
+}
+
+/// The error CDF's curves of one chosen model, one per parameter: (error, percentile).
+#[must_use]
+pub fn cv_cdf_curves(sel: &crate::crossval::Selection) -> [(&'static str, Vec<[f64; 2]>); 3] {
+    let cdf = &sel.error_cdf;
+    let curve = |q: &[f64]| -> Vec<[f64; 2]> {
+        q.iter()
+            .zip(&cdf.percentiles)
+            .map(|(&e, &p)| [e, p])
+            .collect()
+    };
+    [
+        ("C_xx", curve(&cdf.cxx)),
+        ("C_yy", curve(&cdf.cyy)),
+        ("C_or", curve(&cdf.cor)),
+    ]
+}
+
+/// Writes a rectangle `[x0, y0, x1, y1]` (pixels, clamped to the image) of an RGBA
+/// image `width` × `height` as a PNG, atomically: a plot cut out of a window's
+/// screenshot.
+pub fn write_png_crop(
+    path: &Path,
+    rgba: Vec<u8>,
+    width: usize,
+    height: usize,
+    rect: [usize; 4],
+) -> Result<(), String> {
+    let to_u32 =
+        |v: usize| u32::try_from(v).map_err(|_| format!("an image {v} px wide is too large"));
+    let img = image::RgbaImage::from_raw(to_u32(width)?, to_u32(height)?, rgba)
+        .ok_or_else(|| format!("the screenshot's pixels do not fill {width} × {height}"))?;
+    let (x0, y0) = (rect[0].min(width), rect[1].min(height));
+    let (x1, y1) = (rect[2].clamp(x0, width), rect[3].clamp(y0, height));
+    if x1 == x0 || y1 == y0 {
+        return Err("the plot is not on screen".into());
+    }
+    let crop = image::imageops::crop_imm(
+        &img,
+        to_u32(x0)?,
+        to_u32(y0)?,
+        to_u32(x1 - x0)?,
+        to_u32(y1 - y0)?,
+    )
+    .to_image();
+    let mut bytes = Vec::new();
+    crop.write_to(
+        &mut std::io::Cursor::new(&mut bytes),
+        image::ImageFormat::Png,
+    )
+    .map_err(|e| format!("cannot encode the PNG: {e}"))?;
+    crate::io::write_atomic(path, &bytes).map_err(|e| e.to_string())
 }
 
 #[cfg(test)]
@@ -610,6 +777,7 @@ mod tests {
             setting_f_number: None,
             identity: CameraIdentity::default(),
             is_raw: true,
+            raw: None,
         };
         let r = Region::around(20.0, 15.0, 10, w, h);
         let c = crop_capture(&cap, r);
@@ -678,5 +846,21 @@ mod tests {
         );
         assert!(sweep_points(&ds, Channel::R, (0.0, 0.0), false, 4.0).is_empty());
         assert_eq!(nearest_value(&[4.0, 5.6, 10.0], 6.0), Some(5.6));
+    }
+
+    #[test]
+    fn plot_csv_quotes_axis_titles_and_leaves_out_undrawn_points() {
+        let t = PlotTable {
+            x_label: "aperture (f-number)".into(),
+            y_label: "C_xx (σ, px)".into(),
+            series: vec![(
+                "model centre".into(),
+                vec![[4.0, 1.5], [5.6, f64::NAN], [8.0, 2.0]],
+            )],
+        };
+        assert_eq!(
+            plot_csv(&t),
+            "series,aperture (f-number),\"C_xx (σ, px)\"\nmodel centre,4,1.5\nmodel centre,8,2\n"
+        );
     }
 }

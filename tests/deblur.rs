@@ -10,6 +10,7 @@ use lensblur::deblur::source::{KernelData, KernelSample, KernelsFile};
 use lensblur::deblur::{
     DeblurOptions, ProfileKernels, TileGrid, deblur_channel_plane, deblur_plane_invariant,
 };
+use lensblur::dng::{DngInfo, write_dng};
 use lensblur::experiment::{
     ExperimentOptions, MAX_FAILED_SHOTS_IN_A_ROW, MeasureError, MeasureOptions, dead_leaves,
     gaussian_approx, measured_kernels,
@@ -18,11 +19,11 @@ use lensblur::fft::{Fft2, convolve_direct_circular};
 use lensblur::job::JobContext;
 use lensblur::metrics::{SsimParams, psnr, reference_pair, ssim, ssim_f64};
 use lensblur::model::spaced;
-use lensblur::plane::{Channel, ChannelPlane, LensSetting, Plane};
+use lensblur::plane::{CameraIdentity, Channel, ChannelPlane, LensSetting, Plane, RawMeta};
 use lensblur::profile::Profile;
 use lensblur::psf::{Gaussian2, Kernel};
+use lensblur::raw::{LoadOptions, load_capture};
 use lensblur::simulate::capture::rggb_channel;
-use lensblur::simulate::dng::{DngInfo, write_dng};
 use lensblur::simulate::lens::VirtualLens;
 use lensblur::simulate::{PsfShape, SimulatedSession};
 use nalgebra::{DMatrix, DVector};
@@ -904,14 +905,14 @@ fn deblur_command_on_a_raw_photo_with_settings_from_exif() {
         .collect();
     let lens = VirtualLens::demo();
     let photo = dir.path().join("photo.dng");
-    let info = DngInfo {
-        make: lens.make.clone(),
-        model: lens.model.clone(),
+    let info = DngInfo::simulated(
+        &lens.make,
+        &lens.model,
         black,
         white,
-        setting: Some(setting),
-        layout: lensblur::simulate::dng::DngLayout::default(),
-    };
+        Some(setting),
+        lensblur::dng::DngLayout::default(),
+    );
     write_dng(&photo, &cfa, w, h, &info).expect("write dng");
     let profile = dir.path().join("profile.json");
     fitted_profile(w, h).save(&profile).expect("save profile");
@@ -942,6 +943,273 @@ fn deblur_command_on_a_raw_photo_with_settings_from_exif() {
         eprintln!("RAW channel {c}: SSIM at its CFA sites {before:.4} -> {after:.4}");
         assert!(after > before + 0.03, "channel {c}: {before} → {after}");
     }
+}
+
+/// A RAW photo as a camera writes it: a Bayer mosaic with per-site black levels, a
+/// camera colour matrix, an as-shot white balance, a rotated orientation and the EXIF a
+/// RAW editor reads.
+fn camera_dng_info(setting: LensSetting) -> DngInfo {
+    let lens = VirtualLens::demo();
+    DngInfo {
+        identity: CameraIdentity {
+            make: Some(lens.make.clone()),
+            model: Some(lens.model.clone()),
+            body_serial: Some("0412345".into()),
+            lens_model: Some(lens.model.clone()),
+            lens_serial: Some("VZ-0001".into()),
+        },
+        setting: Some(setting),
+        raw: RawMeta {
+            cfa: [0, 1, 1, 2],
+            black: [512, 510, 511, 514],
+            white: 16383,
+            color_matrix: Some([
+                [0.6847, -0.0614, -0.1014],
+                [-0.4669, 1.2737, 0.2139],
+                [-0.1197, 0.2488, 0.6846],
+            ]),
+            calibration_illuminant: 21,
+            as_shot_neutral: Some([0.4713, 1.0, 0.6329]),
+            orientation: 6,
+            exposure_s: Some(1.0 / 250.0),
+            iso: Some(400),
+            date_time_original: Some("2026:11:25 10:30:00".into()),
+            lens_make: Some("Virtual Optics".into()),
+            description: None,
+        },
+        exif_in_ifd0: false,
+        original_file_name: None,
+        layout: lensblur::dng::DngLayout::default(),
+    }
+}
+
+/// The Bayer mosaic of a blurred RGB scene under `info`'s levels.
+fn mosaic_of(planes: &[Plane], info: &DngInfo) -> Vec<u16> {
+    let (w, h) = (planes[0].width, planes[0].height);
+    (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            let site = RawMeta::site(x, y);
+            let black = f64::from(info.raw.black[site]);
+            let v = planes[usize::from(info.raw.cfa[site])]
+                .get(x, y)
+                .clamp(0.0, 1.0);
+            (black + f64::from(v) * (f64::from(info.raw.white) - black)).round() as u16
+        })
+        .collect()
+}
+
+#[test]
+fn deblur_command_writes_a_raw_photo_back_as_a_dng_with_its_metadata() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (w, h) = (192, 128);
+    let setting = LensSetting {
+        focal_mm: 45.0,
+        f_number: 6.3,
+    };
+    let (sharp, blurry) = blurred_rgb(w, h, setting, 43);
+    let info = camera_dng_info(setting);
+    let photo = dir.path().join("IMG_0001.dng");
+    write_dng(&photo, &mosaic_of(&blurry, &info), w, h, &info).expect("write dng");
+    let profile_path = dir.path().join("lens.profile.json");
+    let profile = fitted_profile(w, h);
+    profile.save(&profile_path).expect("save profile");
+    let out = dir.path().join("IMG_0001.deblurred.dng");
+    let o = lensblur(&[
+        os("deblur"),
+        photo.as_os_str(),
+        os("--out"),
+        out.as_os_str(),
+        os("--profile"),
+        profile_path.as_os_str(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    let original = load_capture(&photo, &LoadOptions::default()).expect("original");
+    let result = load_capture(&out, &LoadOptions::default()).expect("the written DNG");
+    // Every field a RAW editor needs, as the original has it.
+    assert_eq!((result.width, result.height), (w, h));
+    assert!(result.is_raw);
+    assert_eq!(result.identity, original.identity);
+    assert_eq!(result.identity.lens_model, info.identity.lens_model);
+    assert_eq!(result.setting_focal_mm, Some(45.0));
+    assert_eq!(result.setting_f_number, Some(6.3));
+    let (a, b) = (
+        original.raw.clone().expect("original metadata"),
+        result.raw.clone().expect("written metadata"),
+    );
+    assert_eq!(a.cfa, info.raw.cfa);
+    assert_eq!(a.black, info.raw.black);
+    for (got, want) in [(&b, &a), (&a, &info.raw)] {
+        assert_eq!(got.cfa, want.cfa);
+        assert_eq!(got.black, want.black);
+        assert_eq!(got.white, want.white);
+        assert_eq!(got.orientation, want.orientation);
+        assert_eq!(got.calibration_illuminant, want.calibration_illuminant);
+        assert_eq!(got.iso, want.iso);
+        assert_eq!(got.date_time_original, want.date_time_original);
+        assert_eq!(got.lens_make, want.lens_make);
+        let close = |x: f64, y: f64| (x - y).abs() <= 1e-6 * y.abs().max(1.0);
+        assert!(close(
+            got.exposure_s.expect("exposure"),
+            want.exposure_s.expect("exposure")
+        ));
+        // Matrix and neutral pass through the decoder's f32: equal to 10⁻⁶.
+        let (gm, wm) = (
+            got.color_matrix.expect("matrix"),
+            want.color_matrix.expect("matrix"),
+        );
+        assert!(
+            gm.iter()
+                .flatten()
+                .zip(wm.iter().flatten())
+                .all(|(x, y)| close(*x, *y)),
+            "{gm:?} vs {wm:?}"
+        );
+        let (gn, wn) = (
+            got.as_shot_neutral.expect("neutral"),
+            want.as_shot_neutral.expect("neutral"),
+        );
+        assert!(
+            gn.iter().zip(&wn).all(|(x, y)| close(*x, *y)),
+            "{gn:?} vs {wn:?}"
+        );
+    }
+    let note = b.description.expect("a note of what was done");
+    assert!(
+        note.starts_with("Deblurred by lensblur") && note.contains("lens.profile.json"),
+        "{note}"
+    );
+
+    // The planes read back are the ones written: the same deblurring in this process,
+    // quantised as the writer does.
+    let source = ProfileKernels { profile, setting };
+    let deblurred = lensblur::deblur::deblur_capture(
+        &original,
+        &source,
+        &DeblurOptions::default(),
+        &JobContext::silent(),
+    )
+    .expect("deblur");
+    let written = lensblur::dng::mosaic(&deblurred).expect("mosaic");
+    assert_eq!(lensblur::dng::mosaic(&result).expect("mosaic"), written);
+    for (p, q) in result.planes.iter().zip(&original.planes) {
+        assert_eq!(
+            (p.channel, p.offset_x, p.offset_y),
+            (q.channel, q.offset_x, q.offset_y)
+        );
+    }
+
+    // Sharper against the simulator's truth at every colour's CFA sites.
+    for (c, (ox, oy)) in [(0, (0, 0)), (1, (1, 0)), (2, (1, 1))] {
+        let sites = |p: &Plane| Plane::from_fn(w / 2, h / 2, |i, j| p.get(2 * i + ox, 2 * j + oy));
+        let plane = |cap: &lensblur::plane::Capture| {
+            cap.planes
+                .iter()
+                .find(|p| (p.offset_x, p.offset_y) == (ox, oy))
+                .expect("site plane")
+                .plane
+                .clone()
+        };
+        let truth = sites(&sharp[c]);
+        let before = ssim(&plane(&original), &truth, &SsimParams::default());
+        let after = ssim(&plane(&result), &truth, &SsimParams::default());
+        eprintln!("DNG channel {c}: SSIM {before:.4} -> {after:.4}");
+        assert!(after > before + 0.03, "channel {c}: {before} → {after}");
+    }
+
+    // The developed preview beside it, turned as the camera was held (orientation 6).
+    let preview = image::open(dir.path().join("IMG_0001.deblurred.preview.png")).expect("preview");
+    assert_eq!((preview.width(), preview.height()), (h as u32, w as u32));
+
+    independent_readers_agree(&out, &written, w, h);
+}
+
+/// exiftool (Perl, its own TIFF parser) and dcraw (the reader LibRaw grew from) read
+/// the DNG we wrote: its size, CFA, levels, colour tags and EXIF, and dcraw the very
+/// samples. CI installs both; a machine without them fails here, not silently.
+fn independent_readers_agree(dng: &std::path::Path, samples: &[u16], w: usize, h: usize) {
+    let run = |cmd: &str, args: &[&str]| -> std::process::Output {
+        std::process::Command::new(cmd)
+            .args(args)
+            .arg(dng)
+            .output()
+            .unwrap_or_else(|e| panic!("{cmd}: {e} (install exiftool and dcraw; .ci/run does)"))
+    };
+    let o = run("exiftool", &["-j", "-n", "-a", "-G1"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&o.stdout).expect("exiftool json");
+    let tags = &json[0];
+    let find = |name: &str| -> serde_json::Value {
+        tags.as_object()
+            .and_then(|m| m.iter().find(|(k, _)| k.ends_with(&format!(":{name}"))))
+            .map(|(_, v)| v.clone())
+            .unwrap_or(serde_json::Value::Null)
+    };
+    assert_eq!(find("ImageWidth"), serde_json::json!(w));
+    assert_eq!(find("ImageHeight"), serde_json::json!(h));
+    assert_eq!(find("CFAPattern2"), serde_json::json!("0 1 1 2"));
+    assert_eq!(find("Make"), serde_json::json!(VirtualLens::demo().make));
+    assert_eq!(
+        find("LensModel"),
+        serde_json::json!(VirtualLens::demo().model)
+    );
+    assert_eq!(find("FocalLength"), serde_json::json!(45));
+    assert_eq!(find("FNumber"), serde_json::json!(6.3));
+    assert_eq!(find("ExposureTime"), serde_json::json!(0.004));
+    assert_eq!(find("ISO"), serde_json::json!(400));
+    assert_eq!(
+        find("DateTimeOriginal"),
+        serde_json::json!("2026:11:25 10:30:00")
+    );
+    assert_eq!(find("Orientation"), serde_json::json!(6));
+    assert_eq!(find("WhiteLevel"), serde_json::json!(16383));
+    assert_eq!(find("BlackLevel"), serde_json::json!("512 510 511 514"));
+    assert_eq!(find("AsShotNeutral"), serde_json::json!("0.4713 1 0.6329"));
+    assert_eq!(find("DNGVersion"), serde_json::json!("1 4 0 0"));
+    assert!(
+        find("Description")
+            .as_str()
+            .is_some_and(|d| d.starts_with("Deblurred by lensblur")),
+        "XMP dc:description: {:?}",
+        find("Description")
+    );
+    // dcraw: identification, then the raw samples as a 16-bit PGM (document mode: no
+    // scaling, no demosaicing, not turned).
+    let o = run("dcraw", &["-i", "-v"]);
+    let info = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(o.status.success(), "dcraw -i: {info}");
+    let line = |key: &str| {
+        info.lines()
+            .find_map(|l| l.strip_prefix(key))
+            .map(str::trim)
+            .unwrap_or_default()
+    };
+    assert_eq!(line("Image size:"), format!("{w} x {h}"), "{info}");
+    // Turned as the camera was held: orientation 6 swaps the output's sides.
+    assert_eq!(line("Output size:"), format!("{h} x {w}"), "{info}");
+    assert!(info.contains("Filter pattern: RG/GB"), "{info}");
+    let o = run("dcraw", &["-D", "-4", "-t", "0", "-c"]);
+    assert!(
+        o.status.success(),
+        "dcraw -D: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let pgm = o.stdout;
+    let header = format!("P5\n{w} {h}\n65535\n");
+    assert!(
+        pgm.starts_with(header.as_bytes()),
+        "dcraw's header: {:?}",
+        &pgm[..20.min(pgm.len())]
+    );
+    let body = &pgm[header.len()..];
+    let read: Vec<u16> = body
+        .chunks_exact(2)
+        .map(|b| u16::from_be_bytes([b[0], b[1]]))
+        .collect();
+    assert_eq!(read.len(), samples.len());
+    let differ = read.iter().zip(samples).filter(|(a, b)| a != b).count();
+    assert_eq!(differ, 0, "dcraw reads {differ} samples differently");
 }
 
 #[test]

@@ -71,6 +71,7 @@ fn mono(plane: Plane) -> Capture {
         setting_f_number: None,
         identity: Default::default(),
         is_raw: false,
+        raw: None,
     }
 }
 
@@ -252,6 +253,7 @@ fn bayer(
         setting_f_number: None,
         identity: Default::default(),
         is_raw: true,
+        raw: None,
     }
 }
 

@@ -3,10 +3,10 @@
 //! from EXIF, and every kind of bad file is a one-line error naming it.
 
 use lensblur::chart::ChartSpec;
+use lensblur::dng::{DngCompression, DngInfo, DngLayout, dng_bytes, write_dng};
 use lensblur::job::JobContext;
 use lensblur::plane::{Capture, LensSetting};
 use lensblur::raw::{LoadOptions, load_capture};
-use lensblur::simulate::dng::{DngCompression, DngInfo, DngLayout, dng_bytes, write_dng};
 use lensblur::simulate::{CaptureParams, VirtualLens, simulate_shot};
 
 fn shot() -> (lensblur::simulate::SimulatedShot, CaptureParams) {
@@ -52,14 +52,14 @@ fn assert_same(a: &Capture, b: &Capture) {
 }
 
 fn info(params: &CaptureParams, layout: DngLayout) -> DngInfo {
-    DngInfo {
-        make: "lensblur".into(),
-        model: "virtual camera".into(),
-        black: params.black_level,
-        white: params.white_level,
-        setting: Some(params.setting),
+    DngInfo::simulated(
+        "lensblur",
+        "virtual camera",
+        params.black_level,
+        params.white_level,
+        Some(params.setting),
         layout,
-    }
+    )
 }
 
 #[test]

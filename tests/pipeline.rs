@@ -1,6 +1,9 @@
 //! The whole chain on the command line, against the simulator's truth: simulated
 //! calibration shots → `lensblur calibrate` (detect + kernels per shot, cached) →
-//! `lensblur predict` at a setting between the calibrated ones.
+//! `lensblur predict` at a setting between the calibrated ones (points, and a grid as
+//! CSV with MTF50), and the same calibration fanned out as a batch system runs it
+//! (`scripts/slurm_kernels.sh`: `lensblur kernels` per shot, then `calibrate
+//! --kernels`).
 
 use lensblur::job::JobContext;
 use lensblur::kernel::file::KernelsFile;
@@ -170,4 +173,187 @@ fn calibrate_on_simulated_shots_and_predict_a_novel_setting() {
         assert!(p95 < 10.0, "{name}: p95 {p95} % of range");
     }
     assert!(Path::new(&profile).is_file());
+
+    predicted_grid_as_csv(dir.path(), &profile, &spec, novel);
+    fanned_out_like_a_batch_system(dir.path(), &manifest, &profile);
+}
+
+/// `predict --grid NX,NY --csv`: one row per channel and cell centre; each row's MTF50
+/// is the closed form of its own Gaussian and matches the JSON's, and against the
+/// lens's truth it is as close as the σs are.
+fn predicted_grid_as_csv(dir: &Path, profile: &Path, spec: &DemoSpec, novel: LensSetting) {
+    let pred = dir.join("grid.json");
+    let out = lensblur(&[
+        "predict",
+        "--profile",
+        profile.to_str().expect("utf-8"),
+        "--focal",
+        "35",
+        "--aperture",
+        "4.8",
+        "--grid",
+        "6,4",
+        "--out",
+        pred.to_str().expect("utf-8"),
+        "--csv",
+    ]);
+    assert!(
+        out.status.success(),
+        "predict --grid failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&pred).expect("pred")).expect("json");
+    let samples = json["samples"].as_array().expect("samples");
+    let csv = std::fs::read_to_string(dir.join("grid.json.csv")).expect("csv beside --out");
+    let mut lines = csv.lines();
+    assert_eq!(
+        lines.next(),
+        Some("x,y,channel,cxx,cyy,cor,sigma,mtf50,mtf50_best,mtf50_isotropic,mtf50_lp_ph")
+    );
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 6 * 4 * 3, "6 × 4 points × R, G, B");
+    assert_eq!(rows.len(), samples.len());
+    let (w, h) = (spec.width as f64, spec.height as f64);
+    let lens = VirtualLens::demo();
+    let mut err = Vec::new();
+    for (row, s) in rows.iter().zip(samples) {
+        let num = |i: usize| row[i].parse::<f64>().expect("a number");
+        let g = lensblur::psf::Gaussian2 {
+            sigma_x: num(3),
+            sigma_y: num(4),
+            rho: num(5),
+        };
+        let m = g.mtf50().expect("mtf50");
+        assert!((num(6) - g.sigma()).abs() < 1e-4, "{row:?}");
+        assert!((num(7) - m.worst).abs() < 1e-4, "{row:?}");
+        assert!((num(8) - m.best).abs() < 1e-4 && (num(9) - m.isotropic).abs() < 1e-4);
+        assert!(
+            (num(10) - m.worst * h).abs() < 0.1,
+            "lp/ph is cycles/px × {h} px"
+        );
+        assert!((s["mtf50"]["worst"].as_f64().expect("mtf50 in JSON") - num(7)).abs() < 1e-5);
+        // Cell centres of a 6 × 4 grid over the sensor.
+        let (x, y) = (num(0), num(1));
+        let (i, j) = (x / (w - 1.0) * 6.0 - 0.5, y / (h - 1.0) * 4.0 - 0.5);
+        assert!(
+            (i - i.round()).abs() < 1e-3 && (j - j.round()).abs() < 1e-3,
+            "{x}, {y}"
+        );
+        let ch: Channel = row[2].parse().expect("channel");
+        let truth = lens
+            .gaussian_at(ch, x, y, spec.width, spec.height, novel)
+            .convolved_variance(1.0 / 12.0, 1.0 / 12.0, 0.0);
+        err.push((m.worst / truth.mtf50().expect("truth").worst - 1.0).abs());
+    }
+    let (e50, e95) = (percentile(err.clone(), 0.5), percentile(err, 0.95));
+    eprintln!(
+        "predicted MTF50 (worst direction) against the truth at the novel setting: median {:.2} %, p95 {:.2} %",
+        100.0 * e50,
+        100.0 * e95
+    );
+    assert!(e50 <= 0.03 && e95 <= 0.08, "median {e50}, p95 {e95}");
+}
+
+/// `scripts/slurm_kernels.sh` run as Slurm would run it: every array task in its own
+/// process (`lensblur kernels` on one shot), then the dependent job (`calibrate
+/// --kernels`). Its profile is the one `calibrate --manifest` made on the same shots,
+/// byte for byte. The submission itself runs against a stand-in `sbatch` that records
+/// what it was asked.
+fn fanned_out_like_a_batch_system(dir: &Path, manifest: &Path, profile: &Path) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/slurm_kernels.sh");
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(manifest).expect("manifest")).expect("json");
+    let shots = m["shots"].as_array().expect("shots");
+    // What the README's jq line makes of the manifest, with a comment and a blank line.
+    let mut list = String::from("# shot\tfocal\taperture\n\n");
+    for s in shots {
+        list.push_str(&format!(
+            "{}\t{}\t{}\n",
+            dir.join(s["path"].as_str().expect("path")).display(),
+            s["focal_mm"],
+            s["f_number"]
+        ));
+    }
+    let list_path = dir.join("shots.tsv");
+    std::fs::write(&list_path, list).expect("list");
+    // The demo's chart is not the default one: the script passes LENSBLUR_CHART on.
+    let chart = dir.join("chart.json");
+    std::fs::write(&chart, serde_json::to_vec(&m["chart"]).expect("chart json")).expect("chart");
+    let out_dir = dir.join("kernels");
+    let fanned = dir.join("fanned.json");
+    let run = |args: &[&Path], env: &[(&str, &str)]| {
+        let mut cmd = Command::new("bash");
+        cmd.arg(&script)
+            .args(args)
+            .env("LENSBLUR", env!("CARGO_BIN_EXE_lensblur"))
+            .env("LENSBLUR_CHART", &chart)
+            .env("CALIBRATE_ARGS", "--alpha 2 --beta 2");
+        for (k, v) in env {
+            cmd.env(k, v);
+        }
+        let out = cmd.output().expect("bash");
+        assert!(
+            out.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        out
+    };
+    let task = Path::new("task");
+    for i in 0..shots.len() {
+        let id = i.to_string();
+        run(
+            &[task, &list_path, &out_dir],
+            &[("SLURM_ARRAY_TASK_ID", &id)],
+        );
+    }
+    run(
+        &[Path::new("calibrate"), &list_path, &out_dir, &fanned],
+        &[],
+    );
+    assert_eq!(
+        std::fs::read_to_string(&fanned).expect("fanned-out profile"),
+        std::fs::read_to_string(profile).expect("profile"),
+        "calibrate --kernels on per-shot kernels files and calibrate --manifest differ"
+    );
+
+    // Submission: an array of one task per shot, then the calibration after it.
+    let bin = dir.join("bin");
+    std::fs::create_dir_all(&bin).expect("bin");
+    let sbatch = bin.join("sbatch");
+    let log = dir.join("sbatch.log");
+    std::fs::write(
+        &sbatch,
+        format!(
+            "#!/usr/bin/env bash\necho \"$*\" >> '{}'\necho 4242\n",
+            log.display()
+        ),
+    )
+    .expect("sbatch");
+    std::fs::set_permissions(&sbatch, std::os::unix::fs::PermissionsExt::from_mode(0o755))
+        .expect("chmod");
+    let path = format!(
+        "{}:{}",
+        bin.display(),
+        std::env::var("PATH").unwrap_or_default()
+    );
+    let out = run(
+        &[Path::new("submit"), &list_path, &out_dir, &fanned],
+        &[("PATH", &path)],
+    );
+    let calls = std::fs::read_to_string(&log).expect("sbatch called");
+    let calls: Vec<&str> = calls.lines().collect();
+    assert_eq!(calls.len(), 2, "{calls:?}");
+    assert!(
+        calls[0].contains(&format!("--array=0-{}", shots.len() - 1)) && calls[0].contains(" task "),
+        "{}",
+        calls[0]
+    );
+    assert!(
+        calls[1].contains("--dependency=afterok:4242") && calls[1].contains(" calibrate "),
+        "{}",
+        calls[1]
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("4242"));
 }

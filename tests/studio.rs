@@ -8,7 +8,7 @@
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use lensblur::app::{AppOptions, Command, FieldSource, StudioApp, View};
+use lensblur::app::{AppOptions, Command, FieldSource, PlotId, StudioApp, SweepAxis, View};
 use lensblur::job::JobContext;
 use lensblur::pipeline::ShotFile;
 use lensblur::session::{DemoSpec, Session, ShotId, StageStatus, make_demo};
@@ -74,6 +74,60 @@ fn snapshot(h: &mut Harness<'_, StudioApp>, name: &str) {
     h.remove_cursor();
     h.run_steps(2);
     h.snapshot(name);
+}
+
+/// Saves a plot's CSV and PNG as the dialogs would, and waits for both files.
+fn save_plot(h: &mut Harness<'_, StudioApp>, plot: PlotId, csv: &Path, png: &Path) {
+    let dir = csv.parent().expect("a folder");
+    let path = csv.to_path_buf();
+    h.state_mut()
+        .commands
+        .push(Command::SavePlotCsv { plot, path });
+    let path = png.to_path_buf();
+    h.state_mut()
+        .commands
+        .push(Command::SavePlotPng { plot, path });
+    step_until(h, "the plot's files", Duration::from_secs(20), |a| {
+        csv.is_file() && png.is_file() && a.plot_png.is_none()
+    });
+    assert!(
+        h.state()
+            .messages
+            .iter()
+            .any(|m| m.text.contains("plot saved to")),
+        "{:?}",
+        h.state().messages
+    );
+    // The messages name the temporary folder, which differs between runs: off the
+    // snapshots that follow.
+    h.state_mut()
+        .messages
+        .retain(|m| !m.text.contains(&*dir.to_string_lossy()));
+    // The plot and its axes: a third of the window's width, less than half its height
+    // in the Sweeps view.
+    let img = image::open(png).expect("the plot's PNG decodes");
+    assert!(
+        (200..=1280).contains(&img.width()) && (100..=800).contains(&img.height()),
+        "{} × {}",
+        img.width(),
+        img.height()
+    );
+}
+
+/// The CSV has this header and `rows` rows of a series name and two numbers.
+fn assert_plot_csv(path: &Path, header: &str, rows: usize) {
+    let text = std::fs::read_to_string(path).expect("the plot's CSV");
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some(header));
+    let body: Vec<&str> = lines.collect();
+    assert_eq!(body.len(), rows);
+    for line in body {
+        let fields: Vec<&str> = line.rsplitn(3, ',').collect();
+        assert_eq!(fields.len(), 3, "{line}");
+        for v in &fields[..2] {
+            assert!(v.parse::<f64>().is_ok_and(f64::is_finite), "{line}");
+        }
+    }
 }
 
 /// A primary click at a screen position, as the window would deliver it.
@@ -308,10 +362,45 @@ fn every_view_on_the_demo_session() {
     );
     assert_same_profile(&cli_profile, &demo_dir.join("profile.json"));
     snapshot(&mut h, "studio_models");
+    // Save the error CDF's data and picture without the dialogs.
+    let cdf = (dir.path().join("cdf.csv"), dir.path().join("cdf.png"));
+    save_plot(&mut h, PlotId::CvCdf, &cdf.0, &cdf.1);
+    // A header naming the axes, then 101 percentiles of three parameters per family.
+    let families = h.state().cv.as_ref().map_or(0, |cv| {
+        usize::from(cv.global.is_some()) + usize::from(cv.local.is_some())
+    });
+    assert_plot_csv(
+        &cdf.0,
+        "series,error (% of range),held-out samples (%)",
+        families * 3 * 101,
+    );
 
     h.get_by_label("Sweeps").click();
     h.run_steps(3);
     snapshot(&mut h, "studio_sweeps");
+    let sweep = (dir.path().join("sweep.csv"), dir.path().join("sweep.png"));
+    let plot = PlotId::Sweep {
+        vs_aperture: true,
+        param: 0,
+    };
+    save_plot(&mut h, plot, &sweep.0, &sweep.1);
+    // Per location: both measured apertures, and the model's and the truth's curves.
+    let rows = std::fs::read_to_string(&sweep.0)
+        .expect("sweep CSV")
+        .lines()
+        .count()
+        - 1;
+    assert_plot_csv(
+        &sweep.0,
+        "series,aperture (f-number),\"C_xx (σ, px)\"",
+        rows,
+    );
+    assert!(rows >= 5 * 2, "{rows} rows");
+    // The same sweeps as MTF50.
+    h.get_by_label("MTF50").click();
+    h.run_steps(3);
+    assert_eq!(h.state().sweep_axis, SweepAxis::Mtf50);
+    snapshot(&mut h, "studio_sweeps_mtf50");
 
     // Predict: the profile's field at the sliders' setting.
     h.get_by_label("Kernel field").click();
@@ -395,6 +484,144 @@ fn every_view_on_the_demo_session() {
                 && a.cv.is_some()
                 && idle(a)
         },
+    );
+}
+
+/// A RAW session: a DNG shot is shown developed (imagepipe) and, at the switch, as the
+/// linear CFA plane that is measured; opened as a photo, its compared crops are
+/// developed too, and it exports as a DNG with its metadata.
+#[test]
+fn raw_shots_and_photos_are_developed_and_export_as_dng() {
+    use lensblur::simulate::{
+        CaptureParams, ShotFormat, VirtualLens, simulate_shot, write_shot_as,
+    };
+    let demo = tempfile::tempdir().expect("temp dir");
+    let parent = tempfile::tempdir().expect("temp dir");
+    let folder = parent.path().join("raw session");
+    std::fs::create_dir(&folder).expect("session folder");
+    let chart = DemoSpec::grid(384, 256, &[35.0], &[8.0])
+        .with_chart(6, 4)
+        .chart();
+    let setting = lensblur::plane::LensSetting {
+        focal_mm: 35.0,
+        f_number: 8.0,
+    };
+    let mut params = CaptureParams::new(384, 256, setting);
+    params.bayer = true;
+    params.seed = 5;
+    let shot = simulate_shot(
+        &chart,
+        &VirtualLens::demo(),
+        &params,
+        &lensblur::job::JobContext::silent(),
+    )
+    .expect("simulated RAW shot");
+    let raw = folder.join("IMG_0001.dng");
+    write_shot_as(&raw, &shot, ShotFormat::Dng, Default::default()).expect("write DNG");
+
+    let mut h = new_harness(demo.path(), Some(&folder));
+    h.run_steps(2);
+    let settings = lensblur::session::Session::open(&folder)
+        .expect("session")
+        .settings;
+    h.state_mut()
+        .commands
+        .push(Command::ApplySettings { chart, settings });
+    h.input_mut().dropped_files.push(dropped(&raw));
+    step_until(&mut h, "the RAW shot", Duration::from_secs(60), |a| {
+        a.previews.len() == 1 && idle(a)
+    });
+    {
+        let app = h.state();
+        let preview = app.previews.values().next().expect("the shot");
+        assert!(preview.capture.is_raw);
+        assert!(
+            matches!(preview.developed, Some(Ok(_))),
+            "developed: {:?}",
+            preview.developed.as_ref().map(|d| d.as_ref().err())
+        );
+        assert!(app.viewer.developed);
+    }
+    snapshot(&mut h, "studio_shot_raw_developed");
+    h.get_by_label("developed").click();
+    h.run_steps(2);
+    assert!(!h.state().viewer.developed);
+    snapshot(&mut h, "studio_shot_raw_linear");
+    h.get_by_label("developed").click();
+    h.run_steps(2);
+
+    // Its own kernels, so the photo's comparison has a measured result.
+    h.get_by_label("Detect").click();
+    step_until(&mut h, "detection", Duration::from_secs(120), |a| {
+        a.detections.len() == 1 && idle(a)
+    });
+    h.get_by_label("Kernels").click();
+    step_until(&mut h, "kernels", Duration::from_secs(300), |a| {
+        a.measured.len() == 1 && idle(a)
+    });
+    h.get_by_label("Deblur").click();
+    h.run_steps(2);
+    h.get_by_label("Deblur the selected shot").click();
+    step_until(
+        &mut h,
+        "the deblur preview",
+        Duration::from_secs(120),
+        |a| a.deblur.comparison.is_some() && idle(a),
+    );
+    {
+        let view = h.state().deblur.comparison.as_ref().expect("comparison");
+        let c = &view.comparison;
+        assert!(
+            c.measured.is_ok(),
+            "measured: {:?}",
+            c.measured.as_ref().err()
+        );
+        let developed = match &c.developed {
+            Some(Ok(d)) => d,
+            other => panic!(
+                "the RAW photo's crops are developed: {:?}",
+                other.as_ref().map(|r| r.as_ref().err())
+            ),
+        };
+        // The original and the measured result (no profile yet: no predicted one).
+        assert!(developed[0].is_some() && developed[2].is_some());
+        assert!(view.developed[0].is_some() && view.developed[2].is_some());
+    }
+    snapshot(&mut h, "studio_deblur_raw_developed");
+    h.get_by_label("developed").click();
+    h.run_steps(3);
+    snapshot(&mut h, "studio_deblur_raw_linear");
+
+    // The whole photo, deblurred with its measured kernels, as a DNG.
+    let out = parent.path().join("IMG_0001.deblurred.dng");
+    h.state_mut().commands.push(Command::ExportDeblur {
+        path: out.clone(),
+        result: lensblur::app::DeblurResult::Measured,
+    });
+    step_until(&mut h, "the export", Duration::from_secs(120), |a| {
+        idle(a)
+            && a.messages
+                .iter()
+                .any(|m| m.text.contains("deblurred photo written"))
+    });
+    let written = lensblur::raw::load_capture(&out, &Default::default()).expect("export readable");
+    let photo = &h.state().deblur.photo.as_ref().expect("photo").capture;
+    assert!(written.is_raw);
+    assert_eq!((written.width, written.height), (photo.width, photo.height));
+    assert_eq!(written.identity, photo.identity);
+    assert_eq!(written.setting_f_number, Some(8.0));
+    let (a, b) = (
+        photo.raw.as_ref().expect("photo metadata"),
+        written.raw.as_ref().expect("written metadata"),
+    );
+    assert_eq!((a.cfa, a.black, a.white), (b.cfa, b.black, b.white));
+    let note = b.description.clone().unwrap_or_default();
+    assert!(note.contains("measured"), "{note}");
+    assert!(
+        parent
+            .path()
+            .join("IMG_0001.deblurred.preview.png")
+            .is_file()
     );
 }
 

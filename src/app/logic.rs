@@ -4,13 +4,19 @@
 //! is `view_data`'s. Never draws.
 
 use super::jobs::{Emitter, JobEvent, JobScope};
-use super::{Command, ComparisonView, DeblurResult, JobOutput, Photo, ShotPreview, StudioApp};
+use super::view_data;
+use super::{
+    Command, ComparisonView, DeblurResult, JobOutput, PendingPlotPng, Photo, PlotId, ShotPreview,
+    StudioApp,
+};
 use crate::deblur::{DeblurOptions, KernelSource, Method};
 use crate::detect::Detection;
+use crate::develop::Developed;
 use crate::job::JobContext;
 use crate::kernel::file::KernelsFile;
 use crate::pipeline::{self, GivenSetting, MeasuredShot, ShotFile};
 use crate::plane::{Capture, Channel, ChannelPlane, Plane};
+use crate::review::PlotTable;
 use crate::session::{Session, ShotId, StageStatus};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -64,11 +70,15 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
                 "demo session ready: {n} simulated shots of the virtual lens"
             ));
         }
-        JobOutput::ShotLoaded { shot: id, capture } => {
+        JobOutput::ShotLoaded {
+            shot: id,
+            capture,
+            developed,
+        } => {
             if !app.has_shot(id) {
                 return;
             }
-            let preview = make_preview(&app.ctx, id, &capture);
+            let preview = make_preview(&app.ctx, id, &capture, developed);
             if let Some(shot) = app.session.as_mut().and_then(|s| s.shot_mut(id)) {
                 // EXIF fills what the user has not typed.
                 let mut changed = false;
@@ -205,8 +215,20 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
             }
             save(app);
         }
-        JobOutput::PhotoLoaded { path, capture } => {
+        JobOutput::PhotoLoaded {
+            path,
+            capture,
+            developed,
+        } => {
             let texture = rgb_texture(&app.ctx, "photo", &crate::raw::full_planes(&capture), None);
+            let developed =
+                developed.map(|d| d.map(|d| developed_texture(&app.ctx, "photo-developed", &d)));
+            if let Some(Err(reason)) = &developed {
+                app.error(format!(
+                    "{}: cannot develop it ({reason}); showing the linear planes",
+                    app.shown_path(&path)
+                ));
+            }
             // Settings: EXIF first, then the session's record of the same file.
             let recorded = app.session.as_ref().and_then(|s| {
                 s.shots
@@ -225,6 +247,7 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
                 f_number: capture.setting_f_number.or(ra),
                 capture,
                 texture,
+                developed,
             });
             app.deblur.comparison = None;
             apply(app, Command::DeblurAt(centre));
@@ -244,10 +267,18 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
             let textures = textures.map(|planes| {
                 planes.and_then(|p| rgb_texture(&app.ctx, "deblur-crop", p, Some(&whites)))
             });
+            let developed = match &comparison.developed {
+                Some(Ok(crops)) => crops.each_ref().map(|d| {
+                    d.as_ref()
+                        .map(|d| developed_texture(&app.ctx, "deblur-crop-developed", d))
+                }),
+                _ => [None, None, None],
+            };
             app.deblur.comparison = Some(ComparisonView {
                 comparison,
                 measured_from,
                 textures,
+                developed,
             });
         }
         JobOutput::SquareInspected { key, result } => {
@@ -334,6 +365,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         Command::RunCalibrate => run_calibrate(app),
         Command::SetFieldSource(f) => app.field_source = f,
         Command::SetFieldShow(f) => app.field_show = f,
+        Command::SetSweepAxis(a) => app.sweep_axis = a,
         Command::SetFieldSetting { focal_mm, f_number } => {
             app.field_focal_mm = focal_mm;
             app.field_f_number = f_number;
@@ -352,10 +384,12 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
             let r = app.jobs.spawn("open photo", move |ctx, out| {
                 ctx.report("loading", 0, 1);
                 let capture = load_capture(&path)?;
+                let developed = develop_for_display(&capture);
                 ctx.report("loading", 1, 1);
                 out.emit(JobOutput::PhotoLoaded {
                     path,
                     capture: Arc::new(capture),
+                    developed,
                 });
                 Ok(())
             });
@@ -385,10 +419,22 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
                 DeblurResult::Predicted => "predicted",
                 DeblurResult::Measured => "measured",
             };
-            let mut dialog = rfd::FileDialog::new()
-                .set_title("Export the deblurred photo (16-bit linear)")
+            // A RAW photo goes back to a RAW editor as a DNG; TIFF/PNG stay offered.
+            let raw = photo.capture.raw.is_some();
+            let mut dialog = rfd::FileDialog::new().set_title(if raw {
+                "Export the deblurred photo (DNG for a RAW editor, or 16-bit linear)"
+            } else {
+                "Export the deblurred photo (16-bit linear)"
+            });
+            if raw {
+                dialog = dialog.add_filter("DNG", &["dng"]);
+            }
+            dialog = dialog
                 .add_filter("TIFF or PNG", &["tiff", "tif", "png"])
-                .set_file_name(format!("{stem}.deblurred-{which}.tiff"));
+                .set_file_name(format!(
+                    "{stem}.deblurred-{which}.{}",
+                    if raw { "dng" } else { "tiff" }
+                ));
             if let Some(dir) = photo.path.parent() {
                 dialog = dialog.set_directory(dir);
             }
@@ -442,6 +488,35 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
                 }
             }
         }
+        Command::SavePlotDialog { plot, png } => {
+            let (what, ext) = if png { ("PNG", "png") } else { ("CSV", "csv") };
+            if let Some(path) = rfd::FileDialog::new()
+                .set_title(format!("Save the plot as {what}"))
+                .add_filter(what, &[ext])
+                .set_file_name(format!("{}.{ext}", plot.file_stem(app.sweep_axis)))
+                .save_file()
+            {
+                apply(
+                    app,
+                    if png {
+                        Command::SavePlotPng { plot, path }
+                    } else {
+                        Command::SavePlotCsv { plot, path }
+                    },
+                );
+            }
+        }
+        Command::SavePlotCsv { plot, path } => {
+            let written = plot_table(app, plot).and_then(|t| {
+                crate::io::write_atomic(&path, crate::review::plot_csv(&t).as_bytes())
+                    .map_err(|e| e.to_string())
+            });
+            match written {
+                Ok(()) => app.info(format!("plot data saved to {}", app.shown_path(&path))),
+                Err(e) => app.error(format!("cannot save the plot's data: {e}")),
+            }
+        }
+        Command::SavePlotPng { plot, path } => request_plot_png(app, plot, path),
         Command::OpenSessionDialog => {
             if let Some(dir) = rfd::FileDialog::new()
                 .set_title("Open or create a session folder")
@@ -607,9 +682,11 @@ pub(super) fn ensure_preview(app: &mut StudioApp) {
         match load_capture(&path) {
             Ok(capture) => {
                 ctx.check().map_err(|e| e.to_string())?;
+                let developed = develop_for_display(&capture);
                 out.emit(JobOutput::ShotLoaded {
                     shot: id,
                     capture: Arc::new(capture),
+                    developed,
                 });
             }
             Err(reason) => out.emit(JobOutput::ShotUnreadable { shot: id, reason }),
@@ -720,7 +797,27 @@ fn pooled_plane(capture: &Capture, channel: Channel) -> Option<ChannelPlane> {
         .cloned()
 }
 
-fn make_preview(ctx: &egui::Context, id: ShotId, capture: &Arc<Capture>) -> ShotPreview {
+/// A RAW capture developed at full resolution in sensor orientation (overlays are
+/// drawn in sensor pixels), or why it could not be; `None` for an RGB image.
+fn develop_for_display(capture: &Capture) -> Option<Result<Developed, String>> {
+    capture.is_raw.then(|| {
+        crate::develop::develop(capture, None, crate::develop::Orient::Sensor)
+            .map_err(|e| e.to_string())
+    })
+}
+
+/// A texture of a developed (8-bit sRGB) image.
+fn developed_texture(ctx: &egui::Context, name: &str, image: &Developed) -> egui::TextureHandle {
+    let img = egui::ColorImage::from_rgb([image.width, image.height], &image.rgb);
+    ctx.load_texture(name, img, egui::TextureOptions::NEAREST)
+}
+
+fn make_preview(
+    ctx: &egui::Context,
+    id: ShotId,
+    capture: &Arc<Capture>,
+    developed: Option<Result<Developed, String>>,
+) -> ShotPreview {
     let index = id.0;
     let mut textures = std::collections::BTreeMap::new();
     let mut channels: Vec<Channel> = capture.planes.iter().map(|p| p.channel).collect();
@@ -741,9 +838,12 @@ fn make_preview(ctx: &egui::Context, id: ShotId, capture: &Arc<Capture>) -> Shot
     );
     let thumbnail =
         Some(ctx.load_texture(format!("thumb{index}"), thumb, egui::TextureOptions::LINEAR));
+    let developed =
+        developed.map(|d| d.map(|d| developed_texture(ctx, &format!("shot{index}-developed"), &d)));
     ShotPreview {
         capture: Arc::clone(capture),
         textures,
+        developed,
         thumbnail,
     }
 }
@@ -1150,12 +1250,148 @@ fn run_export(app: &mut StudioApp, path: PathBuf, result: DeblurResult) {
     };
     let cap = Arc::clone(&photo.capture);
     let opts = deblur_options(app);
+    let original = photo
+        .path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned());
+    let note = format!(
+        "Deblurred by {} ({}) with {} in the studio",
+        crate::dng::SOFTWARE,
+        opts.method.name(),
+        result.label()
+    );
     let r = app.jobs.spawn("export", move |ctx, out| {
-        crate::review::export_deblurred(&cap, source.as_ref(), &opts, &path, ctx)?;
+        crate::review::export_deblurred(&cap, source.as_ref(), &opts, &path, original, &note, ctx)?;
         out.emit(JobOutput::DeblurExported(path));
         Ok(())
     });
     if let Err(e) = r {
         app.error(e);
+    }
+}
+
+/// The data a plot draws, from the same view data and report its draw code reads.
+fn plot_table(app: &StudioApp, plot: PlotId) -> Result<PlotTable, String> {
+    match plot {
+        PlotId::Sweep { vs_aperture, param } => {
+            let data = app
+                .views
+                .sweeps
+                .as_ref()
+                .ok_or("the sweeps are not prepared yet: open the Sweeps view")?;
+            view_data::sweep_table(data, app.sweep_axis, vs_aperture, param)
+                .ok_or_else(|| format!("the sweeps have no plot {param}"))
+        }
+        PlotId::CvAlpha | PlotId::CvBeta | PlotId::CvCdf => {
+            let cv = app
+                .cv
+                .as_ref()
+                .ok_or("no cross-validation yet: calibrate first (Ctrl+M)")?;
+            let families = [("global", cv.global.as_ref()), ("local", cv.local.as_ref())]
+                .into_iter()
+                .filter_map(|(n, s)| s.map(|s| (n, s)));
+            let (x_label, series) = match plot {
+                PlotId::CvCdf => (
+                    "error (% of range)",
+                    families
+                        .flat_map(|(n, s)| {
+                            crate::review::cv_cdf_curves(s)
+                                .map(|(param, pts)| (format!("{n} {param}"), pts))
+                        })
+                        .collect(),
+                ),
+                _ => {
+                    let by_alpha = plot == PlotId::CvAlpha;
+                    (
+                        if by_alpha {
+                            "α (order in x, y)"
+                        } else {
+                            "β (order in f, a)"
+                        },
+                        families
+                            .map(|(n, s)| (n.to_owned(), crate::review::cv_curve(s, by_alpha)))
+                            .collect(),
+                    )
+                }
+            };
+            let y_label = if plot == PlotId::CvCdf {
+                "held-out samples (%)"
+            } else {
+                "mean error (% of range)"
+            };
+            Ok(PlotTable {
+                x_label: x_label.to_owned(),
+                y_label: y_label.to_owned(),
+                series,
+            })
+        }
+    }
+}
+
+/// Asks for a screenshot of the next frame; the plot is cut out of it when it arrives
+/// ([`finish_plot_png`]), so the PNG is the plot exactly as drawn.
+fn request_plot_png(app: &mut StudioApp, plot: PlotId, path: PathBuf) {
+    let rect = app
+        .ctx
+        .data(|d| d.get_temp::<egui::Rect>(plot.rect_id()))
+        .filter(|_| app.view == plot.view());
+    let Some(rect) = rect else {
+        app.error("cannot save the plot: it is not on screen; open its view first");
+        return;
+    };
+    if app.plot_png.is_some() {
+        app.error("cannot save the plot: another plot is being saved");
+        return;
+    }
+    let (tx, rx) = std::sync::mpsc::channel();
+    let wake = app.ctx.clone();
+    app.ctx.request_screenshot(move |image| {
+        // The app may have closed meanwhile; then nobody waits for the image.
+        let _ = tx.send(image);
+        wake.request_repaint();
+    });
+    app.plot_png = Some(PendingPlotPng {
+        path,
+        rect,
+        image: rx,
+    });
+}
+
+/// Writes the pending plot PNG once its screenshot has arrived.
+pub(super) fn finish_plot_png(app: &mut StudioApp) {
+    let Some(pending) = &app.plot_png else {
+        return;
+    };
+    let image = match pending.image.try_recv() {
+        Ok(image) => Ok(image),
+        Err(std::sync::mpsc::TryRecvError::Empty) => return,
+        Err(std::sync::mpsc::TryRecvError::Disconnected) => {
+            Err("the window gave no screenshot".to_owned())
+        }
+    };
+    let Some(pending) = app.plot_png.take() else {
+        return;
+    };
+    let ppp = app.ctx.pixels_per_point();
+    let r = pending.rect;
+    let px = |v: f32| (v * ppp).round().max(0.0) as usize;
+    let written = image.and_then(|image| {
+        let [w, h] = image.size;
+        let rgba: Vec<u8> = image
+            .pixels
+            .iter()
+            .flat_map(|c| c.to_srgba_unmultiplied())
+            .collect();
+        crate::review::write_png_crop(
+            &pending.path,
+            rgba,
+            w,
+            h,
+            [px(r.min.x), px(r.min.y), px(r.max.x), px(r.max.y)],
+        )
+    });
+    match written {
+        Ok(()) => app.info(format!("plot saved to {}", app.shown_path(&pending.path))),
+        Err(e) => app.error(format!("cannot save the plot: {e}")),
     }
 }

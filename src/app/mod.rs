@@ -15,6 +15,7 @@ pub mod view_data;
 use crate::chart::ChartSpec;
 use crate::crossval::CvReport;
 use crate::detect::Detection;
+use crate::develop::Developed;
 use crate::job::JobContext;
 use crate::kernel::file::KernelsFile;
 use crate::model::Dataset;
@@ -140,6 +141,21 @@ pub enum Command {
     SaveProfileDialog,
     SetFieldSource(FieldSource),
     SetFieldShow(FieldShow),
+    SetSweepAxis(SweepAxis),
+    /// Asks where to save a plot, as a PNG of it on screen or as CSV of its data.
+    SavePlotDialog {
+        plot: PlotId,
+        png: bool,
+    },
+    SavePlotCsv {
+        plot: PlotId,
+        path: PathBuf,
+    },
+    /// Takes a screenshot and saves the plot's part of it once it arrives.
+    SavePlotPng {
+        plot: PlotId,
+        path: PathBuf,
+    },
     /// The setting of the predicted and true fields and of the sweeps (the sliders).
     SetFieldSetting {
         focal_mm: f64,
@@ -168,6 +184,8 @@ pub enum JobOutput {
     ShotLoaded {
         shot: ShotId,
         capture: Arc<Capture>,
+        /// A RAW shot developed for display (or why not); `None` for RGB.
+        developed: Option<Result<Developed, String>>,
     },
     /// A shot that cannot be read: the one-line reason names the file.
     ShotUnreadable {
@@ -177,6 +195,7 @@ pub enum JobOutput {
     PhotoLoaded {
         path: PathBuf,
         capture: Arc<Capture>,
+        developed: Option<Result<Developed, String>>,
     },
     /// A shot's kernels finished (or failed).
     KernelsMeasured {
@@ -291,10 +310,79 @@ pub enum FieldShow {
     Kernels,
 }
 
+/// A plot of the studio, for saving it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum PlotId {
+    /// A Sweeps plot: against aperture or focal length; the index of its parameter in
+    /// [`view_data::sweep_params`] (for the axis shown).
+    Sweep {
+        vs_aperture: bool,
+        param: usize,
+    },
+    /// The Models view's cross-validation error against α, against β, and the error CDF.
+    CvAlpha,
+    CvBeta,
+    CvCdf,
+}
+
+impl PlotId {
+    /// The view the plot is drawn in.
+    #[must_use]
+    pub fn view(self) -> View {
+        match self {
+            Self::Sweep { .. } => View::Sweeps,
+            Self::CvAlpha | Self::CvBeta | Self::CvCdf => View::Models,
+        }
+    }
+
+    /// A file name stem the save dialog proposes.
+    #[must_use]
+    pub fn file_stem(self, axis: SweepAxis) -> String {
+        match self {
+            Self::Sweep { vs_aperture, param } => {
+                let name = view_data::sweep_params(axis)
+                    .get(param)
+                    .map_or("sweep", |p| p.name)
+                    .replace(' ', "-");
+                let against = if vs_aperture { "aperture" } else { "focal" };
+                format!("sweep-{name}-vs-{against}")
+            }
+            Self::CvAlpha => "cv-alpha".into(),
+            Self::CvBeta => "cv-beta".into(),
+            Self::CvCdf => "cv-error-cdf".into(),
+        }
+    }
+
+    /// Where the draw code keeps the plot's last screen rectangle, in egui's memory.
+    #[must_use]
+    pub fn rect_id(self) -> egui::Id {
+        egui::Id::unique(("plot rect", self))
+    }
+}
+
+/// A plot PNG waiting for the screenshot it is cut from.
+pub struct PendingPlotPng {
+    pub path: PathBuf,
+    /// The plot's rectangle, in points.
+    pub rect: egui::Rect,
+    pub image: std::sync::mpsc::Receiver<Arc<egui::ColorImage>>,
+}
+
+/// What the Sweeps view plots against the settings.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SweepAxis {
+    /// C_xx, C_yy, C_or.
+    Sigma,
+    /// MTF50 along the worst and best directions and of the isotropic equivalent.
+    Mtf50,
+}
+
 /// A loaded shot and its display textures per channel.
 pub struct ShotPreview {
     pub capture: Arc<Capture>,
     pub textures: BTreeMap<Channel, egui::TextureHandle>,
+    /// A RAW shot developed, at full resolution, or why it could not be.
+    pub developed: Option<Result<egui::TextureHandle, String>>,
     pub thumbnail: Option<egui::TextureHandle>,
 }
 
@@ -310,6 +398,9 @@ pub struct ViewerState {
     pub show_squares: bool,
     pub show_circles: bool,
     pub show_grid: bool,
+    /// RAW shots and photos shown as imagepipe develops them; off, as the linear CFA
+    /// planes that are measured (the Deblur view's crops follow the same switch).
+    pub developed: bool,
 }
 
 /// The photo open in the Deblur view.
@@ -317,12 +408,23 @@ pub struct Photo {
     pub path: PathBuf,
     pub capture: Arc<Capture>,
     pub texture: Option<egui::TextureHandle>,
+    /// A RAW photo developed, or why it could not be; `None` for an RGB photo.
+    pub developed: Option<Result<egui::TextureHandle, String>>,
     /// From EXIF, the session's record of the shot, or typed.
     pub focal_mm: Option<f64>,
     pub f_number: Option<f64>,
 }
 
 impl Photo {
+    /// The texture to show: developed where asked and available.
+    #[must_use]
+    pub fn shown(&self, developed: bool) -> Option<&egui::TextureHandle> {
+        match &self.developed {
+            Some(Ok(t)) if developed => Some(t),
+            _ => self.texture.as_ref(),
+        }
+    }
+
     #[must_use]
     pub fn setting(&self) -> Option<crate::plane::LensSetting> {
         Some(crate::plane::LensSetting {
@@ -337,6 +439,20 @@ pub struct ComparisonView {
     pub comparison: Arc<DeblurComparison>,
     pub measured_from: Option<String>,
     pub textures: [Option<egui::TextureHandle>; 3],
+    /// The same crops developed (a RAW photo's).
+    pub developed: [Option<egui::TextureHandle>; 3],
+}
+
+impl ComparisonView {
+    /// The crops to show: developed where asked and the photo was.
+    #[must_use]
+    pub fn shown(&self, developed: bool) -> &[Option<egui::TextureHandle>; 3] {
+        if developed && self.developed[0].is_some() {
+            &self.developed
+        } else {
+            &self.textures
+        }
+    }
 }
 
 /// The Deblur view's state.
@@ -428,6 +544,8 @@ pub struct StudioApp {
     /// What the Kernel field view shows.
     pub field_source: FieldSource,
     pub field_show: FieldShow,
+    pub sweep_axis: SweepAxis,
+    pub plot_png: Option<PendingPlotPng>,
     /// What the views show that takes computing, cached by what it depends on.
     pub views: view_data::ViewData,
     pub deblur: DeblurState,
@@ -470,6 +588,7 @@ impl StudioApp {
                 show_squares: true,
                 show_circles: true,
                 show_grid: false,
+                developed: true,
             },
             field_focal_mm: 50.0,
             field_f_number: 5.6,
@@ -483,6 +602,8 @@ impl StudioApp {
             cv: None,
             field_source: FieldSource::Measured,
             field_show: FieldShow::Ellipses,
+            sweep_axis: SweepAxis::Sigma,
+            plot_png: None,
             views: view_data::ViewData::default(),
             deblur: DeblurState {
                 photo: None,
@@ -674,6 +795,7 @@ impl StudioApp {
     /// Runs one frame's logic without drawing (also what tests call between steps).
     pub fn logic_step(&mut self) {
         logic::drain_jobs(self);
+        logic::finish_plot_png(self);
         let commands = std::mem::take(&mut self.commands);
         for c in commands {
             logic::apply(self, c);

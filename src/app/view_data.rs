@@ -12,15 +12,15 @@
 //! makes textures.
 
 use super::jobs::JobScope;
-use super::{FieldShow, FieldSource, JobOutput, StudioApp, View};
+use super::{FieldShow, FieldSource, JobOutput, StudioApp, SweepAxis, View};
 use crate::detect::Detection;
 use crate::detect::inspect::SquareInspection;
 use crate::kernel::file::KernelsFile;
 use crate::model::Dataset;
 use crate::plane::{Capture, Channel, LensSetting, Plane};
 use crate::profile::Profile;
-use crate::psf::Gaussian2;
-use crate::review::{SquareFacts, SweepPoint};
+use crate::psf::{Gaussian2, Mtf50, Mtf50Record};
+use crate::review::{PlotTable, SquareFacts, SweepPoint};
 use crate::session::ShotId;
 use crate::simulate::VirtualLens;
 use std::sync::Arc;
@@ -154,9 +154,21 @@ pub enum PanelOf {
     },
 }
 
+/// What hovering a drawn Gaussian shows: its position, σ = √(C_xx·C_yy) and MTF50.
+pub struct FieldPoint {
+    pub x: f64,
+    pub y: f64,
+    pub sigma: f64,
+    /// In cycles/px and line pairs per picture height of the sensor shown; absent for a
+    /// degenerate Gaussian.
+    pub mtf50: Option<Mtf50Record>,
+}
+
 pub struct FieldPanel {
     pub of: PanelOf,
     pub content: Result<PanelContent, String>,
+    /// Every drawn Gaussian's hover facts, made once with the panel.
+    pub points: Vec<FieldPoint>,
     /// Squares where no kernel could be measured (sensor px), with the reason.
     pub failed: Vec<(f64, f64, String)>,
 }
@@ -202,11 +214,19 @@ pub struct FieldData {
 /// One location's series in one sweep.
 pub struct LocationSweep {
     /// Measured at the square nearest the location (absent without measurements).
-    pub measured: Option<Vec<SweepPoint>>,
+    pub measured: Option<Vec<(SweepPoint, Option<Mtf50>)>>,
     /// The profile's model at that square (absent without a profile).
-    pub model: Option<Vec<(LensSetting, Gaussian2)>>,
+    pub model: Option<Vec<CurvePoint>>,
     /// The demo lens's truth at that square (demo sessions only).
-    pub truth: Option<Vec<(LensSetting, Gaussian2)>>,
+    pub truth: Option<Vec<CurvePoint>>,
+}
+
+/// One point of a model or truth curve, with the MTF50 of its Gaussian (absent for a
+/// degenerate one).
+pub type CurvePoint = (LensSetting, Gaussian2, Option<Mtf50>);
+
+fn with_mtf50(curve: Vec<(LensSetting, Gaussian2)>) -> Vec<CurvePoint> {
+    curve.into_iter().map(|(s, g)| (s, g, g.mtf50())).collect()
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -230,6 +250,138 @@ pub struct SweepData {
     /// Against aperture, then against focal length; one entry per
     /// [`SWEEP_LOCATIONS`].
     pub sweeps: [Vec<LocationSweep>; 2],
+}
+
+/// A parameter the Sweeps view plots: its name, its unit and how to read it from a
+/// Gaussian and its MTF50 (NaN, left out of the plot, where a degenerate Gaussian has
+/// no MTF50).
+#[derive(Clone, Copy)]
+pub struct SweepParam {
+    pub name: &'static str,
+    pub unit: &'static str,
+    pub get: fn(&Gaussian2, Option<&Mtf50>) -> f64,
+}
+
+/// The three plots of each sweep for an axis choice, in the view's order.
+#[must_use]
+pub fn sweep_params(axis: SweepAxis) -> [SweepParam; 3] {
+    let p = |name, unit, get| SweepParam { name, unit, get };
+    match axis {
+        SweepAxis::Sigma => [
+            p("C_xx", "σ, px", |g, _| g.sigma_x),
+            p("C_yy", "σ, px", |g, _| g.sigma_y),
+            p("C_or", "ρ", |g, _| g.rho),
+        ],
+        SweepAxis::Mtf50 => [
+            p("MTF50 worst", "cycles/px", |_, m| {
+                m.map_or(f64::NAN, |m| m.worst)
+            }),
+            p("MTF50 best", "cycles/px", |_, m| {
+                m.map_or(f64::NAN, |m| m.best)
+            }),
+            p("MTF50 isotropic", "cycles/px", |_, m| {
+                m.map_or(f64::NAN, |m| m.isotropic)
+            }),
+        ],
+    }
+}
+
+/// What a sweep series is: drawn as dots, a solid line or a dashed line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SweepKind {
+    Measured,
+    Model,
+    Truth,
+}
+
+/// One series of one sweep plot, for the index of its location in [`SWEEP_LOCATIONS`].
+pub struct SweepSeries {
+    pub location: usize,
+    pub kind: SweepKind,
+    pub name: String,
+    pub points: Vec<[f64; 2]>,
+}
+
+/// The x axis's title of the sweep against aperture, or against focal length.
+#[must_use]
+pub fn sweep_x_label(vs_aperture: bool) -> &'static str {
+    if vs_aperture {
+        "aperture (f-number)"
+    } else {
+        "focal length (mm)"
+    }
+}
+
+/// The y axis's title of a sweep plot.
+#[must_use]
+pub fn sweep_y_label(param: &SweepParam) -> String {
+    format!("{} ({})", param.name, param.unit)
+}
+
+/// The series one sweep plot draws, in drawing order: per location, the measured
+/// points, the model and the truth (those that exist).
+#[must_use]
+pub fn sweep_series(data: &SweepData, vs_aperture: bool, param: &SweepParam) -> Vec<SweepSeries> {
+    let sweep = &data.sweeps[usize::from(!vs_aperture)];
+    let abscissa = |s: LensSetting| if vs_aperture { s.f_number } else { s.focal_mm };
+    let get = param.get;
+    let curve = |c: &[CurvePoint]| -> Vec<[f64; 2]> {
+        c.iter()
+            .map(|(s, g, m)| [abscissa(*s), get(g, m.as_ref())])
+            .collect()
+    };
+    let mut out = Vec::new();
+    for (location, ((loc, _, _), series)) in SWEEP_LOCATIONS.iter().zip(sweep).enumerate() {
+        if let Some(m) = &series.measured {
+            out.push(SweepSeries {
+                location,
+                kind: SweepKind::Measured,
+                name: format!("measured {loc}"),
+                points: m
+                    .iter()
+                    .map(|(p, m)| [abscissa(p.setting), get(&p.gaussian, m.as_ref())])
+                    .collect(),
+            });
+        }
+        for (kind, c) in [
+            (SweepKind::Model, &series.model),
+            (SweepKind::Truth, &series.truth),
+        ] {
+            if let Some(c) = c {
+                let what = if kind == SweepKind::Model {
+                    "model"
+                } else {
+                    "truth"
+                };
+                out.push(SweepSeries {
+                    location,
+                    kind,
+                    name: format!("{what} {loc}"),
+                    points: curve(c),
+                });
+            }
+        }
+    }
+    out
+}
+
+/// One sweep plot's data, as drawn, for saving as CSV.
+#[must_use]
+pub fn sweep_table(
+    data: &SweepData,
+    axis: SweepAxis,
+    vs_aperture: bool,
+    param: usize,
+) -> Option<PlotTable> {
+    let param = sweep_params(axis).get(param).copied()?;
+    Some(PlotTable {
+        x_label: sweep_x_label(vs_aperture).to_owned(),
+        y_label: sweep_y_label(&param),
+        series: sweep_series(data, vs_aperture, &param)
+            .into_iter()
+            .map(|s| (s.name, s.points))
+            .collect(),
+    })
 }
 
 /// Which square's inspection, of what: results for another key are stale.
@@ -546,6 +698,7 @@ fn refresh_field(app: &mut StudioApp) {
             panels.push(FieldPanel {
                 of: PanelOf::Measured,
                 content,
+                points: Vec::new(),
                 failed,
             });
         }
@@ -558,11 +711,13 @@ fn refresh_field(app: &mut StudioApp) {
                 Some((_, p)) => FieldPanel {
                     of: PanelOf::Profile,
                     content: predicted(p),
+                    points: Vec::new(),
                     failed: Vec::new(),
                 },
                 None => FieldPanel {
                     of: PanelOf::NoProfile,
                     content: Err("No profile yet: Calibrate (Ctrl+M) or load one in Models.".into()),
+                    points: Vec::new(),
                     failed: Vec::new(),
                 },
             });
@@ -570,6 +725,7 @@ fn refresh_field(app: &mut StudioApp) {
                 panels.push(FieldPanel {
                     of: PanelOf::CompareProfile,
                     content: predicted(p),
+                    points: Vec::new(),
                     failed: Vec::new(),
                 });
             }
@@ -586,11 +742,30 @@ fn refresh_field(app: &mut StudioApp) {
                         content: Ok(PanelContent::Ellipses(crate::review::truth_field(
                             &lens, ch, size, FIELD_GRID, s,
                         ))),
+                        points: Vec::new(),
                         failed: Vec::new(),
                     });
                 }
             }
         }
+    }
+    for panel in &mut panels {
+        let drawn: Vec<(f64, f64, Gaussian2)> = match &panel.content {
+            Ok(PanelContent::Ellipses(v)) => v.clone(),
+            Ok(PanelContent::Kernels { cells, .. }) => {
+                cells.iter().map(|&(x, y, g, _)| (x, y, g)).collect()
+            }
+            Err(_) => Vec::new(),
+        };
+        panel.points = drawn
+            .into_iter()
+            .map(|(x, y, g)| FieldPoint {
+                x,
+                y,
+                sigma: g.sigma(),
+                mtf50: g.mtf50().map(|m| m.record(size.1)),
+            })
+            .collect();
     }
     let max_sigma = panels
         .iter()
@@ -650,24 +825,29 @@ fn refresh_sweeps(app: &mut StudioApp) {
             .iter()
             .map(|&(_, fx, fy)| {
                 let nominal = (fx * (w as f64 - 1.0), fy * (h as f64 - 1.0));
-                let measured = app
-                    .dataset
-                    .as_ref()
-                    .map(|ds| crate::review::sweep_points(ds, ch, nominal, vs_aperture, fixed));
+                let measured = app.dataset.as_ref().map(|ds| {
+                    crate::review::sweep_points(ds, ch, nominal, vs_aperture, fixed)
+                        .into_iter()
+                        .map(|p| {
+                            let m = p.gaussian.mtf50();
+                            (p, m)
+                        })
+                        .collect::<Vec<_>>()
+                });
                 // Curves where the points were measured (the square nearest the
                 // location), so the two compare.
                 let at = measured
                     .as_ref()
                     .and_then(|m| m.first())
-                    .map_or(nominal, |p| (p.x, p.y));
+                    .map_or(nominal, |(p, _)| (p.x, p.y));
                 LocationSweep {
                     model: app
                         .profile
                         .as_ref()
-                        .map(|(_, p)| crate::review::model_curve(p, ch, at, &settings)),
-                    truth: key
-                        .is_demo
-                        .then(|| crate::review::truth_curve(&lens, ch, at, (w, h), &settings)),
+                        .map(|(_, p)| with_mtf50(crate::review::model_curve(p, ch, at, &settings))),
+                    truth: key.is_demo.then(|| {
+                        with_mtf50(crate::review::truth_curve(&lens, ch, at, (w, h), &settings))
+                    }),
                     measured,
                 }
             })

@@ -1,26 +1,38 @@
-//! `lensblur deblur PHOTO --out OUT.{tiff,png} (--profile P.json | --kernels K.json)
+//! `lensblur deblur PHOTO --out OUT.{tiff,png,dng} (--profile P.json | --kernels K.json)
 //! [--focal F --aperture A] [--method hqs|irls|wiener]`: remove the lens blur with the
-//! kernels a profile predicts at the photo's settings, or a kernels file's.
+//! kernels a profile predicts at the photo's settings, or a kernels file's. A RAW photo
+//! can be written back as a DNG (its CFA deblurred, its metadata kept) for a RAW editor.
+//! With `--out-dir` and `--profiles`, many photos at once (`deblur_batch`).
 
 use super::common::progress_job;
 use anyhow::{Context, Result, bail};
+use lensblur::deblur::output::write_deblurred;
 use lensblur::deblur::source::{Prefer, ScatteredKernels, load_kernels};
 use lensblur::deblur::{DeblurOptions, KernelSource, Method, ProfileKernels, deblur_capture};
-use lensblur::plane::LensSetting;
+use lensblur::job::JobContext;
+use lensblur::plane::{Capture, LensSetting};
 use lensblur::profile::Profile;
-use lensblur::raw::{LoadOptions, full_planes, load_capture, save_planes};
+use lensblur::raw::{LoadOptions, load_capture};
 use std::path::{Path, PathBuf};
 
 #[derive(clap::Args, Default)]
 pub struct Args {
     /// The photo: a RAW file, or a linear 16-bit PNG/TIFF (8-bit images are sRGB-decoded).
-    pub photo: PathBuf,
-    /// Where to write the result (.tiff/.tif or .png, 16-bit linear). A RAW photo also
-    /// gets an 8-bit sRGB preview beside it (`<name>.preview.png`).
-    #[arg(long)]
-    pub out: PathBuf,
+    /// With --out-dir: photos and folders of photos.
+    #[arg(required = true, num_args = 1..)]
+    pub photos: Vec<PathBuf>,
+    /// Where to write the result: .tiff/.tif or .png (16-bit linear RGB), or, for a RAW
+    /// photo, .dng (the deblurred CFA with the original's metadata, for a RAW editor).
+    /// A RAW photo also gets a developed 8-bit sRGB preview beside it
+    /// (`<name>.preview.png`).
+    #[arg(long, required_unless_present = "out_dir")]
+    pub out: Option<PathBuf>,
     /// A lens profile (lensblur calibrate): kernels predicted at the photo's settings.
-    #[arg(long, conflicts_with = "kernels", required_unless_present = "kernels")]
+    #[arg(
+        long,
+        conflicts_with = "kernels",
+        required_unless_present_any = ["kernels", "profiles"]
+    )]
     pub profile: Option<PathBuf>,
     /// A kernels file (lensblur kernels, or any lensblur.kernels/1 file).
     #[arg(long)]
@@ -43,6 +55,8 @@ pub struct Args {
     /// Use a profile at a focal length or aperture outside its calibrated range.
     #[arg(long)]
     pub allow_extrapolation: bool,
+    #[command(flatten)]
+    pub batch: super::deblur_batch::BatchArgs,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Default, PartialEq, Eq)]
@@ -59,6 +73,16 @@ pub fn run(args: Args) -> Result<()> {
             args.method
         );
     };
+    let opts = DeblurOptions {
+        method,
+        ..DeblurOptions::default()
+    };
+    if args.batch.out_dir.is_some() {
+        return super::deblur_batch::run(&args, &opts);
+    }
+    let (Some(out), [photo]) = (&args.out, args.photos.as_slice()) else {
+        bail!("one photo and --out, or photos and folders with --out-dir and --profiles");
+    };
     for (name, v) in [("--focal", args.focal), ("--aperture", args.aperture)] {
         if let Some(v) = v
             && !(v.is_finite() && v > 0.0)
@@ -67,53 +91,55 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     // Refuse an output we cannot write before the work, not after it.
-    let ext = args
-        .out
+    let ext = out
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
-    if !matches!(ext.as_str(), "png" | "tif" | "tiff") {
+    if !output_supported(&ext) {
         bail!(
-            "{}: the output must be .tiff, .tif or .png (16-bit linear)",
-            args.out.display()
+            "{}: the output must be .tiff, .tif or .png (16-bit linear), or .dng for a RAW photo",
+            out.display()
         );
     }
-    let out_dir = args
-        .out
+    let out_dir = out
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
     if !out_dir.is_dir() {
         bail!(
             "{}: the folder {} does not exist",
-            args.out.display(),
+            out.display(),
             out_dir.display()
         );
     }
-    if same_file(&args.photo, &args.out) {
+    if same_file(photo, out) {
+        bail!("{}: the output would overwrite the photo", out.display());
+    }
+    let capture = load_capture(photo, &LoadOptions::default())?;
+    if ext == "dng" && (!capture.is_raw || capture.raw.is_none()) {
         bail!(
-            "{}: the output would overwrite the photo",
-            args.out.display()
+            "{}: only a RAW photo can be written as a DNG (give .tiff or .png)",
+            photo.display()
         );
     }
-    let capture = load_capture(&args.photo, &LoadOptions::default())?;
     let photo_setting = (
         args.focal.or(capture.setting_focal_mm),
         args.aperture.or(capture.setting_f_number),
     );
+    let described: String;
     let source: Box<dyn KernelSource> = match (&args.profile, &args.kernels) {
         (Some(p), _) => {
             let mut profile = Profile::load(p)?;
             let (Some(focal_mm), Some(f_number)) = photo_setting else {
                 bail!(
                     "{}: focal length or aperture unknown (not in EXIF): give --focal and --aperture",
-                    args.photo.display()
+                    photo.display()
                 );
             };
             if (profile.norm.width, profile.norm.height) != (capture.width, capture.height) {
                 bail!(
                     "{}: the photo is {} × {} but the profile {} is for a {} × {} sensor (another camera?)",
-                    args.photo.display(),
+                    photo.display(),
                     capture.width,
                     capture.height,
                     p.display(),
@@ -125,12 +151,12 @@ pub fn run(args: Args) -> Result<()> {
             // and nothing else.
             let identity_warnings = profile
                 .check_identity(&capture.identity, args.force)
-                .with_context(|| format!("{} and {}", args.photo.display(), p.display()))?;
+                .with_context(|| format!("{} and {}", photo.display(), p.display()))?;
             let setting = LensSetting { focal_mm, f_number };
             profile.allow_extrapolation = args.allow_extrapolation;
             profile
                 .check_setting(setting)
-                .with_context(|| format!("{}: {}", args.photo.display(), p.display()))?;
+                .with_context(|| format!("{}: {}", photo.display(), p.display()))?;
             if !identity_warnings.is_empty() {
                 eprintln!("lensblur: warning: {}", identity_warnings.join("; "));
             }
@@ -139,6 +165,7 @@ pub fn run(args: Args) -> Result<()> {
                     "lensblur: warning: f = {focal_mm} mm, f/{f_number} is outside the calibrated range; extrapolating"
                 );
             }
+            described = profile_described(p, setting);
             Box::new(ProfileKernels { profile, setting })
         }
         (None, Some(k)) => {
@@ -146,7 +173,7 @@ pub fn run(args: Args) -> Result<()> {
             if (file.width, file.height) != (capture.width, capture.height) {
                 bail!(
                     "{}: the photo is {} × {} but {} was measured on {} × {}",
-                    args.photo.display(),
+                    photo.display(),
                     capture.width,
                     capture.height,
                     k.display(),
@@ -167,6 +194,7 @@ pub fn run(args: Args) -> Result<()> {
                 PreferArg::Kernels => Prefer::default(),
                 PreferArg::Gaussians => Prefer::Gaussian,
             };
+            described = format!("the kernels {}", file_name(k));
             Box::new(ScatteredKernels::checked(
                 file,
                 prefer,
@@ -176,26 +204,75 @@ pub fn run(args: Args) -> Result<()> {
         (None, None) => bail!("give --profile or --kernels"),
     };
     let job = progress_job();
-    let opts = DeblurOptions {
-        method,
-        ..DeblurOptions::default()
-    };
-    let out = deblur_capture(&capture, source.as_ref(), &opts, &job)
-        .with_context(|| args.photo.display().to_string())?;
-    let planes = full_planes(&out);
-    save_planes(&args.out, &planes, false)?;
-    if capture.is_raw {
-        let preview = preview_path(&args.out);
-        save_planes(&preview, &planes, true)?;
-        eprintln!("{}: preview {}", args.out.display(), preview.display());
+    if let Some(preview) = deblur_one(
+        photo,
+        &capture,
+        source.as_ref(),
+        &opts,
+        out,
+        &described,
+        &job,
+    )? {
+        eprintln!("{}: preview {}", out.display(), preview.display());
     }
     eprintln!(
         "{}: deblurred ({}) to {}",
-        args.photo.display(),
+        photo.display(),
         method.name(),
-        args.out.display()
+        out.display()
     );
     Ok(())
+}
+
+/// Deblurs one loaded photo with a chosen source and writes it: the step the single
+/// photo and every photo of a batch go through. `described` names the kernels (a
+/// DNG's note of what was done says it). Returns the preview written, if any.
+///
+/// # Errors
+/// The deblurring failed, or the output cannot be written.
+pub fn deblur_one(
+    photo: &Path,
+    capture: &Capture,
+    source: &dyn KernelSource,
+    opts: &DeblurOptions,
+    out: &Path,
+    described: &str,
+    job: &JobContext,
+) -> Result<Option<PathBuf>> {
+    let deblurred =
+        deblur_capture(capture, source, opts, job).with_context(|| photo.display().to_string())?;
+    let note = format!(
+        "Deblurred by {} ({}) with {described}",
+        lensblur::dng::SOFTWARE,
+        opts.method.name()
+    );
+    let written = write_deblurred(out, Some(file_name(photo)), &deblurred, &note)?;
+    if let Some(w) = &written.warning {
+        eprintln!("lensblur: warning: {}: {w}", photo.display());
+    }
+    Ok(written.preview)
+}
+
+/// Whether [`deblur_one`] writes a file of this extension (lower case).
+pub fn output_supported(ext: &str) -> bool {
+    matches!(ext, "png" | "tif" | "tiff" | "dng")
+}
+
+/// What a DNG's note says of a profile's kernels.
+pub fn profile_described(profile: &Path, setting: LensSetting) -> String {
+    format!(
+        "the profile {} at {} mm, f/{}",
+        file_name(profile),
+        setting.focal_mm,
+        setting.f_number
+    )
+}
+
+fn file_name(p: &Path) -> String {
+    p.file_name().map_or_else(
+        || p.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    )
 }
 
 /// Whether two paths name one existing file.
@@ -204,11 +281,4 @@ fn same_file(a: &Path, b: &Path) -> bool {
         (Ok(a), Ok(b)) => a == b,
         _ => false,
     }
-}
-
-fn preview_path(out: &Path) -> PathBuf {
-    let stem = out
-        .file_stem()
-        .map_or_else(|| "out".into(), |s| s.to_string_lossy().into_owned());
-    out.with_file_name(format!("{stem}.preview.png"))
 }

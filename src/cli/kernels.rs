@@ -80,19 +80,25 @@ pub fn run(args: Args) -> Result<()> {
         args.with_kernels,
         &job,
     )?;
-    let mut sigmas: Vec<f64> = file
-        .samples
-        .iter()
-        .filter_map(|s| Some((s.cxx? * s.cyy?).sqrt()))
-        .collect();
-    sigmas.sort_by(f64::total_cmp);
-    let median = sigmas.get(sigmas.len() / 2).copied().unwrap_or(f64::NAN);
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+    };
+    let gaussians: Vec<_> = file.samples.iter().filter_map(|s| s.gaussian()).collect();
+    let sigma = median(gaussians.iter().map(|g| g.sigma()).collect());
+    let mtf50 = median(
+        gaussians
+            .iter()
+            .filter_map(|g| Some(g.mtf50()?.worst))
+            .collect(),
+    );
     eprintln!(
-        "{}: {} kernels over {} squares, {} failed; median σ {median:.3} px",
+        "{}: {} kernels over {} squares, {} failed; median σ {sigma:.3} px, median MTF50 {mtf50:.3} cycles/px ({:.0} lp/ph) in the worst direction",
         args.shot.display(),
         file.samples.len(),
         det.ok_squares().count(),
-        file.failed.len()
+        file.failed.len(),
+        lensblur::psf::Mtf50::lp_per_picture_height(mtf50, file.height)
     );
     if file.focal_mm.is_none() || file.f_number.is_none() {
         eprintln!(

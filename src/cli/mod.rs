@@ -5,6 +5,7 @@ pub mod chart;
 pub mod common;
 pub mod crossval;
 pub mod deblur;
+pub mod deblur_batch;
 pub mod detect;
 pub mod experiment;
 pub mod kernels;

@@ -1,11 +1,14 @@
-//! `lensblur predict`: the Gaussian blur a profile predicts at given sensor points.
+//! `lensblur predict`: the Gaussian blur a profile predicts at given sensor points or
+//! on a grid over the sensor, with its MTF50; JSON, and CSV with `--csv`.
 
-use super::common::write_json;
+use super::common::{write_atomic, write_json};
 use anyhow::{Context, Result};
 use lensblur::model::ModelKind;
 use lensblur::plane::{Channel, LensSetting};
 use lensblur::profile::Profile;
+use lensblur::psf::Mtf50Record;
 use serde::Serialize;
+use std::fmt::Write as _;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Default)]
@@ -20,10 +23,17 @@ pub struct Args {
     #[arg(long)]
     pub aperture: f64,
     /// Sensor points: [[x, y], ...] in full-resolution pixels.
-    #[arg(long)]
-    pub points: PathBuf,
+    #[arg(long, required_unless_present = "grid", conflicts_with = "grid")]
+    pub points: Option<PathBuf>,
+    /// Instead of --points, a grid of NX × NY points over the sensor, each at the
+    /// centre of its cell (the studio's predicted field).
+    #[arg(long, value_name = "NX,NY", value_parser = parse_grid)]
+    pub grid: Option<(usize, usize)>,
     #[arg(long)]
     pub out: PathBuf,
+    /// Also write <out>.csv, one row per channel and point.
+    #[arg(long)]
+    pub csv: bool,
     /// Channels to predict (default: every channel of the profile).
     #[arg(long, value_delimiter = ',')]
     pub channels: Vec<Channel>,
@@ -33,6 +43,24 @@ pub struct Args {
     /// Predict outside the calibrated range of focal length and aperture.
     #[arg(long)]
     pub allow_extrapolation: bool,
+}
+
+/// Points a side of `--grid` may have: enough for a field every few pixels of a large
+/// sensor, few enough that the output stays a file a spreadsheet opens.
+const MAX_GRID_SIDE: usize = 1000;
+
+fn parse_grid(s: &str) -> Result<(usize, usize), String> {
+    let (nx, ny) = s
+        .split_once(',')
+        .ok_or_else(|| format!("'{s}': expected NX,NY (e.g. 12,8)"))?;
+    let side = |v: &str| {
+        v.trim()
+            .parse::<usize>()
+            .ok()
+            .filter(|n| (1..=MAX_GRID_SIDE).contains(n))
+            .ok_or_else(|| format!("'{v}': each side must be a whole number 1–{MAX_GRID_SIDE}"))
+    };
+    Ok((side(nx)?, side(ny)?))
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Default)]
@@ -66,6 +94,10 @@ struct PredSample {
     cxx: f64,
     cyy: f64,
     cor: f64,
+    /// Absent where the prediction is degenerate (never for a valid profile: its σs
+    /// are at least 0.05 px and |ρ| at most 0.99).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    mtf50: Option<Mtf50Record>,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -81,10 +113,20 @@ pub fn run(args: Args) -> Result<()> {
             args.focal, args.aperture
         );
     }
-    let text = std::fs::read_to_string(&args.points)
-        .with_context(|| format!("{}: cannot read", args.points.display()))?;
-    let points: Vec<[f64; 2]> = serde_json::from_str(&text)
-        .with_context(|| format!("{}: expected [[x, y], ...]", args.points.display()))?;
+    let (points, origin) = match (&args.points, args.grid) {
+        (Some(path), _) => {
+            let text = lensblur::io::read_json_text(path)
+                .with_context(|| format!("{}: cannot read", path.display()))?;
+            let points: Vec<[f64; 2]> = serde_json::from_str(&text)
+                .with_context(|| format!("{}: expected [[x, y], ...]", path.display()))?;
+            (points, path.display().to_string())
+        }
+        (None, Some((nx, ny))) => (
+            lensblur::review::field_grid(profile.norm.width, profile.norm.height, nx, ny),
+            format!("--grid {nx},{ny}"),
+        ),
+        (None, None) => anyhow::bail!("give --points or --grid"),
+    };
     let kind = args.model.map_or(profile.preferred, ModelKind::from);
     let channels = if args.channels.is_empty() {
         profile.model(kind)?.channels()
@@ -99,8 +141,7 @@ pub fn run(args: Args) -> Result<()> {
             && (0.0..=h - 1.0).contains(&p[1]))
     }) {
         anyhow::bail!(
-            "{}: point [{}, {}] lies outside the profile's {}×{} sensor",
-            args.points.display(),
+            "{origin}: point [{}, {}] lies outside the profile's {}×{} sensor",
             p[0],
             p[1],
             profile.norm.width,
@@ -128,18 +169,55 @@ pub fn run(args: Args) -> Result<()> {
                 cxx: g.sigma_x,
                 cyy: g.sigma_y,
                 cor: g.rho,
+                mtf50: g.mtf50().map(|m| m.record(profile.norm.height)),
             });
         }
     }
+    let pred = Pred {
+        focal_mm: args.focal,
+        f_number: args.aperture,
+        samples,
+    };
     write_json(
         &args.out,
-        &lensblur::format::Versioned::new(
-            &lensblur::format::PREDICTION,
-            &Pred {
-                focal_mm: args.focal,
-                f_number: args.aperture,
-                samples,
+        &lensblur::format::Versioned::new(&lensblur::format::PREDICTION, &pred),
+    )?;
+    if args.csv {
+        let mut p = args.out.as_os_str().to_owned();
+        p.push(".csv");
+        write_atomic(&PathBuf::from(p), csv(&pred).as_bytes())?;
+    }
+    Ok(())
+}
+
+/// The predictions as CSV (docs/formats.md, "Points and predictions"): `sigma` is
+/// √(C_xx·C_yy); `mtf50` the worst direction's, in cycles/px and line pairs per
+/// picture height; empty cells where a prediction has no MTF50.
+fn csv(pred: &Pred) -> String {
+    let mut out = String::from(
+        "x,y,channel,cxx,cyy,cor,sigma,mtf50,mtf50_best,mtf50_isotropic,mtf50_lp_ph\n",
+    );
+    for s in &pred.samples {
+        let sigma = lensblur::psf::Gaussian2 {
+            sigma_x: s.cxx,
+            sigma_y: s.cyy,
+            rho: s.cor,
+        }
+        .sigma();
+        let mtf = s.mtf50.map_or_else(
+            || ",,,".to_owned(),
+            |m| {
+                format!(
+                    "{:.5},{:.5},{:.5},{:.1}",
+                    m.worst, m.best, m.isotropic, m.worst_lp_ph
+                )
             },
-        ),
-    )
+        );
+        let _ = writeln!(
+            out,
+            "{:.2},{:.2},{},{:.5},{:.5},{:.5},{sigma:.5},{mtf}",
+            s.x, s.y, s.channel, s.cxx, s.cyy, s.cor
+        );
+    }
+    out
 }

@@ -10,6 +10,7 @@
 //! buffers (the plans are shared by the whole process), and only that row's results
 //! are held before they are summed in.
 
+pub mod output;
 pub mod solve;
 pub mod source;
 

@@ -143,6 +143,7 @@ mod tests {
             setting_f_number: None,
             identity: Default::default(),
             is_raw: false,
+            raw: None,
         };
         let corners = spec.square_corners(1, 1).map(|c| h.apply(c));
         let square = SquareAlignment {

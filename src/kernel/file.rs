@@ -69,8 +69,9 @@ pub struct FailedSample {
     pub reason: String,
 }
 
-/// The kernels file; unknown fields are ignored.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// The kernels file; unknown fields are ignored. Written with each sample's MTF50
+/// beside its Gaussian (see the `Serialize` impl below).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
 pub struct KernelsFile {
     #[serde(default)]
     pub schema: String,
@@ -90,6 +91,62 @@ pub struct KernelsFile {
     pub samples: Vec<KernelSample>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub failed: Vec<FailedSample>,
+}
+
+/// The file as written: every field of [`KernelsFile`], each sample with its `mtf50`
+/// derived from its Gaussian. Derived here, on writing, so it can never disagree with
+/// the σs beside it; readers ignore it.
+#[derive(Serialize)]
+struct FileOut<'a> {
+    schema: &'a str,
+    width: usize,
+    height: usize,
+    focal_mm: Option<f64>,
+    f_number: Option<f64>,
+    oversample: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    identity: Option<&'a CameraIdentity>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    source: Option<&'a crate::pipeline::ShotRecord>,
+    samples: Vec<SampleOut<'a>>,
+    #[serde(skip_serializing_if = "<[_]>::is_empty")]
+    failed: &'a [FailedSample],
+}
+
+#[derive(Serialize)]
+struct SampleOut<'a> {
+    #[serde(flatten)]
+    sample: &'a KernelSample,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    mtf50: Option<crate::psf::Mtf50Record>,
+}
+
+impl Serialize for KernelsFile {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        FileOut {
+            schema: &self.schema,
+            width: self.width,
+            height: self.height,
+            focal_mm: self.focal_mm,
+            f_number: self.f_number,
+            oversample: self.oversample,
+            identity: self.identity.as_ref(),
+            source: self.source.as_ref(),
+            samples: self
+                .samples
+                .iter()
+                .map(|sample| SampleOut {
+                    sample,
+                    mtf50: sample
+                        .gaussian()
+                        .and_then(|g| g.mtf50())
+                        .map(|m| m.record(self.height)),
+                })
+                .collect(),
+            failed: &self.failed,
+        }
+        .serialize(serializer)
+    }
 }
 
 fn default_oversample() -> usize {
@@ -238,6 +295,17 @@ impl KernelsFile {
 }
 
 impl KernelSample {
+    /// The robust fit as a Gaussian, where the sample holds all three of C_xx, C_yy,
+    /// C_or (the samples calibration uses).
+    #[must_use]
+    pub fn gaussian(&self) -> Option<crate::psf::Gaussian2> {
+        Some(crate::psf::Gaussian2 {
+            sigma_x: self.cxx?,
+            sigma_y: self.cyy?,
+            rho: self.cor?,
+        })
+    }
+
     /// The stored kernel array as a [`Kernel`] at the file's oversampling.
     #[must_use]
     pub fn kernel_at(&self, oversample: usize) -> Option<Kernel> {
@@ -246,5 +314,66 @@ impl KernelSample {
             oversample,
             data: k.data.clone(),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn samples_are_written_with_their_mtf50_and_read_back_unchanged() {
+        let file = KernelsFile {
+            schema: KERNELS.tag(),
+            width: 3000,
+            height: 2000,
+            focal_mm: Some(50.0),
+            f_number: Some(4.0),
+            oversample: 3,
+            identity: None,
+            source: None,
+            samples: vec![
+                KernelSample {
+                    x: 10.0,
+                    y: 20.0,
+                    channel: Channel::G,
+                    cxx: Some(1.0),
+                    cyy: Some(1.0),
+                    cor: Some(0.0),
+                    row: Some(0),
+                    col: Some(0),
+                    ml: None,
+                    kernel: None,
+                },
+                KernelSample {
+                    x: 30.0,
+                    y: 20.0,
+                    channel: Channel::R,
+                    cxx: None,
+                    cyy: None,
+                    cor: None,
+                    row: None,
+                    col: None,
+                    ml: None,
+                    kernel: Some(KernelData {
+                        size: 1,
+                        data: vec![1.0],
+                    }),
+                },
+            ],
+            failed: Vec::new(),
+        };
+        let text = serde_json::to_string(&file).expect("json");
+        let v: serde_json::Value = serde_json::from_str(&text).expect("json");
+        let m = &v["samples"][0]["mtf50"];
+        // σ = 1 px isotropic: √(ln 2 / 2) / π cycles/px, × 2000 px of picture height.
+        assert!((m["worst"].as_f64().expect("worst") - 0.187_390).abs() < 1e-6);
+        assert!((m["isotropic_lp_ph"].as_f64().expect("lp/ph") - 374.78).abs() < 0.01);
+        assert!(
+            v["samples"][1].get("mtf50").is_none(),
+            "no Gaussian, no MTF50"
+        );
+        assert_eq!(v["samples"][0]["cxx"], 1.0);
+        assert_eq!(KernelsFile::from_json(&text).expect("read back"), file);
     }
 }

@@ -709,6 +709,7 @@ pub fn capture_from_raw(
         setting_f_number: None,
         identity: CameraIdentity::default(),
         is_raw: bayer,
+        raw: None,
     }
 }
 

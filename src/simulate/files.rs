@@ -3,7 +3,7 @@
 //! ground truth beside it.
 
 use super::capture::SimulatedShot;
-use super::dng::{DngInfo, DngLayout, write_dng};
+use crate::dng::{DngInfo, DngLayout, write_dng};
 use crate::plane::{Capture, Channel};
 use std::path::Path;
 
@@ -78,14 +78,14 @@ pub fn write_shot_as(
             if !shot.capture.is_raw {
                 return Err(unsuitable("a DNG needs a Bayer shot"));
             }
-            let info = DngInfo {
-                make: shot.capture.identity.make.clone().unwrap_or_default(),
-                model: shot.capture.identity.model.clone().unwrap_or_default(),
-                black: shot.black_level,
-                white: shot.white_level,
-                setting: Some(shot.truth.setting),
-                layout: dng_layout,
-            };
+            let info = DngInfo::simulated(
+                shot.capture.identity.make.as_deref().unwrap_or_default(),
+                shot.capture.identity.model.as_deref().unwrap_or_default(),
+                shot.black_level,
+                shot.white_level,
+                Some(shot.truth.setting),
+                dng_layout,
+            );
             write_dng(
                 path,
                 &shot.cfa,

@@ -2,16 +2,15 @@
 //! and the studio's demo session with exact ground truth.
 
 pub mod capture;
-pub mod dng;
 pub mod files;
 pub mod lens;
 pub mod session;
 
+pub use crate::dng::{DngCompression, DngLayout};
 pub use capture::{
     CaptureParams, NoiseModel, Pose, PsfField, ShotTruth, SimulateError, SimulatedShot,
     SquareTruth, capture_from_raw, simulate_shot,
 };
-pub use dng::{DngCompression, DngLayout};
 pub use files::{ShotFormat, write_shot, write_shot_as};
 pub use lens::{PsfShape, VirtualLens};
 pub use session::{SampleNoise, SimulatedSession};

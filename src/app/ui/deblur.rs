@@ -2,7 +2,7 @@
 //! predicts and with the kernels measured at the photo's setting (the paper's
 //! Fig. 7–8), side by side or with a slider, and export of the whole photo.
 
-use super::super::{Command, DeblurLayout, DeblurResult, StudioApp};
+use super::super::{Command, DeblurLayout, DeblurResult, StudioApp, ViewerState};
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
 
 pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
@@ -48,6 +48,25 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 app.commands.push(Command::SetDeblurLayout(layout));
             }
         }
+        if app
+            .deblur
+            .photo
+            .as_ref()
+            .is_some_and(|p| p.developed.is_some())
+        {
+            ui.separator();
+            let mut developed = app.viewer.developed;
+            if ui
+                .checkbox(&mut developed, "developed")
+                .on_hover_text("The RAW photo and its crops as a RAW editor shows them (imagepipe); off: linear camera RGB, as deblurred")
+                .changed()
+            {
+                app.commands.push(Command::SetViewer(ViewerState {
+                    developed,
+                    ..app.viewer
+                }));
+            }
+        }
         ui.separator();
         ui.add_enabled_ui(app.deblur.photo.is_some(), |ui| {
             ui.menu_button("Export…", |ui| {
@@ -62,7 +81,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 }
             })
             .response
-            .on_hover_text("Deblur the whole photo and write it as a 16-bit linear TIFF or PNG (Ctrl+E: predicted)");
+            .on_hover_text("Deblur the whole photo and write it: a RAW photo as a DNG with its metadata (or TIFF/PNG), others as 16-bit linear TIFF or PNG (Ctrl+E: predicted)");
         });
     });
     let Some(photo) = &app.deblur.photo else {
@@ -175,7 +194,7 @@ fn overview_ui(app: &mut StudioApp, ui: &mut egui::Ui, width: f32) {
     let (rect, response) = ui.allocate_exact_size(size, Sense::click());
     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, "photo overview"));
     let painter = ui.painter_at(rect);
-    match &photo.texture {
+    match photo.shown(app.viewer.developed) {
         Some(t) => {
             painter.image(
                 t.id(),
@@ -244,7 +263,7 @@ fn side_by_side_ui(app: &StudioApp, ui: &mut egui::Ui) {
             ui.vertical(|ui| {
                 ui.set_width(side);
                 ui.add(egui::Label::new(&titles[k]).truncate());
-                match (&view.textures[k], reasons[k]) {
+                match (&view.shown(app.viewer.developed)[k], reasons[k]) {
                     (Some(t), _) => {
                         let size = t.size_vec2();
                         ui.image((t.id(), size * (side / size.x.max(size.y))));
@@ -296,7 +315,8 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         DeblurResult::Predicted => 1,
         DeblurResult::Measured => 2,
     };
-    let (Some(original), result) = (&view.textures[0], &view.textures[k]) else {
+    let shown = view.shown(app.viewer.developed);
+    let (Some(original), result) = (&shown[0], &shown[k]) else {
         return;
     };
     let Some(result) = result else {

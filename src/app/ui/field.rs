@@ -5,7 +5,7 @@
 //! Draws the panels `view_data` made (the fields, the kernel atlas) and the controls
 //! that choose them; computes nothing.
 
-use super::super::view_data::{FieldPanel, PanelContent, PanelOf};
+use super::super::view_data::{FieldPanel, FieldPoint, PanelContent, PanelOf};
 use super::super::{Command, FieldShow, FieldSource, StudioApp};
 use super::{ellipse_points, setting_sliders_ui, sigma_color, sigma_legend_ui};
 use crate::plane::LensSetting;
@@ -164,9 +164,15 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             ui.vertical(|ui| {
                 ui.label(title(p));
                 match &p.content {
-                    Ok(content) => {
-                        field_panel_ui(ui, content, &p.failed, size, scale, panel_size, atlas)
-                    }
+                    Ok(content) => field_panel_ui(
+                        ui,
+                        content,
+                        (&p.points, &p.failed),
+                        size,
+                        scale,
+                        panel_size,
+                        atlas,
+                    ),
                     Err(reason) => {
                         ui.label(reason);
                     }
@@ -178,11 +184,12 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
 
 /// One panel: ellipses (1 σ, coloured by σ = √(C_xx·C_yy)) or kernels (tinted by the
 /// same colour) at their sensor positions, magnified by `scale` screen points per px
-/// of σ, and red crosses where a kernel failed.
+/// of σ, and red crosses where a kernel failed. Hovering a Gaussian shows its σ and
+/// MTF50, hovering a cross the reason.
 fn field_panel_ui(
     ui: &mut egui::Ui,
     content: &PanelContent,
-    failed: &[(f64, f64, String)],
+    (points, failed): (&[FieldPoint], &[(f64, f64, String)]),
     (w, h): (usize, usize),
     scale: f32,
     size: Vec2,
@@ -247,15 +254,31 @@ fn field_panel_ui(
         painter.line_segment([c + Vec2::new(-d, d), c + Vec2::new(d, -d)], red);
     }
     if let Some(p) = response.hover_pos() {
-        let near = failed.iter().min_by(|a, b| {
-            let da = (at(a.0, a.1) - p).length();
-            let db = (at(b.0, b.1) - p).length();
-            da.total_cmp(&db)
-        });
-        if let Some((x, y, reason)) = near
-            && (at(*x, *y) - p).length() < 8.0
-        {
+        let distance = |x: f64, y: f64| (at(x, y) - p).length();
+        let near_failed = failed
+            .iter()
+            .min_by(|a, b| distance(a.0, a.1).total_cmp(&distance(b.0, b.1)))
+            .filter(|f| distance(f.0, f.1) < 8.0);
+        let near_point = points
+            .iter()
+            .min_by(|a, b| distance(a.x, a.y).total_cmp(&distance(b.x, b.y)))
+            .filter(|q| distance(q.x, q.y) < 16.0);
+        if let Some((x, y, reason)) = near_failed {
             response.on_hover_text(format!("x {x:.0}, y {y:.0}: {reason}"));
+        } else if let Some(q) = near_point {
+            let mtf = q.mtf50.map_or_else(
+                || "no MTF50 (degenerate Gaussian)".to_owned(),
+                |m| {
+                    format!(
+                        "MTF50 {:.3} cycles/px ({:.0} lp/ph) in the worst direction ({:.0}°), {:.3} in the best, {:.3} isotropic",
+                        m.worst, m.worst_lp_ph, m.worst_deg, m.best, m.isotropic
+                    )
+                },
+            );
+            response.on_hover_text(format!(
+                "x {:.0}, y {:.0}: σ {:.2} px; {mtf}",
+                q.x, q.y, q.sigma
+            ));
         }
     }
     let failed_note = if failed.is_empty() {

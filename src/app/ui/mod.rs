@@ -10,7 +10,7 @@ mod shot;
 mod sweeps;
 
 use super::view_data::{sensor_size, setting_ranges};
-use super::{Command, DeblurResult, StudioApp, View};
+use super::{Command, DeblurResult, PlotId, StudioApp, View};
 use crate::plane::Channel;
 use crate::psf::Gaussian2;
 use crate::simulate::VirtualLens;
@@ -277,6 +277,59 @@ fn y_axis<'a>(label: &str) -> egui_plot::AxisHints<'a> {
     egui_plot::AxisHints::new_y()
         .label(label.to_owned())
         .label_spacing(16.0..=24.0)
+}
+
+/// A plot's title row: the "PNG" and "CSV" save buttons (short, so the title keeps the
+/// room), then the title, cut short to the plot's width so that the row never pushes
+/// the plots beside it off the window.
+fn plot_title_ui(
+    commands: &mut Vec<Command>,
+    ui: &mut egui::Ui,
+    plot: PlotId,
+    title: String,
+    tip: &str,
+    width: f32,
+) {
+    ui.horizontal(|ui| {
+        ui.set_max_width(width);
+        plot_save_buttons(commands, ui, plot);
+        // Cut short, the title is whole in the hover, above what it means.
+        ui.add(egui::Label::new(title.clone()).truncate())
+            .on_hover_text(format!("{title}\n\n{tip}"));
+    });
+}
+
+fn plot_save_buttons(commands: &mut Vec<Command>, ui: &mut egui::Ui, plot: PlotId) {
+    for (png, label, tip) in [
+        (
+            true,
+            "PNG",
+            "Save the plot as it appears here, as a PNG image…",
+        ),
+        (
+            false,
+            "CSV",
+            "Save the plot's data as CSV: every series' points, with the axes named in the header…",
+        ),
+    ] {
+        if ui.small_button(label).on_hover_text(tip).clicked() {
+            commands.push(Command::SavePlotDialog { plot, png });
+        }
+    }
+}
+
+/// Shows a plot within a scope whose rectangle (plot and axes) is kept in egui's memory:
+/// a PNG of the plot is cut from a later screenshot at that place.
+fn show_plot<'a, R>(
+    ui: &mut egui::Ui,
+    id: PlotId,
+    plot: egui_plot::Plot<'a>,
+    build: impl FnOnce(&mut egui_plot::PlotUi<'a>) -> R + 'a,
+) -> R {
+    let shown = ui.scope(|ui| plot.show(ui, build).inner);
+    let rect = shown.response.rect;
+    ui.ctx().data_mut(|d| d.insert_temp(id.rect_id(), rect));
+    shown.inner
 }
 
 /// White text on a dark box, readable over any image.

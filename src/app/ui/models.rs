@@ -1,7 +1,7 @@
 //! The Models view: cross-validation over α and β (the paper's Fig. 5), the error
 //! distributions of the chosen models (Fig. 6), the profile in use; load and save.
 
-use super::super::{Command, StudioApp};
+use super::super::{Command, PlotId, StudioApp};
 use super::{TIP_ALPHA, TIP_BETA, TIP_COR, TIP_CXX, TIP_CYY};
 use egui::Color32;
 
@@ -160,9 +160,14 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 } else {
                     title.to_owned()
                 };
-                ui.label(title).on_hover_text(tip);
+                let id = if by_alpha {
+                    PlotId::CvAlpha
+                } else {
+                    PlotId::CvBeta
+                };
+                super::plot_title_ui(&mut app.commands, ui, id, title, tip, plot_w);
                 // Fixed bounds are kept in the plot's memory: a new report gets a new plot.
-                Plot::new(format!("cv-{by_alpha}-{report_id}"))
+                let plot = Plot::new(format!("cv-{by_alpha}-{report_id}"))
                     .width(plot_w)
                     .height(plot_h)
                     .custom_x_axes(vec![
@@ -177,21 +182,11 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                     .x_grid_spacer(egui_plot::uniform_grid_spacer(|_| [1.0, 5.0, 10.0]))
                     .default_y_bounds(0.0, y_top(by_alpha))
                     .legend(Legend::default().position(Corner::RightTop))
-                    .allow_scroll(false)
-                    .show(ui, |plot| {
+                    .allow_scroll(false);
+                super::show_plot(ui, id, plot, |plot| {
                         for (name, sel) in &families {
                             let color = family_color(name);
-                            let curve = if by_alpha {
-                                &sel.alpha_curve
-                            } else {
-                                &sel.beta_curve
-                            };
-                            let pts: Vec<[f64; 2]> = curve
-                                .iter()
-                                .map(|p| {
-                                    [if by_alpha { p.alpha } else { p.beta } as f64, p.mean_pct]
-                                })
-                                .collect();
+                            let pts = crate::review::cv_curve(sel, by_alpha);
                             plot.line(
                                 Line::new(name.to_string(), PlotPoints::from(pts.clone()))
                                     .color(color)
@@ -228,8 +223,14 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             });
         }
         ui.vertical(|ui| {
-            ui.label("Error CDF of the chosen models (Fig. 6)")
-                .on_hover_text("Fraction of held-out samples whose prediction error is below each value: solid C_xx, dashed C_yy, dotted C_or");
+            super::plot_title_ui(
+                &mut app.commands,
+                ui,
+                PlotId::CvCdf,
+                "Error CDF of the chosen models (Fig. 6)".to_owned(),
+                "Fraction of held-out samples whose prediction error is below each value: solid C_xx, dashed C_yy, dotted C_or",
+                plot_w,
+            );
             // The worst few samples would stretch the axis until the curves are a wall
             // at zero: show up to the 99th percentile.
             let x_max = families
@@ -242,7 +243,7 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                         .filter_map(move |q| q.get(at99?).copied())
                 })
                 .fold(1e-6, f64::max);
-            Plot::new(format!("cv-cdf-{report_id}"))
+            let plot = Plot::new(format!("cv-cdf-{report_id}"))
                 .width(plot_w)
                 .height(plot_h)
                 .custom_x_axes(vec![super::x_axis("error (% of range)")])
@@ -250,21 +251,18 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .default_x_bounds(0.0, x_max * 1.02)
                 .default_y_bounds(0.0, 101.0)
                 .legend(Legend::default().position(Corner::RightBottom))
-                .allow_scroll(false)
-                .show(ui, |plot| {
+                .allow_scroll(false);
+            super::show_plot(ui, PlotId::CvCdf, plot, |plot| {
                     for (name, sel) in &families {
                         let color = family_color(name);
-                        let cdf = &sel.error_cdf;
-                        for (param, q, style) in [
-                            ("C_xx", &cdf.cxx, LineStyle::Solid),
-                            ("C_yy", &cdf.cyy, LineStyle::dashed_dense()),
-                            ("C_or", &cdf.cor, LineStyle::dotted_dense()),
-                        ] {
-                            let pts: Vec<[f64; 2]> = q
-                                .iter()
-                                .zip(&cdf.percentiles)
-                                .map(|(&e, &p)| [e, p])
-                                .collect();
+                        let styles = [
+                            LineStyle::Solid,
+                            LineStyle::dashed_dense(),
+                            LineStyle::dotted_dense(),
+                        ];
+                        for ((param, pts), style) in
+                            crate::review::cv_cdf_curves(sel).into_iter().zip(styles)
+                        {
                             plot.line(
                                 Line::new(format!("{name} {param}"), PlotPoints::from(pts))
                                     .color(color)

@@ -92,6 +92,11 @@ fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState
                 ui.colored_label(ui.visuals().warn_fg_color, format!("skipped: {text}"));
             }
         }
+        if app.previews.get(&index).is_some_and(|p| p.developed.is_some()) {
+            ui.separator();
+            ui.checkbox(&mut viewer.developed, "developed")
+                .on_hover_text("The RAW as a RAW editor shows it (imagepipe: demosaic, white balance, colour, tone); off: the selected channel's linear CFA plane, which is what is measured");
+        }
         if detected.is_some() {
             ui.separator();
             ui.checkbox(&mut viewer.show_squares, "squares")
@@ -117,11 +122,22 @@ fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState
         }
         return;
     };
-    let Some(texture) = preview
-        .textures
-        .get(&app.channel)
-        .or_else(|| preview.textures.values().next())
-    else {
+    if let Some(Err(reason)) = &preview.developed {
+        ui.colored_label(
+            ui.visuals().warn_fg_color,
+            format!("cannot develop this RAW ({reason}): showing its linear plane"),
+        );
+    }
+    let developed = match &preview.developed {
+        Some(Ok(t)) if viewer.developed => Some(t),
+        _ => None,
+    };
+    let Some(texture) = developed.or_else(|| {
+        preview
+            .textures
+            .get(&app.channel)
+            .or_else(|| preview.textures.values().next())
+    }) else {
         ui.label("this shot has no image planes");
         return;
     };
@@ -134,9 +150,11 @@ fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState
         return;
     };
     let plane = shot_plane.index.and_then(|i| cap.planes.get(i));
-    let (step, ox, oy) = plane.as_ref().map_or((1.0, 0.0, 0.0), |p| {
-        (p.step as f64, p.offset_x as f64, p.offset_y as f64)
-    });
+    // The developed image is full resolution; a CFA plane covers every other pixel.
+    let (step, ox, oy) = match plane {
+        Some(p) if developed.is_none() => (p.step as f64, p.offset_x as f64, p.offset_y as f64),
+        _ => (1.0, 0.0, 0.0),
+    };
 
     // The inspector stands beside the viewer while its crops are made, so the viewer
     // keeps its size when they arrive.

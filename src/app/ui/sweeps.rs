@@ -1,19 +1,19 @@
 //! The Sweeps view (the paper's Fig. 4): C_xx, C_yy, C_or against aperture at a fixed
 //! focal length and against focal length at a fixed aperture, one colour per sensor
-//! location: measured points, the profile's model curves, the demo lens's truth.
+//! location: measured points, the profile's model curves, the demo lens's truth; or,
+//! switched, the MTF50 of the same Gaussians.
 //!
 //! Plots the series `view_data` made for the sliders' setting; computes nothing.
 
-use super::super::StudioApp;
-use super::super::view_data::SWEEP_LOCATIONS;
+use super::super::view_data::{
+    SWEEP_LOCATIONS, SweepKind, sweep_params, sweep_series, sweep_x_label, sweep_y_label,
+};
+use super::super::{Command, PlotId, StudioApp, SweepAxis};
 use super::{TIP_COR, TIP_CXX, TIP_CYY, setting_sliders_ui};
-use crate::plane::LensSetting;
-use crate::psf::Gaussian2;
 use crate::simulate::VirtualLens;
 use egui::Color32;
 
-/// A plotted parameter: its name, its tooltip and how to read it from a Gaussian.
-type Param = (&'static str, &'static str, fn(&Gaussian2) -> f64);
+const TIP_MTF50: &str = "MTF50 in cycles per sensor pixel, from the Gaussian: the frequency at which its contrast falls to one half, √(ln 2 / (2π² uᵀCu)) along a direction u. The Gaussian is the pixel-level PSF, so the pixel's aperture is in it; sampling and demosaicing are not.";
 
 /// Each location's colour, in the order of [`SWEEP_LOCATIONS`].
 const LOCATION_COLORS: [Color32; 5] = [
@@ -63,84 +63,77 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     };
     let ch = app.channel;
     let (fixed_f, fixed_a) = (data.fixed_f, data.fixed_a);
-    let params: [Param; 3] = [
-        ("C_xx", TIP_CXX, |g| g.sigma_x),
-        ("C_yy", TIP_CYY, |g| g.sigma_y),
-        ("C_or", TIP_COR, |g| g.rho),
-    ];
+    ui.horizontal(|ui| {
+        ui.label("Plot:");
+        for (axis, label, tip) in [
+            (SweepAxis::Sigma, "σ (C_xx, C_yy, C_or)", "The Gaussian's parameters"),
+            (
+                SweepAxis::Mtf50,
+                "MTF50",
+                "MTF50 of the same Gaussians: along the worst and best directions and of the isotropic equivalent (σ = det(C)^¼)",
+            ),
+        ] {
+            if ui
+                .selectable_label(app.sweep_axis == axis, label)
+                .on_hover_text(tip)
+                .clicked()
+            {
+                app.commands.push(Command::SetSweepAxis(axis));
+            }
+        }
+    });
+    let params = sweep_params(app.sweep_axis);
+    let tips = match app.sweep_axis {
+        SweepAxis::Sigma => [TIP_CXX, TIP_CYY, TIP_COR],
+        SweepAxis::Mtf50 => [TIP_MTF50; 3],
+    };
+
     let avail = ui.available_size();
     let plot_w = (avail.x - 24.0) / 3.0;
     let plot_h = ((avail.y - 72.0) / 2.0).max(120.0);
-    for (vs_aperture, sweep) in [true, false].into_iter().zip(&data.sweeps) {
+    for vs_aperture in [true, false] {
         ui.horizontal(|ui| {
-            for (name, tip, get) in params {
+            for (param, (p, tip)) in params.iter().zip(tips).enumerate() {
+                let id = PlotId::Sweep { vs_aperture, param };
+                let series = sweep_series(data, vs_aperture, p);
                 ui.vertical(|ui| {
+                    let name = p.name;
                     let title = if vs_aperture {
                         format!("{name} vs aperture at {fixed_f:.0} mm, channel {ch}")
                     } else {
                         format!("{name} vs focal length at f/{fixed_a:.1}, channel {ch}")
                     };
-                    ui.label(title).on_hover_text(tip);
-                    let unit = if name == "C_or" { "ρ" } else { "σ, px" };
-                    let x_label = if vs_aperture {
-                        "aperture (f-number)"
-                    } else {
-                        "focal length (mm)"
-                    };
-                    let abscissa =
-                        |s: LensSetting| if vs_aperture { s.f_number } else { s.focal_mm };
-                    let curve = |c: &[(LensSetting, Gaussian2)]| -> Vec<[f64; 2]> {
-                        c.iter().map(|(s, g)| [abscissa(*s), get(g)]).collect()
-                    };
-                    Plot::new(format!("sweep-{name}-{vs_aperture}"))
+                    super::plot_title_ui(&mut app.commands, ui, id, title, tip, plot_w);
+                    let plot = Plot::new(format!("sweep-{name}-{vs_aperture}"))
                         .width(plot_w)
                         .height(plot_h)
-                        .custom_x_axes(vec![super::x_axis(x_label)])
-                        .custom_y_axes(vec![super::y_axis(&format!("{name} ({unit})"))])
-                        .allow_scroll(false)
-                        .show(ui, |plot| {
-                            for (((loc, _, _), color), series) in
-                                SWEEP_LOCATIONS.iter().zip(LOCATION_COLORS).zip(sweep)
-                            {
-                                if let Some(m) = &series.measured {
-                                    let pts: Vec<[f64; 2]> = m
-                                        .iter()
-                                        .map(|p| [abscissa(p.setting), get(&p.gaussian)])
-                                        .collect();
-                                    plot.points(
-                                        Points::new(
-                                            format!("measured {loc}"),
-                                            PlotPoints::from(pts),
-                                        )
+                        .custom_x_axes(vec![super::x_axis(sweep_x_label(vs_aperture))])
+                        .custom_y_axes(vec![super::y_axis(&sweep_y_label(p))])
+                        .allow_scroll(false);
+                    super::show_plot(ui, id, plot, move |plot| {
+                        for s in series {
+                            let color = LOCATION_COLORS[s.location % LOCATION_COLORS.len()];
+                            let pts = PlotPoints::from(s.points);
+                            match s.kind {
+                                SweepKind::Measured => plot.points(
+                                    Points::new(s.name, pts)
                                         .shape(MarkerShape::Circle)
                                         .filled(true)
                                         .color(color)
                                         .radius(3.5),
-                                    );
+                                ),
+                                SweepKind::Model => {
+                                    plot.line(Line::new(s.name, pts).color(color).width(1.5));
                                 }
-                                if let Some(model) = &series.model {
-                                    plot.line(
-                                        Line::new(
-                                            format!("model {loc}"),
-                                            PlotPoints::from(curve(model)),
-                                        )
-                                        .color(color)
-                                        .width(1.5),
-                                    );
-                                }
-                                if let Some(truth) = &series.truth {
-                                    plot.line(
-                                        Line::new(
-                                            format!("truth {loc}"),
-                                            PlotPoints::from(curve(truth)),
-                                        )
+                                SweepKind::Truth => plot.line(
+                                    Line::new(s.name, pts)
                                         .color(color.gamma_multiply(0.7))
                                         .style(LineStyle::dashed_loose())
                                         .width(1.0),
-                                    );
-                                }
+                                ),
                             }
-                        });
+                        }
+                    });
                 });
             }
         });

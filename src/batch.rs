@@ -1,0 +1,1020 @@
+//! Deblurring many photos with a library of lens profiles, each photo's profile picked
+//! from its EXIF (as lens-profile libraries in raw converters do).
+//!
+//! A batch is planned before any image is decoded: each photo's header gives its
+//! sensor size, camera and lens, focal length and aperture ([`crate::raw::read_header`]),
+//! which pick its profile ([`ProfileLibrary::pick`]) or a reason to skip it. Then the
+//! photos to deblur run several at a time, as many as the cores and the memory allow
+//! ([`peak_bytes`]), each written atomically, so a batch stopped halfway and run again
+//! redoes only the photos without a complete output ([`output_complete`]).
+//!
+//! Which profile fits a photo (the rule, once):
+//! 1. its sensor size is the photo's;
+//! 2. every camera or lens field the profile records (make, model, lens) is recorded by
+//!    the photo with the same value. A profile that records none of the three is left
+//!    out of a library: it would fit every camera;
+//! 3. a serial (body or lens) recorded by both must agree, as
+//!    [`crate::profile::Profile::check_identity`] requires; one only the profile records
+//!    does not exclude it (that check warns there);
+//! 4. among those that fit, the best is the one whose calibrated settings cover the
+//!    photo's focal length and aperture, then the one whose serials agree with the
+//!    photo's (that very lens unit's profile over its siblings'), then the one recording
+//!    more of make, model and lens (specific over generic);
+//! 5. two profiles equally best is ambiguous: the photo is skipped naming both;
+//! 6. a best profile that does not cover the photo's setting skips it, unless
+//!    extrapolation is allowed.
+
+use crate::deblur::{DeblurOptions, KernelSource, ProfileKernels};
+use crate::job::JobContext;
+use crate::plane::{CameraIdentity, Capture, LensSetting};
+use crate::profile::Profile;
+use crate::raw::{Header, LoadOptions};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Condvar, Mutex};
+
+/// Errors that stop a whole batch before it starts (a photo's own trouble is a skip or
+/// a failure of that photo, never this).
+#[derive(Debug, thiserror::Error)]
+pub enum BatchError {
+    #[error("{}: cannot read the folder: {source}", path.display())]
+    Folder {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{}: no such photo or folder", path.display())]
+    Missing { path: PathBuf },
+    #[error(
+        "{}: the output folder is also a folder of photos (outputs would be read as photos on the next run)",
+        path.display()
+    )]
+    OutputIsInput { path: PathBuf },
+    #[error("{}: no lens profile in this folder", path.display())]
+    NoProfiles { path: PathBuf },
+}
+
+/// The file extensions a folder's photos are recognised by (a photo named on its own
+/// is always taken): DNG, TIFF, PNG, JPEG and the camera RAW formats the RAW decoder
+/// reads. Everything else in a folder (sidecars, JSON) is not a photo.
+pub const PHOTO_EXTENSIONS: &[&str] = &[
+    "dng", "tif", "tiff", "png", "jpg", "jpeg", "3fr", "ari", "arw", "cr2", "cr3", "crw", "dcr",
+    "dcs", "erf", "iiq", "kdc", "mef", "mos", "mrw", "nef", "nrw", "orf", "pef", "raf", "raw",
+    "rw2", "rwl", "sr2", "srf", "srw", "x3f",
+];
+
+/// The format a batch writes, by its extension.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum OutputFormat {
+    /// 16-bit linear TIFF.
+    #[default]
+    Tiff,
+    /// 16-bit linear PNG.
+    Png,
+    /// The deblurred CFA as a DNG.
+    Dng,
+}
+
+impl OutputFormat {
+    #[must_use]
+    pub fn extension(self) -> &'static str {
+        match self {
+            Self::Tiff => "tiff",
+            Self::Png => "png",
+            Self::Dng => "dng",
+        }
+    }
+}
+
+/// The photos named: files as they are, folders as their photos (by
+/// [`PHOTO_EXTENSIONS`], not recursively, hidden files left out: a writer's temporary
+/// files are hidden), in name order, each once.
+///
+/// # Errors
+/// A path that does not exist, a folder that cannot be listed, or a folder that is the
+/// output folder.
+pub fn collect_photos(inputs: &[PathBuf], out_dir: &Path) -> Result<Vec<PathBuf>, BatchError> {
+    let out_canon = out_dir.canonicalize().ok();
+    let mut photos = Vec::new();
+    for input in inputs {
+        if input.is_dir() {
+            if out_canon.is_some() && input.canonicalize().ok() == out_canon {
+                return Err(BatchError::OutputIsInput {
+                    path: input.clone(),
+                });
+            }
+            let entries = std::fs::read_dir(input).map_err(|source| BatchError::Folder {
+                path: input.clone(),
+                source,
+            })?;
+            let mut found: Vec<PathBuf> = entries
+                .flatten()
+                .map(|e| e.path())
+                .filter(|p| p.is_file() && is_photo_name(p))
+                .collect();
+            found.sort();
+            photos.extend(found);
+        } else if input.exists() {
+            photos.push(input.clone());
+        } else {
+            return Err(BatchError::Missing {
+                path: input.clone(),
+            });
+        }
+    }
+    let mut seen = std::collections::HashSet::new();
+    photos.retain(|p| seen.insert(p.canonicalize().unwrap_or_else(|_| p.clone())));
+    Ok(photos)
+}
+
+fn is_photo_name(p: &Path) -> bool {
+    let hidden = p
+        .file_name()
+        .is_some_and(|n| n.to_string_lossy().starts_with('.'));
+    let ext = p
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    !hidden && PHOTO_EXTENSIONS.contains(&ext.as_str())
+}
+
+/// One profile of a library and the file it came from.
+#[derive(Clone, Debug)]
+pub struct LibraryProfile {
+    pub path: PathBuf,
+    pub profile: Profile,
+}
+
+/// The profiles a batch picks from.
+#[derive(Clone, Debug, Default)]
+pub struct ProfileLibrary {
+    pub profiles: Vec<LibraryProfile>,
+    /// One line per file left out: a damaged profile, one that names no camera or lens.
+    pub warnings: Vec<String>,
+}
+
+impl ProfileLibrary {
+    /// Every lensblur profile among a folder's `*.json` files (not recursively). Other
+    /// lensblur files and other JSON are ignored; a file that claims to be a profile
+    /// but does not load, or is not JSON at all, is one warning and left out.
+    ///
+    /// # Errors
+    /// The folder cannot be listed, or holds no usable profile.
+    pub fn load(dir: &Path) -> Result<Self, BatchError> {
+        let entries = std::fs::read_dir(dir).map_err(|source| BatchError::Folder {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        let mut files: Vec<PathBuf> = entries
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| {
+                p.is_file()
+                    && p.extension()
+                        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+                    && !p
+                        .file_name()
+                        .is_some_and(|n| n.to_string_lossy().starts_with('.'))
+            })
+            .collect();
+        files.sort();
+        let mut profiles = Vec::new();
+        let mut warnings = Vec::new();
+        for path in files {
+            let text = match crate::io::read_json_text(&path) {
+                Ok(t) => t,
+                Err(e) => {
+                    warnings.push(e.to_string());
+                    continue;
+                }
+            };
+            let schema = match serde_json::from_str::<serde_json::Value>(&text) {
+                Ok(v) => v.get("schema").and_then(|s| s.as_str()).map(str::to_owned),
+                Err(e) => {
+                    warnings.push(format!("{}: not JSON, left out: {e}", path.display()));
+                    continue;
+                }
+            };
+            let tag = crate::profile::PROFILE.tag();
+            let kind = tag.split('/').next().unwrap_or_default();
+            if schema.is_none_or(|s| s.split('/').next() != Some(kind)) {
+                continue;
+            }
+            match Profile::from_json(&text, &path.display().to_string()) {
+                Ok(profile) => profiles.push(LibraryProfile { path, profile }),
+                Err(e) => warnings.push(format!("{e}; left out")),
+            }
+        }
+        let mut library = Self {
+            profiles: Vec::new(),
+            warnings,
+        };
+        for p in profiles {
+            library.add(p);
+        }
+        if library.profiles.is_empty() {
+            return Err(BatchError::NoProfiles {
+                path: dir.to_path_buf(),
+            });
+        }
+        Ok(library)
+    }
+
+    /// Adds a profile, or a warning where it names no camera or lens (rule 2).
+    pub fn add(&mut self, p: LibraryProfile) {
+        let id = &p.profile.identity;
+        if id.make.is_none() && id.model.is_none() && id.lens_model.is_none() {
+            self.warnings.push(format!(
+                "{}: records no camera or lens, so it would fit any photo; left out (use it with --profile)",
+                p.path.display()
+            ));
+        } else {
+            self.profiles.push(p);
+        }
+    }
+
+    /// The profile for a photo by the module's rule, or why there is none.
+    ///
+    /// # Errors
+    /// The [`Skip`] that says why.
+    pub fn pick(&self, photo: &PhotoFacts, allow_extrapolation: bool) -> Result<Pick, Skip> {
+        let (Some(focal_mm), Some(f_number)) = (photo.focal_mm, photo.f_number) else {
+            return Err(Skip::NoSettings {
+                missing: match (photo.focal_mm, photo.f_number) {
+                    (None, None) => "focal length and aperture",
+                    (None, _) => "focal length",
+                    _ => "aperture",
+                },
+            });
+        };
+        let setting = LensSetting { focal_mm, f_number };
+        let mut ranked: Vec<(Rank, usize)> = self
+            .profiles
+            .iter()
+            .enumerate()
+            .filter_map(|(i, p)| rank(&p.profile, photo, setting).map(|r| (r, i)))
+            .collect();
+        ranked.sort_by_key(|r| std::cmp::Reverse(r.0));
+        let Some(&(best, index)) = ranked.first() else {
+            return Err(Skip::NoProfile {
+                photo: format!(
+                    "{}, {} × {}",
+                    photo.identity.describe(),
+                    photo.width,
+                    photo.height
+                ),
+            });
+        };
+        if let Some(&(_, other)) = ranked.get(1).filter(|(r, _)| *r == best) {
+            return Err(Skip::Ambiguous {
+                first: self.profiles[index].path.clone(),
+                second: self.profiles[other].path.clone(),
+            });
+        }
+        if !best.covers && !allow_extrapolation {
+            let mut strict = self.profiles[index].profile.clone();
+            strict.allow_extrapolation = false;
+            let reason = strict.check_setting(setting).err().map_or_else(
+                || "outside the calibrated settings".into(),
+                |e| e.to_string(),
+            );
+            return Err(Skip::OutOfRange {
+                profile: self.profiles[index].path.clone(),
+                reason,
+            });
+        }
+        Ok(Pick {
+            index,
+            setting,
+            extrapolated: !best.covers,
+        })
+    }
+}
+
+/// How well a profile fits, compared field by field in this order (rule 4).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+struct Rank {
+    covers: bool,
+    serials_agreeing: u8,
+    type_fields: u8,
+}
+
+/// A profile's [`Rank`] for a photo, `None` where it does not fit (rules 1–3).
+fn rank(profile: &Profile, photo: &PhotoFacts, setting: LensSetting) -> Option<Rank> {
+    if (profile.norm.width, profile.norm.height) != (photo.width, photo.height) {
+        return None;
+    }
+    let mut r = Rank {
+        covers: false,
+        serials_agreeing: 0,
+        type_fields: 0,
+    };
+    let fields = profile
+        .identity
+        .fields()
+        .into_iter()
+        .zip(photo.identity.fields());
+    for (k, ((_, mine), (_, theirs))) in fields.enumerate() {
+        let serial = k >= 3;
+        match (mine, theirs) {
+            (Some(a), Some(b)) if !CameraIdentity::same_value(a, b) => return None,
+            (Some(_), Some(_)) if serial => r.serials_agreeing += 1,
+            (Some(_), Some(_)) => r.type_fields += 1,
+            (Some(_), None) if !serial => return None,
+            _ => {}
+        }
+    }
+    r.covers = profile.covers(setting);
+    Some(r)
+}
+
+/// What a batch needs to know of a photo before decoding it.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PhotoFacts {
+    pub width: usize,
+    pub height: usize,
+    pub focal_mm: Option<f64>,
+    pub f_number: Option<f64>,
+    pub identity: CameraIdentity,
+}
+
+impl From<&Header> for PhotoFacts {
+    fn from(h: &Header) -> Self {
+        Self {
+            width: h.width,
+            height: h.height,
+            focal_mm: h.exif.focal_mm,
+            f_number: h.exif.f_number,
+            identity: h.exif.identity.clone(),
+        }
+    }
+}
+
+/// The profile chosen for a photo.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pick {
+    /// Into [`ProfileLibrary::profiles`].
+    pub index: usize,
+    pub setting: LensSetting,
+    /// The setting is outside what the profile was calibrated on (allowed by the caller).
+    pub extrapolated: bool,
+}
+
+/// Why a photo is not deblurred. Not a failure: a batch with skips succeeds.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum Skip {
+    #[error("cannot read it: {0}")]
+    Unreadable(String),
+    #[error("its EXIF has no {missing}")]
+    NoSettings { missing: &'static str },
+    #[error("no profile for {photo}")]
+    NoProfile { photo: String },
+    #[error("two profiles fit equally well: {} and {}", first.display(), second.display())]
+    Ambiguous { first: PathBuf, second: PathBuf },
+    #[error("{}: {reason}", profile.display())]
+    OutOfRange { profile: PathBuf, reason: String },
+    #[error("{} writes the same output", other.display())]
+    SameOutput { other: PathBuf },
+    #[error("the output would overwrite the photo")]
+    OutputIsPhoto,
+    #[error("its output is already complete")]
+    Done,
+    #[error("not a RAW photo: a DNG holds a RAW photo's CFA")]
+    NotRaw,
+}
+
+impl Skip {
+    /// The group a summary counts it under.
+    #[must_use]
+    pub fn group(&self) -> &'static str {
+        match self {
+            Self::Unreadable(_) => "unreadable",
+            Self::NoSettings { .. } => "no focal length or aperture in EXIF",
+            Self::NoProfile { .. } => "no matching profile",
+            Self::Ambiguous { .. } => "ambiguous profile",
+            Self::OutOfRange { .. } => "outside the calibrated range",
+            Self::SameOutput { .. } | Self::OutputIsPhoto => "output name taken",
+            Self::Done => "already done",
+            Self::NotRaw => "not a RAW photo (DNG output)",
+        }
+    }
+}
+
+/// A batch's settings.
+#[derive(Clone, Debug, Default)]
+pub struct BatchOptions {
+    pub out_dir: PathBuf,
+    pub format: OutputFormat,
+    pub allow_extrapolation: bool,
+    pub deblur: DeblurOptions,
+    /// Bytes the batch may take at once; `None` reads three quarters of the memory
+    /// available now ([`memory_available`]).
+    pub memory_budget: Option<u64>,
+    /// Photos at once at most; `None`: one per core.
+    pub max_parallel: Option<usize>,
+}
+
+/// What the batch does with one photo.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Action {
+    Deblur { pick: Pick, pixels: usize },
+    Skip(Skip),
+}
+
+/// One photo of a planned batch.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Planned {
+    pub photo: PathBuf,
+    pub output: PathBuf,
+    pub action: Action,
+}
+
+/// The output a photo gets: `<out_dir>/<stem>.<extension>`.
+#[must_use]
+pub fn output_path(photo: &Path, opts: &BatchOptions) -> PathBuf {
+    let stem = photo
+        .file_stem()
+        .map_or_else(|| "photo".into(), |s| s.to_string_lossy().into_owned());
+    opts.out_dir
+        .join(format!("{stem}.{}", opts.format.extension()))
+}
+
+/// Whether `output` is a finished output for a photo of `width × height`: its header
+/// reads as an image of that size. Outputs are written whole or not at all
+/// ([`crate::io::write_atomic`]), so a file that is there with the right header was
+/// finished; a foreign or damaged file at that name is redone.
+#[must_use]
+pub fn output_complete(output: &Path, width: usize, height: usize) -> bool {
+    crate::raw::read_header(output).is_ok_and(|h| (h.width, h.height) == (width, height))
+}
+
+/// Decides every photo's fate from its header alone (headers read in parallel).
+#[must_use]
+pub fn plan(photos: &[PathBuf], library: &ProfileLibrary, opts: &BatchOptions) -> Vec<Planned> {
+    use rayon::prelude::*;
+    let mut planned: Vec<Planned> = photos
+        .par_iter()
+        .map(|photo| {
+            let output = output_path(photo, opts);
+            let action = match crate::raw::read_header(photo) {
+                Err(e) => Action::Skip(Skip::Unreadable(e.to_string())),
+                Ok(h) if opts.format == OutputFormat::Dng && !h.is_raw => {
+                    Action::Skip(Skip::NotRaw)
+                }
+                Ok(h) => {
+                    let facts = PhotoFacts::from(&h);
+                    match library.pick(&facts, opts.allow_extrapolation) {
+                        Err(skip) => Action::Skip(skip),
+                        Ok(_) if output_complete(&output, h.width, h.height) => {
+                            Action::Skip(Skip::Done)
+                        }
+                        Ok(pick) => Action::Deblur {
+                            pick,
+                            pixels: h.width.saturating_mul(h.height),
+                        },
+                    }
+                }
+            };
+            Planned {
+                photo: photo.clone(),
+                output,
+                action,
+            }
+        })
+        .collect();
+    // Two photos of one name in different folders would overwrite each other: the first
+    // keeps the name. A photo is never its own output.
+    let mut taken: std::collections::HashMap<PathBuf, PathBuf> = Default::default();
+    for p in &mut planned {
+        let canon = |q: &Path| q.canonicalize().unwrap_or_else(|_| q.to_path_buf());
+        if canon(&p.photo) == canon(&p.output) {
+            p.action = Action::Skip(Skip::OutputIsPhoto);
+        } else if let Some(other) = taken.get(&p.output) {
+            p.action = Action::Skip(Skip::SameOutput {
+                other: other.clone(),
+            });
+        } else {
+            taken.insert(p.output.clone(), p.photo.clone());
+        }
+    }
+    planned
+}
+
+/// What became of one photo.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Outcome {
+    Done {
+        profile: PathBuf,
+        setting: LensSetting,
+        extrapolated: bool,
+    },
+    Skipped(Skip),
+    /// Why, without the photo's name where the reason allows (the outcome names it).
+    Failed(String),
+    Cancelled,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct PhotoOutcome {
+    pub photo: PathBuf,
+    pub output: PathBuf,
+    pub outcome: Outcome,
+}
+
+/// A finished (or cancelled) batch, photo by photo in the order given.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct BatchReport {
+    pub outcomes: Vec<PhotoOutcome>,
+    /// Photos deblurred at once at most.
+    pub parallel: usize,
+}
+
+impl BatchReport {
+    #[must_use]
+    pub fn count(&self, f: impl Fn(&Outcome) -> bool) -> usize {
+        self.outcomes.iter().filter(|o| f(&o.outcome)).count()
+    }
+
+    #[must_use]
+    pub fn failed(&self) -> usize {
+        self.count(|o| matches!(o, Outcome::Failed(_)))
+    }
+
+    /// The summary's lines: done, skipped by group, failed (and cancelled, if any).
+    #[must_use]
+    pub fn summary(&self) -> Vec<String> {
+        let mut groups: Vec<(&'static str, usize)> = Vec::new();
+        for o in &self.outcomes {
+            if let Outcome::Skipped(s) = &o.outcome {
+                match groups.iter_mut().find(|(g, _)| *g == s.group()) {
+                    Some((_, n)) => *n += 1,
+                    None => groups.push((s.group(), 1)),
+                }
+            }
+        }
+        let skipped: usize = groups.iter().map(|(_, n)| n).sum();
+        let mut lines = vec![
+            format!(
+                "done: {}",
+                self.count(|o| matches!(o, Outcome::Done { .. }))
+            ),
+            format!("skipped: {skipped}"),
+        ];
+        lines.extend(groups.iter().map(|(g, n)| format!("  {g}: {n}")));
+        lines.push(format!("failed: {}", self.failed()));
+        let cancelled = self.count(|o| matches!(o, Outcome::Cancelled));
+        if cancelled > 0 {
+            lines.push(format!("cancelled: {cancelled}"));
+        }
+        lines
+    }
+}
+
+/// The one step a batch leaves to its caller: deblur this photo (already loaded) with
+/// this source and write `output` atomically. The command line writes its own formats;
+/// [`deblur_and_write`] is the core's.
+pub type DeblurOne<'a> = dyn Fn(&Path, &Capture, &dyn KernelSource, &Path, &str, &JobContext) -> Result<(), String>
+    + Sync
+    + 'a;
+
+/// Deblurs a capture and writes it as [`crate::deblur::output::write_deblurred`] does
+/// (16-bit linear PNG or TIFF, or DNG, by `output`'s extension, and a RAW photo's
+/// preview), `described` naming the kernels in a DNG's note.
+///
+/// # Errors
+/// The deblurring failed or was cancelled, or the file cannot be written.
+pub fn deblur_and_write(
+    capture: &Capture,
+    source: &dyn KernelSource,
+    opts: &DeblurOptions,
+    output: &Path,
+    described: &str,
+    job: &JobContext,
+) -> Result<(), String> {
+    let out =
+        crate::deblur::deblur_capture(capture, source, opts, job).map_err(|e| e.to_string())?;
+    let note = format!(
+        "Deblurred by {} ({}) with {described}",
+        crate::dng::SOFTWARE,
+        opts.method.name()
+    );
+    crate::deblur::output::write_deblurred(output, None, &out, &note)
+        .map(|_| ())
+        .map_err(|e| e.to_string())
+}
+
+/// Peak memory of deblurring and writing one photo of `pixels` pixels: 48 bytes a
+/// pixel (the worst measured, a 100 MP 16-bit TIFF: the file's bytes, the decoded
+/// image, the linear f32 planes, the deblurred copy and the encoded output; a RAW
+/// photo takes about 33) and 64 MiB of tile buffers.
+#[must_use]
+pub fn peak_bytes(pixels: usize) -> u64 {
+    48 * pixels as u64 + (64 << 20)
+}
+
+/// `MemAvailable` of `/proc/meminfo`, in bytes; `None` where it cannot be read.
+#[must_use]
+pub fn memory_available() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    parse_mem_available(&text)
+}
+
+fn parse_mem_available(meminfo: &str) -> Option<u64> {
+    let line = meminfo.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    kb.checked_mul(1024)
+}
+
+/// Memory reserved by photos in flight: a photo starts only when its [`peak_bytes`]
+/// fits beside the others' within the budget, or when nothing else runs (one photo
+/// larger than the budget still runs, alone).
+struct Budget {
+    limit: u64,
+    used: Mutex<u64>,
+    freed: Condvar,
+}
+
+impl Budget {
+    fn take(&self, bytes: u64) {
+        let mut used = self
+            .used
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        while *used > 0 && used.saturating_add(bytes) > self.limit {
+            used = self
+                .freed
+                .wait(used)
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+        }
+        *used += bytes;
+    }
+
+    fn give(&self, bytes: u64) {
+        let mut used = self
+            .used
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        *used = used.saturating_sub(bytes);
+        self.freed.notify_all();
+    }
+}
+
+/// Runs a planned batch: the photos to deblur on up to one worker per core, within the
+/// memory budget (see [`Budget`]; without a budget, one at a time), reporting
+/// "deblur" progress per photo finished. Each photo is loaded, checked against its
+/// header, and handed with its profile's kernels to `deblur_one`. A photo's failure is
+/// recorded and the batch goes on; after a cancel, photos not started are
+/// [`Outcome::Cancelled`].
+#[must_use]
+pub fn run(
+    planned: &[Planned],
+    library: &ProfileLibrary,
+    opts: &BatchOptions,
+    job: &JobContext,
+    deblur_one: &DeblurOne<'_>,
+) -> BatchReport {
+    let todo: Vec<usize> = (0..planned.len())
+        .filter(|&i| matches!(planned[i].action, Action::Deblur { .. }))
+        .collect();
+    let budget = opts
+        .memory_budget
+        .or_else(|| memory_available().map(|m| m / 4 * 3));
+    let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
+    let workers = match budget {
+        Some(_) => opts.max_parallel.unwrap_or(cores).clamp(1, cores.max(1)),
+        None => 1,
+    }
+    .min(todo.len())
+    .max(1);
+    let budget = Budget {
+        limit: budget.unwrap_or(u64::MAX),
+        used: Mutex::new(0),
+        freed: Condvar::new(),
+    };
+    let results: Mutex<Vec<Option<Outcome>>> = Mutex::new(vec![None; planned.len()]);
+    let next = AtomicUsize::new(0);
+    let finished = AtomicUsize::new(0);
+    job.report("deblur", 0, todo.len());
+    let quiet = job.without_progress();
+    std::thread::scope(|s| {
+        for _ in 0..workers {
+            s.spawn(|| {
+                loop {
+                    let k = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(&i) = todo.get(k) else { break };
+                    let p = &planned[i];
+                    let Action::Deblur { pick, pixels } = p.action else {
+                        continue;
+                    };
+                    let outcome = if job.is_cancelled() {
+                        Outcome::Cancelled
+                    } else {
+                        let need = peak_bytes(pixels);
+                        budget.take(need);
+                        let o = deblur_photo(p, pick, library, opts, &quiet, deblur_one);
+                        budget.give(need);
+                        o
+                    };
+                    if let Ok(mut r) = results.lock() {
+                        r[i] = Some(outcome);
+                    }
+                    let n = finished.fetch_add(1, Ordering::Relaxed) + 1;
+                    job.report("deblur", n, todo.len());
+                }
+            });
+        }
+    });
+    let results = results
+        .into_inner()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let outcomes = planned
+        .iter()
+        .zip(results)
+        .map(|(p, r)| PhotoOutcome {
+            photo: p.photo.clone(),
+            output: p.output.clone(),
+            outcome: match (&p.action, r) {
+                (Action::Skip(s), _) => Outcome::Skipped(s.clone()),
+                (Action::Deblur { .. }, Some(o)) => o,
+                (Action::Deblur { .. }, None) => Outcome::Cancelled,
+            },
+        })
+        .collect();
+    BatchReport {
+        outcomes,
+        parallel: workers,
+    }
+}
+
+fn deblur_photo(
+    p: &Planned,
+    pick: Pick,
+    library: &ProfileLibrary,
+    opts: &BatchOptions,
+    job: &JobContext,
+    deblur_one: &DeblurOne<'_>,
+) -> Outcome {
+    let Some(entry) = library.profiles.get(pick.index) else {
+        return Outcome::Failed(format!("no profile {} in the library", pick.index));
+    };
+    let capture = match crate::raw::load_capture(&p.photo, &LoadOptions::default()) {
+        Ok(c) => c,
+        Err(e) => return Outcome::Failed(e.to_string()),
+    };
+    if (capture.width, capture.height) != (entry.profile.norm.width, entry.profile.norm.height) {
+        return Outcome::Failed(format!(
+            "decodes to {} × {}, not the size its header declared",
+            capture.width, capture.height
+        ));
+    }
+    let mut profile = entry.profile.clone();
+    profile.allow_extrapolation = opts.allow_extrapolation;
+    let source = ProfileKernels {
+        profile,
+        setting: pick.setting,
+    };
+    let described = format!(
+        "the profile {} at {} mm, f/{}",
+        entry.path.file_name().map_or_else(
+            || entry.path.display().to_string(),
+            |n| n.to_string_lossy().into_owned()
+        ),
+        pick.setting.focal_mm,
+        pick.setting.f_number
+    );
+    match deblur_one(&p.photo, &capture, &source, &p.output, &described, job) {
+        Ok(()) => Outcome::Done {
+            profile: entry.path.clone(),
+            setting: pick.setting,
+            extrapolated: pick.extrapolated,
+        },
+        Err(_) if job.is_cancelled() => Outcome::Cancelled,
+        Err(e) => Outcome::Failed(e),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{GlobalModel, ModelKind};
+    use crate::simulate::SimulatedSession;
+    use crate::simulate::lens::VirtualLens;
+
+    fn setting(focal_mm: f64, f_number: f64) -> LensSetting {
+        LensSetting { focal_mm, f_number }
+    }
+
+    /// A profile of a 64 × 48 sensor calibrated at 24–70 mm, f/4–8, for `identity`.
+    fn profile(identity: CameraIdentity) -> Profile {
+        static BASE: std::sync::OnceLock<Profile> = std::sync::OnceLock::new();
+        let base = BASE.get_or_init(|| {
+            let settings: Vec<LensSetting> = [(24.0, 4.0), (24.0, 8.0), (70.0, 4.0), (70.0, 8.0)]
+                .into_iter()
+                .map(|(f, a)| setting(f, a))
+                .collect();
+            let ds = SimulatedSession::new(64, 48).dataset(&VirtualLens::demo(), &settings);
+            let global = GlobalModel::fit(&ds, 1, 1).unwrap();
+            Profile::new(
+                CameraIdentity::default(),
+                None,
+                settings,
+                Some(global),
+                None,
+                None,
+                ModelKind::Global,
+            )
+            .unwrap()
+        });
+        Profile {
+            identity,
+            ..base.clone()
+        }
+    }
+
+    fn id(make: &str, model: &str, lens: &str, lens_serial: Option<&str>) -> CameraIdentity {
+        CameraIdentity {
+            make: Some(make.into()),
+            model: Some(model.into()),
+            lens_model: Some(lens.into()),
+            lens_serial: lens_serial.map(Into::into),
+            body_serial: None,
+        }
+    }
+
+    fn library(profiles: Vec<(&str, Profile)>) -> ProfileLibrary {
+        let mut lib = ProfileLibrary::default();
+        for (name, profile) in profiles {
+            lib.add(LibraryProfile {
+                path: PathBuf::from(name),
+                profile,
+            });
+        }
+        lib
+    }
+
+    fn photo(identity: CameraIdentity, f: f64, a: f64) -> PhotoFacts {
+        PhotoFacts {
+            width: 64,
+            height: 48,
+            focal_mm: Some(f),
+            f_number: Some(a),
+            identity,
+        }
+    }
+
+    fn picked<'a>(lib: &'a ProfileLibrary, p: &PhotoFacts) -> Result<&'a str, Skip> {
+        lib.pick(p, false)
+            .map(|k| lib.profiles[k.index].path.to_str().unwrap())
+    }
+
+    #[test]
+    fn the_lens_decides_and_the_unit_beats_its_siblings() {
+        let lib = library(vec![
+            ("zoom.json", profile(id("Acme", "A1", "Zoom 24-70", None))),
+            ("prime.json", profile(id("Acme", "A1", "Prime 50", None))),
+            (
+                "zoom-7.json",
+                profile(id("Acme", "A1", "Zoom 24-70", Some("7"))),
+            ),
+            (
+                "zoom-8.json",
+                profile(id("Acme", "A1", "Zoom 24-70", Some("8"))),
+            ),
+        ]);
+        assert_eq!(
+            picked(&lib, &photo(id("Acme", "A1", "Prime 50", None), 50.0, 5.6)),
+            Ok("prime.json")
+        );
+        // The lens unit's own profile, then (another serial) the generic one.
+        let unit = |s| photo(id("Acme", "A1", "Zoom 24-70", Some(s)), 35.0, 5.6);
+        assert_eq!(picked(&lib, &unit("7")), Ok("zoom-7.json"));
+        assert_eq!(picked(&lib, &unit(" 8 ")), Ok("zoom-8.json"));
+        assert_eq!(picked(&lib, &unit("9")), Ok("zoom.json"));
+        // No serial in the photo: three profiles of that lens fit, two equally best
+        // (the serial ones record as much as the generic one).
+        match picked(
+            &lib,
+            &photo(id("Acme", "A1", "Zoom 24-70", None), 35.0, 5.6),
+        ) {
+            Err(Skip::Ambiguous { first, second }) => {
+                let names = [first, second].map(|p| p.display().to_string());
+                assert!(names.iter().all(|n| n.starts_with("zoom")), "{names:?}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn photos_without_a_fitting_profile_say_why() {
+        let lib = library(vec![(
+            "zoom.json",
+            profile(id("Acme", "A1", "Zoom 24-70", None)),
+        )]);
+        let other_lens = photo(id("Acme", "A1", "Tele 200", None), 50.0, 5.6);
+        match picked(&lib, &other_lens) {
+            Err(e @ Skip::NoProfile { .. }) => {
+                assert!(e.to_string().contains("Acme A1, Tele 200"), "{e}");
+            }
+            other => panic!("{other:?}"),
+        }
+        // Another sensor size: another camera, whatever EXIF says.
+        let mut cropped = photo(id("Acme", "A1", "Zoom 24-70", None), 50.0, 5.6);
+        cropped.width = 32;
+        assert!(matches!(
+            picked(&lib, &cropped),
+            Err(Skip::NoProfile { .. })
+        ));
+        // A photo that does not record its lens cannot be confirmed as the profile's.
+        let mut no_lens = photo(id("Acme", "A1", "Zoom 24-70", None), 50.0, 5.6);
+        no_lens.identity.lens_model = None;
+        assert!(matches!(
+            picked(&lib, &no_lens),
+            Err(Skip::NoProfile { .. })
+        ));
+        let mut no_focal = photo(id("Acme", "A1", "Zoom 24-70", None), 50.0, 5.6);
+        no_focal.focal_mm = None;
+        assert_eq!(
+            picked(&lib, &no_focal),
+            Err(Skip::NoSettings {
+                missing: "focal length"
+            })
+        );
+    }
+
+    #[test]
+    fn settings_outside_the_calibration_skip_unless_extrapolation_is_allowed() {
+        let lib = library(vec![(
+            "zoom.json",
+            profile(id("Acme", "A1", "Zoom 24-70", None)),
+        )]);
+        let far = photo(id("Acme", "A1", "Zoom 24-70", None), 105.0, 5.6);
+        match lib.pick(&far, false) {
+            Err(e @ Skip::OutOfRange { .. }) => assert!(e.to_string().contains("105"), "{e}"),
+            other => panic!("{other:?}"),
+        }
+        let pick = lib.pick(&far, true).unwrap();
+        assert!(pick.extrapolated);
+        assert_eq!(pick.setting, setting(105.0, 5.6));
+        // Of two profiles of one lens, the one calibrated for the setting wins.
+        let mut tele = profile(id("Acme", "A1", "Zoom 24-70", None));
+        tele.norm.focal_range_mm = [70.0, 200.0];
+        for s in &mut tele.calibrated_settings {
+            s.focal_mm = if s.focal_mm < 50.0 { 70.0 } else { 200.0 };
+        }
+        let lib = library(vec![
+            ("zoom.json", profile(id("Acme", "A1", "Zoom 24-70", None))),
+            ("tele.json", tele),
+        ]);
+        assert_eq!(picked(&lib, &far), Ok("tele.json"));
+        assert_eq!(
+            picked(
+                &lib,
+                &photo(id("Acme", "A1", "Zoom 24-70", None), 30.0, 5.6)
+            ),
+            Ok("zoom.json")
+        );
+    }
+
+    #[test]
+    fn a_profile_naming_no_camera_is_left_out_with_a_warning() {
+        let lib = library(vec![("anon.json", profile(CameraIdentity::default()))]);
+        assert!(lib.profiles.is_empty());
+        assert!(lib.warnings[0].contains("anon.json"), "{:?}", lib.warnings);
+    }
+
+    #[test]
+    fn a_library_folder_skips_other_files_and_warns_of_damaged_profiles() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        profile(id("Acme", "A1", "Zoom 24-70", None))
+            .save(&d.join("zoom.json"))
+            .unwrap();
+        std::fs::write(d.join("notes.txt"), "not a profile").unwrap();
+        std::fs::write(
+            d.join("session.json"),
+            r#"{"schema": "lensblur.session/2"}"#,
+        )
+        .unwrap();
+        std::fs::write(d.join("broken.json"), r#"{"schema": "lensblur.profile/1"}"#).unwrap();
+        let lib = ProfileLibrary::load(d).unwrap();
+        assert_eq!(lib.profiles.len(), 1);
+        assert_eq!(lib.warnings.len(), 1, "{:?}", lib.warnings);
+        assert!(
+            lib.warnings[0].contains("broken.json"),
+            "{:?}",
+            lib.warnings
+        );
+        let empty = tempfile::tempdir().unwrap();
+        assert!(matches!(
+            ProfileLibrary::load(empty.path()),
+            Err(BatchError::NoProfiles { .. })
+        ));
+    }
+
+    #[test]
+    fn memory_budget_reads_meminfo() {
+        let text = "MemTotal:       24000000 kB\nMemAvailable:   1000 kB\n";
+        assert_eq!(parse_mem_available(text), Some(1_024_000));
+        assert_eq!(parse_mem_available("MemTotal: 5 kB\n"), None);
+        assert!(peak_bytes(100_000_000) > 4_000_000_000);
+    }
+}

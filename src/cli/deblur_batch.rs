@@ -1,0 +1,123 @@
+//! `lensblur deblur PHOTO|DIR... --out-dir OUTDIR --profiles PROFILEDIR [--format
+//! tiff|png|dng] [--allow-extrapolation] [--jobs N]`: many photos, each with the
+//! profile its EXIF matches (`lensblur::batch` holds the rule), written as
+//! `<OUTDIR>/<stem>.<format>`. Skips are reported, not failures; the exit status is
+//! non-zero only when a photo failed.
+
+use super::common::progress_job;
+use super::deblur::{Args, deblur_one, output_supported};
+use anyhow::{Result, bail};
+use lensblur::batch::{
+    BatchOptions, Outcome, OutputFormat, ProfileLibrary, collect_photos, plan, run as run_batch,
+};
+use lensblur::deblur::DeblurOptions;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Default)]
+pub struct BatchArgs {
+    /// Batch: the folder the outputs go to, `<photo's stem>.<format>` each (made if
+    /// missing). Photos whose output is already there and complete are skipped.
+    #[arg(long, requires = "profiles")]
+    pub out_dir: Option<PathBuf>,
+    /// Batch: a folder of lens profiles; each photo gets the one that matches its EXIF
+    /// camera, lens and sensor size at its focal length and aperture.
+    #[arg(
+        long,
+        requires = "out_dir",
+        conflicts_with_all = ["out", "profile", "kernels", "focal", "aperture", "force"]
+    )]
+    pub profiles: Option<PathBuf>,
+    /// Batch: the output format (16-bit linear TIFF or PNG, or DNG: RAW photos only,
+    /// others skipped).
+    #[arg(long, value_enum, default_value = "tiff")]
+    pub format: FormatArg,
+    /// Batch: photos deblurred at once at most (default: one per core, as memory allows).
+    #[arg(long)]
+    pub jobs: Option<usize>,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Default, PartialEq, Eq)]
+pub enum FormatArg {
+    #[default]
+    Tiff,
+    Png,
+    Dng,
+}
+
+pub fn run(args: &Args, deblur: &DeblurOptions) -> Result<()> {
+    let b = &args.batch;
+    let (Some(out_dir), Some(profiles)) = (&b.out_dir, &b.profiles) else {
+        bail!("a batch needs --out-dir and --profiles");
+    };
+    let format = match b.format {
+        FormatArg::Tiff => OutputFormat::Tiff,
+        FormatArg::Png => OutputFormat::Png,
+        FormatArg::Dng => OutputFormat::Dng,
+    };
+    debug_assert!(output_supported(format.extension()));
+    if b.jobs == Some(0) {
+        bail!("--jobs must be at least 1");
+    }
+    lensblur::io::create_dir_all(out_dir)?;
+    let library = ProfileLibrary::load(profiles)?;
+    for w in &library.warnings {
+        eprintln!("lensblur: warning: {w}");
+    }
+    let photos = collect_photos(&args.photos, out_dir)?;
+    if photos.is_empty() {
+        bail!("no photos among the paths given");
+    }
+    let opts = BatchOptions {
+        out_dir: out_dir.clone(),
+        format,
+        allow_extrapolation: args.allow_extrapolation,
+        deblur: *deblur,
+        memory_budget: None,
+        max_parallel: b.jobs,
+    };
+    let planned = plan(&photos, &library, &opts);
+    let job = progress_job();
+    let report = run_batch(
+        &planned,
+        &library,
+        &opts,
+        &job,
+        &|photo, capture, source, out, described, job| {
+            deblur_one(photo, capture, source, deblur, out, described, job)
+                .map(|_| ())
+                .map_err(|e| format!("{e:#}"))
+        },
+    );
+    for o in &report.outcomes {
+        let photo = o.photo.display();
+        match &o.outcome {
+            Outcome::Done {
+                profile,
+                setting,
+                extrapolated,
+            } => eprintln!(
+                "{photo}: deblurred with {} at f = {} mm, f/{}{} to {}",
+                profile.display(),
+                setting.focal_mm,
+                setting.f_number,
+                if *extrapolated { " (extrapolated)" } else { "" },
+                o.output.display()
+            ),
+            Outcome::Skipped(s) => eprintln!("{photo}: skipped: {s}"),
+            Outcome::Failed(e) => {
+                // Errors from reading the photo name it already.
+                let e = e.strip_prefix(&format!("{photo}: ")).unwrap_or(e.as_str());
+                eprintln!("{photo}: failed: {e}");
+            }
+            Outcome::Cancelled => eprintln!("{photo}: cancelled"),
+        }
+    }
+    for line in report.summary() {
+        eprintln!("{line}");
+    }
+    let failed = report.failed();
+    if failed > 0 {
+        bail!("{failed} of {} photos failed", report.outcomes.len());
+    }
+    Ok(())
+}

@@ -1,0 +1,74 @@
+//! Writing a deblurred photo: the one place that picks the file format from the output
+//! name, for the command line (one photo or a batch) and the studio's export.
+
+use crate::develop::{Orient, develop, save_png};
+use crate::plane::Capture;
+use std::path::{Path, PathBuf};
+
+/// What was written besides the result.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Written {
+    /// A RAW photo's 8-bit preview beside the result (`<stem>.preview.png`).
+    pub preview: Option<PathBuf>,
+    /// Why the preview shows the linear planes rather than the developed RAW.
+    pub warning: Option<String>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    #[error(transparent)]
+    Dng(#[from] crate::dng::DngError),
+    #[error(transparent)]
+    Save(#[from] crate::raw::SaveError),
+}
+
+/// Whether `out` names a DNG.
+#[must_use]
+pub fn is_dng(out: &Path) -> bool {
+    out.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("dng"))
+}
+
+/// Writes a deblurred capture as `out`'s extension says: a DNG (the CFA with the
+/// original's metadata and `note` saying what was done; RAW photos only) or 16-bit
+/// linear TIFF/PNG. A RAW photo also gets its developed preview beside it, or the
+/// linear planes' where it cannot be developed (said in [`Written::warning`]).
+///
+/// # Errors
+/// The output cannot be written, or a DNG was asked for an RGB photo.
+pub fn write_deblurred(
+    out: &Path,
+    original_file_name: Option<String>,
+    deblurred: &Capture,
+    note: &str,
+) -> Result<Written, OutputError> {
+    // The preview first: an output that exists implies its preview does, so a batch
+    // that finds the output complete may skip the photo.
+    let mut written = Written::default();
+    if deblurred.is_raw {
+        let preview = preview_path(out);
+        match develop(deblurred, None, Orient::AsShot) {
+            Ok(image) => save_png(&preview, &image)?,
+            Err(e) => {
+                written.warning = Some(format!("{e}; the preview shows the linear planes"));
+                crate::raw::save_planes(&preview, &crate::raw::full_planes(deblurred), true)?;
+            }
+        }
+        written.preview = Some(preview);
+    }
+    if is_dng(out) {
+        crate::dng::write_capture_dng(out, deblurred, note, original_file_name)?;
+    } else {
+        crate::raw::save_planes(out, &crate::raw::full_planes(deblurred), false)?;
+    }
+    Ok(written)
+}
+
+/// `<stem>.preview.png` beside `out`.
+#[must_use]
+pub fn preview_path(out: &Path) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map_or_else(|| "out".into(), |s| s.to_string_lossy().into_owned());
+    out.with_file_name(format!("{stem}.preview.png"))
+}
