@@ -219,6 +219,17 @@ impl ProfileLibrary {
         Ok(library)
     }
 
+    /// A library of the one profile a person chose (the studio's): it applies to any
+    /// photo of its sensor size whose recorded identity does not contradict it, even
+    /// when it records no camera or lens, since it was picked by hand, not by EXIF.
+    #[must_use]
+    pub fn chosen(path: PathBuf, profile: Profile) -> Self {
+        Self {
+            profiles: vec![LibraryProfile { path, profile }],
+            warnings: Vec::new(),
+        }
+    }
+
     /// Adds a profile, or a warning where it names no camera or lens (rule 2).
     pub fn add(&mut self, p: LibraryProfile) {
         let id = &p.profile.identity;
@@ -600,6 +611,28 @@ pub fn deblur_and_write(
     crate::deblur::output::write_deblurred(output, None, &out, &note)
         .map(|_| ())
         .map_err(|e| e.to_string())
+}
+
+/// Plans and runs a batch with the core's own step ([`deblur_and_write`]): what the
+/// studio's export of a set of photos runs.
+#[must_use]
+pub fn deblur_photos(
+    photos: &[PathBuf],
+    library: &ProfileLibrary,
+    opts: &BatchOptions,
+    job: &JobContext,
+) -> BatchReport {
+    let planned = plan(photos, library, opts);
+    let deblur = opts.deblur;
+    run(
+        &planned,
+        library,
+        opts,
+        job,
+        &|_, capture, source, out, described, job| {
+            deblur_and_write(capture, source, &deblur, out, described, job)
+        },
+    )
 }
 
 /// Peak memory of deblurring and writing one photo of `pixels` pixels: 48 bytes a

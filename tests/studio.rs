@@ -465,6 +465,69 @@ fn every_view_on_the_demo_session() {
     let written = lensblur::raw::load_capture(&out, &Default::default()).expect("export readable");
     assert_eq!((written.width, written.height), (spec.width, spec.height));
 
+    // A set of photos with the profile, as the command line's batch: a RAW photo at a
+    // calibrated setting becomes a DNG; a demo shot (an RGB PNG) is skipped, with why.
+    let raw = dir.path().join("IMG_0002.dng");
+    let cfa: Vec<u16> = (0..spec.width * spec.height)
+        .map(|i| 512 + ((i * 7919) % 12000) as u16)
+        .collect();
+    lensblur::dng::write_dng(
+        &raw,
+        &cfa,
+        spec.width,
+        spec.height,
+        &lensblur::dng::DngInfo::simulated(
+            "Virtual",
+            "Sim 14",
+            512,
+            16383,
+            Some(spec.settings[0]),
+            lensblur::dng::DngLayout::default(),
+        ),
+    )
+    .expect("write a RAW photo");
+    let png = demo_dir.join(DemoSpec::shot_name(spec.settings[0]));
+    let exported = dir.path().join("exported");
+    std::fs::create_dir(&exported).expect("mkdir");
+    h.state_mut().commands.push(Command::ExportPhotos {
+        photos: vec![raw, png],
+        out_dir: exported.clone(),
+        dng: true,
+    });
+    step_until(
+        &mut h,
+        "the photos' export",
+        Duration::from_secs(120),
+        |a| {
+            idle(a)
+                && a.messages
+                    .iter()
+                    .any(|m| m.text.contains("photos exported"))
+        },
+    );
+    let summary = h
+        .state()
+        .messages
+        .iter()
+        .find(|m| m.text.contains("photos exported"))
+        .map(|m| m.text.clone())
+        .unwrap_or_default();
+    assert!(
+        summary.contains("done: 1") && summary.contains("skipped: 1"),
+        "{summary}"
+    );
+    assert!(
+        h.state()
+            .messages
+            .iter()
+            .any(|m| m.text.contains("skipped: not a RAW photo"))
+    );
+    let dng = lensblur::raw::load_capture(&exported.join("IMG_0002.dng"), &Default::default())
+        .expect("exported DNG");
+    assert!(dng.is_raw);
+    let note = dng.raw.and_then(|r| r.description).unwrap_or_default();
+    assert!(note.contains("profile.json"), "{note}");
+
     // The cached demo opens at once on the next launch, with its results.
     drop(h);
     let mut again = new_harness(&demo_dir, None);

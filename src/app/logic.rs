@@ -290,6 +290,27 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
                 app.shown_path(&path)
             ));
         }
+        JobOutput::PhotosExported(report) => {
+            for o in &report.outcomes {
+                let name = app.shown_path(&o.photo);
+                match &o.outcome {
+                    crate::batch::Outcome::Skipped(reason) => {
+                        app.info(format!("{name}: skipped: {reason}"));
+                    }
+                    crate::batch::Outcome::Failed(reason) => app.error(format!("{name}: {reason}")),
+                    _ => {}
+                }
+            }
+            app.info(format!(
+                "photos exported: {}",
+                report
+                    .summary()
+                    .iter()
+                    .map(|l| l.trim())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ));
+        }
     }
 }
 
@@ -443,6 +464,37 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
             }
         }
         Command::ExportDeblur { path, result } => run_export(app, path, result),
+        Command::ExportPhotosDialog { dng } => {
+            let Some(photos) = rfd::FileDialog::new()
+                .set_title(if dng {
+                    "RAW photos to deblur (written as DNGs)"
+                } else {
+                    "Photos to deblur (written as 16-bit TIFFs)"
+                })
+                .add_filter("RAW, DNG, TIFF, PNG, JPEG", crate::session::SHOT_EXTENSIONS)
+                .pick_files()
+            else {
+                return;
+            };
+            if let Some(out_dir) = rfd::FileDialog::new()
+                .set_title("Folder for the deblurred photos")
+                .pick_folder()
+            {
+                apply(
+                    app,
+                    Command::ExportPhotos {
+                        photos,
+                        out_dir,
+                        dng,
+                    },
+                );
+            }
+        }
+        Command::ExportPhotos {
+            photos,
+            out_dir,
+            dng,
+        } => run_export_photos(app, photos, out_dir, dng),
         Command::LoadProfileDialog | Command::LoadCompareProfileDialog => {
             let compare = command == Command::LoadCompareProfileDialog;
             if let Some(path) = rfd::FileDialog::new()
@@ -1223,6 +1275,36 @@ fn run_deblur_preview(app: &mut StudioApp, centre: [f64; 2]) {
             comparison: Arc::new(comparison),
             measured_from: from,
         });
+        Ok(())
+    });
+    if let Err(e) = r {
+        app.error(e);
+    }
+}
+
+/// Deblurs a set of photos with the open profile, each at its own EXIF setting, as the
+/// command line's batch does (skips and failures reported photo by photo).
+fn run_export_photos(app: &mut StudioApp, photos: Vec<PathBuf>, out_dir: PathBuf, dng: bool) {
+    let Some((path, profile)) = &app.profile else {
+        app.error("calibrate or load a profile first: the photos are deblurred with it");
+        return;
+    };
+    let library = crate::batch::ProfileLibrary::chosen(path.clone(), (**profile).clone());
+    let opts = crate::batch::BatchOptions {
+        out_dir,
+        format: if dng {
+            crate::batch::OutputFormat::Dng
+        } else {
+            crate::batch::OutputFormat::Tiff
+        },
+        allow_extrapolation: false,
+        deblur: deblur_options(app),
+        memory_budget: None,
+        max_parallel: None,
+    };
+    let r = app.jobs.spawn("export photos", move |ctx, out| {
+        let report = crate::batch::deblur_photos(&photos, &library, &opts, ctx);
+        out.emit(JobOutput::PhotosExported(report));
         Ok(())
     });
     if let Err(e) = r {

@@ -131,6 +131,17 @@ pub enum Command {
         path: PathBuf,
         result: DeblurResult,
     },
+    /// Choose photos and a folder, then export them deblurred with the profile.
+    ExportPhotosDialog {
+        dng: bool,
+    },
+    /// Deblur a set of photos with the open profile into `out_dir`, as the command
+    /// line's batch does: 16-bit TIFF, or with `dng` RAW photos as DNGs (others skipped).
+    ExportPhotos {
+        photos: Vec<PathBuf>,
+        out_dir: PathBuf,
+        dng: bool,
+    },
     LoadProfileDialog,
     /// Load a second profile to show beside the first (two lens units).
     LoadCompareProfileDialog,
@@ -234,6 +245,8 @@ pub enum JobOutput {
         measured_from: Option<String>,
     },
     DeblurExported(PathBuf),
+    /// A set of photos exported: what became of each.
+    PhotosExported(crate::batch::BatchReport),
     /// The crops of an inspected square (`None`: the square has none in that channel).
     SquareInspected {
         key: view_data::InspectKey,

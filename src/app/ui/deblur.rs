@@ -68,21 +68,37 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
         }
         ui.separator();
-        ui.add_enabled_ui(app.deblur.photo.is_some(), |ui| {
-            ui.menu_button("Export…", |ui| {
-                for r in [DeblurResult::Predicted, DeblurResult::Measured] {
-                    if ui
-                        .button(format!("whole photo deblurred with {}", r.label()))
-                        .clicked()
-                    {
-                        app.commands.push(Command::ExportDeblurDialog(r));
-                        ui.close();
-                    }
+        ui.menu_button("Export…", |ui| {
+            for r in [DeblurResult::Predicted, DeblurResult::Measured] {
+                if ui
+                    .add_enabled(
+                        app.deblur.photo.is_some(),
+                        egui::Button::new(format!("whole photo deblurred with {}", r.label())),
+                    )
+                    .on_hover_text("Deblur the open photo and write it: a RAW photo as a DNG with its metadata (or TIFF/PNG), others as 16-bit linear TIFF or PNG (Ctrl+E: predicted)")
+                    .clicked()
+                {
+                    app.commands.push(Command::ExportDeblurDialog(r));
+                    ui.close();
                 }
-            })
-            .response
-            .on_hover_text("Deblur the whole photo and write it: a RAW photo as a DNG with its metadata (or TIFF/PNG), others as 16-bit linear TIFF or PNG (Ctrl+E: predicted)");
-        });
+            }
+            ui.separator();
+            for (dng, label) in [
+                (false, "a set of photos (16-bit TIFF)…"),
+                (true, "a set of RAW photos (DNG)…"),
+            ] {
+                if ui
+                    .add_enabled(app.profile.is_some(), egui::Button::new(label))
+                    .on_hover_text("Each photo deblurred with the profile at its own focal length and aperture (from EXIF); photos of another camera or lens, or outside the calibrated range, are skipped with the reason")
+                    .clicked()
+                {
+                    app.commands.push(Command::ExportPhotosDialog { dng });
+                    ui.close();
+                }
+            }
+        })
+        .response
+        .on_hover_text("Write the open photo deblurred, or a set of photos");
     });
     let Some(photo) = &app.deblur.photo else {
         ui.label("No photo open. Open one, drop one on this view, or deblur the selected shot of the session.");
