@@ -576,10 +576,7 @@ pub fn profile_source(
         ));
     }
     profile.check_setting(setting).map_err(|e| e.to_string())?;
-    Ok(ProfileKernels {
-        profile: profile.clone(),
-        setting,
-    })
+    Ok(ProfileKernels::new(profile.clone(), setting))
 }
 
 /// Whether kernels measured on a shot at `shot_setting` serve a photo at `setting` on a
@@ -825,6 +822,7 @@ mod tests {
                 channel: Channel::G,
                 gaussian: g(s * a / 4.0),
                 square: None,
+                kernel: None,
             });
             ds.push_shot(
                 ShotInfo {

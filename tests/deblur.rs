@@ -563,10 +563,7 @@ fn spatially_varying_field_beats_blurry_and_invariant() {
             offset_y: 0,
         };
         let true_source = |_c: Channel, x: f64, y: f64| truth(x, y).kernel(1);
-        let predicted = ProfileKernels {
-            profile: profile.clone(),
-            setting,
-        };
+        let predicted = ProfileKernels::new(profile.clone(), setting);
         let x_true = deblur_channel_plane(&cp, w, h, &true_source, &hqs, &job).expect("deblur");
         let x_pred = deblur_channel_plane(&cp, w, h, &predicted, &hqs, &job).expect("deblur");
         let x_wiener =
@@ -1083,7 +1080,7 @@ fn deblur_command_writes_a_raw_photo_back_as_a_dng_with_its_metadata() {
 
     // The planes read back are the ones written: the same deblurring in this process,
     // quantised as the writer does.
-    let source = ProfileKernels { profile, setting };
+    let source = ProfileKernels::new(profile, setting);
     let deblurred = lensblur::deblur::deblur_capture(
         &original,
         &source,
@@ -1449,10 +1446,7 @@ fn full_size_spatially_varying_figures() {
             offset_y: 0,
         };
         let true_source = |_c: Channel, x: f64, y: f64| truth(x, y).kernel(1);
-        let predicted = ProfileKernels {
-            profile: profile.clone(),
-            setting,
-        };
+        let predicted = ProfileKernels::new(profile.clone(), setting);
         let hqs = DeblurOptions::default();
         let wiener = DeblurOptions {
             method: Method::Wiener(WienerParams::default()),
