@@ -1,5 +1,5 @@
 //! Lens profiles (DESIGN.md §1.8): the fitted models of one camera + lens unit in a
-//! versioned JSON file, `lensblur.profile/1`.
+//! versioned JSON file, `lensblur.profile/2` (version 1 read too).
 //!
 //! Coefficients are stored as base64 of little-endian `f32` (7 significant digits, far
 //! below the measurement noise): a G_{8,3} profile of three channels is about 17 kB (the

@@ -530,7 +530,7 @@ fn profile_round_trip_and_validation() {
 
     // Wrong schema / version, and a truncated coefficient array.
     let text = std::fs::read_to_string(&path).unwrap();
-    let bad = text.replace("lensblur.profile/1", "lensblur.profile/2");
+    let bad = text.replace("lensblur.profile/2", "lensblur.profile/3");
     assert!(matches!(
         Profile::from_json(&bad, "p.json"),
         Err(ProfileError::Schema { .. })

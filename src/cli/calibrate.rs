@@ -159,7 +159,7 @@ pub fn load_session_locked(
 pub struct Args {
     #[command(flatten)]
     pub session: SessionArgs,
-    /// Where to write the profile (lensblur.profile/1).
+    /// Where to write the profile (lensblur.profile/2).
     #[arg(long)]
     pub out: PathBuf,
     /// Which models to fit.
