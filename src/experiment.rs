@@ -243,7 +243,12 @@ pub fn measured_kernels(
     use crate::kernel::{KernelParams, SquareGeometry, estimate_square_geometry};
     use crate::simulate::{CaptureParams, Pose, simulate_shot};
     let count = opts.count;
-    let mut lens = VirtualLens::demo();
+    // The aberrated shape is a design of its own, over the demo lens's ranges.
+    let mut lens = if opts.shape == PsfShape::Aberrated {
+        VirtualLens::aberrated()
+    } else {
+        VirtualLens::demo()
+    };
     lens.shape = opts.shape;
     let spec = ChartSpec {
         cols: opts.cols,

@@ -89,6 +89,8 @@ pub enum ShapeArg {
     Gaussian,
     Disc,
     Comet,
+    /// Diffraction through a Seidel wavefront: the aberrated lens.
+    Aberrated,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -111,6 +113,7 @@ fn gaussian_approx_cmd(a: GaussianApproxArgs) -> Result<()> {
         ShapeArg::Gaussian => PsfShape::Gaussian,
         ShapeArg::Disc => PsfShape::Disc,
         ShapeArg::Comet => PsfShape::Comet,
+        ShapeArg::Aberrated => PsfShape::Aberrated,
     };
     let kernels = match a.source {
         SourceArg::Measured => {

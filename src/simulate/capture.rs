@@ -31,6 +31,7 @@ use rand_distr::{Distribution, Normal, Poisson};
 use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 use serde::{Deserialize, Serialize};
+use std::collections::{BTreeSet, HashMap};
 
 /// Where the chart sits in the frame.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -359,15 +360,19 @@ pub fn simulate_shot(
     let xs = centre_grid(w, tile);
     let ys = centre_grid(h, tile);
 
-    // The PSFs of every centre.
-    let mut centres = Vec::with_capacity(xs.len() * ys.len());
-    let mut radius_px: f64 = 1.0;
-    for &cy in &ys {
-        for &cx in &xs {
+    // The PSFs of every centre; a non-Gaussian lens's kernels are the costly part of a
+    // shot, and independent.
+    let grid: Vec<(f64, f64)> = ys
+        .iter()
+        .flat_map(|&cy| xs.iter().map(move |&cx| (cx, cy)))
+        .collect();
+    let centres: Vec<PsfCentre> = grid
+        .par_iter()
+        .map(|&(cx, cy)| {
             let (u, v) = VirtualLens::normalised(cx, cy, w, h);
             let psfs = CHANNELS.map(|ch| {
-                let g = lens.gaussian_uv(ch, u, v, params.setting);
                 if lens.shape == PsfShape::Gaussian {
+                    let g = lens.gaussian_uv(ch, u, v, params.setting);
                     CentrePsf {
                         cov: [g.sigma_x.powi(2), g.sigma_y.powi(2), g.cov_xy()],
                         gaussian: g,
@@ -383,15 +388,16 @@ pub fn simulate_shot(
                     }
                 }
             });
-            for p in &psfs {
-                let r = match &p.kernel {
-                    Some(k) => k.radius_px() + (p.cov[0].max(p.cov[1])).sqrt(),
-                    None => p.gaussian.radius_px(4.0),
-                };
-                radius_px = radius_px.max(r);
-            }
-            centres.push(PsfCentre { x: cx, psfs });
-        }
+            PsfCentre { x: cx, psfs }
+        })
+        .collect();
+    let mut radius_px: f64 = 1.0;
+    for p in centres.iter().flat_map(|c| &c.psfs) {
+        let r = match &p.kernel {
+            Some(k) => k.radius_px() + (p.cov[0].max(p.cov[1])).sqrt(),
+            None => p.gaussian.radius_px(4.0),
+        };
+        radius_px = radius_px.max(r);
     }
     let margin = radius_px.ceil() as usize + 2;
     let m = good_size(2 * tile + 1 + 2 * margin);
@@ -737,6 +743,33 @@ fn shot_truth(
             .map(|(ci, &ch)| (ch, centres.iter().map(|c| c.psfs[ci].cov).collect()))
             .collect(),
     };
+    // Neighbouring squares blend the same centres: each centre's fine kernel is made
+    // once, and they are independent.
+    let fine: HashMap<(usize, usize, usize), Kernel> = if lens.shape == PsfShape::Gaussian {
+        HashMap::new()
+    } else {
+        let mut need = BTreeSet::new();
+        for row in 0..spec.rows {
+            for col in 0..spec.cols {
+                let centre = image_from_chart.apply([col as f64 + 0.5, row as f64 + 0.5]);
+                for &(j, wyj) in &hat_weights(ys, tile, centre[1]) {
+                    for &(i, wxi) in &hat_weights(xs, tile, centre[0]) {
+                        if wxi * wyj > 0.0 {
+                            need.extend((0..CHANNELS.len()).map(|ci| (ci, i, j)));
+                        }
+                    }
+                }
+            }
+        }
+        let need: Vec<(usize, usize, usize)> = need.into_iter().collect();
+        need.par_iter()
+            .map(|&(ci, i, j)| {
+                let (u, v) = VirtualLens::normalised(xs[i], ys[j], w, h);
+                let k = lens.optical_kernel_uv(CHANNELS[ci], u, v, params.setting, FINE);
+                ((ci, i, j), k)
+            })
+            .collect()
+    };
     let mut squares = Vec::with_capacity(spec.rows * spec.cols);
     for row in 0..spec.rows {
         for col in 0..spec.cols {
@@ -750,7 +783,7 @@ fn shot_truth(
             let mut optical = Vec::with_capacity(3);
             let mut pixel = Vec::with_capacity(3);
             let mut pixel_kernels = Vec::new();
-            for &ch in &CHANNELS {
+            for (ci, &ch) in CHANNELS.iter().enumerate() {
                 let g = psf_field
                     .optical_at(ch, centre[0], centre[1])
                     .unwrap_or(Gaussian2::isotropic(0.0));
@@ -760,12 +793,14 @@ fn shot_truth(
                     let mut blend = Vec::with_capacity(4);
                     for &(j, wyj) in &wy {
                         for &(i, wxi) in &wx {
-                            if wxi * wyj > 0.0 {
-                                blend.push((wxi * wyj, xs[i], ys[j]));
+                            if wxi * wyj > 0.0
+                                && let Some(k) = fine.get(&(ci, i, j))
+                            {
+                                blend.push((wxi * wyj, k));
                             }
                         }
                     }
-                    pixel_kernels.push((ch, blended_pixel_kernel(lens, ch, &blend, params)));
+                    pixel_kernels.push((ch, blended_pixel_kernel(&blend)));
                 }
             }
             squares.push(SquareTruth {
@@ -790,40 +825,51 @@ fn shot_truth(
     }
 }
 
+/// Samples per pixel of the optical kernels the truth's pixel-level kernels integrate.
+const FINE: usize = 12;
+
 /// The pixel-level kernel at 3× of a blend of centre PSFs: each optical PSF sampled
-/// finely (12×) and integrated over the unit pixel box around every 3× offset.
-fn blended_pixel_kernel(
-    lens: &VirtualLens,
-    ch: Channel,
-    blend: &[(f64, f64, f64)],
-    params: &CaptureParams,
-) -> Kernel {
-    const FINE: usize = 12;
+/// finely ([`FINE`]×) and integrated over the unit pixel box around every 3× offset.
+fn blended_pixel_kernel(fine: &[(f64, &Kernel)]) -> Kernel {
     const OUT: usize = 3;
-    let fine: Vec<(f64, Kernel)> = blend
-        .iter()
-        .map(|&(wgt, x, y)| {
-            let (u, v) = VirtualLens::normalised(x, y, params.width, params.height);
-            (wgt, lens.optical_kernel_uv(ch, u, v, params.setting, FINE))
-        })
-        .collect();
     let radius = fine.iter().map(|(_, k)| k.radius_px()).fold(0.0, f64::max) + 0.5;
     let half = (radius * OUT as f64).ceil() as usize;
     let size = 2 * half + 1;
     let mut data = vec![0.0; size * size];
-    for (wgt, k) in &fine {
+    for &(wgt, k) in fine {
         let c = (k.size / 2) as i64;
         // Fine sample (i, j) at offset ((i − c)/12, …) falls in the box of 3× offset d
-        // when |offset − d| ≤ ½ on both axes; boundary samples count half.
+        // when |offset − d| ≤ ½ on both axes; boundary samples count half. The box is
+        // separable: integrate along x, then along y.
+        let cells: Vec<Vec<(usize, f64)>> = (0..k.size)
+            .map(|i| {
+                let mut v = Vec::with_capacity(5);
+                box_cells_1d((i as i64 - c) as f64 / FINE as f64, half, |a, f| {
+                    v.push((a, f));
+                });
+                v
+            })
+            .collect();
+        let mut rows = vec![0.0; k.size * size];
         for j in 0..k.size {
+            let row = &mut rows[j * size..(j + 1) * size];
             for i in 0..k.size {
-                let val = k.at(i, j) * wgt;
+                let val = k.at(i, j);
                 if val == 0.0 {
                     continue;
                 }
-                let ox = (i as i64 - c) as f64 / FINE as f64;
-                let oy = (j as i64 - c) as f64 / FINE as f64;
-                for_box_cells(ox, oy, half, |a, b, f| data[b * size + a] += val * f);
+                for &(a, f) in &cells[i] {
+                    row[a] += val * f;
+                }
+            }
+        }
+        for j in 0..k.size {
+            let row = &rows[j * size..(j + 1) * size];
+            for &(b, f) in &cells[j] {
+                let dst = &mut data[b * size..(b + 1) * size];
+                for (d, &r) in dst.iter_mut().zip(row) {
+                    *d += wgt * f * r;
+                }
             }
         }
     }
@@ -836,22 +882,21 @@ fn blended_pixel_kernel(
     kern
 }
 
-fn for_box_cells(ox: f64, oy: f64, half: usize, mut add: impl FnMut(usize, usize, f64)) {
+/// The 3× cells (index, weight) whose unit box covers fine offset `o` on one axis.
+fn box_cells_1d(o: f64, half: usize, mut add: impl FnMut(usize, f64)) {
     let os = OUT_F;
-    let lo = |o: f64| ((o - 0.5) * os - 1e-9).ceil() as i64;
-    let hi = |o: f64| ((o + 0.5) * os + 1e-9).floor() as i64;
-    let weight = |o: f64, d: i64| {
-        let dist = (o - d as f64 / os).abs();
-        if (dist - 0.5).abs() < 1e-9 { 0.5 } else { 1.0 }
-    };
-    for dy in lo(oy)..=hi(oy) {
-        for dx in lo(ox)..=hi(ox) {
-            let (a, b) = (dx + half as i64, dy + half as i64);
-            if a < 0 || b < 0 || a > 2 * half as i64 || b > 2 * half as i64 {
-                continue;
-            }
-            add(a as usize, b as usize, weight(ox, dx) * weight(oy, dy));
+    let lo = ((o - 0.5) * os - 1e-9).ceil() as i64;
+    let hi = ((o + 0.5) * os + 1e-9).floor() as i64;
+    for d in lo..=hi {
+        let a = d + half as i64;
+        if a < 0 || a > 2 * half as i64 {
+            continue;
         }
+        let dist = (o - d as f64 / os).abs();
+        add(
+            a as usize,
+            if (dist - 0.5).abs() < 1e-9 { 0.5 } else { 1.0 },
+        );
     }
 }
 

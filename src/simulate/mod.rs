@@ -1,6 +1,7 @@
 //! The simulator: a virtual lens and a capture model that feed the tests, benchmarks
 //! and the studio's demo session with exact ground truth.
 
+pub mod aberration;
 pub mod capture;
 pub mod files;
 pub mod lens;
@@ -12,5 +13,5 @@ pub use capture::{
     SquareTruth, capture_from_raw, simulate_shot,
 };
 pub use files::{ShotFormat, write_shot, write_shot_as};
-pub use lens::{PsfShape, VirtualLens};
+pub use lens::{Aberrations, PsfShape, Seidel, VirtualLens};
 pub use session::{SampleNoise, SimulatedSession};
