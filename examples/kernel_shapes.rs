@@ -5,7 +5,10 @@
 //! at settings between the calibrated ones with the true kernels, the predicted
 //! Gaussians and the predicted shapes.
 //!
-//! `cargo run --release --example kernel_shapes -- [comet|aberrated] [W H]`
+//! With `measured`, the session is the real chain instead: every shot simulated (a
+//! 12 × 8 chart, RAW Bayer, realistic noise), detected, and its kernels estimated.
+//!
+//! `cargo run --release --example kernel_shapes -- [aberrated|comet] [W H] [measured]`
 
 use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
 use lensblur::experiment::compare_kernel_models;
@@ -17,7 +20,8 @@ use lensblur::simulate::lens::{PsfShape, VirtualLens};
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let lens = match args.first().map(String::as_str) {
-        Some("comet") | None => VirtualLens {
+        Some("aberrated") | None => VirtualLens::aberrated(),
+        Some("comet") => VirtualLens {
             shape: PsfShape::Comet,
             ..VirtualLens::demo()
         },
@@ -27,15 +31,19 @@ fn main() -> anyhow::Result<()> {
     let (w, h) = (size(1, 960), size(2, 640));
     let settings = lens.setting_grid(5, 5);
     let t0 = std::time::Instant::now();
-    let ds = SimulatedSession {
-        cols: 12,
-        rows: 8,
-        shots_per_setting: 2,
-        kernel_noise: Some(0.01),
-        seed: 31,
-        ..SimulatedSession::new(w, h)
-    }
-    .dataset(&lens, &settings);
+    let ds = if args.iter().any(|a| a == "measured") {
+        measured_session(&lens, &settings, w, h)?
+    } else {
+        SimulatedSession {
+            cols: 12,
+            rows: 8,
+            shots_per_setting: 2,
+            kernel_noise: Some(0.01),
+            seed: 31,
+            ..SimulatedSession::new(w, h)
+        }
+        .dataset(&lens, &settings)
+    };
     eprintln!(
         "{} shots, {} kernels measured in {:.1} s",
         ds.shots.len(),
@@ -113,4 +121,55 @@ fn main() -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// Two shots per setting through simulate → detect → kernels, as `lensblur calibrate`
+/// measures a session.
+fn measured_session(
+    lens: &VirtualLens,
+    settings: &[LensSetting],
+    w: usize,
+    h: usize,
+) -> anyhow::Result<lensblur::model::Dataset> {
+    use lensblur::chart::ChartSpec;
+    use lensblur::kernel::KernelParams;
+    use lensblur::pipeline::{self, GivenSetting, Measurement};
+    use lensblur::simulate::{CaptureParams, Pose, simulate_shot};
+    let chart = ChartSpec {
+        cols: 12,
+        rows: 8,
+        ..ChartSpec::default()
+    };
+    let m = Measurement::new(chart.clone(), KernelParams::default());
+    let job = JobContext::silent();
+    let mut files = Vec::new();
+    for (i, &setting) in settings.iter().enumerate() {
+        for rep in 0..2 {
+            let mut cp = CaptureParams::new(w, h, setting);
+            cp.seed = 100 + (2 * i + rep) as u64;
+            cp.pose = Pose {
+                rotation_deg: if rep == 0 { 0.8 } else { -1.1 },
+                fill: 0.86,
+                shift_px: [rep as f64 * 7.0, rep as f64 * -5.0],
+                ..Pose::default()
+            };
+            let sim = simulate_shot(&chart, lens, &cp, &job)?;
+            let name = std::path::PathBuf::from(format!("shot-{i:02}-{rep}"));
+            let det = pipeline::detect(&sim.capture, &name, &m, &job)?;
+            let given = GivenSetting {
+                focal_mm: Some(setting.focal_mm),
+                f_number: Some(setting.f_number),
+            };
+            let k = pipeline::estimate(&sim.capture, &det, &name, given, &m, true, &job)?;
+            eprintln!(
+                "{}: {} kernels",
+                name.display(),
+                k.samples.len()
+            );
+            files.push((name.display().to_string(), k, Some(setting)));
+        }
+    }
+    let shots: Vec<(&str, &lensblur::kernel::file::KernelsFile, Option<LensSetting>)> =
+        files.iter().map(|(n, k, s)| (n.as_str(), k, *s)).collect();
+    Ok(lensblur::model::Dataset::from_kernels(&shots)?)
 }
