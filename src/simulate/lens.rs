@@ -7,6 +7,7 @@
 //! over the calibrated range. Positions are normalised, u = 2x/(W−1) − 1 and
 //! v = 2y/(H−1) − 1, so a lens applies to any sensor size.
 
+use super::distortion::LensGeometry;
 use crate::plane::{Channel, LensSetting};
 use crate::psf::{Gaussian2, Kernel};
 use serde::{Deserialize, Serialize};
@@ -52,6 +53,9 @@ pub struct VirtualLens {
     pub f_number_range: [f64; 2],
     pub shape: PsfShape,
     pub channels: Vec<ChannelField>,
+    /// Distortion, lateral colour and vignetting; none unless described.
+    #[serde(default)]
+    pub geometry: LensGeometry,
 }
 
 impl VirtualLens {
@@ -92,6 +96,7 @@ impl VirtualLens {
                     rho_phase: -0.2,
                 },
             ],
+            geometry: LensGeometry::default(),
         }
     }
 
@@ -154,7 +159,7 @@ impl VirtualLens {
                 return Err(format!("channel {ch}: non-finite coefficients"));
             }
         }
-        Ok(())
+        self.geometry.validate()
     }
 
     /// The settings a `nf × na` calibration grid takes over this lens's range: focal
