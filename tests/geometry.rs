@@ -11,10 +11,19 @@ use lensblur::simulate::{
     CaptureParams, LensGeometry, ShotTruth, SimulatedShot, VirtualLens, simulate_shot,
 };
 
-/// Provisional bounds, set from the measured figures below.
+/// Corner RMS on the barrel shot. A homography per square cannot follow the bend of its
+/// edges: at the frame corners of a 640 × 427 frame −3 % barrel bends a 50 px square's
+/// side by about D''·L²/8 ≈ 6·0.03/385 px⁻¹ · 50² / 8 ≈ 0.15 px, and the best
+/// homography splits that between corners and edge middles. Undistorted shots reach
+/// 0.03 px; this allows two thirds of the corner squares' bend.
 const BARREL_CORNER_RMS_PX: f64 = 0.1;
-const CENTROID_BOUND_PX: f64 = 0.15;
-const CHANNEL_CORNER_RMS_PX: f64 = 0.1;
+/// Kernel centroid and image position, per channel. Green on its own (no lateral
+/// colour to correct) measures about 0.05 px; registered against the joint homography,
+/// red and blue are 0.25–0.35 px off on average and over 0.5 px at the corner squares.
+const CENTROID_BOUND_PX: f64 = 0.12;
+/// Each channel's corner RMS against its own true corners: green's is about 0.02 px; a
+/// joint homography leaves red and blue 0.4–0.5 px off.
+const CHANNEL_CORNER_RMS_PX: f64 = 0.05;
 
 fn lens(geometry: LensGeometry) -> VirtualLens {
     let mut l = VirtualLens::demo();
