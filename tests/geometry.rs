@@ -17,13 +17,14 @@ use lensblur::simulate::{
 /// homography splits that between corners and edge middles. Undistorted shots reach
 /// 0.03 px; this allows two thirds of the corner squares' bend.
 const BARREL_CORNER_RMS_PX: f64 = 0.1;
-/// Kernel centroid and image position, per channel. Green on its own (no lateral
-/// colour to correct) measures about 0.05 px; registered against the joint homography,
-/// red and blue are 0.25–0.35 px off on average and over 0.5 px at the corner squares.
-const CENTROID_BOUND_PX: f64 = 0.12;
-/// Each channel's corner RMS against its own true corners: green's is about 0.02 px; a
-/// joint homography leaves red and blue 0.4–0.5 px off.
-const CHANNEL_CORNER_RMS_PX: f64 = 0.05;
+/// Kernel centroid and image position, per channel, at the two corner squares of the
+/// lateral-colour shot (the blurriest, σ up to 3 px). Green, with nothing to correct,
+/// measures 0.11 px there; registered against the joint homography, red and blue are
+/// 0.30 and 0.50 px off (0.05 px and 0.25–0.35 px averaged over all squares).
+const CENTROID_BOUND_PX: f64 = 0.2;
+/// Each channel's corner RMS against its own true corners at those squares: green's is
+/// 0.05 px; a joint homography leaves red and blue 0.60 and 0.73 px off.
+const CHANNEL_CORNER_RMS_PX: f64 = 0.1;
 
 fn lens(geometry: LensGeometry) -> VirtualLens {
     let mut l = VirtualLens::demo();
@@ -240,10 +241,13 @@ fn kernels_stay_centred_under_lateral_colour() {
     let apart = (t.centre_of(Channel::R)[0] - t.centre_of(Channel::B)[0])
         .hypot(t.centre_of(Channel::R)[1] - t.centre_of(Channel::B)[1]);
     assert!(apart > 1.0, "red and blue only {apart:.2} px apart");
-    for (ch, centroid, off, rms) in channel_offsets(&spec, &s, &DetectParams::default(), &corners) {
+    let measured = channel_offsets(&spec, &s, &DetectParams::default(), &corners);
+    for &(ch, centroid, off, rms) in &measured {
         eprintln!(
             "{ch}: kernel centroid {centroid:.3} px off its centre, image off by {off:.3} px, corner RMS {rms:.3} px"
         );
+    }
+    for (ch, centroid, off, rms) in measured {
         assert!(
             centroid < CENTROID_BOUND_PX,
             "{ch}: kernel centroid {centroid:.3} px"
