@@ -86,7 +86,7 @@ fn distorted_detection_figures() {
         ..ChartSpec::default()
     };
     for (name, focal) in [("barrel 24 mm", 24.0), ("pincushion 105 mm", 105.0)] {
-        for (w, h) in [(960usize, 640usize), (1800, 1200)] {
+        for (w, h) in [(960usize, 640usize), (1500, 1000)] {
             let l = lens(LensGeometry::typical_zoom());
             let s = shot(&spec, &l, w, h, focal, 0.93, true);
             let det = detect(

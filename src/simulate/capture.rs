@@ -649,16 +649,7 @@ pub fn simulate_shot(
     }
 
     let (capture, cfa) = sensor_readout(&out, params, lens);
-    let truth = shot_truth(
-        spec,
-        lens,
-        params,
-        &image_from_chart,
-        maps.as_ref(),
-        &xs,
-        &ys,
-        &centres,
-    );
+    let truth = shot_truth(spec, lens, params, &image_from_chart, &xs, &ys, &centres);
     let clean = CHANNELS.iter().copied().zip(out).collect();
     Ok(SimulatedShot {
         capture,
@@ -919,13 +910,13 @@ fn shot_truth(
     lens: &VirtualLens,
     params: &CaptureParams,
     image_from_chart: &Homography,
-    maps: Option<&[SensorMapping; 3]>,
     xs: &[f64],
     ys: &[f64],
     centres: &[PsfCentre],
 ) -> ShotTruth {
     let (w, h) = (params.width, params.height);
     let tile = params.tile_px as f64;
+    let maps = channel_mappings(lens, params);
     let inside = |p: [f64; 2]| {
         p[0] >= 0.0 && p[1] >= 0.0 && p[0] <= (w - 1) as f64 && p[1] <= (h - 1) as f64
     };
@@ -946,7 +937,7 @@ fn shot_truth(
                 .square_corners(col, row)
                 .map(|p| image_from_chart.apply(p));
             let ideal_centre = image_from_chart.apply([col as f64 + 0.5, row as f64 + 0.5]);
-            let positions: Vec<ChannelPosition> = maps.map_or_else(Vec::new, |maps| {
+            let positions: Vec<ChannelPosition> = maps.as_ref().map_or_else(Vec::new, |maps| {
                 CHANNELS
                     .iter()
                     .zip(maps)
