@@ -241,7 +241,11 @@ fn kernels_stay_centred_under_lateral_colour() {
     let apart = (t.centre_of(Channel::R)[0] - t.centre_of(Channel::B)[0])
         .hypot(t.centre_of(Channel::R)[1] - t.centre_of(Channel::B)[1]);
     assert!(apart > 1.0, "red and blue only {apart:.2} px apart");
-    let measured = channel_offsets(&spec, &s, &DetectParams::default(), &corners);
+    let per_channel = DetectParams {
+        channel_shifts: true,
+        ..DetectParams::default()
+    };
+    let measured = channel_offsets(&spec, &s, &per_channel, &corners);
     for &(ch, centroid, off, rms) in &measured {
         eprintln!(
             "{ch}: kernel centroid {centroid:.3} px off its centre, image off by {off:.3} px, corner RMS {rms:.3} px"

@@ -49,8 +49,11 @@ pub struct DetectParams {
     pub saturation_level: f64,
     /// A square with more clipped pixels than this fraction is skipped.
     pub max_saturated_fraction: f64,
-    /// Register each colour channel on its own as well (a translation of the joint
-    /// homography), so lateral colour does not put the channels' kernels off-centre.
+    /// Register each colour channel on its own as well (the joint homography translated
+    /// and scaled), so lateral colour does not put the channels' kernels off-centre. Off
+    /// by default: on a lens without lateral colour the extra freedom, fitted to a RAW
+    /// shot's quarter-resolution red and blue planes, costs the kernels' σ accuracy
+    /// (p95 6.8 % against 6 % on the Bayer kernel bars).
     pub channel_shifts: bool,
     /// A square whose white − black peak difference is below this is skipped.
     pub min_contrast: f64,
@@ -71,7 +74,7 @@ impl Default for DetectParams {
             max_refine_shift_px: 3.0,
             saturation_level: 0.995,
             max_saturated_fraction: 0.01,
-            channel_shifts: true,
+            channel_shifts: false,
             min_contrast: 0.05,
         }
     }
