@@ -8,6 +8,7 @@
 //! v = 2y/(H−1) − 1, so a lens applies to any sensor size.
 
 pub use super::aberration::{Aberrations, Seidel, Wavefront};
+use super::distortion::LensGeometry;
 use crate::plane::{Channel, LensSetting};
 use crate::psf::{Gaussian2, Kernel};
 use serde::{Deserialize, Serialize};
@@ -61,6 +62,9 @@ pub struct VirtualLens {
     /// [`Aberrations::default`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub aberrations: Option<Aberrations>,
+    /// Distortion, lateral colour and vignetting; none unless described.
+    #[serde(default)]
+    pub geometry: LensGeometry,
 }
 
 impl VirtualLens {
@@ -102,6 +106,7 @@ impl VirtualLens {
                 },
             ],
             aberrations: None,
+            geometry: LensGeometry::default(),
         }
     }
 
@@ -191,7 +196,7 @@ impl VirtualLens {
         if let Some(a) = &self.aberrations {
             a.validate()?;
         }
-        Ok(())
+        self.geometry.validate()
     }
 
     /// The settings a `nf × na` calibration grid takes over this lens's range: focal
