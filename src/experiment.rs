@@ -183,6 +183,9 @@ pub struct MeasureOptions {
     /// ([`Weighting::Uniform`](crate::kernel::Weighting::Uniform)), "to account for the
     /// interpolant when deblurring".
     pub weighting: crate::kernel::Weighting,
+    /// The f-numbers the shots are taken at (within the lens's range); `None` takes
+    /// the lens's whole range.
+    pub f_numbers: Option<[f64; 2]>,
 }
 
 impl MeasureOptions {
@@ -199,6 +202,7 @@ impl MeasureOptions {
             cols: 12,
             rows: 8,
             weighting: crate::kernel::Weighting::Uniform,
+            f_numbers: None,
         }
     }
 }
@@ -259,6 +263,14 @@ pub fn measured_kernels(
         weighting: opts.weighting,
         ..KernelParams::default()
     };
+    if let Some([lo, hi]) = opts.f_numbers {
+        let [a0, a1] = lens.f_number_range;
+        let (lo, hi) = (lo.clamp(a0, a1), hi.clamp(a0, a1));
+        // An empty or reversed range keeps the lens's own.
+        if lo.is_finite() && hi.is_finite() && lo < hi {
+            lens.f_number_range = [lo, hi];
+        }
+    }
     let mut rng = Pcg64::seed_from_u64(opts.seed);
     let mut out: Vec<ExperimentKernel> = Vec::with_capacity(count);
     let mut skipped_shots: Vec<String> = Vec::new();

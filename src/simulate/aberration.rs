@@ -311,7 +311,7 @@ impl Aberrations {
                 data[j * m + i] = Complex64::new(cover * c, cover * s);
             }
         }
-        PupilField { data, n_rows }
+        PupilField { data }
     }
 }
 
@@ -333,13 +333,14 @@ pub struct Wavefront {
 struct PupilField {
     /// `n_rows × m`, the pupil in its top-left `n_rows × n_rows` corner.
     data: Vec<Complex64>,
-    n_rows: usize,
 }
+
+/// A planner and the plans it made, by length.
+type Plans = (FftPlanner<f64>, HashMap<usize, Arc<dyn Fft<f64>>>);
 
 thread_local! {
     /// Plans by length, per thread: kernels are made by the hundred per shot.
-    static PLANS: RefCell<(FftPlanner<f64>, HashMap<usize, Arc<dyn Fft<f64>>>)> =
-        RefCell::new((FftPlanner::new(), HashMap::new()));
+    static PLANS: RefCell<Plans> = RefCell::new((FftPlanner::new(), HashMap::new()));
 }
 
 fn plan(m: usize) -> Arc<dyn Fft<f64>> {
@@ -377,8 +378,8 @@ fn amplitude_to_intensity(mut field: PupilField, m: usize, half: usize) -> Vec<f
             continue;
         };
         col.iter_mut().for_each(|c| *c = Complex64::new(0.0, 0.0));
-        for r in 0..field.n_rows {
-            col[r] = field.data[r * m + kx];
+        for (c, row) in col.iter_mut().zip(field.data.chunks_exact(m)) {
+            *c = row[kx];
         }
         fft.process_with_scratch(&mut col, &mut scratch);
         let xi = (x + half as isize) as usize + off;

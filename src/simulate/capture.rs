@@ -1074,14 +1074,12 @@ fn blended_pixel_kernel(fine: &[(f64, &Kernel)]) -> Kernel {
             })
             .collect();
         let mut rows = vec![0.0; k.size * size];
-        for j in 0..k.size {
-            let row = &mut rows[j * size..(j + 1) * size];
-            for i in 0..k.size {
-                let val = k.at(i, j);
+        for (row, src) in rows.chunks_exact_mut(size).zip(k.data.chunks_exact(k.size)) {
+            for (&val, cell) in src.iter().zip(&cells) {
                 if val == 0.0 {
                     continue;
                 }
-                for &(a, f) in &cells[i] {
+                for &(a, f) in cell {
                     row[a] += val * f;
                 }
             }
