@@ -8,11 +8,14 @@
 //! With `measured`, the session is the real chain instead: every shot simulated (a
 //! 12 × 8 chart, RAW Bayer, realistic noise), detected, and its kernels estimated.
 //!
-//! `cargo run --release --example kernel_shapes -- [aberrated|comet] [W H] [measured]`
+//! `cargo run --release --example kernel_shapes -- [aberrated|comet] [W H] [measured]
+//! [cols=12] [rows=8] [shots=2] [pixel]` (`pixel`: the pixel space among the candidates)
 
 use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
+use lensblur::crossval::ShapeCvOptions;
 use lensblur::experiment::compare_kernel_models;
 use lensblur::job::JobContext;
+use lensblur::model::ShapeSpace;
 use lensblur::plane::{Channel, LensSetting};
 use lensblur::simulate::SimulatedSession;
 use lensblur::simulate::lens::{PsfShape, VirtualLens};
@@ -29,15 +32,22 @@ fn main() -> anyhow::Result<()> {
     };
     let size = |i: usize, d: usize| args.get(i).and_then(|s| s.parse().ok()).unwrap_or(d);
     let (w, h) = (size(1, 960), size(2, 640));
+    // name=value options: cols, rows (the chart), shots (per setting).
+    let option = |name: &str, default: usize| {
+        args.iter()
+            .filter_map(|a| a.strip_prefix(name)?.strip_prefix('='))
+            .find_map(|v| v.parse().ok())
+            .unwrap_or(default)
+    };
     let settings = lens.setting_grid(5, 5);
     let t0 = std::time::Instant::now();
     let ds = if args.iter().any(|a| a == "measured") {
         measured_session(&lens, &settings, w, h)?
     } else {
         SimulatedSession {
-            cols: 12,
-            rows: 8,
-            shots_per_setting: 2,
+            cols: option("cols", 12),
+            rows: option("rows", 8),
+            shots_per_setting: option("shots", 2),
             kernel_noise: Some(0.01),
             seed: 31,
             ..SimulatedSession::new(w, h)
@@ -51,8 +61,17 @@ fn main() -> anyhow::Result<()> {
         t0.elapsed().as_secs_f64()
     );
     let t1 = std::time::Instant::now();
+    let spaces = if args.iter().any(|a| a == "pixel") {
+        vec![ShapeSpace::Whitened, ShapeSpace::Pixel]
+    } else {
+        vec![ShapeSpace::Whitened]
+    };
     let opts = CalibrateOptions {
         families: Families::Global,
+        shape: Some(ShapeCvOptions {
+            spaces,
+            ..ShapeCvOptions::default()
+        }),
         ..CalibrateOptions::default()
     };
     let (profile, _) = calibrate(&ds, None, &opts, &JobContext::silent())?;
@@ -69,8 +88,14 @@ fn main() -> anyhow::Result<()> {
         );
         if let Some(b) = &cv.best_shape {
             println!(
-                "best shape model: {} components, α = {}, β = {}: mean {:.4} (p95 {:.4}); kept: {}",
-                b.components, b.alpha, b.beta, b.mean_rel_l2, b.p95_rel_l2, cv.shape_chosen
+                "best shape model: {} components ({} space), α = {}, β = {}: mean {:.4} (p95 {:.4}); kept: {}",
+                b.components,
+                b.space.name(),
+                b.alpha,
+                b.beta,
+                b.mean_rel_l2,
+                b.p95_rel_l2,
+                cv.shape_chosen
             );
         }
         println!("f-number  kernels  Gaussian  shape");
@@ -161,15 +186,14 @@ fn measured_session(
                 f_number: Some(setting.f_number),
             };
             let k = pipeline::estimate(&sim.capture, &det, &name, given, &m, true, &job)?;
-            eprintln!(
-                "{}: {} kernels",
-                name.display(),
-                k.samples.len()
-            );
+            eprintln!("{}: {} kernels", name.display(), k.samples.len());
             files.push((name.display().to_string(), k, Some(setting)));
         }
     }
-    let shots: Vec<(&str, &lensblur::kernel::file::KernelsFile, Option<LensSetting>)> =
-        files.iter().map(|(n, k, s)| (n.as_str(), k, *s)).collect();
+    let shots: Vec<(
+        &str,
+        &lensblur::kernel::file::KernelsFile,
+        Option<LensSetting>,
+    )> = files.iter().map(|(n, k, s)| (n.as_str(), k, *s)).collect();
     Ok(lensblur::model::Dataset::from_kernels(&shots)?)
 }

@@ -10,7 +10,7 @@ use crate::crossval::{
 };
 use crate::job::JobContext;
 use crate::model::{
-    Dataset, GlobalModel, LocalModel, ModelError, ModelKind, ShapeModel, check_order,
+    Dataset, GlobalModel, LocalModel, ModelError, ModelKind, ShapeModel, ShapeSpace, check_order,
     session_residuals,
 };
 use crate::profile::{CvSummary, Profile};
@@ -157,7 +157,11 @@ pub fn calibrate(
             ModelKind::Global => g_ab,
             ModelKind::Local => l_ab,
         };
-        let residuals = session_residuals(ds);
+        let residuals: Vec<(ShapeSpace, Vec<Option<Vec<f32>>>)> = shape_opts
+            .spaces
+            .iter()
+            .map(|&space| (space, session_residuals(ds, space)))
+            .collect();
         let shape_cv = cross_validate_shape(
             ds,
             &residuals,
@@ -171,9 +175,14 @@ pub fn calibrate(
         if shape_cv.shape_chosen
             && let Some(best) = &shape_cv.best_shape
         {
+            let space_residuals = residuals
+                .iter()
+                .find(|(space, _)| *space == best.space)
+                .map_or(&residuals[0].1, |(_, r)| r);
             profile.shape = Some(ShapeModel::fit(
                 ds,
-                &residuals,
+                best.space,
+                space_residuals,
                 best.alpha,
                 best.beta,
                 best.components,

@@ -813,6 +813,10 @@ pub fn cross_validate_fixed(
 pub struct ShapeCvOptions {
     pub alphas: Vec<usize>,
     pub components: Vec<usize>,
+    /// The spaces shapes are described in. Whitened only by default: on the aberrated
+    /// lens the pixel space predicted held-out kernels closer in L2 but deblurred worse
+    /// than the Gaussians alone (see the README's kernel-shape figures).
+    pub spaces: Vec<crate::model::ShapeSpace>,
 }
 
 impl Default for ShapeCvOptions {
@@ -820,6 +824,7 @@ impl Default for ShapeCvOptions {
         Self {
             alphas: vec![1, 2, 3, 4, 6],
             components: vec![0, 1, 2, 3, 4, 6, 8],
+            spaces: vec![crate::model::ShapeSpace::Whitened],
         }
     }
 }
@@ -827,6 +832,9 @@ impl Default for ShapeCvOptions {
 /// Held-out error of one kernel model: relative L2 of predicted against measured kernels.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ShapeCvPoint {
+    /// Where the shape is described (the Gaussian alone: whitened, unused).
+    #[serde(default)]
+    pub space: crate::model::ShapeSpace,
     /// Order of the coefficient fields (0 for the Gaussian alone).
     pub alpha: usize,
     pub beta: usize,
@@ -868,10 +876,17 @@ pub struct ShapeCvReport {
     pub per_aperture: Vec<ApertureError>,
 }
 
-fn rel_l2_point(alpha: usize, beta: usize, components: usize, errors: &mut [f64]) -> ShapeCvPoint {
+fn rel_l2_point(
+    space: crate::model::ShapeSpace,
+    alpha: usize,
+    beta: usize,
+    components: usize,
+    errors: &mut [f64],
+) -> ShapeCvPoint {
     errors.sort_by(f64::total_cmp);
     let mean = errors.iter().sum::<f64>() / errors.len().max(1) as f64;
     ShapeCvPoint {
+        space,
         alpha,
         beta,
         components,
@@ -898,10 +913,10 @@ fn shots_subset(ds: &Dataset, keep: impl Fn(usize) -> bool) -> (Dataset, Vec<usi
 }
 
 /// Cross-validates kernel-shape models around the Gaussian model `kind` G/L_{α,β}:
-/// per fold, that Gaussian model and a shape basis with its coefficient fields are
-/// fitted without the fold's shots, and every held-out measured kernel is compared with
-/// the kernels predicted at its square (relative L2). `residuals` are
-/// [`crate::model::session_residuals`] of `ds`.
+/// per fold, that Gaussian model and, in each space, a shape basis with its
+/// coefficient fields are fitted without the fold's shots, and every held-out measured
+/// kernel is compared with the kernels predicted at its square (relative L2).
+/// `residuals` are [`crate::model::session_residuals`] of `ds`, one set per space tried.
 ///
 /// # Errors
 /// Fewer than 2 shots, no measured kernels, the Gaussian model's own errors, or
@@ -909,7 +924,7 @@ fn shots_subset(ds: &Dataset, keep: impl Fn(usize) -> bool) -> (Dataset, Vec<usi
 #[allow(clippy::too_many_arguments)]
 pub fn cross_validate_shape(
     ds: &Dataset,
-    residuals: &[Option<Vec<f32>>],
+    residuals: &[(crate::model::ShapeSpace, Vec<Option<Vec<f32>>>)],
     kind: ModelKind,
     alpha: usize,
     beta: usize,
@@ -917,7 +932,9 @@ pub fn cross_validate_shape(
     opts: &ShapeCvOptions,
     job: &JobContext,
 ) -> Result<ShapeCvReport, ModelError> {
-    use crate::model::{ShapeFit, kernel_with_residual, relative_l2, to_gaussian};
+    use crate::model::{
+        ShapeFit, kernel_with_residual, kernel_with_shape, relative_l2, to_gaussian,
+    };
     use rayon::prelude::*;
     ds.validate()?;
     if ds.shots.len() < 2 {
@@ -925,9 +942,13 @@ pub fn cross_validate_shape(
             shots: ds.shots.len(),
         });
     }
-    if residuals.len() != ds.samples.len() || residuals.iter().all(Option::is_none) {
+    if residuals.is_empty()
+        || residuals.iter().any(|(_, r)| r.len() != ds.samples.len())
+        || residuals[0].1.iter().all(Option::is_none)
+    {
         return Err(ModelError::Empty);
     }
+    let has_kernel = |i: usize| residuals.iter().all(|(_, r)| r[i].is_some());
     let (fold_of_shot, folds) = assign_folds(ds, cv.folds, cv.hold_out, cv.seed);
     let mut components: Vec<usize> = opts
         .components
@@ -938,36 +959,43 @@ pub fn cross_validate_shape(
     components.sort_unstable();
     components.dedup();
     let k_max = components.last().copied().unwrap_or(0);
-    let alphas: Vec<usize> = opts
-        .alphas
-        .iter()
-        .copied()
-        .filter(|&a| crate::model::check_order(a, beta).is_ok())
+    // Every (space, α) tried.
+    let combos: Vec<(usize, usize)> = (0..residuals.len())
+        .flat_map(|si| {
+            opts.alphas
+                .iter()
+                .copied()
+                .filter(|&a| crate::model::check_order(a, beta).is_ok())
+                .map(move |a| (si, a))
+        })
         .collect();
-    // errors[a][c]: held-out errors of alpha index a, component count index c.
-    let mut errors = vec![vec![Vec::new(); components.len()]; alphas.len()];
-    let mut usable = vec![true; alphas.len()];
-    // (f-number, Gaussian error, errors[a][c]) per held-out kernel.
+    // errors[m][c]: held-out errors of combo m, component count index c.
+    let mut errors = vec![vec![Vec::new(); components.len()]; combos.len()];
+    let mut usable = vec![true; combos.len()];
+    // (f-number, Gaussian error, errors[m][c]) per held-out kernel.
     let mut held: Vec<(f64, f64, Vec<Vec<f64>>)> = Vec::new();
     for fold in 0..folds {
         job.check()?;
         job.report("kernel shapes", fold, folds);
         let (train, train_idx) = shots_subset(ds, |s| fold_of_shot[s] != fold);
         let test: Vec<usize> = (0..ds.samples.len())
-            .filter(|&i| fold_of_shot[ds.samples[i].shot] == fold && residuals[i].is_some())
+            .filter(|&i| fold_of_shot[ds.samples[i].shot] == fold && has_kernel(i))
             .collect();
         if test.is_empty() || train.samples.is_empty() {
             continue;
         }
         let gaussian_model = fit_model(&train, kind, alpha, beta, &cv.local)?;
-        let train_res: Vec<Option<Vec<f32>>> =
-            train_idx.iter().map(|&i| residuals[i].clone()).collect();
-        let Ok(fit) = ShapeFit::new(&train, &train_res, k_max) else {
-            continue;
-        };
-        let models: Vec<Option<crate::model::ShapeModel>> = alphas
+        let fits: Vec<Option<ShapeFit>> = residuals
             .iter()
-            .map(|&a| fit.model(&train, a, beta).ok())
+            .map(|(space, res)| {
+                let train_res: Vec<Option<Vec<f32>>> =
+                    train_idx.iter().map(|&i| res[i].clone()).collect();
+                ShapeFit::new(&train, *space, &train_res, k_max).ok()
+            })
+            .collect();
+        let models: Vec<Option<crate::model::ShapeModel>> = combos
+            .iter()
+            .map(|&(si, a)| fits[si].as_ref()?.model(&train, a, beta).ok())
             .collect();
         for (u, m) in usable.iter_mut().zip(&models) {
             *u &= m.is_some();
@@ -982,7 +1010,7 @@ pub fn cross_validate_shape(
                 let (os, size) = (measured.oversample, Some(measured.size));
                 let plain = kernel_with_residual(&g, None, os, size)?;
                 let e_gauss = relative_l2(&plain, measured);
-                let per_alpha = models
+                let per_combo = models
                     .iter()
                     .map(|m| {
                         let Some(m) = m else {
@@ -991,7 +1019,7 @@ pub fn cross_validate_shape(
                         let Some(c) = m.coefficients(s.channel, s.x, s.y, setting) else {
                             return vec![f64::NAN; components.len()];
                         };
-                        let mut r = vec![0.0; crate::model::WHITENED_LEN];
+                        let mut r = vec![0.0; m.space.len()];
                         let mut used = 0;
                         components
                             .iter()
@@ -1002,13 +1030,13 @@ pub fn cross_validate_shape(
                                     }
                                 }
                                 used = k;
-                                kernel_with_residual(&g, Some(&r), os, size)
+                                kernel_with_shape(m.space, &g, Some(&r), os, size)
                                     .map_or(f64::NAN, |k| relative_l2(&k, measured))
                             })
                             .collect()
                     })
                     .collect();
-                Some((s.f_number, e_gauss, per_alpha))
+                Some((s.f_number, e_gauss, per_combo))
             })
             .collect();
         held.extend(scored);
@@ -1017,26 +1045,30 @@ pub fn cross_validate_shape(
     if held.is_empty() {
         return Err(ModelError::Empty);
     }
-    for (_, _, per_alpha) in &held {
-        for (a, row) in per_alpha.iter().enumerate() {
+    for (_, _, per_combo) in &held {
+        for (m, row) in per_combo.iter().enumerate() {
             for (c, &e) in row.iter().enumerate() {
                 if e.is_finite() {
-                    errors[a][c].push(e);
+                    errors[m][c].push(e);
                 }
             }
         }
     }
     let mut gauss: Vec<f64> = held.iter().map(|h| h.1).filter(|e| e.is_finite()).collect();
-    let gaussian = rel_l2_point(0, beta, 0, &mut gauss);
+    let gaussian = rel_l2_point(crate::model::ShapeSpace::Whitened, 0, beta, 0, &mut gauss);
     let mut points = Vec::new();
-    for (a, &alpha_s) in alphas.iter().enumerate() {
-        if !usable[a] {
+    for (m, &(si, alpha_s)) in combos.iter().enumerate() {
+        if !usable[m] {
             continue;
         }
         for (c, &k) in components.iter().enumerate() {
-            let mut e = errors[a][c].clone();
+            let mut e = errors[m][c].clone();
             if e.len() == held.len() {
-                points.push((a, c, rel_l2_point(alpha_s, beta, k, &mut e)));
+                points.push((
+                    m,
+                    c,
+                    rel_l2_point(residuals[si].0, alpha_s, beta, k, &mut e),
+                ));
             }
         }
     }

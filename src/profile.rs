@@ -20,7 +20,7 @@ use crate::model::{
     CentreGrid, ChannelCoeffs, FieldAtSetting, FittedModel, GlobalModel, LocalModel, MAX_ORDER,
     ModelKind, Normalisation, model_basis, to_gaussian,
 };
-use crate::model::{KernelModel, ShapeModel, WHITENED_LEN, WHITENED_SIDE};
+use crate::model::{KernelModel, ShapeModel};
 use crate::plane::{CameraIdentity, Channel, LensSetting};
 use crate::psf::{Gaussian2, Kernel};
 use serde::{Deserialize, Serialize};
@@ -135,6 +135,9 @@ struct StoredLocal {
 /// G_{α,β} basis (component after component).
 #[derive(Serialize, Deserialize)]
 struct StoredShape {
+    /// Where the shape is described (files without it: whitened).
+    #[serde(default)]
+    space: crate::model::ShapeSpace,
     alpha: usize,
     beta: usize,
     terms: usize,
@@ -337,13 +340,14 @@ fn load_shape(
         usize,
     ) -> Result<crate::model::Basis, ProfileError>,
 ) -> Result<ShapeModel, ProfileError> {
-    if sh.grid_side != WHITENED_SIDE || sh.grid_per_sigma != crate::model::WHITENED_PER_SIGMA {
+    let (side, per_unit) = (sh.space.side(), sh.space.per_unit());
+    if sh.grid_side != side || sh.grid_per_sigma != per_unit {
         return Err(invalid(format!(
-            "kernel-shape model on a {} × {} grid at {} per σ; this lensblur uses {WHITENED_SIDE} × {WHITENED_SIDE} at {}",
+            "kernel-shape model in the {} space on a {} × {} grid at {} per unit; this lensblur uses {side} × {side} at {per_unit}",
+            sh.space.name(),
             sh.grid_side,
             sh.grid_side,
             sh.grid_per_sigma,
-            crate::model::WHITENED_PER_SIGMA
         )));
     }
     if sh.components > crate::model::MAX_COMPONENTS {
@@ -374,11 +378,9 @@ fn load_shape(
         Ok(v)
     };
     let k = sh.components;
-    let flat = values(&sh.basis, k * WHITENED_LEN, "components")?;
-    let components: Vec<Vec<f64>> = flat
-        .chunks_exact(WHITENED_LEN)
-        .map(<[f64]>::to_vec)
-        .collect();
+    let len = sh.space.len();
+    let flat = values(&sh.basis, k * len, "components")?;
+    let components: Vec<Vec<f64>> = flat.chunks_exact(len).map(<[f64]>::to_vec).collect();
     let mut channels: Vec<(Channel, Vec<Vec<f64>>)> = Vec::new();
     for c in &sh.channels {
         if channels.iter().any(|(ch, _)| *ch == c.channel) {
@@ -401,6 +403,7 @@ fn load_shape(
         return Err(invalid("kernel-shape model without channels".into()));
     }
     Ok(ShapeModel {
+        space: sh.space,
         norm: norm.clone(),
         alpha: sh.alpha,
         beta: sh.beta,
@@ -552,12 +555,13 @@ impl Profile {
             }),
             cv: self.cv.clone(),
             shape: self.shape.as_ref().map(|m| StoredShape {
+                space: m.space,
                 alpha: m.alpha,
                 beta: m.beta,
                 terms: m.basis.len(),
                 components: m.components.len(),
-                grid_side: WHITENED_SIDE,
-                grid_per_sigma: crate::model::WHITENED_PER_SIGMA,
+                grid_side: m.space.side(),
+                grid_per_sigma: m.space.per_unit(),
                 basis: encode_f32(&m.components.concat()),
                 channels: m
                     .channels

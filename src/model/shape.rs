@@ -27,8 +27,7 @@ use rand::SeedableRng;
 use serde::{Deserialize, Serialize};
 
 /// Half-width of the whitened grid, in σ of the kernel's Gaussian along each principal
-/// axis: tails reaching past 5σ of a kernel's core carry a negligible share of its
-/// energy in the lenses we model.
+/// axis.
 pub const WHITENED_RADIUS: f64 = 5.0;
 /// Whitened grid samples per σ.
 pub const WHITENED_PER_SIGMA: usize = 3;
@@ -36,6 +35,63 @@ pub const WHITENED_PER_SIGMA: usize = 3;
 pub const WHITENED_SIDE: usize = 2 * (WHITENED_RADIUS as usize) * WHITENED_PER_SIGMA + 1;
 /// Values in one whitened residual.
 pub const WHITENED_LEN: usize = WHITENED_SIDE * WHITENED_SIDE;
+/// Half-width of the pixel-space grid, px: as far as measured 3× kernels reach.
+pub const PIXEL_RADIUS_PX: usize = 6;
+/// Samples per side of the pixel-space grid (the kernels' own 3×).
+pub const PIXEL_SIDE: usize = 2 * PIXEL_RADIUS_PX * 3 + 1;
+
+/// Where a kernel's shape beyond its Gaussian is described. Cross-validation tries
+/// both and keeps the better per lens.
+///
+/// Whitened: in the Gaussian's own coordinates, so shapes that scale with the blur
+/// (a comet tail as long as the core is wide) are one component at every size; but a
+/// halo much wider than the core (spherical aberration wide open, around a sharp
+/// core) falls outside ±5σ of that core. Pixel: the residual on the 3× grid in sensor
+/// pixels, ±6 px, whatever the core's size: it keeps such halos, at the price of more
+/// components where shapes scale with the blur.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum ShapeSpace {
+    #[default]
+    Whitened,
+    Pixel,
+}
+
+impl ShapeSpace {
+    pub const ALL: [ShapeSpace; 2] = [ShapeSpace::Whitened, ShapeSpace::Pixel];
+
+    /// Samples per side of this space's grid.
+    #[must_use]
+    pub fn side(self) -> usize {
+        match self {
+            Self::Whitened => WHITENED_SIDE,
+            Self::Pixel => PIXEL_SIDE,
+        }
+    }
+
+    /// Values in one residual.
+    #[must_use]
+    pub fn len(self) -> usize {
+        self.side() * self.side()
+    }
+
+    /// Grid samples per unit (σ or px).
+    #[must_use]
+    pub fn per_unit(self) -> usize {
+        match self {
+            Self::Whitened => WHITENED_PER_SIGMA,
+            Self::Pixel => 3,
+        }
+    }
+
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Whitened => "whitened",
+            Self::Pixel => "pixel",
+        }
+    }
+}
 /// The most shape components a model holds.
 pub const MAX_COMPONENTS: usize = 12;
 /// Residuals the basis is learnt from, at most (an even subsample of the session's): a
@@ -123,50 +179,69 @@ fn unit_normal(w: [f64; 2]) -> f64 {
     (-0.5 * (w[0] * w[0] + w[1] * w[1])).exp() / std::f64::consts::TAU
 }
 
-/// Whitened coordinates of grid sample (i, j).
-fn grid_point(i: usize, j: usize) -> [f64; 2] {
-    let h = (WHITENED_SIDE / 2) as f64;
-    let s = WHITENED_PER_SIGMA as f64;
+/// Coordinates (σ or px) of grid sample (i, j) of a space.
+fn grid_point(space: ShapeSpace, i: usize, j: usize) -> [f64; 2] {
+    let h = (space.side() / 2) as f64;
+    let s = space.per_unit() as f64;
     [(i as f64 - h) / s, (j as f64 - h) / s]
 }
 
-/// Bilinear value of a whitened grid at w (0 outside it).
-fn grid_sample(grid: &[f64], w: [f64; 2]) -> f64 {
-    let h = (WHITENED_SIDE / 2) as f64;
-    let s = WHITENED_PER_SIGMA as f64;
+/// Bilinear value of a space's grid at w (0 outside it).
+fn grid_sample(space: ShapeSpace, grid: &[f64], w: [f64; 2]) -> f64 {
+    let side = space.side();
+    let h = (side / 2) as f64;
+    let s = space.per_unit() as f64;
     let (u, v) = (w[0] * s + h, w[1] * s + h);
     let (u0, v0) = (u.floor(), v.floor());
     let (fu, fv) = (u - u0, v - v0);
-    let last = (WHITENED_SIDE - 1) as f64;
+    let last = (side - 1) as f64;
     let get = |i: f64, j: f64| {
         if i < 0.0 || j < 0.0 || i > last || j > last {
             0.0
         } else {
-            grid[j as usize * WHITENED_SIDE + i as usize]
+            grid[j as usize * side + i as usize]
         }
     };
     (get(u0, v0) * (1.0 - fu) + get(u0 + 1.0, v0) * fu) * (1.0 - fv)
         + (get(u0, v0 + 1.0) * (1.0 - fu) + get(u0 + 1.0, v0 + 1.0) * fu) * fv
 }
 
-/// A measured kernel's shape beyond its Gaussian: its density in the Gaussian's whitened
-/// coordinates minus the unit normal, on the whitened grid (row-major). `None` when the
-/// Gaussian is degenerate.
+/// A measured kernel's shape beyond its Gaussian, on a space's grid (row-major):
+/// whitened, its density in the Gaussian's whitened coordinates minus the unit normal;
+/// pixel, its density minus the Gaussian's, per px². `None` when the Gaussian is
+/// degenerate.
 #[must_use]
-pub fn whitened_residual(kernel: &Kernel, gaussian: &Gaussian2) -> Option<Vec<f64>> {
+pub fn shape_residual(
+    space: ShapeSpace,
+    kernel: &Kernel,
+    gaussian: &Gaussian2,
+) -> Option<Vec<f64>> {
     let wh = Whitening::of(gaussian)?;
+    // Kernel weights are per sample; per px² they are os² times larger.
     let os2 = (kernel.oversample * kernel.oversample) as f64;
-    let mut out = Vec::with_capacity(WHITENED_LEN);
-    for j in 0..WHITENED_SIDE {
-        for i in 0..WHITENED_SIDE {
-            let w = grid_point(i, j);
-            let p = wh.to_px(w);
-            // Kernel weights are per sample; per px² they are os² times larger.
-            let density = kernel.sample_px(p[0], p[1]) * os2;
-            out.push(wh.det_a * density - unit_normal(w));
+    let side = space.side();
+    let mut out = Vec::with_capacity(side * side);
+    for j in 0..side {
+        for i in 0..side {
+            let q = grid_point(space, i, j);
+            out.push(match space {
+                ShapeSpace::Whitened => {
+                    let p = wh.to_px(q);
+                    wh.det_a * kernel.sample_px(p[0], p[1]) * os2 - unit_normal(q)
+                }
+                ShapeSpace::Pixel => {
+                    kernel.sample_px(q[0], q[1]) * os2 - gaussian.density(q[0], q[1])
+                }
+            });
         }
     }
     Some(out)
+}
+
+/// [`shape_residual`] in the whitened space.
+#[must_use]
+pub fn whitened_residual(kernel: &Kernel, gaussian: &Gaussian2) -> Option<Vec<f64>> {
+    shape_residual(ShapeSpace::Whitened, kernel, gaussian)
 }
 
 /// The kernel of a Gaussian with a whitened residual added (none: the Gaussian itself),
@@ -179,11 +254,27 @@ pub fn kernel_with_residual(
     oversample: usize,
     size: Option<usize>,
 ) -> Option<Kernel> {
+    kernel_with_shape(ShapeSpace::Whitened, gaussian, residual, oversample, size)
+}
+
+/// [`kernel_with_residual`] for a residual in either space.
+#[must_use]
+pub fn kernel_with_shape(
+    space: ShapeSpace,
+    gaussian: &Gaussian2,
+    residual: Option<&[f64]>,
+    oversample: usize,
+    size: Option<usize>,
+) -> Option<Kernel> {
     let wh = Whitening::of(gaussian)?;
     let os = oversample.max(1);
     let limit = (crate::limits::MAX_KERNEL_RADIUS_PX * os as f64) as usize;
     let size = size.unwrap_or_else(|| {
-        let half = (WHITENED_RADIUS * wh.sigma_max * os as f64).ceil() as usize;
+        let mut radius = WHITENED_RADIUS * wh.sigma_max;
+        if space == ShapeSpace::Pixel && residual.is_some() {
+            radius = radius.max(PIXEL_RADIUS_PX as f64);
+        }
+        let half = (radius * os as f64).ceil() as usize;
         2 * half.min(limit) + 1
     });
     let size = size | 1;
@@ -192,8 +283,18 @@ pub fn kernel_with_residual(
     for j in 0..size {
         for i in 0..size {
             let p = [(i as f64 - c) / os as f64, (j as f64 - c) / os as f64];
-            let w = wh.to_white(p);
-            let value = unit_normal(w) + residual.map_or(0.0, |r| grid_sample(r, w));
+            // Both spaces' values are densities in their own units; the kernel is
+            // normalised below, so the whitened space's 1/det A drops out.
+            let value = match space {
+                ShapeSpace::Whitened => {
+                    let w = wh.to_white(p);
+                    unit_normal(w) + residual.map_or(0.0, |r| grid_sample(space, r, w))
+                }
+                ShapeSpace::Pixel => {
+                    gaussian.density(p[0], p[1])
+                        + residual.map_or(0.0, |r| grid_sample(space, r, p))
+                }
+            };
             data.push(value.max(0.0));
         }
     }
@@ -258,13 +359,13 @@ pub fn relative_l2(predicted: &Kernel, measured: &Kernel) -> f64 {
 /// with `ds.samples`; `None` where it has none or its Gaussian is degenerate), stored
 /// as `f32`: a 50-shot session has tens of thousands.
 #[must_use]
-pub fn session_residuals(ds: &Dataset) -> Vec<Option<Vec<f32>>> {
+pub fn session_residuals(ds: &Dataset, space: ShapeSpace) -> Vec<Option<Vec<f32>>> {
     use rayon::prelude::*;
     ds.samples
         .par_iter()
         .map(|s| {
             let k = s.kernel.as_ref()?;
-            let r = whitened_residual(k, &s.gaussian)?;
+            let r = shape_residual(space, k, &s.gaussian)?;
             Some(r.iter().map(|&v| v as f32).collect())
         })
         .collect()
@@ -272,7 +373,7 @@ pub fn session_residuals(ds: &Dataset) -> Vec<Option<Vec<f32>>> {
 
 /// The leading `components` right singular vectors of the residuals (rows) picked by
 /// `rows`: randomised subspace iteration (seeded, so deterministic) on at most
-/// [`BASIS_SAMPLES`] of them, evenly spread. Orthonormal, each [`WHITENED_LEN`] long.
+/// [`BASIS_SAMPLES`] of them, evenly spread. Orthonormal, each as long as a row.
 #[must_use]
 pub fn shape_basis(residuals: &[&[f32]], components: usize) -> Vec<Vec<f64>> {
     let k = components.min(MAX_COMPONENTS);
@@ -282,10 +383,11 @@ pub fn shape_basis(residuals: &[&[f32]], components: usize) -> Vec<Vec<f64>> {
     let stride = residuals.len().div_ceil(BASIS_SAMPLES).max(1);
     let rows: Vec<&[f32]> = residuals.iter().step_by(stride).copied().collect();
     let n = rows.len();
-    let x = DMatrix::from_fn(n, WHITENED_LEN, |r, c| f64::from(rows[r][c]));
-    let width = (k + 8).min(n).min(WHITENED_LEN);
+    let dims = rows[0].len();
+    let x = DMatrix::from_fn(n, dims, |r, c| f64::from(rows[r][c]));
+    let width = (k + 8).min(n).min(dims);
     let mut rng = rand_pcg::Pcg64::seed_from_u64(0x5a4e_1b07);
-    let omega = DMatrix::from_fn(WHITENED_LEN, width, |_, _| {
+    let omega = DMatrix::from_fn(dims, width, |_, _| {
         rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut rng)
     });
     let mut q = (&x * omega).qr().q();
@@ -312,12 +414,13 @@ pub fn shape_basis(residuals: &[&[f32]], components: usize) -> Vec<Vec<f64>> {
 /// A fitted kernel-shape model.
 #[derive(Clone, Debug)]
 pub struct ShapeModel {
+    pub space: ShapeSpace,
     pub norm: Normalisation,
     /// Orders of the coefficient fields, as G_{α,β}'s.
     pub alpha: usize,
     pub beta: usize,
     pub basis: Basis,
-    /// The shape components, each [`WHITENED_LEN`] values on the whitened grid.
+    /// The shape components, each one residual on the space's grid.
     pub components: Vec<Vec<f64>>,
     /// Per channel, per component: coefficients over `basis`.
     pub channels: Vec<(Channel, Vec<Vec<f64>>)>,
@@ -325,19 +428,21 @@ pub struct ShapeModel {
 
 impl ShapeModel {
     /// Fits the first `components` shape components of `ds`'s kernels and their
-    /// coefficient fields of orders (α, β). `residuals` are [`session_residuals`] of `ds`.
+    /// coefficient fields of orders (α, β). `residuals` are [`session_residuals`] of `ds`
+    /// in `space`.
     ///
     /// # Errors
     /// Orders the session cannot support, no kernels, or fewer kernels of a channel
     /// than terms.
     pub fn fit(
         ds: &Dataset,
+        space: ShapeSpace,
         residuals: &[Option<Vec<f32>>],
         alpha: usize,
         beta: usize,
         components: usize,
     ) -> Result<Self, ModelError> {
-        let fit = ShapeFit::new(ds, residuals, components)?;
+        let fit = ShapeFit::new(ds, space, residuals, components)?;
         fit.model(ds, alpha, beta)
     }
 
@@ -384,7 +489,7 @@ impl ShapeModel {
     #[must_use]
     pub fn residual(&self, channel: Channel, x: f64, y: f64, s: LensSetting) -> Option<Vec<f64>> {
         let c = self.coefficients(channel, x, y, s)?;
-        Some(combine(&self.components, &c))
+        Some(combine(self.space.len(), &self.components, &c))
     }
 
     /// The predicted kernel: `gaussian` (the Gaussian model's prediction at the point)
@@ -400,13 +505,13 @@ impl ShapeModel {
         oversample: usize,
     ) -> Option<Kernel> {
         let r = self.residual(channel, x, y, s)?;
-        kernel_with_residual(gaussian, Some(&r), oversample, None)
+        kernel_with_shape(self.space, gaussian, Some(&r), oversample, None)
     }
 }
 
 /// Σ c_i b_i.
-fn combine(components: &[Vec<f64>], coeffs: &[f64]) -> Vec<f64> {
-    let mut r = vec![0.0; WHITENED_LEN];
+fn combine(len: usize, components: &[Vec<f64>], coeffs: &[f64]) -> Vec<f64> {
+    let mut r = vec![0.0; len];
     for (b, &c) in components.iter().zip(coeffs) {
         for (acc, v) in r.iter_mut().zip(b) {
             *acc += c * v;
@@ -418,6 +523,8 @@ fn combine(components: &[Vec<f64>], coeffs: &[f64]) -> Vec<f64> {
 /// A shape basis learnt from a session and every sample's coordinates in it: fitting the
 /// coefficient fields at several orders (cross-validation does) reuses both.
 pub struct ShapeFit {
+    /// The space of the residuals it was learnt from.
+    pub space: ShapeSpace,
     pub components: Vec<Vec<f64>>,
     /// Per sample of the session (aligned with `ds.samples`): its coefficients, where
     /// it has a residual.
@@ -431,6 +538,7 @@ impl ShapeFit {
     /// [`ModelError::Empty`] when no sample kept a kernel.
     pub fn new(
         ds: &Dataset,
+        space: ShapeSpace,
         residuals: &[Option<Vec<f32>>],
         components: usize,
     ) -> Result<Self, ModelError> {
@@ -450,7 +558,11 @@ impl ShapeFit {
                 })
             })
             .collect();
-        Ok(Self { components, coords })
+        Ok(Self {
+            space,
+            components,
+            coords,
+        })
     }
 
     /// The coefficient fields of orders (α, β) over the samples of `ds` that have
@@ -512,6 +624,7 @@ impl ShapeFit {
             return Err(ModelError::Empty);
         }
         Ok(ShapeModel {
+            space: self.space,
             norm,
             alpha,
             beta,
