@@ -1291,13 +1291,20 @@ fn comet_session_and_profile() -> &'static (VirtualLens, Dataset, Profile) {
 #[test]
 fn cross_validation_keeps_a_shape_model_where_kernels_are_not_gaussian() {
     let (_, ds, profile) = comet_session_and_profile();
-    let cv = profile.shape_cv.as_ref().expect("the session kept its kernels");
+    let cv = profile
+        .shape_cv
+        .as_ref()
+        .expect("the session kept its kernels");
     let best = cv.best_shape.as_ref().expect("shape models were tried");
     eprintln!(
         "held-out kernels {}: Gaussian {:.4}, shapes ({} components, α {}) {:.4}",
         cv.kernels, cv.gaussian.mean_rel_l2, best.components, best.alpha, best.mean_rel_l2
     );
-    assert_eq!(cv.kernels, ds.samples.len(), "every kernel is held out once");
+    assert_eq!(
+        cv.kernels,
+        ds.samples.len(),
+        "every kernel is held out once"
+    );
     assert!(cv.shape_chosen && profile.shape.is_some());
     assert!(
         best.mean_rel_l2 < 0.6 * cv.gaussian.mean_rel_l2,
@@ -1307,7 +1314,11 @@ fn cross_validation_keeps_a_shape_model_where_kernels_are_not_gaussian() {
     );
     assert_eq!(cv.per_aperture.len(), 3);
     for a in &cv.per_aperture {
-        assert!(a.shape_mean_rel_l2 < a.gaussian_mean_rel_l2, "f/{}", a.f_number);
+        assert!(
+            a.shape_mean_rel_l2 < a.gaussian_mean_rel_l2,
+            "f/{}",
+            a.f_number
+        );
     }
     // Round trip through the file: the same kernels (coefficients are stored as f32).
     let json = profile.to_json().expect("serialise");
@@ -1320,8 +1331,12 @@ fn cross_validation_keeps_a_shape_model_where_kernels_are_not_gaussian() {
         f_number: 5.0,
     };
     let model = lensblur::model::KernelModel::Shape;
-    let a = profile.predict_kernel(model, Channel::B, 30.0, 200.0, s).expect("predicts");
-    let b = back.predict_kernel(model, Channel::B, 30.0, 200.0, s).expect("predicts");
+    let a = profile
+        .predict_kernel(model, Channel::B, 30.0, 200.0, s)
+        .expect("predicts");
+    let b = back
+        .predict_kernel(model, Channel::B, 30.0, 200.0, s)
+        .expect("predicts");
     assert!(lensblur::model::relative_l2(&b, &a) < 1e-5);
 }
 
@@ -1366,7 +1381,10 @@ fn predicted_shapes_follow_the_true_kernels_at_novel_settings() {
     // The same bar as held-out kernels at calibrated settings (measured: 0.55×).
     assert!(mean(&shape) < 0.6 * mean(&gauss));
     let worse = gauss.iter().zip(&shape).filter(|(g, s)| s > g).count();
-    assert_eq!(worse, 0, "a predicted shape further from the truth than its Gaussian");
+    assert_eq!(
+        worse, 0,
+        "a predicted shape further from the truth than its Gaussian"
+    );
 }
 
 #[test]
@@ -1386,7 +1404,13 @@ fn a_profile_of_version_1_reads_as_one_without_a_shape_model() {
         f_number: 5.0,
     };
     assert!(matches!(
-        p.predict_kernel(lensblur::model::KernelModel::Shape, Channel::G, 10.0, 10.0, s),
+        p.predict_kernel(
+            lensblur::model::KernelModel::Shape,
+            Channel::G,
+            10.0,
+            10.0,
+            s
+        ),
         Err(ProfileError::NoShapeModel)
     ));
     // A damaged shape model is refused with the reason, not half-read.
