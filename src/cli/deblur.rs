@@ -285,8 +285,6 @@ pub fn output_supported(ext: &str) -> bool {
     matches!(ext, "png" | "tif" | "tiff" | "dng")
 }
 
-/// What a DNG's note says of a profile's kernels.
-
 fn file_name(p: &Path) -> String {
     p.file_name().map_or_else(
         || p.display().to_string(),

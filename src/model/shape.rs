@@ -159,14 +159,14 @@ impl Whitening {
         })
     }
 
-    fn to_px(&self, w: [f64; 2]) -> [f64; 2] {
+    fn to_px(self, w: [f64; 2]) -> [f64; 2] {
         [
             self.a[0][0] * w[0] + self.a[0][1] * w[1],
             self.a[1][0] * w[0] + self.a[1][1] * w[1],
         ]
     }
 
-    fn to_white(&self, p: [f64; 2]) -> [f64; 2] {
+    fn to_white(self, p: [f64; 2]) -> [f64; 2] {
         [
             self.a_inv[0][0] * p[0] + self.a_inv[0][1] * p[1],
             self.a_inv[1][0] * p[0] + self.a_inv[1][1] * p[1],
