@@ -1019,7 +1019,7 @@ pub fn cross_validate_shape(
                         let Some(c) = m.coefficients(s.channel, s.x, s.y, setting) else {
                             return vec![f64::NAN; components.len()];
                         };
-                        let mut r = vec![0.0; m.space.len()];
+                        let mut r = vec![0.0; m.space.values()];
                         let mut used = 0;
                         components
                             .iter()

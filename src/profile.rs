@@ -378,7 +378,7 @@ fn load_shape(
         Ok(v)
     };
     let k = sh.components;
-    let len = sh.space.len();
+    let len = sh.space.values();
     let flat = values(&sh.basis, k * len, "components")?;
     let components: Vec<Vec<f64>> = flat.chunks_exact(len).map(<[f64]>::to_vec).collect();
     let mut channels: Vec<(Channel, Vec<Vec<f64>>)> = Vec::new();

@@ -71,7 +71,7 @@ impl ShapeSpace {
 
     /// Values in one residual.
     #[must_use]
-    pub fn len(self) -> usize {
+    pub fn values(self) -> usize {
         self.side() * self.side()
     }
 
@@ -489,7 +489,7 @@ impl ShapeModel {
     #[must_use]
     pub fn residual(&self, channel: Channel, x: f64, y: f64, s: LensSetting) -> Option<Vec<f64>> {
         let c = self.coefficients(channel, x, y, s)?;
-        Some(combine(self.space.len(), &self.components, &c))
+        Some(combine(self.space.values(), &self.components, &c))
     }
 
     /// The predicted kernel: `gaussian` (the Gaussian model's prediction at the point)
