@@ -13,6 +13,7 @@ use rand_distr::{Distribution, Normal};
 
 /// Distorted and lateral-colour shots (a module here rather than a test binary of its
 /// own: every binary links the whole crate).
+#[path = "detect/geometry.rs"]
 mod geometry;
 
 fn blur(data: &[f64], w: usize, h: usize, sigma: f64) -> Vec<f64> {
