@@ -41,13 +41,13 @@ fn bench(c: &mut Criterion) {
     };
     let (profile, _) = calibrate(&ds, None, &opts, &JobContext::silent()).expect("calibrate");
     // Between the calibrated settings, near the wide open end where blur is largest.
-    let source = ProfileKernels {
+    let source = ProfileKernels::new(
         profile,
-        setting: LensSetting {
+        LensSetting {
             focal_mm: 35.0,
             f_number: 4.5,
         },
-    };
+    );
     let planes: Vec<ChannelPlane> = [Channel::R, Channel::G, Channel::B]
         .into_iter()
         .enumerate()

@@ -222,6 +222,7 @@ fn datasets(shots: &[(String, KernelsFile, ShotTruth)]) -> Result<(Dataset, Data
                 f_number: 0.0,
                 channel: s.channel,
                 gaussian,
+                kernel: None,
             };
             meas.push(sample(lensblur::psf::Gaussian2 {
                 sigma_x: cxx,

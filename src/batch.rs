@@ -422,6 +422,9 @@ pub struct BatchOptions {
     pub memory_budget: Option<u64>,
     /// Photos at once at most; `None`: one per core.
     pub max_parallel: Option<usize>,
+    /// The kernels to deblur with; `None`: each profile's recommended (its shape model
+    /// where it holds one). A photo whose profile lacks the model asked for fails.
+    pub kernel_model: Option<crate::model::KernelModel>,
 }
 
 /// What the batch does with one photo.
@@ -801,19 +804,12 @@ fn deblur_photo(
     }
     let mut profile = entry.profile.clone();
     profile.allow_extrapolation = opts.allow_extrapolation;
-    let source = ProfileKernels {
-        profile,
-        setting: pick.setting,
+    let model = opts.kernel_model.unwrap_or_else(|| profile.kernel_model());
+    let source = match ProfileKernels::with_model(profile, pick.setting, model) {
+        Ok(s) => s,
+        Err(e) => return Outcome::Failed(format!("{}: {e}", entry.path.display())),
     };
-    let described = format!(
-        "the profile {} at {} mm, f/{}",
-        entry.path.file_name().map_or_else(
-            || entry.path.display().to_string(),
-            |n| n.to_string_lossy().into_owned()
-        ),
-        pick.setting.focal_mm,
-        pick.setting.f_number
-    );
+    let described = crate::deblur::output::profile_described(&entry.path, pick.setting, model);
     match deblur_one(&p.photo, &capture, &source, &p.output, &described, job) {
         Ok(()) => Outcome::Done {
             profile: entry.path.clone(),

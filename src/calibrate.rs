@@ -5,11 +5,14 @@
 
 use crate::chart::ChartSpec;
 use crate::crossval::{
-    CvOptions, CvReport, Selection, assign_folds, cross_validate, cross_validate_fixed,
-    param_ranges,
+    CvOptions, CvReport, Selection, ShapeCvOptions, assign_folds, cross_validate,
+    cross_validate_fixed, cross_validate_shape, param_ranges,
 };
 use crate::job::JobContext;
-use crate::model::{Dataset, GlobalModel, LocalModel, ModelError, ModelKind, check_order};
+use crate::model::{
+    Dataset, GlobalModel, LocalModel, ModelError, ModelKind, ShapeModel, ShapeSpace, check_order,
+    session_residuals,
+};
 use crate::profile::{CvSummary, Profile};
 use serde::{Deserialize, Serialize};
 
@@ -30,6 +33,9 @@ pub struct CalibrateOptions {
     pub alpha: Option<usize>,
     pub beta: Option<usize>,
     pub cv: CvOptions,
+    /// What the kernel-shape model's cross-validation tries; `None` fits none. Only a
+    /// session that kept its measured kernels (and has two shots to hold out) has one.
+    pub shape: Option<ShapeCvOptions>,
 }
 
 impl Default for CalibrateOptions {
@@ -39,6 +45,7 @@ impl Default for CalibrateOptions {
             alpha: None,
             beta: None,
             cv: CvOptions::default(),
+            shape: Some(ShapeCvOptions::default()),
         }
     }
 }
@@ -130,7 +137,7 @@ pub fn calibrate(
         _ if want_local => ModelKind::Local,
         _ => ModelKind::Global,
     };
-    let profile = Profile::new(
+    let mut profile = Profile::new(
         ds.identity.clone(),
         chart,
         settings,
@@ -140,5 +147,48 @@ pub fn calibrate(
         preferred,
     )
     .ok_or(ModelError::Empty)?;
+    if let Some(shape_opts) = &opts.shape
+        && ds.shots.len() >= 2
+        && ds.samples.iter().any(|s| s.kernel.is_some())
+    {
+        // The shapes are predicted around the Gaussians deblurring will use: the
+        // preferred family at its orders.
+        let (alpha, beta) = match profile.preferred {
+            ModelKind::Global => g_ab,
+            ModelKind::Local => l_ab,
+        };
+        let residuals: Vec<(ShapeSpace, Vec<Option<Vec<f32>>>)> = shape_opts
+            .spaces
+            .iter()
+            .map(|&space| (space, session_residuals(ds, space)))
+            .collect();
+        let shape_cv = cross_validate_shape(
+            ds,
+            &residuals,
+            profile.preferred,
+            alpha,
+            beta,
+            &opts.cv,
+            shape_opts,
+            job,
+        )?;
+        if shape_cv.shape_chosen
+            && let Some(best) = &shape_cv.best_shape
+        {
+            let space_residuals = residuals
+                .iter()
+                .find(|(space, _)| *space == best.space)
+                .map_or(&residuals[0].1, |(_, r)| r);
+            profile.shape = Some(ShapeModel::fit(
+                ds,
+                best.space,
+                space_residuals,
+                best.alpha,
+                best.beta,
+                best.components,
+            )?);
+        }
+        profile.shape_cv = Some(shape_cv);
+    }
     Ok((profile, report))
 }

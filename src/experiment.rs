@@ -146,33 +146,7 @@ pub fn simulated_kernels(count: usize, oversample: usize) -> Vec<ExperimentKerne
 /// Convolves a kernel with the 1-pixel box (pixel integration), at its own oversample.
 #[must_use]
 pub fn with_pixel_box(k: &Kernel) -> Kernel {
-    let os = k.oversample;
-    let n = k.size + os - 1 + usize::from(os.is_multiple_of(2));
-    let size = n | 1;
-    let off = (size - k.size) / 2;
-    let half = os as isize / 2;
-    let mut data = vec![0.0; size * size];
-    for j in 0..k.size {
-        for i in 0..k.size {
-            let v = k.at(i, j);
-            for b in -half..=half {
-                for a in -half..=half {
-                    let x = (i + off) as isize + a;
-                    let y = (j + off) as isize + b;
-                    if x >= 0 && y >= 0 && (x as usize) < size && (y as usize) < size {
-                        data[y as usize * size + x as usize] += v;
-                    }
-                }
-            }
-        }
-    }
-    let mut out = Kernel {
-        size,
-        oversample: os,
-        data,
-    };
-    out.normalise();
-    out
+    k.pixel_integrated()
 }
 
 /// (robust, ML) Gaussians of a kernel by the pipeline's own fit ([`fit_gaussian`]), so
@@ -209,6 +183,9 @@ pub struct MeasureOptions {
     /// ([`Weighting::Uniform`](crate::kernel::Weighting::Uniform)), "to account for the
     /// interpolant when deblurring".
     pub weighting: crate::kernel::Weighting,
+    /// The f-numbers the shots are taken at (within the lens's range); `None` takes
+    /// the lens's whole range.
+    pub f_numbers: Option<[f64; 2]>,
 }
 
 impl MeasureOptions {
@@ -225,6 +202,7 @@ impl MeasureOptions {
             cols: 12,
             rows: 8,
             weighting: crate::kernel::Weighting::Uniform,
+            f_numbers: None,
         }
     }
 }
@@ -269,7 +247,12 @@ pub fn measured_kernels(
     use crate::kernel::{KernelParams, SquareGeometry, estimate_square_geometry};
     use crate::simulate::{CaptureParams, Pose, simulate_shot};
     let count = opts.count;
-    let mut lens = VirtualLens::demo();
+    // The aberrated shape is a design of its own, over the demo lens's ranges.
+    let mut lens = if opts.shape == PsfShape::Aberrated {
+        VirtualLens::aberrated()
+    } else {
+        VirtualLens::demo()
+    };
     lens.shape = opts.shape;
     let spec = ChartSpec {
         cols: opts.cols,
@@ -280,6 +263,14 @@ pub fn measured_kernels(
         weighting: opts.weighting,
         ..KernelParams::default()
     };
+    if let Some([lo, hi]) = opts.f_numbers {
+        let [a0, a1] = lens.f_number_range;
+        let (lo, hi) = (lo.clamp(a0, a1), hi.clamp(a0, a1));
+        // An empty or reversed range keeps the lens's own.
+        if lo.is_finite() && hi.is_finite() && lo < hi {
+            lens.f_number_range = [lo, hi];
+        }
+    }
     let mut rng = Pcg64::seed_from_u64(opts.seed);
     let mut out: Vec<ExperimentKernel> = Vec::with_capacity(count);
     let mut skipped_shots: Vec<String> = Vec::new();
@@ -631,4 +622,166 @@ pub fn cdf_csv(report: &ExperimentReport) -> String {
         }
     }
     out
+}
+
+/// A `w × h` image seen through a spatially varying PSF: output pixel (x, y) is
+/// Σ k(q) · sharp((x, y) + pad − q), with `sharp` larger than the output by `pad` on
+/// every side and the (1×, plane-resolution) kernel taken once per `block` × `block`
+/// block, at its centre — a lens field varies far more slowly than that.
+///
+/// # Panics
+/// If a kernel is wider than `pad` allows.
+#[must_use]
+pub fn blur_varying(
+    sharp: &Plane,
+    pad: usize,
+    w: usize,
+    h: usize,
+    block: usize,
+    kernel_at: &(dyn Fn(f64, f64) -> Kernel + Sync),
+) -> Plane {
+    let b = block.max(1);
+    let bands: Vec<Vec<f32>> = (0..h.div_ceil(b))
+        .into_par_iter()
+        .map(|by| {
+            let rows = b.min(h - by * b);
+            let mut band = vec![0.0f32; rows * w];
+            for bx in 0..w.div_ceil(b) {
+                let cols = b.min(w - bx * b);
+                let k = kernel_at(
+                    (bx * b) as f64 + (cols as f64 - 1.0) / 2.0,
+                    (by * b) as f64 + (rows as f64 - 1.0) / 2.0,
+                );
+                let c = k.size / 2;
+                assert!(c <= pad, "kernel wider than the padding");
+                for r in 0..rows {
+                    for q in 0..cols {
+                        let (x, y) = (bx * b + q, by * b + r);
+                        let mut acc = 0.0;
+                        for j in 0..k.size {
+                            let row = &sharp.data[(y + pad + c - j) * sharp.width..];
+                            for i in 0..k.size {
+                                acc += k.at(i, j) * f64::from(row[x + pad + c - i]);
+                            }
+                        }
+                        band[r * w + x] = acc as f32;
+                    }
+                }
+            }
+            band
+        })
+        .collect();
+    Plane {
+        width: w,
+        height: h,
+        data: bands.concat(),
+    }
+}
+
+/// SSIM against the sharp photo of one deblurring comparison: the blurry photo, and
+/// HQS with the true kernels, with a profile's predicted Gaussians and with its
+/// predicted kernel shapes; whole frame and the mean of its four corner crops.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct KernelModelSsim {
+    pub blurry: f64,
+    pub truth: f64,
+    pub gaussian: f64,
+    pub shape: f64,
+    pub corners_truth: f64,
+    pub corners_gaussian: f64,
+    pub corners_shape: f64,
+}
+
+/// Deblurs a dead-leaves photo seen through `lens` at `setting` (one channel, `w × h`,
+/// Gaussian noise of `noise_sigma`) three ways — the lens's true pixel-level kernels,
+/// `profile`'s Gaussians, `profile`'s kernel shapes — and scores each by SSIM. The
+/// photo is blurred per 8 × 8 block with the true kernel at the block's centre.
+///
+/// # Errors
+/// The profile's prediction errors (no shape model, a setting it refuses) or
+/// cancellation, as one line.
+#[allow(clippy::too_many_arguments)]
+pub fn compare_kernel_models(
+    profile: &crate::profile::Profile,
+    lens: &VirtualLens,
+    channel: Channel,
+    setting: LensSetting,
+    (w, h): (usize, usize),
+    seed: u64,
+    noise_sigma: f64,
+    job: &JobContext,
+) -> Result<KernelModelSsim, String> {
+    use crate::deblur::{DeblurOptions, ProfileKernels, deblur_channel_plane, plane_kernel};
+    use crate::model::KernelModel;
+    use crate::plane::ChannelPlane;
+    let true_kernel = |x: f64, y: f64| {
+        let (u, v) = VirtualLens::normalised(x, y, w, h);
+        lens.optical_kernel_uv(channel, u, v, setting, 3)
+            .pixel_integrated()
+    };
+    let pad = [
+        (0.0, 0.0),
+        ((w - 1) as f64, 0.0),
+        (0.0, (h - 1) as f64),
+        ((w - 1) as f64, (h - 1) as f64),
+    ]
+    .iter()
+    .map(|&(x, y)| plane_kernel(&true_kernel(x, y), 1).size / 2)
+    .max()
+    .unwrap_or(0)
+        + 4;
+    let big = dead_leaves(w + 2 * pad, h + 2 * pad, seed);
+    let sharp = big.crop(pad, pad, w, h);
+    let mut blurry = blur_varying(&big, pad, w, h, 8, &|x, y| {
+        plane_kernel(&true_kernel(x, y), 1)
+    });
+    drop(big);
+    if noise_sigma > 0.0
+        && let Ok(noise) = Normal::new(0.0, noise_sigma)
+    {
+        let mut rng = Pcg64::seed_from_u64(seed ^ 0x51a9);
+        for v in &mut blurry.data {
+            *v += noise.sample(&mut rng) as f32;
+        }
+    }
+    let cp = ChannelPlane {
+        channel,
+        plane: blurry,
+        step: 1,
+        offset_x: 0,
+        offset_y: 0,
+    };
+    let hqs = DeblurOptions::default();
+    let run = |source: &dyn crate::deblur::KernelSource| {
+        deblur_channel_plane(&cp, w, h, source, &hqs, job).map_err(|e| e.to_string())
+    };
+    let truth_source = |_c: Channel, x: f64, y: f64| true_kernel(x, y);
+    let x_true = run(&truth_source)?;
+    let gauss = ProfileKernels::with_model(profile.clone(), setting, KernelModel::Gaussian)
+        .map_err(|e| e.to_string())?;
+    let x_gauss = run(&gauss)?;
+    let shape = ProfileKernels::with_model(profile.clone(), setting, KernelModel::Shape)
+        .map_err(|e| e.to_string())?;
+    let x_shape = run(&shape)?;
+    let params = SsimParams::default();
+    let s = |x: &Plane| crate::metrics::ssim(x, &sharp, &params);
+    let c = (w.min(h) / 4).max(16);
+    let corners = |x: &Plane| {
+        [(0, 0), (w - c, 0), (0, h - c), (w - c, h - c)]
+            .iter()
+            .map(|&(x0, y0)| {
+                crate::metrics::ssim(&x.crop(x0, y0, c, c), &sharp.crop(x0, y0, c, c), &params)
+            })
+            .sum::<f64>()
+            / 4.0
+    };
+    Ok(KernelModelSsim {
+        blurry: s(&cp.plane),
+        truth: s(&x_true),
+        gaussian: s(&x_gauss),
+        shape: s(&x_shape),
+        corners_truth: corners(&x_true),
+        corners_gaussian: corners(&x_gauss),
+        corners_shape: corners(&x_shape),
+    })
 }

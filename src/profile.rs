@@ -1,5 +1,5 @@
 //! Lens profiles (DESIGN.md §1.8): the fitted models of one camera + lens unit in a
-//! versioned JSON file, `lensblur.profile/1`.
+//! versioned JSON file, `lensblur.profile/2` (version 1 read too).
 //!
 //! Coefficients are stored as base64 of little-endian `f32` (7 significant digits, far
 //! below the measurement noise): a G_{8,3} profile of three channels is about 17 kB (the
@@ -14,20 +14,24 @@
 //! (`lensblur predict` says so). Fitting a profile is [`crate::calibrate`]'s.
 
 use crate::chart::ChartSpec;
+use crate::crossval::ShapeCvReport;
 use crate::crossval::{CvPoint, CvReport, Ranges};
 use crate::model::{
     CentreGrid, ChannelCoeffs, FieldAtSetting, FittedModel, GlobalModel, LocalModel, MAX_ORDER,
     ModelKind, Normalisation, model_basis, to_gaussian,
 };
+use crate::model::{KernelModel, ShapeModel};
 use crate::plane::{CameraIdentity, Channel, LensSetting};
-use crate::psf::Gaussian2;
+use crate::psf::{Gaussian2, Kernel};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// The profile's version.
+/// Version 2 adds the kernel-shape model and its cross-validation; a version-1 file
+/// reads as a profile without one (its kernels are its Gaussians).
 pub const PROFILE: crate::format::Schema = crate::format::Schema {
     kind: "profile",
-    current: 1,
+    current: 2,
     unversioned: None,
 };
 
@@ -67,6 +71,10 @@ pub enum ProfileError {
     BetweenRanges { focal_mm: f64, f_number: f64 },
     #[error("the profile holds no {0:?} model")]
     NoModel(ModelKind),
+    #[error(
+        "the profile holds no kernel-shape model (cross-validation found the Gaussians predict its kernels as well, or it was calibrated without kernels): use the Gaussian kernel model"
+    )]
+    NoShapeModel,
     #[error("the profile has no model for channel {0}")]
     NoChannel(Channel),
 }
@@ -122,6 +130,32 @@ struct StoredLocal {
     channels: Vec<StoredChannel>,
 }
 
+/// The kernel-shape model as stored: its components on the whitened grid (component
+/// after component, row-major) and per channel each component's coefficients over the
+/// G_{α,β} basis (component after component).
+#[derive(Serialize, Deserialize)]
+struct StoredShape {
+    /// Where the shape is described (files without it: whitened).
+    #[serde(default)]
+    space: crate::model::ShapeSpace,
+    alpha: usize,
+    beta: usize,
+    terms: usize,
+    components: usize,
+    /// Samples per side of the whitened grid, and per σ: a grid this build does not use
+    /// is refused rather than misread.
+    grid_side: usize,
+    grid_per_sigma: usize,
+    basis: String,
+    channels: Vec<StoredShapeChannel>,
+}
+
+#[derive(Serialize, Deserialize)]
+struct StoredShapeChannel {
+    channel: Channel,
+    coefficients: String,
+}
+
 #[derive(Serialize, Deserialize)]
 struct ProfileFile {
     schema: String,
@@ -149,6 +183,10 @@ struct ProfileFile {
     local: Option<StoredLocal>,
     #[serde(default)]
     cv: Option<CvSummary>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    shape: Option<StoredShape>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    shape_cv: Option<ShapeCvReport>,
 }
 
 /// A loaded (or freshly fitted) lens profile.
@@ -163,6 +201,11 @@ pub struct Profile {
     pub global: Option<GlobalModel>,
     pub local: Option<LocalModel>,
     pub cv: Option<CvSummary>,
+    /// The kernel-shape model, where cross-validation found it predicts held-out kernels
+    /// better than the Gaussians alone.
+    pub shape: Option<ShapeModel>,
+    /// That cross-validation, whichever way it went.
+    pub shape_cv: Option<ShapeCvReport>,
     /// Predict outside the calibrated range instead of failing. Off by default.
     pub allow_extrapolation: bool,
 }
@@ -285,6 +328,91 @@ fn load_channel(
     Ok(out)
 }
 
+/// Reads and checks a stored kernel-shape model against the profile's sensor and ranges.
+fn load_shape(
+    sh: &StoredShape,
+    norm: &Normalisation,
+    invalid: &dyn Fn(String) -> ProfileError,
+    checked_basis: &dyn Fn(
+        String,
+        usize,
+        usize,
+        usize,
+    ) -> Result<crate::model::Basis, ProfileError>,
+) -> Result<ShapeModel, ProfileError> {
+    let (side, per_unit) = (sh.space.side(), sh.space.per_unit());
+    if sh.grid_side != side || sh.grid_per_sigma != per_unit {
+        return Err(invalid(format!(
+            "kernel-shape model in the {} space on a {} × {} grid at {} per unit; this lensblur uses {side} × {side} at {per_unit}",
+            sh.space.name(),
+            sh.grid_side,
+            sh.grid_side,
+            sh.grid_per_sigma,
+        )));
+    }
+    if sh.components > crate::model::MAX_COMPONENTS {
+        return Err(invalid(format!(
+            "kernel-shape model of {} components (at most {})",
+            sh.components,
+            crate::model::MAX_COMPONENTS
+        )));
+    }
+    let basis = checked_basis(
+        format!("kernel-shape model of order {}, {}", sh.alpha, sh.beta),
+        sh.alpha,
+        sh.beta,
+        sh.terms,
+    )?;
+    let values = |text: &str, expected: usize, what: &str| -> Result<Vec<f64>, ProfileError> {
+        let v = decode_f32(text)
+            .ok_or_else(|| invalid(format!("kernel-shape {what} are not base64 f32")))?;
+        if v.len() != expected {
+            return Err(invalid(format!(
+                "kernel-shape {what}: {} values, expected {expected}",
+                v.len()
+            )));
+        }
+        if v.iter().any(|x| !x.is_finite()) {
+            return Err(invalid(format!("kernel-shape {what}: non-finite value")));
+        }
+        Ok(v)
+    };
+    let k = sh.components;
+    let len = sh.space.values();
+    let flat = values(&sh.basis, k * len, "components")?;
+    let components: Vec<Vec<f64>> = flat.chunks_exact(len).map(<[f64]>::to_vec).collect();
+    let mut channels: Vec<(Channel, Vec<Vec<f64>>)> = Vec::new();
+    for c in &sh.channels {
+        if channels.iter().any(|(ch, _)| *ch == c.channel) {
+            return Err(invalid(format!(
+                "kernel-shape channel {} is stored twice",
+                c.channel
+            )));
+        }
+        let flat = values(&c.coefficients, k * basis.len(), "coefficients")?;
+        let per: Vec<Vec<f64>> = if basis.is_empty() {
+            vec![Vec::new(); k]
+        } else {
+            flat.chunks_exact(basis.len())
+                .map(<[f64]>::to_vec)
+                .collect()
+        };
+        channels.push((c.channel, per));
+    }
+    if channels.is_empty() {
+        return Err(invalid("kernel-shape model without channels".into()));
+    }
+    Ok(ShapeModel {
+        space: sh.space,
+        norm: norm.clone(),
+        alpha: sh.alpha,
+        beta: sh.beta,
+        basis,
+        components,
+        channels,
+    })
+}
+
 /// Refuses a model that stores a channel twice (which of the two would it predict?).
 fn check_distinct_channels(
     channels: &[StoredChannel],
@@ -380,6 +508,8 @@ impl Profile {
             global,
             local,
             cv,
+            shape: None,
+            shape_cv: None,
             allow_extrapolation: false,
         })
     }
@@ -424,6 +554,25 @@ impl Profile {
                     .collect(),
             }),
             cv: self.cv.clone(),
+            shape: self.shape.as_ref().map(|m| StoredShape {
+                space: m.space,
+                alpha: m.alpha,
+                beta: m.beta,
+                terms: m.basis.len(),
+                components: m.components.len(),
+                grid_side: m.space.side(),
+                grid_per_sigma: m.space.per_unit(),
+                basis: encode_f32(&m.components.concat()),
+                channels: m
+                    .channels
+                    .iter()
+                    .map(|(ch, c)| StoredShapeChannel {
+                        channel: *ch,
+                        coefficients: encode_f32(&c.concat()),
+                    })
+                    .collect(),
+            }),
+            shape_cv: self.shape_cv.clone(),
         }
     }
 
@@ -642,6 +791,10 @@ impl Profile {
         if global.is_none() && local.is_none() {
             return Err(invalid("holds neither a global nor a local model".into()));
         }
+        let shape = match &file.shape {
+            None => None,
+            Some(sh) => Some(load_shape(sh, &norm, &invalid, &checked_basis)?),
+        };
         let preferred = match (file.preferred, global.is_some(), local.is_some()) {
             (ModelKind::Global, false, _) | (ModelKind::Local, _, false) => {
                 return Err(invalid(format!(
@@ -660,6 +813,8 @@ impl Profile {
             global,
             local,
             cv: file.cv,
+            shape,
+            shape_cv: file.shape_cv,
             allow_extrapolation: false,
         })
     }
@@ -788,6 +943,41 @@ impl Profile {
             .predict(channel, x, y, setting)
             .map(to_gaussian)
             .ok_or(ProfileError::NoChannel(channel))
+    }
+
+    /// The kernel the profile predicts for deblurring at sensor (x, y) for a setting,
+    /// at 3×: the preferred model's Gaussian, with the shape model's predicted shape
+    /// when `model` asks for it.
+    ///
+    /// # Errors
+    /// As [`Profile::predict`]; [`ProfileError::NoShapeModel`] when the shape is asked
+    /// of a profile without one.
+    pub fn predict_kernel(
+        &self,
+        model: KernelModel,
+        channel: Channel,
+        x: f64,
+        y: f64,
+        setting: LensSetting,
+    ) -> Result<Kernel, ProfileError> {
+        let g = self.predict(channel, x, y, setting)?;
+        match (model, &self.shape) {
+            (KernelModel::Gaussian, _) => Ok(g.kernel(3)),
+            (KernelModel::Shape, Some(shape)) => shape
+                .kernel(channel, x, y, setting, &g, 3)
+                .ok_or(ProfileError::NoChannel(channel)),
+            (KernelModel::Shape, None) => Err(ProfileError::NoShapeModel),
+        }
+    }
+
+    /// The kernel model the profile recommends: its shape model where it holds one.
+    #[must_use]
+    pub fn kernel_model(&self) -> KernelModel {
+        if self.shape.is_some() {
+            KernelModel::Shape
+        } else {
+            KernelModel::Gaussian
+        }
     }
 
     /// The fitted model of a family.

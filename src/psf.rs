@@ -204,6 +204,40 @@ impl Kernel {
         None
     }
 
+    /// The PSF integrated over a pixel's area: convolved with the 1-pixel box at its own
+    /// oversampling (an odd number of samples per pixel: exactly; an even one: the box
+    /// one sample wider).
+    #[must_use]
+    pub fn pixel_integrated(&self) -> Kernel {
+        let os = self.oversample;
+        let n = self.size + os - 1 + usize::from(os.is_multiple_of(2));
+        let size = n | 1;
+        let off = (size - self.size) / 2;
+        let half = os as isize / 2;
+        let mut data = vec![0.0; size * size];
+        for j in 0..self.size {
+            for i in 0..self.size {
+                let v = self.at(i, j);
+                for b in -half..=half {
+                    for a in -half..=half {
+                        let x = (i + off) as isize + a;
+                        let y = (j + off) as isize + b;
+                        if x >= 0 && y >= 0 && (x as usize) < size && (y as usize) < size {
+                            data[y as usize * size + x as usize] += v;
+                        }
+                    }
+                }
+            }
+        }
+        let mut out = Kernel {
+            size,
+            oversample: os,
+            data,
+        };
+        out.normalise();
+        out
+    }
+
     /// The same PSF resampled at another oversampling (area-preserving: the result sums
     /// to 1). Going from 3× to 1× gives the pixel-level kernel a deconvolver uses.
     #[must_use]

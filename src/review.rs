@@ -13,6 +13,7 @@ use crate::develop::{DevelopError, Developed, Orient, develop};
 use crate::job::JobContext;
 use crate::kernel::file::KernelsFile;
 use crate::model::Dataset;
+use crate::model::{KernelModel, relative_l2};
 use crate::plane::{Capture, Channel, ChannelPlane, LensSetting, Plane};
 use crate::profile::Profile;
 use crate::psf::{Gaussian2, Kernel};
@@ -109,6 +110,116 @@ pub fn predicted_field(
                 .map_err(|e| e.to_string())
         })
         .collect()
+}
+
+/// One kernel a profile predicts: its sensor position, the Gaussian it is built
+/// around and the 3× kernel itself.
+#[derive(Clone, Debug)]
+pub struct PredictedKernel {
+    pub x: f64,
+    pub y: f64,
+    pub gaussian: Gaussian2,
+    pub kernel: Kernel,
+}
+
+/// A profile's predicted kernels in `model` at sensor `points` and `setting`, so the
+/// studio can lay them beside the measured ones cell for cell.
+///
+/// # Errors
+/// The profile cannot predict at some point (channel or setting outside it, or no
+/// shape model for [`KernelModel::Shape`]): the first failure, one line.
+pub fn predicted_kernels(
+    profile: &Profile,
+    model: KernelModel,
+    channel: Channel,
+    points: &[[f64; 2]],
+    setting: LensSetting,
+) -> Result<Vec<PredictedKernel>, String> {
+    points
+        .iter()
+        .map(|&[x, y]| {
+            let gaussian = profile
+                .predict(channel, x, y, setting)
+                .map_err(|e| e.to_string())?;
+            let kernel = profile
+                .predict_kernel(model, channel, x, y, setting)
+                .map_err(|e| e.to_string())?;
+            Ok(PredictedKernel {
+                x,
+                y,
+                gaussian,
+                kernel,
+            })
+        })
+        .collect()
+}
+
+/// How far a profile's predictions miss one measured kernel: relative L2 of the
+/// predicted kernel against the measured one, for the Gaussian alone and, where the
+/// profile holds a shape model, for the Gaussian with its predicted shape.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KernelError {
+    pub gaussian: f64,
+    pub shape: Option<f64>,
+}
+
+/// Per sample of a shot's kernels file (in the file's order), the error of `profile`'s
+/// predicted kernels against the measured kernel at the shot's setting; `None` where
+/// the sample is of another channel, holds no kernel array, or the profile cannot
+/// predict there (the file names no setting, or one outside the profile).
+#[must_use]
+pub fn kernel_errors(
+    profile: &Profile,
+    file: &KernelsFile,
+    channel: Channel,
+) -> Vec<Option<KernelError>> {
+    let setting = match (file.focal_mm, file.f_number) {
+        (Some(focal_mm), Some(f_number)) => Some(LensSetting { focal_mm, f_number }),
+        _ => None,
+    };
+    file.samples
+        .iter()
+        .map(|s| {
+            let setting = setting?;
+            if s.channel != channel {
+                return None;
+            }
+            let measured = s.kernel_at(file.oversample)?;
+            let error = |model| {
+                profile
+                    .predict_kernel(model, channel, s.x, s.y, setting)
+                    .ok()
+                    .map(|k| relative_l2(&k, &measured))
+            };
+            Some(KernelError {
+                gaussian: error(KernelModel::Gaussian)?,
+                shape: profile
+                    .shape
+                    .is_some()
+                    .then(|| error(KernelModel::Shape))
+                    .flatten(),
+            })
+        })
+        .collect()
+}
+
+/// Why a profile holds no kernel-shape model, in a few words; `None` where it holds
+/// one.
+#[must_use]
+pub fn no_shape_reason(profile: &Profile) -> Option<String> {
+    if profile.shape.is_some() {
+        return None;
+    }
+    Some(match &profile.shape_cv {
+        Some(cv) => match &cv.best_shape {
+            Some(best) => format!(
+                "cross-validation kept the Gaussians (held-out error: Gaussian {:.3}, best shapes {:.3})",
+                cv.gaussian.mean_rel_l2, best.mean_rel_l2
+            ),
+            None => "cross-validation kept the Gaussians (no shape model could be fitted)".into(),
+        },
+        None => "the profile holds no shape cross-validation (calibrated without measured kernels, or written before shape models)".into(),
+    })
 }
 
 /// A virtual lens's pixel-level Gaussians on the same grid as [`predicted_field`].
@@ -576,10 +687,7 @@ pub fn profile_source(
         ));
     }
     profile.check_setting(setting).map_err(|e| e.to_string())?;
-    Ok(ProfileKernels {
-        profile: profile.clone(),
-        setting,
-    })
+    Ok(ProfileKernels::new(profile.clone(), setting))
 }
 
 /// Whether kernels measured on a shot at `shot_setting` serve a photo at `setting` on a
@@ -744,6 +852,131 @@ mod tests {
     use crate::model::{BlurSample, ShotInfo};
     use crate::plane::CameraIdentity;
 
+    /// A comet lens's session with measured kernels, calibrated with and without shape
+    /// models, and one shot's samples as a kernels file.
+    fn comet_profiles() -> (Profile, Profile, KernelsFile) {
+        use crate::calibrate::{CalibrateOptions, Families, calibrate};
+        use crate::kernel::file::{KERNELS, KernelData, KernelSample};
+        use crate::simulate::{PsfShape, SimulatedSession, VirtualLens};
+        let lens = VirtualLens {
+            shape: PsfShape::Comet,
+            ..VirtualLens::demo()
+        };
+        let mut settings = Vec::new();
+        for focal_mm in [24.0, 60.0, 105.0] {
+            for f_number in [4.0, 10.0] {
+                settings.push(LensSetting { focal_mm, f_number });
+            }
+        }
+        let ds = SimulatedSession {
+            cols: 6,
+            rows: 4,
+            kernel_noise: Some(0.01),
+            seed: 3,
+            ..SimulatedSession::new(240, 160)
+        }
+        .dataset(&lens, &settings);
+        let opts = CalibrateOptions {
+            families: crate::calibrate::Families::Global,
+            alpha: Some(2),
+            beta: Some(1),
+            ..CalibrateOptions::default()
+        };
+        let job = JobContext::silent();
+        let (with_shape, _) = calibrate(&ds, None, &opts, &job).expect("calibrate");
+        let (without, _) = calibrate(
+            &ds,
+            None,
+            &CalibrateOptions {
+                shape: None,
+                families: Families::Global,
+                ..opts
+            },
+            &job,
+        )
+        .expect("calibrate");
+        let shot = &ds.shots[0];
+        let samples = ds
+            .samples
+            .iter()
+            .filter(|s| s.shot == 0)
+            .map(|s| KernelSample {
+                x: s.x,
+                y: s.y,
+                channel: s.channel,
+                cxx: Some(s.gaussian.sigma_x),
+                cyy: Some(s.gaussian.sigma_y),
+                cor: Some(s.gaussian.rho),
+                row: None,
+                col: None,
+                ml: None,
+                kernel: s.kernel.as_ref().map(|k| KernelData {
+                    size: k.size,
+                    data: k.data.clone(),
+                }),
+            })
+            .collect();
+        let file = KernelsFile {
+            schema: KERNELS.tag(),
+            width: ds.width,
+            height: ds.height,
+            focal_mm: Some(shot.focal_mm),
+            f_number: Some(shot.f_number),
+            oversample: 3,
+            identity: None,
+            source: None,
+            samples,
+            failed: Vec::new(),
+        };
+        (with_shape, without, file)
+    }
+
+    #[test]
+    fn predicted_kernel_errors_favour_shapes_on_a_comet_lens() {
+        let (with_shape, without, file) = comet_profiles();
+        assert!(with_shape.shape.is_some(), "the comet's shapes were kept");
+        assert_eq!(no_shape_reason(&with_shape), None);
+        let reason = no_shape_reason(&without).expect("no shape model");
+        assert!(reason.contains("no shape cross-validation"), "{reason}");
+
+        let errors = kernel_errors(&with_shape, &file, Channel::G);
+        assert_eq!(errors.len(), file.samples.len());
+        let judged: Vec<KernelError> = errors.iter().flatten().copied().collect();
+        let greens = file
+            .samples
+            .iter()
+            .filter(|s| s.channel == Channel::G)
+            .count();
+        assert_eq!(judged.len(), greens, "every green sample judged");
+        let mean = |f: &dyn Fn(&KernelError) -> f64| {
+            judged.iter().map(f).sum::<f64>() / judged.len() as f64
+        };
+        let gaussian = mean(&|e| e.gaussian);
+        let shape = mean(&|e| e.shape.unwrap_or(f64::NAN));
+        assert!(shape < gaussian, "shapes {shape} vs Gaussian {gaussian}");
+        // Without a shape model only the Gaussian is judged, and identically.
+        let plain = kernel_errors(&without, &file, Channel::G);
+        assert!(plain.iter().flatten().all(|e| e.shape.is_none()));
+
+        let points = [[40.0, 30.0], [120.0, 80.0]];
+        let s = LensSetting {
+            focal_mm: file.focal_mm.unwrap_or(24.0),
+            f_number: file.f_number.unwrap_or(4.0),
+        };
+        let shapes = predicted_kernels(&with_shape, KernelModel::Shape, Channel::G, &points, s)
+            .expect("shape kernels");
+        let gaussians =
+            predicted_kernels(&with_shape, KernelModel::Gaussian, Channel::G, &points, s)
+                .expect("Gaussian kernels");
+        assert_eq!(shapes.len(), 2);
+        assert_eq!((shapes[1].x, shapes[1].y), (120.0, 80.0));
+        assert!(relative_l2(&shapes[0].kernel, &gaussians[0].kernel) > 1e-3);
+        assert!(
+            predicted_kernels(&without, KernelModel::Shape, Channel::G, &points, s).is_err(),
+            "no shape model, no shape kernels"
+        );
+    }
+
     #[test]
     fn regions_stay_inside_and_even() {
         let r = Region::around(5.0, 3.0, 64, 100, 80);
@@ -825,6 +1058,7 @@ mod tests {
                 channel: Channel::G,
                 gaussian: g(s * a / 4.0),
                 square: None,
+                kernel: None,
             });
             ds.push_shot(
                 ShotInfo {

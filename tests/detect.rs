@@ -11,6 +11,11 @@ use lensblur::raw::{LoadOptions, load_capture};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
+/// Distorted and lateral-colour shots (a module here rather than a test binary of its
+/// own: every binary links the whole crate).
+#[path = "detect/geometry.rs"]
+mod geometry;
+
 fn blur(data: &[f64], w: usize, h: usize, sigma: f64) -> Vec<f64> {
     lensblur::detect::filter::gaussian_blur(data, w, h, sigma)
 }

@@ -92,6 +92,20 @@ fn each_current_format_is_read_and_its_next_version_refused() {
 }
 
 #[test]
+fn a_version_1_profile_reads_with_its_gaussians_and_no_shape_model() {
+    let path = kept("profile-v1.json");
+    let p = Profile::from_json(&text(&path), "profile-v1.json").unwrap();
+    assert!(p.shape.is_none() && p.shape_cv.is_none());
+    assert_eq!(p.kernel_model(), lensblur::model::KernelModel::Gaussian);
+    assert!(p.global.is_some() || p.local.is_some());
+    // Written again, it is a version-2 file that reads back the same.
+    let again = String::from_utf8(p.to_json().unwrap()).unwrap();
+    assert!(again.contains("lensblur.profile/2"));
+    let q = Profile::from_json(&again, "again.json").unwrap();
+    assert_eq!(q.calibrated_settings, p.calibrated_settings);
+}
+
+#[test]
 fn a_version_1_session_is_migrated() {
     let path = kept("session-v1.json");
     let s = Session::from_json(&path, &text(&path)).unwrap();
@@ -146,7 +160,7 @@ fn a_file_of_another_kind_is_named_as_such() {
     let t = current("profile", "profile.json");
     let e = KernelsFile::from_json(&t).unwrap_err();
     assert!(
-        e.contains("lensblur.profile/1") && e.contains("not a lensblur.kernels file"),
+        e.contains("lensblur.profile/2") && e.contains("not a lensblur.kernels file"),
         "{e}"
     );
     let t = current("kernels", ".kernels.json");

@@ -219,3 +219,39 @@ fn truth_corners_follow_the_pose() {
         "checkerboard width {width}"
     );
 }
+
+#[test]
+fn aberrated_shot_simulates_with_its_true_kernels() {
+    let spec = big_square_chart();
+    let mut p = CaptureParams::new(
+        320,
+        214,
+        LensSetting {
+            // Mid-range: the wide-open corners' 24 px kernels would make this slow.
+            focal_mm: 70.0,
+            f_number: 5.6,
+        },
+    );
+    p.noise = NoiseModel::none();
+    p.bayer = false;
+    let lens = VirtualLens::aberrated();
+    let s = simulate_shot(&spec, &lens, &p, &JobContext::silent()).expect("simulate");
+    assert_eq!(s.truth.squares.len(), spec.rows * spec.cols);
+    for sq in &s.truth.squares {
+        assert_eq!(sq.pixel_kernels.len(), 3, "square {} {}", sq.row, sq.col);
+        for (ch, k) in &sq.pixel_kernels {
+            assert_eq!(k.oversample, 3);
+            let sum: f64 = k.data.iter().sum();
+            assert!((sum - 1.0).abs() < 1e-9, "{ch:?} kernel sums to {sum}");
+            // The truth's moments and its kernel describe the same PSF: the kernel's
+            // variance is the pixel-level one (optical plus the pixel box).
+            let m = k.moments();
+            let g = sq.pixel_of(*ch).expect("pixel truth");
+            let rel = m.var_x / g.sigma_x.powi(2);
+            assert!((0.85..1.15).contains(&rel), "{ch:?} var ratio {rel}");
+        }
+    }
+    for (_, plane) in &s.clean {
+        assert!(plane.data.iter().all(|v| v.is_finite()));
+    }
+}

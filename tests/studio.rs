@@ -8,7 +8,9 @@
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use lensblur::app::{AppOptions, Command, FieldSource, PlotId, StudioApp, SweepAxis, View};
+use lensblur::app::{
+    AppOptions, Command, FieldShow, FieldSource, PlotId, StudioApp, SweepAxis, View,
+};
 use lensblur::job::JobContext;
 use lensblur::pipeline::ShotFile;
 use lensblur::session::{DemoSpec, Session, ShotId, StageStatus, make_demo};
@@ -408,6 +410,25 @@ fn every_view_on_the_demo_session() {
     h.get_by_label("Predicted").click();
     h.run_steps(3);
     assert_eq!(h.state().field_source, FieldSource::Predicted);
+    // Kernel shapes stay chosen: the profile's predicted kernels, in its recommended
+    // model, at the selected shot's measured squares, each with its error against the
+    // measured kernel there (shapes too where the profile holds them).
+    {
+        let app = h.state();
+        let profile = &app.profile.as_ref().expect("profile").1;
+        let atlas = app.views.kernel_atlas.as_ref().expect("predicted atlas");
+        assert_eq!(atlas.model, Some(profile.kernel_model()));
+        assert_eq!(atlas.no_shape.is_some(), profile.shape.is_none());
+        let field = app.views.field.as_ref().expect("field");
+        let points = &field.panels[0].points;
+        assert!(!points.is_empty());
+        assert!(points.iter().all(|p| p.kernel_error.is_some_and(|e| {
+            e.shape.is_some() == profile.shape.is_some() && e.gaussian > 0.0 && e.gaussian < 1.0
+        })));
+    }
+    snapshot(&mut h, "studio_kernel_field_predicted_kernels");
+    h.get_by_label("Ellipses").click();
+    h.run_steps(3);
     snapshot(&mut h, "studio_kernel_field_predicted");
     h.get_by_label("Ground truth").click();
     h.run_steps(2);
@@ -1031,4 +1052,80 @@ fn a_second_studio_on_an_open_session_is_refused_and_the_command_line_too() {
         "{:?}",
         third.state().messages
     );
+}
+
+/// A profile of a lens whose kernels are not Gaussian (a comet) holds a shape model:
+/// the Kernel field's predicted kernel shapes are its shapes, and the panel says so.
+#[test]
+fn predicted_kernel_shapes_of_a_profile_with_a_shape_model() {
+    use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
+    use lensblur::simulate::{PsfShape, SimulatedSession, VirtualLens};
+    let demo = tempfile::tempdir().expect("temp dir");
+    let parent = tempfile::tempdir().expect("temp dir");
+    // A named folder: the session takes its name from it, and the snapshot shows it.
+    let folder = parent.path().join("comet lens");
+    std::fs::create_dir(&folder).expect("session folder");
+    let lens = VirtualLens {
+        shape: PsfShape::Comet,
+        ..VirtualLens::demo()
+    };
+    let spec = test_demo();
+    let mut settings = Vec::new();
+    for focal_mm in [24.0, 60.0, 105.0] {
+        for f_number in [4.0, 10.0] {
+            settings.push(lensblur::plane::LensSetting { focal_mm, f_number });
+        }
+    }
+    // On the demo's sensor, so the field grid the empty session draws on is the
+    // profile's.
+    let ds = SimulatedSession {
+        cols: 6,
+        rows: 4,
+        kernel_noise: Some(0.01),
+        seed: 3,
+        ..SimulatedSession::new(spec.width, spec.height)
+    }
+    .dataset(&lens, &settings);
+    let opts = CalibrateOptions {
+        families: Families::Global,
+        alpha: Some(2),
+        beta: Some(1),
+        ..CalibrateOptions::default()
+    };
+    let (profile, _) = calibrate(&ds, None, &opts, &JobContext::silent()).expect("calibrate");
+    assert!(profile.shape.is_some(), "the comet's shapes were kept");
+    let path = folder.join("comet-profile.json");
+    profile.save(&path).expect("profile saved");
+
+    let mut h = new_harness(demo.path(), Some(&folder));
+    h.run_steps(2);
+    h.state_mut().commands.push(Command::LoadProfile {
+        path,
+        compare: false,
+    });
+    step_until(&mut h, "the profile", Duration::from_secs(30), |a| {
+        a.profile.is_some() && idle(a)
+    });
+    let app = h.state_mut();
+    app.commands.push(Command::SelectView(View::KernelField));
+    app.commands
+        .push(Command::SetFieldSource(FieldSource::Predicted));
+    app.commands.push(Command::SetFieldShow(FieldShow::Kernels));
+    app.commands.push(Command::SetFieldSetting {
+        focal_mm: 60.0,
+        f_number: 4.0,
+    });
+    h.run_steps(3);
+    {
+        let atlas = h.state().views.kernel_atlas.as_ref().expect("atlas");
+        assert_eq!(atlas.model, Some(lensblur::model::KernelModel::Shape));
+        assert!(atlas.error.is_none(), "{:?}", atlas.error);
+        assert_eq!(
+            atlas.cells.len(),
+            12 * 8,
+            "the field grid, no shot selected"
+        );
+    }
+    h.get_by_label_contains("predicted kernel shapes");
+    snapshot(&mut h, "studio_kernel_field_predicted_shapes");
 }

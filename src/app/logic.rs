@@ -1299,6 +1299,7 @@ fn run_export_photos(app: &mut StudioApp, photos: Vec<PathBuf>, out_dir: PathBuf
         },
         allow_extrapolation: false,
         deblur: deblur_options(app),
+        kernel_model: None,
         memory_budget: None,
         max_parallel: None,
     };

@@ -15,12 +15,13 @@ use super::jobs::JobScope;
 use super::{FieldShow, FieldSource, JobOutput, StudioApp, SweepAxis, View};
 use crate::detect::Detection;
 use crate::detect::inspect::SquareInspection;
-use crate::kernel::file::KernelsFile;
+use crate::kernel::file::{KernelSample, KernelsFile};
 use crate::model::Dataset;
+use crate::model::KernelModel;
 use crate::plane::{Capture, Channel, LensSetting, Plane};
 use crate::profile::Profile;
 use crate::psf::{Gaussian2, Mtf50, Mtf50Record};
-use crate::review::{PlotTable, SquareFacts, SweepPoint};
+use crate::review::{KernelError, PlotTable, SquareFacts, SweepPoint};
 use crate::session::ShotId;
 use crate::simulate::VirtualLens;
 use std::sync::Arc;
@@ -113,26 +114,61 @@ impl ShotPlane {
     }
 }
 
-/// Measured kernels of one shot and channel packed into one texture for the Kernel
-/// field view: each cell holds the central ±`extent_px` of one kernel, scaled to its
-/// peak.
+/// Kernels packed into one texture for the Kernel field view, measured (one shot and
+/// channel) or predicted (the profile's, at the measured squares of the selected shot
+/// or on the field grid): each cell holds the central ±`extent_px` of one kernel,
+/// scaled to its peak.
 pub struct KernelAtlas {
-    key: (ShotId, Channel, Same<KernelsFile>),
+    key: AtlasKey,
     pub texture: egui::TextureHandle,
-    /// Per sample: its index in the kernels file and its cell's UV rectangle.
-    pub cells: Vec<(usize, egui::Rect)>,
+    pub cells: Vec<AtlasCell>,
     /// Half the side every cell shows, sensor px.
     pub extent_px: f64,
+    /// The model of a predicted atlas; `None` for measured kernels.
+    pub model: Option<KernelModel>,
+    /// Why a predicted atlas holds no kernel (the profile cannot predict there).
+    pub error: Option<String>,
+    /// Why the profile of a predicted atlas holds no shape model.
+    pub no_shape: Option<String>,
+}
+
+/// One kernel of an atlas.
+#[derive(Clone, Copy, Debug)]
+pub struct AtlasCell {
+    /// Sensor position.
+    pub x: f64,
+    pub y: f64,
+    /// The Gaussian whose σ tints its tile (measured fit or predicted).
+    pub gaussian: Gaussian2,
+    /// The selected shot's kernels-file sample on that square, where it sits on one.
+    pub sample: Option<usize>,
+    /// Its cell's UV rectangle in the texture.
+    pub uv: egui::Rect,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+enum AtlasKey {
+    Measured {
+        shot: ShotId,
+        channel: Channel,
+        file: Same<KernelsFile>,
+    },
+    Predicted {
+        profile: Same<Profile>,
+        file: Same<KernelsFile>,
+        channel: Channel,
+        setting: [f64; 2],
+        size: (usize, usize),
+    },
 }
 
 /// What one panel of the Kernel field view draws.
 pub enum PanelContent {
     Ellipses(Vec<(f64, f64, Gaussian2)>),
-    /// Measured kernels of the selected shot: (position, fit, atlas cell UV) each, every
-    /// cell ±`extent_px` around its kernel's centre, drawn a fraction of the chart's
-    /// square pitch wide.
+    /// Kernels of the atlas (measured or predicted), every cell ±`extent_px` around its
+    /// kernel's centre, drawn a fraction of the chart's square pitch wide.
     Kernels {
-        cells: Vec<(f64, f64, Gaussian2, egui::Rect)>,
+        cells: Vec<AtlasCell>,
         extent_px: f64,
         pitch_px: f64,
     },
@@ -162,6 +198,9 @@ pub struct FieldPoint {
     /// In cycles/px and line pairs per picture height of the sensor shown; absent for a
     /// degenerate Gaussian.
     pub mtf50: Option<Mtf50Record>,
+    /// The profile's predicted kernels against the measured kernel on this square, where
+    /// both exist.
+    pub kernel_error: Option<KernelError>,
 }
 
 pub struct FieldPanel {
@@ -171,6 +210,9 @@ pub struct FieldPanel {
     pub points: Vec<FieldPoint>,
     /// Squares where no kernel could be measured (sensor px), with the reason.
     pub failed: Vec<(f64, f64, String)>,
+    /// Per sample of the selected shot's kernels file: the profile's predicted kernel
+    /// errors there (empty without a profile or measured kernels).
+    pub errors: Vec<Option<KernelError>>,
 }
 
 /// What the Kernel field view's panels depend on, per source.
@@ -185,6 +227,8 @@ enum FieldKey {
         chart_cols: usize,
         /// The atlas the kernel cells point into.
         atlas: bool,
+        /// The profile whose predicted kernels the hover compares.
+        profile: Same<Profile>,
     },
     Predicted {
         profile: Same<Profile>,
@@ -192,6 +236,12 @@ enum FieldKey {
         channel: Channel,
         setting: [f64; 2],
         size: (usize, usize),
+        show: FieldShow,
+        /// The selected shot's kernels: where predicted kernels are drawn, and what
+        /// they are compared with.
+        file: Same<KernelsFile>,
+        chart_cols: usize,
+        atlas: bool,
     },
     Truth {
         is_demo: bool,
@@ -513,19 +563,42 @@ fn refresh_shot_plane(app: &mut StudioApp) {
     app.views.shot_plane = Some(ShotPlane { key, index });
 }
 
-/// The measured kernels of the selected shot and channel packed into one texture: the
-/// central ±R px of each (R = 2.5 × the largest σ of the field, so every kernel shows
-/// the same extent and shapes compare), each scaled to its own peak (σ is in the tint).
+/// The kernels the Kernel field view shows as shapes, packed into one texture: the
+/// selected shot's measured ones, or the profile's predicted ones in its recommended
+/// model at that shot's measured squares (else on the field grid), so the two compare
+/// cell for cell.
 fn refresh_kernel_atlas(app: &mut StudioApp) {
-    if app.field_source != FieldSource::Measured || app.field_show != FieldShow::Kernels {
+    if app.field_show != FieldShow::Kernels || app.field_source == FieldSource::Truth {
         return;
     }
-    let Some(shot) = app.selected_shot else {
-        app.views.kernel_atlas = None;
-        return;
+    let channel = app.channel;
+    let file = app.selected_shot.and_then(|i| app.measured.get(&i));
+    let key = match app.field_source {
+        FieldSource::Predicted => {
+            let Some((_, profile)) = &app.profile else {
+                app.views.kernel_atlas = None;
+                return;
+            };
+            AtlasKey::Predicted {
+                profile: Same::of(Some(profile)),
+                file: Same::of(file),
+                channel,
+                setting: [app.field_focal_mm, app.field_f_number],
+                size: sensor_size(app),
+            }
+        }
+        _ => {
+            let Some(shot) = app.selected_shot else {
+                app.views.kernel_atlas = None;
+                return;
+            };
+            AtlasKey::Measured {
+                shot,
+                channel,
+                file: Same::of(file),
+            }
+        }
     };
-    let file = app.measured.get(&shot);
-    let key = (shot, app.channel, Same::of(file));
     if app
         .views
         .kernel_atlas
@@ -535,35 +608,108 @@ fn refresh_kernel_atlas(app: &mut StudioApp) {
         return;
     }
     app.views.kernel_atlas = None;
-    let Some(file) = file else {
-        return;
-    };
-    let samples: Vec<(usize, crate::psf::Kernel)> = file
-        .samples
-        .iter()
-        .enumerate()
-        .filter(|(_, s)| s.channel == app.channel)
-        .filter_map(|(i, s)| Some((i, s.kernel_at(file.oversample)?)))
-        .collect();
-    if samples.is_empty() {
-        return;
+    fn channel_samples(f: &KernelsFile, channel: Channel) -> Vec<(usize, &KernelSample)> {
+        f.samples
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| s.channel == channel)
+            .collect()
     }
-    let max_sigma = file
-        .samples
-        .iter()
-        .filter(|s| s.channel == app.channel)
-        .filter_map(|s| Some(s.cxx?.max(s.cyy?)))
-        .fold(0.5, f64::max);
+    let (kernels, max_sigma, model, error) = match &key {
+        AtlasKey::Measured { .. } => {
+            let Some(file) = file else {
+                return;
+            };
+            let samples = channel_samples(file, channel);
+            let kernels: Vec<_> = samples
+                .iter()
+                .filter_map(|&(i, s)| {
+                    let g = Gaussian2 {
+                        sigma_x: s.cxx.unwrap_or(1.0),
+                        sigma_y: s.cyy.unwrap_or(1.0),
+                        rho: s.cor.unwrap_or(0.0),
+                    };
+                    Some((s.x, s.y, g, Some(i), s.kernel_at(file.oversample)?))
+                })
+                .collect();
+            if kernels.is_empty() {
+                return;
+            }
+            let max_sigma = samples
+                .iter()
+                .filter_map(|(_, s)| Some(s.cxx?.max(s.cyy?)))
+                .fold(0.5, f64::max);
+            (kernels, max_sigma, None, None)
+        }
+        AtlasKey::Predicted { size, .. } => {
+            let Some((_, profile)) = &app.profile else {
+                return;
+            };
+            let model = profile.kernel_model();
+            let (points, samples): (Vec<[f64; 2]>, Vec<Option<usize>>) = match file {
+                Some(f) if f.samples.iter().any(|s| s.channel == channel) => {
+                    channel_samples(f, channel)
+                        .into_iter()
+                        .map(|(i, s)| ([s.x, s.y], Some(i)))
+                        .unzip()
+                }
+                _ => crate::review::field_grid(size.0, size.1, FIELD_GRID.0, FIELD_GRID.1)
+                    .into_iter()
+                    .map(|p| (p, None))
+                    .unzip(),
+            };
+            let setting = LensSetting {
+                focal_mm: app.field_focal_mm,
+                f_number: app.field_f_number,
+            };
+            match crate::review::predicted_kernels(profile, model, channel, &points, setting) {
+                Ok(predicted) => {
+                    let max_sigma = predicted
+                        .iter()
+                        .map(|k| k.gaussian.sigma_x.max(k.gaussian.sigma_y))
+                        .fold(0.5, f64::max);
+                    let kernels = predicted
+                        .into_iter()
+                        .zip(samples)
+                        .map(|(k, i)| (k.x, k.y, k.gaussian, i, k.kernel))
+                        .collect();
+                    (kernels, max_sigma, Some(model), None)
+                }
+                Err(e) => (Vec::new(), 0.5, Some(model), Some(e)),
+            }
+        }
+    };
+    let mut atlas = pack_atlas(&app.ctx, key, &kernels, max_sigma, model, error);
+    if model.is_some() {
+        atlas.no_shape = app
+            .profile
+            .as_ref()
+            .and_then(|(_, p)| crate::review::no_shape_reason(p));
+    }
+    app.views.kernel_atlas = Some(atlas);
+}
+
+/// Packs kernels into one texture: the central ±R px of each (R = 2.5 × `max_sigma`,
+/// the largest σ of the field, so every kernel shows the same extent and shapes
+/// compare), each scaled to its own peak (σ is in the tint).
+fn pack_atlas(
+    ctx: &egui::Context,
+    key: AtlasKey,
+    kernels: &[(f64, f64, Gaussian2, Option<usize>, crate::psf::Kernel)],
+    max_sigma: f64,
+    model: Option<KernelModel>,
+    error: Option<String>,
+) -> KernelAtlas {
     let extent_px = (2.5 * max_sigma).max(2.0);
-    let os = file.oversample.max(1);
+    let os = kernels.first().map_or(3, |k| k.4.oversample.max(1));
     let half = (extent_px * os as f64).ceil() as usize;
     let cell = 2 * half + 1;
-    let per_row = (samples.len() as f64).sqrt().ceil().max(1.0) as usize;
-    let rows = samples.len().div_ceil(per_row);
+    let per_row = (kernels.len() as f64).sqrt().ceil().max(1.0) as usize;
+    let rows = kernels.len().div_ceil(per_row).max(1);
     let (w, h) = (per_row * cell, rows * cell);
     let mut img = egui::ColorImage::filled([w, h], egui::Color32::TRANSPARENT);
-    let mut cells = Vec::with_capacity(samples.len());
-    for (n, (i, k)) in samples.iter().enumerate() {
+    let mut cells = Vec::with_capacity(kernels.len());
+    for (n, (x, y, gaussian, sample, k)) in kernels.iter().enumerate() {
         let (cx, cy) = ((n % per_row) * cell, (n / per_row) * cell);
         let c = (k.size / 2) as isize;
         let peak = k.data.iter().copied().fold(1e-12, f64::max);
@@ -584,17 +730,24 @@ fn refresh_kernel_atlas(app: &mut StudioApp) {
             egui::Pos2::new(cx as f32 / w as f32, cy as f32 / h as f32),
             egui::Vec2::new(cell as f32 / w as f32, cell as f32 / h as f32),
         );
-        cells.push((*i, uv));
+        cells.push(AtlasCell {
+            x: *x,
+            y: *y,
+            gaussian: *gaussian,
+            sample: *sample,
+            uv,
+        });
     }
-    let texture = app
-        .ctx
-        .load_texture("kernel-atlas", img, egui::TextureOptions::NEAREST);
-    app.views.kernel_atlas = Some(KernelAtlas {
+    let texture = ctx.load_texture("kernel-atlas", img, egui::TextureOptions::NEAREST);
+    KernelAtlas {
         key,
         texture,
         cells,
         extent_px: half as f64 / os as f64,
-    });
+        model,
+        error,
+        no_shape: None,
+    }
 }
 
 fn field_key(app: &StudioApp) -> FieldKey {
@@ -610,6 +763,7 @@ fn field_key(app: &StudioApp) -> FieldKey {
             size,
             chart_cols: app.session.as_ref().map_or(10, |s| s.chart.cols),
             atlas: app.views.kernel_atlas.is_some(),
+            profile: Same::of(app.profile.as_ref().map(|p| &p.1)),
         },
         FieldSource::Predicted => FieldKey::Predicted {
             profile: Same::of(app.profile.as_ref().map(|p| &p.1)),
@@ -617,6 +771,10 @@ fn field_key(app: &StudioApp) -> FieldKey {
             channel,
             setting,
             size,
+            show: app.field_show,
+            file: Same::of(app.selected_shot.and_then(|i| app.measured.get(&i))),
+            chart_cols: app.session.as_ref().map_or(10, |s| s.chart.cols),
+            atlas: app.views.kernel_atlas.is_some(),
         },
         FieldSource::Truth => FieldKey::Truth {
             is_demo: is_demo(app),
@@ -640,9 +798,25 @@ fn refresh_field(app: &mut StudioApp) {
         f_number: app.field_f_number,
     };
     let mut panels = Vec::new();
+    let file = app.selected_shot.and_then(|i| app.measured.get(&i));
+    // Squares of the chart are about this far apart on the sensor.
+    let pitch_px = size.0 as f64 / app.session.as_ref().map_or(12, |s| s.chart.cols + 2) as f64;
+    let errors = match (&app.profile, file, app.field_show) {
+        (Some((_, p)), Some(f), FieldShow::Kernels) => crate::review::kernel_errors(p, f, ch),
+        _ => Vec::new(),
+    };
+    let atlas_cells = |atlas: &KernelAtlas| -> Result<PanelContent, String> {
+        match &atlas.error {
+            Some(e) => Err(e.clone()),
+            None => Ok(PanelContent::Kernels {
+                cells: atlas.cells.clone(),
+                extent_px: atlas.extent_px,
+                pitch_px,
+            }),
+        }
+    };
     match app.field_source {
         FieldSource::Measured => {
-            let file = app.selected_shot.and_then(|i| app.measured.get(&i));
             let content = match (file, app.field_show) {
                 (None, _) => Err(
                     "No kernels measured on this shot yet — press Kernels (Ctrl+K) after Detect."
@@ -665,27 +839,9 @@ fn refresh_field(app: &mut StudioApp) {
                         })
                         .collect(),
                 )),
-                (Some(f), FieldShow::Kernels) => match &app.views.kernel_atlas {
-                    Some(atlas) => Ok(PanelContent::Kernels {
-                        cells: atlas
-                            .cells
-                            .iter()
-                            .filter_map(|&(i, uv)| {
-                                let k = f.samples.get(i)?;
-                                let g = Gaussian2 {
-                                    sigma_x: k.cxx.unwrap_or(1.0),
-                                    sigma_y: k.cyy.unwrap_or(1.0),
-                                    rho: k.cor.unwrap_or(0.0),
-                                };
-                                Some((k.x, k.y, g, uv))
-                            })
-                            .collect(),
-                        extent_px: atlas.extent_px,
-                        // Squares of the chart are about this far apart on the sensor.
-                        pitch_px: size.0 as f64
-                            / app.session.as_ref().map_or(12, |s| s.chart.cols + 2) as f64,
-                    }),
-                    None => Err("This kernels file holds Gaussians only, no kernel arrays.".into()),
+                (Some(_), FieldShow::Kernels) => match &app.views.kernel_atlas {
+                    Some(atlas) if atlas.model.is_none() => atlas_cells(atlas),
+                    _ => Err("This kernels file holds Gaussians only, no kernel arrays.".into()),
                 },
             };
             let failed = file.map_or_else(Vec::new, |f| {
@@ -700,6 +856,7 @@ fn refresh_field(app: &mut StudioApp) {
                 content,
                 points: Vec::new(),
                 failed,
+                errors: errors.clone(),
             });
         }
         FieldSource::Predicted => {
@@ -710,23 +867,32 @@ fn refresh_field(app: &mut StudioApp) {
             panels.push(match &app.profile {
                 Some((_, p)) => FieldPanel {
                     of: PanelOf::Profile,
-                    content: predicted(p),
+                    content: match (app.field_show, &app.views.kernel_atlas) {
+                        (FieldShow::Kernels, Some(atlas)) if atlas.model.is_some() => {
+                            atlas_cells(atlas)
+                        }
+                        _ => predicted(p),
+                    },
                     points: Vec::new(),
                     failed: Vec::new(),
+                    errors,
                 },
                 None => FieldPanel {
                     of: PanelOf::NoProfile,
                     content: Err("No profile yet: Calibrate (Ctrl+M) or load one in Models.".into()),
                     points: Vec::new(),
                     failed: Vec::new(),
+                    errors: Vec::new(),
                 },
             });
+            // The one atlas is the profile's: a second profile compares as ellipses.
             if let Some((_, p)) = &app.compare_profile {
                 panels.push(FieldPanel {
                     of: PanelOf::CompareProfile,
                     content: predicted(p),
                     points: Vec::new(),
                     failed: Vec::new(),
+                    errors: Vec::new(),
                 });
             }
         }
@@ -744,26 +910,29 @@ fn refresh_field(app: &mut StudioApp) {
                         ))),
                         points: Vec::new(),
                         failed: Vec::new(),
+                        errors: Vec::new(),
                     });
                 }
             }
         }
     }
     for panel in &mut panels {
-        let drawn: Vec<(f64, f64, Gaussian2)> = match &panel.content {
-            Ok(PanelContent::Ellipses(v)) => v.clone(),
-            Ok(PanelContent::Kernels { cells, .. }) => {
-                cells.iter().map(|&(x, y, g, _)| (x, y, g)).collect()
-            }
+        let drawn: Vec<(f64, f64, Gaussian2, Option<usize>)> = match &panel.content {
+            Ok(PanelContent::Ellipses(v)) => v.iter().map(|&(x, y, g)| (x, y, g, None)).collect(),
+            Ok(PanelContent::Kernels { cells, .. }) => cells
+                .iter()
+                .map(|c| (c.x, c.y, c.gaussian, c.sample))
+                .collect(),
             Err(_) => Vec::new(),
         };
         panel.points = drawn
             .into_iter()
-            .map(|(x, y, g)| FieldPoint {
+            .map(|(x, y, g, sample)| FieldPoint {
                 x,
                 y,
                 sigma: g.sigma(),
                 mtf50: g.mtf50().map(|m| m.record(size.1)),
+                kernel_error: sample.and_then(|i| *panel.errors.get(i)?),
             })
             .collect();
     }
@@ -772,7 +941,7 @@ fn refresh_field(app: &mut StudioApp) {
         .filter_map(|p| match &p.content {
             Ok(PanelContent::Ellipses(v)) => Some(v.iter().map(|(_, _, g)| *g).collect::<Vec<_>>()),
             Ok(PanelContent::Kernels { cells, .. }) => {
-                Some(cells.iter().map(|(_, _, g, _)| *g).collect())
+                Some(cells.iter().map(|c| c.gaussian).collect())
             }
             Err(_) => None,
         })

@@ -6,10 +6,11 @@
 
 use super::common::progress_job;
 use anyhow::{Context, Result, bail};
-use lensblur::deblur::output::write_deblurred;
+use lensblur::deblur::output::{profile_described, write_deblurred};
 use lensblur::deblur::source::{Prefer, ScatteredKernels, load_kernels};
 use lensblur::deblur::{DeblurOptions, KernelSource, Method, ProfileKernels, deblur_capture};
 use lensblur::job::JobContext;
+use lensblur::model::KernelModel;
 use lensblur::plane::{Capture, LensSetting};
 use lensblur::profile::Profile;
 use lensblur::raw::{LoadOptions, load_capture};
@@ -49,6 +50,11 @@ pub struct Args {
     /// From a kernels file holding both: use the non-parametric kernels or the Gaussians.
     #[arg(long, value_enum, default_value = "kernels")]
     pub prefer: PreferArg,
+    /// With a profile: deblur with its Gaussians, or with its predicted kernel shapes
+    /// (default: the shapes where the profile holds a kernel-shape model, which
+    /// calibration keeps only where it predicts held-out kernels better).
+    #[arg(long, value_enum)]
+    pub kernel_model: Option<KernelModelArg>,
     /// Use a profile made for another camera or lens unit anyway.
     #[arg(long)]
     pub force: bool,
@@ -57,6 +63,21 @@ pub struct Args {
     pub allow_extrapolation: bool,
     #[command(flatten)]
     pub batch: super::deblur_batch::BatchArgs,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq)]
+pub enum KernelModelArg {
+    Gaussian,
+    Shape,
+}
+
+impl From<KernelModelArg> for KernelModel {
+    fn from(m: KernelModelArg) -> Self {
+        match m {
+            KernelModelArg::Gaussian => KernelModel::Gaussian,
+            KernelModelArg::Shape => KernelModel::Shape,
+        }
+    }
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Default, PartialEq, Eq)]
@@ -165,8 +186,14 @@ pub fn run(args: Args) -> Result<()> {
                     "lensblur: warning: f = {focal_mm} mm, f/{f_number} is outside the calibrated range; extrapolating"
                 );
             }
-            described = profile_described(p, setting);
-            Box::new(ProfileKernels { profile, setting })
+            let model = args
+                .kernel_model
+                .map_or_else(|| profile.kernel_model(), Into::into);
+            described = profile_described(p, setting, model);
+            Box::new(
+                ProfileKernels::with_model(profile, setting, model)
+                    .with_context(|| p.display().to_string())?,
+            )
         }
         (None, Some(k)) => {
             let file = load_kernels(k)?;
@@ -256,16 +283,6 @@ pub fn deblur_one(
 /// Whether [`deblur_one`] writes a file of this extension (lower case).
 pub fn output_supported(ext: &str) -> bool {
     matches!(ext, "png" | "tif" | "tiff" | "dng")
-}
-
-/// What a DNG's note says of a profile's kernels.
-pub fn profile_described(profile: &Path, setting: LensSetting) -> String {
-    format!(
-        "the profile {} at {} mm, f/{}",
-        file_name(profile),
-        setting.focal_mm,
-        setting.f_number
-    )
 }
 
 fn file_name(p: &Path) -> String {

@@ -74,6 +74,7 @@ pub fn run(args: &Args, deblur: &DeblurOptions) -> Result<()> {
         deblur: *deblur,
         memory_budget: None,
         max_parallel: b.jobs,
+        kernel_model: args.kernel_model.map(Into::into),
     };
     let planned = plan(&photos, &library, &opts);
     let job = progress_job();

@@ -54,6 +54,10 @@ pub struct GaussianApproxArgs {
     /// it uses for the kernels it deblurs with; pixel-centres is calibration's default.
     #[arg(long, value_enum, default_value = "uniform")]
     pub weighting: WeightingArg,
+    /// Shoot only at f-numbers LO,HI within the lens's range (measured source), e.g.
+    /// to compare wide open with stopped down.
+    #[arg(long, value_delimiter = ',')]
+    pub f_numbers: Option<Vec<f64>>,
     #[arg(long, default_value_t = 7)]
     pub seed: u64,
 }
@@ -73,6 +77,7 @@ impl Default for GaussianApproxArgs {
             source: SourceArg::Measured,
             shape: ShapeArg::Gaussian,
             weighting: WeightingArg::Uniform,
+            f_numbers: None,
             seed: 7,
         }
     }
@@ -89,6 +94,8 @@ pub enum ShapeArg {
     Gaussian,
     Disc,
     Comet,
+    /// Diffraction through a Seidel wavefront: the aberrated lens.
+    Aberrated,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -106,11 +113,19 @@ fn gaussian_approx_cmd(a: GaussianApproxArgs) -> Result<()> {
     }
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("{}: cannot create", a.out.display()))?;
+    let f_numbers = match a.f_numbers.as_deref() {
+        None => None,
+        Some(&[lo, hi]) if lo.is_finite() && hi.is_finite() && 0.0 < lo && lo < hi => {
+            Some([lo, hi])
+        }
+        Some(v) => bail!("--f-numbers must be two increasing positive f-numbers (got {v:?})"),
+    };
     let job = progress_job();
     let shape = match a.shape {
         ShapeArg::Gaussian => PsfShape::Gaussian,
         ShapeArg::Disc => PsfShape::Disc,
         ShapeArg::Comet => PsfShape::Comet,
+        ShapeArg::Aberrated => PsfShape::Aberrated,
     };
     let kernels = match a.source {
         SourceArg::Measured => {
@@ -119,6 +134,7 @@ fn gaussian_approx_cmd(a: GaussianApproxArgs) -> Result<()> {
                     WeightingArg::Uniform => Weighting::Uniform,
                     WeightingArg::PixelCentres => Weighting::PixelCentres,
                 },
+                f_numbers,
                 ..MeasureOptions::new(a.kernels, shape, a.seed)
             };
             let m = measured_kernels(&opts, &job)

@@ -41,6 +41,8 @@ pub enum ShapeArg {
     Disc,
     /// A coma-like comet with a tail pointing away from the centre.
     Comet,
+    /// Diffraction through a Seidel wavefront (the lens's aberration design).
+    Aberrated,
 }
 
 #[derive(clap::Args)]
@@ -49,7 +51,8 @@ pub struct Args {
     #[arg(long)]
     pub out: PathBuf,
     /// The virtual lens: `demo` (a 24–105 mm f/4 zoom), `demo2` (a second copy of it,
-    /// decentred differently) or a lens description JSON file.
+    /// decentred differently), `aberrated` (the same ranges with physically based
+    /// PSFs) or a lens description JSON file.
     #[arg(long, default_value = "demo")]
     pub lens: String,
     #[arg(long, default_value_t = 2400)]
@@ -128,6 +131,7 @@ fn lens(name: &str) -> Result<VirtualLens> {
     match name {
         "demo" => Ok(VirtualLens::demo()),
         "demo2" => Ok(VirtualLens::demo_second_unit()),
+        "aberrated" => Ok(VirtualLens::aberrated()),
         path => VirtualLens::load(std::path::Path::new(path)).map_err(anyhow::Error::msg),
     }
 }
@@ -173,6 +177,7 @@ pub fn run(args: Args) -> Result<()> {
             ShapeArg::Gaussian => PsfShape::Gaussian,
             ShapeArg::Disc => PsfShape::Disc,
             ShapeArg::Comet => PsfShape::Comet,
+            ShapeArg::Aberrated => PsfShape::Aberrated,
         };
     }
     let chart = match &args.chart {

@@ -72,3 +72,25 @@ pub fn preview_path(out: &Path) -> PathBuf {
         .map_or_else(|| "out".into(), |s| s.to_string_lossy().into_owned());
     out.with_file_name(format!("{stem}.preview.png"))
 }
+
+/// How a deblurred photo's note names what it was deblurred with: "the profile NAME at
+/// F mm, f/A", and "with its kernel shapes" when the shape model was used.
+#[must_use]
+pub fn profile_described(
+    profile: &Path,
+    setting: crate::plane::LensSetting,
+    model: crate::model::KernelModel,
+) -> String {
+    let name = profile.file_name().map_or_else(
+        || profile.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    );
+    let shapes = match model {
+        crate::model::KernelModel::Shape => " with its kernel shapes",
+        crate::model::KernelModel::Gaussian => "",
+    };
+    format!(
+        "the profile {name} at {} mm, f/{}{shapes}",
+        setting.focal_mm, setting.f_number
+    )
+}

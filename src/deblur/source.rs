@@ -262,12 +262,47 @@ impl KernelSource for ScatteredKernels {
     }
 }
 
-/// The Gaussians a lens profile predicts at one focal length and aperture: each tile
-/// gets the pixel-level Gaussian of its centre, sampled at 3×. A channel the profile
-/// lacks (a monochrome photo, say) takes green's.
+/// The kernels a lens profile predicts at one focal length and aperture: each tile gets
+/// the pixel-level kernel of its centre at 3× — the Gaussian, or the Gaussian with the
+/// shape model's predicted shape. A channel the profile lacks (a monochrome photo, say)
+/// takes green's.
 pub struct ProfileKernels {
     pub profile: crate::profile::Profile,
     pub setting: crate::plane::LensSetting,
+    pub model: crate::model::KernelModel,
+}
+
+impl ProfileKernels {
+    /// The profile's kernels in the model it recommends (its shape model where it
+    /// holds one).
+    #[must_use]
+    pub fn new(profile: crate::profile::Profile, setting: crate::plane::LensSetting) -> Self {
+        let model = profile.kernel_model();
+        Self {
+            profile,
+            setting,
+            model,
+        }
+    }
+
+    /// The profile's kernels in a chosen model.
+    ///
+    /// # Errors
+    /// The shape model asked of a profile without one.
+    pub fn with_model(
+        profile: crate::profile::Profile,
+        setting: crate::plane::LensSetting,
+        model: crate::model::KernelModel,
+    ) -> Result<Self, crate::profile::ProfileError> {
+        if model == crate::model::KernelModel::Shape && profile.shape.is_none() {
+            return Err(crate::profile::ProfileError::NoShapeModel);
+        }
+        Ok(Self {
+            profile,
+            setting,
+            model,
+        })
+    }
 }
 
 impl KernelSource for ProfileKernels {
@@ -279,8 +314,7 @@ impl KernelSource for ProfileKernels {
             Channel::G
         };
         self.profile
-            .predict(ch, x, y, self.setting)
-            .map(|g| g.kernel(3))
+            .predict_kernel(self.model, ch, x, y, self.setting)
             .map_err(|e| SourceError::Other(e.to_string()))
     }
 }

@@ -24,8 +24,13 @@ pub struct Aligned {
     pub sigma_px: f64,
     /// The same per colour channel (the mean over its planes).
     pub sigma_by_channel: Vec<(Channel, f64)>,
+    /// Each colour channel's own `image_from_chart` (the joint one translated and scaled), for
+    /// a capture of several channels: lateral colour images the channels at slightly
+    /// different magnifications, up to about a pixel apart in the corners.
+    pub channel_image_from_chart: Vec<(Channel, Homography)>,
 }
 
+#[derive(Clone, Copy)]
 struct Sample {
     x: i64,
     y: i64,
@@ -137,6 +142,7 @@ fn histogram_peaks(values: &[f64]) -> Option<(f64, f64)> {
     Some((centre(b_lo), centre(b_hi)))
 }
 
+#[derive(Clone)]
 struct State {
     h: Homography,
     var: Vec<f64>,
@@ -148,7 +154,13 @@ struct Eval {
     cost: f64,
     jtj: DMatrix<f64>,
     jtr: DVector<f64>,
+    /// Per plane, the normal equations of its own pixels over (8 warp parameters,
+    /// variance, offset, gain): upper triangle of the `P × P` matrix, and the right side.
+    per_plane: Vec<(Vec<f64>, [f64; P])>,
 }
+
+/// Parameters per plane in [`Eval::per_plane`].
+const P: usize = 11;
 
 /// Sum of squared residuals and the Gauss–Newton normal equations at `st`.
 fn evaluate(
@@ -181,7 +193,6 @@ fn evaluate(
     }
     // Per plane: the 11 × 11 normal equations of (8 warp parameters, variance, offset,
     // gain), upper triangle only, in fixed-size arrays; scattered once at the end.
-    const P: usize = 11;
     let mut acc_jtj = vec![[0.0f64; P * P]; np];
     let mut acc_jtr = vec![[0.0f64; P]; np];
     let mut cost = 0.0;
@@ -264,7 +275,16 @@ fn evaluate(
             }
         }
     }
-    Eval { cost, jtj, jtr }
+    Eval {
+        cost,
+        jtj,
+        jtr,
+        per_plane: acc_jtj
+            .into_iter()
+            .map(|m| m.to_vec())
+            .zip(acc_jtr)
+            .collect(),
+    }
 }
 
 fn apply_step(st: &State, d: &DVector<f64>, centre: [f64; 2], scale: f64) -> State {
@@ -416,7 +436,7 @@ pub fn align_square(
         a,
         b,
     };
-    let mut last_eval: Option<(f64, usize)> = None;
+    let mut last_eval: Option<(f64, usize, Eval)> = None;
     for level in (0..levels.max(1)).rev() {
         let extra_sigma = if level == 0 {
             0.0
@@ -476,10 +496,10 @@ pub fn align_square(
                     params.max_iterations
                 ));
             }
-            last_eval = Some((ev.cost, smp.len()));
+            last_eval = Some((ev.cost, smp.len(), ev));
         }
     }
-    let (cost, n) = last_eval.ok_or("no alignment level ran")?;
+    let (cost, n, final_eval) = last_eval.ok_or("no alignment level ran")?;
     if max_corner_shift(&st.h, bootstrap, &quad) > params.max_refine_shift_px {
         return Err(format!(
             "alignment moved a corner by more than {} px from its bootstrap",
@@ -487,12 +507,44 @@ pub fn align_square(
         ));
     }
     let sigma_px = st.var.iter().map(|v| v.sqrt()).sum::<f64>() / np as f64;
+    let channels = capture.channels();
+    let per_channel: Vec<(Channel, State)> = if channels.len() > 1 && params.channel_shifts {
+        let fine = samples(capture, rect, 0.0, 1);
+        channels
+            .iter()
+            .map(|&ch| {
+                let planes: Vec<usize> = (0..np)
+                    .filter(|&k| capture.planes[k].channel == ch)
+                    .collect();
+                let own = channel_state(
+                    spec,
+                    &st,
+                    &final_eval,
+                    &fine,
+                    &planes,
+                    rect,
+                    &quad,
+                    centre,
+                    scale,
+                    params,
+                );
+                (ch, own)
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
     let mut sigma_by_channel: Vec<(Channel, f64)> = Vec::new();
-    for ch in capture.channels() {
+    for &ch in &channels {
+        // A channel's blur is best measured where that channel's image lies.
+        let var = per_channel
+            .iter()
+            .find(|(c, _)| *c == ch)
+            .map_or(&st.var, |(_, s)| &s.var);
         let sigmas: Vec<f64> = capture
             .planes
             .iter()
-            .zip(&st.var)
+            .zip(var)
             .filter(|(p, _)| p.channel == ch)
             .map(|(_, v)| v.sqrt())
             .collect();
@@ -507,5 +559,131 @@ pub fn align_square(
         white_level: white_sum / np as f64,
         sigma_px,
         sigma_by_channel,
+        channel_image_from_chart: per_channel.into_iter().map(|(c, s)| (c, s.h)).collect(),
     })
+}
+
+/// A translation step smaller than this (px) from the joint solution is taken as one
+/// Gauss–Newton step without re-evaluating: the residual is then linear in it to well
+/// within the alignment's own noise.
+const SMALL_CHANNEL_SHIFT_PX: f64 = 0.05;
+
+/// One channel's registration: the joint solution moved by a translation and scaled
+/// (with the channel's planes' blur, offset and gain) fitted to that channel's pixels alone. The
+/// first step comes from the joint solution's own normal equations, split by plane;
+/// only a channel that moves further is iterated on its own pixels.
+#[allow(clippy::too_many_arguments)]
+fn channel_state(
+    spec: &ChartSpec,
+    joint: &State,
+    joint_eval: &Eval,
+    fine: &[Sample],
+    planes: &[usize],
+    rect: Rect,
+    quad: &[[f64; 2]; 4],
+    centre: [f64; 2],
+    scale: f64,
+    params: &DetectParams,
+) -> State {
+    let step = |ev: &Eval, lambda: f64| -> Option<DVector<f64>> {
+        channel_step(ev, planes, joint.var.len(), lambda)
+    };
+    let Some(first) = step(joint_eval, 1e-4) else {
+        return joint.clone();
+    };
+    let first_px = corner_move_px(&first, scale);
+    if !(first_px <= params.max_refine_shift_px) {
+        return joint.clone();
+    }
+    let mut st = apply_step(joint, &first, centre, scale);
+    if first_px < SMALL_CHANNEL_SHIFT_PX {
+        return st;
+    }
+    let own: Vec<Sample> = fine
+        .iter()
+        .filter(|s| planes.contains(&s.plane))
+        .copied()
+        .collect();
+    let mut ev = evaluate(spec, &st, &own, rect, 0.0, centre, scale);
+    let mut lambda = 1e-4;
+    for _ in 0..params.max_iterations {
+        let Some(d) = step(&ev, lambda) else {
+            lambda *= 10.0;
+            continue;
+        };
+        let next = apply_step(&st, &d, centre, scale);
+        let moved = corner_move_px(&d, scale);
+        let nev = evaluate(spec, &next, &own, rect, 0.0, centre, scale);
+        if nev.cost <= ev.cost {
+            st = next;
+            ev = nev;
+            lambda = (lambda * 0.3).max(1e-7);
+            if moved < params.tolerance_px {
+                break;
+            }
+        } else {
+            lambda *= 10.0;
+            if moved < params.tolerance_px || lambda > 1e6 {
+                break;
+            }
+        }
+    }
+    if max_corner_shift(&st.h, &joint.h, quad) > params.max_refine_shift_px {
+        return joint.clone();
+    }
+    st
+}
+
+/// How far a channel step moves the square's corners at most, px.
+fn corner_move_px(d: &DVector<f64>, scale: f64) -> f64 {
+    (d[2].hypot(d[5]) + d[0].abs() * std::f64::consts::SQRT_2) * scale
+}
+
+/// The damped Gauss–Newton step of a translation (warp parameters 2 and 5), an
+/// isotropic scale about the square's centre (lateral colour is a magnification about
+/// the optical centre: locally both) and the blur, offset and gain of `planes`, from those planes' normal equations; as a full
+/// step vector (zero elsewhere) for [`apply_step`].
+fn channel_step(ev: &Eval, planes: &[usize], np: usize, lambda: f64) -> Option<DVector<f64>> {
+    // Local unknown u ↦ the (plane, parameter) columns it sums; the translation and the
+    // isotropic scale (warp parameters 0 and 4 together) are shared by the planes.
+    let params_of = |u: usize| -> Vec<(usize, usize)> {
+        match u {
+            0 => planes.iter().map(|&k| (k, 2)).collect(),
+            1 => planes.iter().map(|&k| (k, 5)).collect(),
+            2 => planes.iter().flat_map(|&k| [(k, 0), (k, 4)]).collect(),
+            _ => vec![(planes[(u - 3) / 3], 8 + (u - 3) % 3)],
+        }
+    };
+    let dim = 3 + 3 * planes.len();
+    let get = |m: &[f64], p: usize, q: usize| if p <= q { m[p * P + q] } else { m[q * P + p] };
+    let mut a = DMatrix::<f64>::zeros(dim, dim);
+    let mut b = DVector::<f64>::zeros(dim);
+    for u in 0..dim {
+        for (k, p) in params_of(u) {
+            let (m, r) = ev.per_plane.get(k)?;
+            b[u] += r[p];
+            for v in 0..dim {
+                for (k2, q) in params_of(v) {
+                    if k2 == k {
+                        a[(u, v)] += get(m, p, q);
+                    }
+                }
+            }
+        }
+    }
+    for d in 0..dim {
+        a[(d, d)] += lambda * a[(d, d)].max(1e-12);
+    }
+    let x = a.cholesky()?.solve(&b);
+    let mut full = DVector::<f64>::zeros(8 + 3 * np);
+    full[2] = x[0];
+    full[5] = x[1];
+    full[0] = x[2];
+    full[4] = x[2];
+    for (i, &k) in planes.iter().enumerate() {
+        for j in 0..3 {
+            full[8 + 3 * k + j] = x[3 + 3 * i + j];
+        }
+    }
+    Some(full)
 }

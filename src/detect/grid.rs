@@ -517,9 +517,21 @@ pub fn build_lattice(
     // up with the lattice), the outer line whose removal leaves the better
     // checkerboard goes.
     for _ in 0..2 {
-        best.retain(|k, &mut i| {
-            norm(sub(h.apply([k.0 as f64, k.1 as f64]), pts[i].pos)) < 0.2 * spacing
-        });
+        // Each node is judged by its neighbours, not by the global fit: lens distortion
+        // bends the lattice by a good fraction of a square toward the frame corners,
+        // where one homography for the whole board disowns true corners.
+        let disowned: Vec<(i64, i64)> = best
+            .iter()
+            .filter(|&(&k, &i)| {
+                let predicted = local_prediction(&best, pts, k)
+                    .unwrap_or_else(|| h.apply([k.0 as f64, k.1 as f64]));
+                norm(sub(predicted, pts[i].pos)) >= 0.2 * spacing
+            })
+            .map(|(&k, _)| k)
+            .collect();
+        for k in disowned {
+            best.remove(&k);
+        }
         let (imin, imax, jmin, jmax) = extent(&best);
         let grow_i = i64::from(((imax - imin + 1) as usize) < spec.cols - 1);
         let grow_j = i64::from(((jmax - jmin + 1) as usize) < spec.rows - 1);
@@ -529,7 +541,8 @@ pub fn build_lattice(
                 if best.contains_key(&(i, j)) {
                     continue;
                 }
-                let q = h.apply([i as f64, j as f64]);
+                let q = local_prediction(&best, pts, (i, j))
+                    .unwrap_or_else(|| h.apply([i as f64, j as f64]));
                 if let Some(k) = buckets.nearest(pts, q, 0.2 * spacing)
                     && !taken.contains(&k)
                 {
@@ -672,6 +685,36 @@ pub fn build_lattice(
         corners,
         image_from_chart,
     })
+}
+
+/// Where lattice node `key` should lie, from a homography fitted to the other nodes
+/// within two lattice steps (three where fewer than six are found that close): local
+/// enough that lens distortion across it is a small fraction of a pixel.
+fn local_prediction(
+    g: &HashMap<(i64, i64), usize>,
+    pts: &[Junction],
+    key: (i64, i64),
+) -> Option<[f64; 2]> {
+    for reach in [2i64, 3] {
+        let mut from = Vec::new();
+        let mut to = Vec::new();
+        for dj in -reach..=reach {
+            for di in -reach..=reach {
+                if di == 0 && dj == 0 {
+                    continue;
+                }
+                if let Some(&k) = g.get(&(key.0 + di, key.1 + dj)) {
+                    from.push([(key.0 + di) as f64, (key.1 + dj) as f64]);
+                    to.push(pts[k].pos);
+                }
+            }
+        }
+        if from.len() >= 6 {
+            return Homography::from_correspondences(&from, &to)
+                .map(|h| h.apply([key.0 as f64, key.1 as f64]));
+        }
+    }
+    None
 }
 
 /// Drops up to two outermost lines of nodes on each axis while the lattice spans more

@@ -160,6 +160,7 @@ mod tests {
             white_level: 0.9,
             sigma_px: 1.2,
             sigma_by_channel: vec![(Channel::Y, 1.2)],
+            channel_image_from_chart: Vec::new(),
         };
         let ins = inspect_square(&capture, &square, &spec, Channel::Y).expect("inside");
         assert!(ins.observed.width >= 30 && ins.observed.height >= 30);

@@ -669,8 +669,23 @@ pub fn estimate_shot(
                 col: a.col,
                 image_from_chart: a.image_from_chart,
             };
-            let estimates =
-                estimate_square(capture, &sq, spec, params, &channels, &a.sigma_by_channel);
+            // Where detection registered the channels apart (lateral colour), each
+            // channel's kernel is measured against its own image of the square, or it
+            // comes out off-centre by the channels' separation.
+            let estimates = if a.channel_image_from_chart.is_empty() {
+                estimate_square(capture, &sq, spec, params, &channels, &a.sigma_by_channel)
+            } else {
+                channels
+                    .iter()
+                    .flat_map(|&ch| {
+                        let own = SquareGeometry {
+                            image_from_chart: a.image_from_chart_of(ch),
+                            ..sq
+                        };
+                        estimate_square(capture, &own, spec, params, &[ch], &a.sigma_by_channel)
+                    })
+                    .collect()
+            };
             let n = done.fetch_add(channels.len(), Ordering::Relaxed) + channels.len();
             job.report("kernels", n, total);
             Ok(SquareKernels {

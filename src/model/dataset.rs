@@ -23,6 +23,9 @@ pub struct BlurSample {
     pub f_number: f64,
     pub channel: Channel,
     pub gaussian: Gaussian2,
+    /// The measured 3× kernel the Gaussian was fitted to, where the session kept it:
+    /// the kernel-shape model learns from these. Shared, as folds copy samples.
+    pub kernel: Option<std::sync::Arc<crate::psf::Kernel>>,
 }
 
 impl BlurSample {
@@ -72,6 +75,31 @@ pub struct Dataset {
     pub identity: CameraIdentity,
     pub samples: Vec<BlurSample>,
     pub shots: Vec<ShotInfo>,
+}
+
+/// A stored kernel as the shape model takes it: odd, at least 3 × 3, finite, summing
+/// to a positive value (normalised to 1); anything else is left out rather than
+/// trusted.
+fn measured_kernel(
+    k: &crate::kernel::file::KernelData,
+    oversample: usize,
+) -> Option<std::sync::Arc<crate::psf::Kernel>> {
+    let sum: f64 = k.data.iter().sum();
+    let usable = k.size % 2 == 1
+        && k.size >= 3
+        && oversample >= 1
+        && k.data.len() == k.size * k.size
+        && k.data.iter().all(|v| v.is_finite())
+        && sum > 0.0;
+    usable.then(|| {
+        let mut kernel = crate::psf::Kernel {
+            size: k.size,
+            oversample,
+            data: k.data.clone(),
+        };
+        kernel.normalise();
+        std::sync::Arc::new(kernel)
+    })
 }
 
 /// The names of the three modelled parameters, in the order of [`BlurSample::params`].
@@ -200,6 +228,10 @@ impl Dataset {
                             sigma_y: cyy,
                             rho: cor,
                         },
+                        kernel: e
+                            .kernel
+                            .as_ref()
+                            .and_then(|k| measured_kernel(k, kf.oversample)),
                     })
                 })
                 .collect();

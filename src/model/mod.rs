@@ -23,6 +23,7 @@ mod basis;
 mod dataset;
 mod global;
 mod local;
+mod shape;
 
 pub(crate) use basis::split_coeffs;
 pub use basis::{
@@ -32,6 +33,11 @@ pub use basis::{
 pub use dataset::{BlurSample, Dataset, PARAM_NAMES, ShotInfo};
 pub use global::{ChannelCoeffs, GlobalModel, global_coords};
 pub use local::{CentreGrid, LocalModel, LocalOptions, local_coords, local_grid, local_members};
+pub use shape::{
+    KernelModel, MAX_COMPONENTS, PIXEL_SIDE, ShapeFit, ShapeModel, ShapeSpace, WHITENED_LEN,
+    WHITENED_PER_SIGMA, WHITENED_SIDE, kernel_with_residual, kernel_with_shape, relative_l2,
+    session_residuals, shape_basis, shape_residual, whitened_residual,
+};
 
 use crate::plane::{Channel, LensSetting};
 use crate::psf::Gaussian2;

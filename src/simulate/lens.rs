@@ -7,6 +7,8 @@
 //! over the calibrated range. Positions are normalised, u = 2x/(W−1) − 1 and
 //! v = 2y/(H−1) − 1, so a lens applies to any sensor size.
 
+pub use super::aberration::{Aberrations, Seidel, Wavefront};
+use super::distortion::LensGeometry;
 use crate::plane::{Channel, LensSetting};
 use crate::psf::{Gaussian2, Kernel};
 use serde::{Deserialize, Serialize};
@@ -23,6 +25,10 @@ pub enum PsfShape {
     /// A coma-like comet: a bright core with a tail pointing away from the centre, with
     /// (about) the field's second moments.
     Comet,
+    /// Diffraction through the lens's [`Aberrations`]: defocus, spherical aberration,
+    /// coma and astigmatism over the field. The field's Gaussian is not used; the
+    /// aberration centre is each channel's `sweet_spot`.
+    Aberrated,
 }
 
 /// Coefficients of one channel's fields; see [`VirtualLens::gaussian`].
@@ -52,6 +58,13 @@ pub struct VirtualLens {
     pub f_number_range: [f64; 2],
     pub shape: PsfShape,
     pub channels: Vec<ChannelField>,
+    /// The optical design [`PsfShape::Aberrated`] draws; `None` takes
+    /// [`Aberrations::default`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub aberrations: Option<Aberrations>,
+    /// Distortion, lateral colour and vignetting; none unless described.
+    #[serde(default)]
+    pub geometry: LensGeometry,
 }
 
 impl VirtualLens {
@@ -92,6 +105,32 @@ impl VirtualLens {
                     rho_phase: -0.2,
                 },
             ],
+            aberrations: None,
+            geometry: LensGeometry::default(),
+        }
+    }
+
+    /// The demo lens's ranges with physically based PSFs ([`PsfShape::Aberrated`]):
+    /// comatic, astigmatic corners with a spherical halo wide open, compact and close
+    /// to Gaussian stopped down.
+    #[must_use]
+    pub fn aberrated() -> Self {
+        Self {
+            name: "aberrated".into(),
+            model: "VZ-A 24-105mm f/4".into(),
+            serial: "VZA-0001".into(),
+            shape: PsfShape::Aberrated,
+            aberrations: Some(Aberrations::default()),
+            ..Self::demo()
+        }
+    }
+
+    /// The design [`PsfShape::Aberrated`] draws.
+    #[must_use]
+    pub fn aberration_design(&self) -> std::borrow::Cow<'_, Aberrations> {
+        match &self.aberrations {
+            Some(a) => std::borrow::Cow::Borrowed(a),
+            None => std::borrow::Cow::Owned(Aberrations::default()),
         }
     }
 
@@ -154,7 +193,10 @@ impl VirtualLens {
                 return Err(format!("channel {ch}: non-finite coefficients"));
             }
         }
-        Ok(())
+        if let Some(a) = &self.aberrations {
+            a.validate()?;
+        }
+        self.geometry.validate()
     }
 
     /// The settings a `nf × na` calibration grid takes over this lens's range: focal
@@ -197,9 +239,18 @@ impl VirtualLens {
     }
 
     /// The optical (pre-pixel) Gaussian of `channel` at normalised sensor position
-    /// (u, v) ∈ [−1, 1]² for a setting.
+    /// (u, v) ∈ [−1, 1]² for a setting. For [`PsfShape::Aberrated`] it is the second
+    /// moments of the PSF itself (computed at 4×), not an analytic field.
     #[must_use]
     pub fn gaussian_uv(&self, channel: Channel, u: f64, v: f64, s: LensSetting) -> Gaussian2 {
+        if self.shape == PsfShape::Aberrated {
+            let m = self.aberrated_kernel_uv(channel, u, v, s, 4).moments();
+            return Gaussian2::from_covariance(m.var_x, m.var_y, m.cov_xy);
+        }
+        self.field_gaussian(channel, u, v, s)
+    }
+
+    fn field_gaussian(&self, channel: Channel, u: f64, v: f64, s: LensSetting) -> Gaussian2 {
         let c = self.field(channel);
         let (tf, ta) = self.setting_coords(s);
         let (du, dv) = (u - c.sweet_spot[0], v - c.sweet_spot[1]);
@@ -262,8 +313,9 @@ impl VirtualLens {
         s: LensSetting,
         oversample: usize,
     ) -> Kernel {
-        let g = self.gaussian_uv(channel, u, v, s);
+        let g = self.field_gaussian(channel, u, v, s);
         match self.shape {
+            PsfShape::Aberrated => self.aberrated_kernel_uv(channel, u, v, s, oversample),
             PsfShape::Gaussian => g.kernel(oversample),
             PsfShape::Disc => {
                 // A uniform ellipse with covariance Σ has Σ = R Rᵀ / 4 for the ellipse
@@ -315,6 +367,37 @@ impl VirtualLens {
                 })
             }
         }
+    }
+}
+
+impl VirtualLens {
+    /// The optical PSF of [`PsfShape::Aberrated`] at (u, v) at `oversample`× (cell
+    /// integrals, sum 1), whatever this lens's `shape`: diffraction through
+    /// [`Self::aberration_design`], centred on the channel's `sweet_spot`.
+    #[must_use]
+    pub fn aberrated_kernel_uv(
+        &self,
+        channel: Channel,
+        u: f64,
+        v: f64,
+        s: LensSetting,
+        oversample: usize,
+    ) -> Kernel {
+        let c = self.field(channel);
+        let ci = match c.channel {
+            Channel::R => 0,
+            Channel::B => 2,
+            Channel::G | Channel::Y => 1,
+        };
+        let (tf, _) = self.setting_coords(s);
+        self.aberration_design().kernel(
+            ci,
+            u - c.sweet_spot[0],
+            v - c.sweet_spot[1],
+            tf,
+            s.f_number,
+            oversample,
+        )
     }
 }
 
@@ -403,5 +486,177 @@ mod tests {
                 "{shape:?} σy"
             );
         }
+    }
+}
+
+#[cfg(test)]
+mod aberrated_tests {
+    use super::*;
+
+    /// Centroid, covariance, standardised third moment along the unit direction `dir`,
+    /// and the Mardia kurtosis E[q²] (8 for a 2-D Gaussian) of a kernel.
+    struct Shape {
+        var: [f64; 3],
+        skew_along: f64,
+        kurtosis: f64,
+        /// ‖k − g‖ / ‖k‖ for g the Gaussian with the kernel's mean and covariance.
+        rel_l2: f64,
+    }
+
+    fn shape_of(k: &Kernel, dir: [f64; 2]) -> Shape {
+        let m = k.moments();
+        let c = (k.size / 2) as f64;
+        let s = k.oversample as f64;
+        let n = dir[0].hypot(dir[1]);
+        let (ru, rv) = (dir[0] / n, dir[1] / n);
+        let det = m.var_x * m.var_y - m.cov_xy * m.cov_xy;
+        let g = Gaussian2::from_covariance(m.var_x, m.var_y, m.cov_xy);
+        let (mut m2, mut m3, mut q2, mut diff, mut norm, mut gsum) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let mut gauss = Vec::with_capacity(k.data.len());
+        for j in 0..k.size {
+            for i in 0..k.size {
+                let dx = (i as f64 - c) / s - m.mean_x;
+                let dy = (j as f64 - c) / s - m.mean_y;
+                let gv = g.density(dx, dy);
+                gsum += gv;
+                gauss.push(gv);
+            }
+        }
+        for j in 0..k.size {
+            for i in 0..k.size {
+                let w = k.at(i, j);
+                let dx = (i as f64 - c) / s - m.mean_x;
+                let dy = (j as f64 - c) / s - m.mean_y;
+                let a = dx * ru + dy * rv;
+                m2 += w * a * a;
+                m3 += w * a * a * a;
+                let q = (m.var_y * dx * dx - 2.0 * m.cov_xy * dx * dy + m.var_x * dy * dy) / det;
+                q2 += w * q * q;
+                let gv = gauss[j * k.size + i] / gsum;
+                diff += (w - gv).powi(2);
+                norm += w * w;
+            }
+        }
+        Shape {
+            var: [m.var_x, m.var_y, m.cov_xy],
+            skew_along: m3 / m2.powf(1.5),
+            kurtosis: q2,
+            rel_l2: (diff / norm).sqrt(),
+        }
+    }
+
+    fn at(f_number: f64) -> LensSetting {
+        LensSetting {
+            focal_mm: 24.0,
+            f_number,
+        }
+    }
+
+    /// The bottom-right corner, and its radial direction from the aberration centre.
+    fn corner(l: &VirtualLens) -> ([f64; 2], [f64; 2]) {
+        let c = l.field(Channel::G).sweet_spot;
+        ([1.0, 1.0], [1.0 - c[0], 1.0 - c[1]])
+    }
+
+    #[test]
+    fn aberrated_psfs_are_distributions() {
+        let l = VirtualLens::aberrated();
+        assert!(l.validate().is_ok());
+        for (ch, (u, v), a, os) in [
+            (Channel::G, (1.0, 1.0), 4.0, 4),
+            (Channel::B, (-1.0, 0.3), 4.0, 3),
+            (Channel::R, (0.0, 0.0), 10.0, 12),
+        ] {
+            let k = l.optical_kernel_uv(ch, u, v, at(a), os);
+            assert_eq!(k.oversample, os);
+            assert_eq!(k.size % 2, 1);
+            let sum: f64 = k.data.iter().sum();
+            assert!((sum - 1.0).abs() < 1e-9, "{ch:?} sum {sum}");
+            assert!(k.data.iter().all(|&v| v >= 0.0 && v.is_finite()));
+        }
+    }
+
+    #[test]
+    fn aberrated_corner_wide_open_has_an_outward_heavy_tail() {
+        let l = VirtualLens::aberrated();
+        let (p, radial) = corner(&l);
+        let k = l.optical_kernel_uv(Channel::G, p[0], p[1], at(4.0), 4);
+        let s = shape_of(&k, radial);
+        // Positive along the outward radius: the tail points away from the centre.
+        assert!(s.skew_along > 0.5, "radial skewness {}", s.skew_along);
+        assert!(
+            s.kurtosis > 10.0,
+            "kurtosis {} (a Gaussian's is 8)",
+            s.kurtosis
+        );
+    }
+
+    #[test]
+    fn aberrated_centre_is_nearly_symmetric() {
+        let l = VirtualLens::aberrated();
+        let c = l.field(Channel::G).sweet_spot;
+        let k = l.optical_kernel_uv(Channel::G, c[0], c[1], at(4.0), 4);
+        // The decentred pupil leaves a little coma on the axis (skewness about 0.19,
+        // against 1.6 in the corner wide open): near-symmetric, not perfectly so.
+        for dir in [[1.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, -1.0]] {
+            let s = shape_of(&k, dir);
+            assert!(
+                s.skew_along.abs() < 0.25,
+                "skewness {} along {dir:?}",
+                s.skew_along
+            );
+        }
+    }
+
+    #[test]
+    fn aberrated_corner_stopped_down_is_smaller_and_closer_to_gaussian() {
+        let l = VirtualLens::aberrated();
+        let (p, radial) = corner(&l);
+        let open = shape_of(
+            &l.optical_kernel_uv(Channel::G, p[0], p[1], at(4.0), 4),
+            radial,
+        );
+        let shut = shape_of(
+            &l.optical_kernel_uv(Channel::G, p[0], p[1], at(10.0), 4),
+            radial,
+        );
+        assert!(
+            shut.var[0] < 0.5 * open.var[0],
+            "var x {:?} → {:?}",
+            open.var,
+            shut.var
+        );
+        assert!(
+            shut.var[1] < 0.5 * open.var[1],
+            "var y {:?} → {:?}",
+            open.var,
+            shut.var
+        );
+        assert!(
+            shut.rel_l2 < 0.6 * open.rel_l2,
+            "distance from the Gaussian {} → {}",
+            open.rel_l2,
+            shut.rel_l2
+        );
+        assert!(shut.skew_along.abs() < open.skew_along.abs());
+    }
+
+    #[test]
+    fn old_lens_files_load_without_aberrations() {
+        let mut json: serde_json::Value =
+            serde_json::to_value(VirtualLens::demo()).expect("serialise");
+        assert!(json.get("aberrations").is_none());
+        json.as_object_mut().map(|o| o.remove("aberrations"));
+        let l: VirtualLens = serde_json::from_value(json).expect("old form loads");
+        assert_eq!(l, VirtualLens::demo());
+        let mut bad = VirtualLens::aberrated();
+        if let Some(a) = &mut bad.aberrations {
+            a.pupil_ellipticity = 0.7;
+        }
+        assert!(bad.validate().is_err());
+        let back: VirtualLens =
+            serde_json::from_str(&serde_json::to_string(&VirtualLens::aberrated()).expect("json"))
+                .expect("round trip");
+        assert_eq!(back, VirtualLens::aberrated());
     }
 }

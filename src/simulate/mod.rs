@@ -1,7 +1,9 @@
 //! The simulator: a virtual lens and a capture model that feed the tests, benchmarks
 //! and the studio's demo session with exact ground truth.
 
+pub mod aberration;
 pub mod capture;
+pub mod distortion;
 pub mod files;
 pub mod lens;
 pub mod session;
@@ -11,6 +13,7 @@ pub use capture::{
     CaptureParams, NoiseModel, Pose, PsfField, ShotTruth, SimulateError, SimulatedShot,
     SquareTruth, capture_from_raw, simulate_shot,
 };
+pub use distortion::{LensGeometry, SensorMapping};
 pub use files::{ShotFormat, write_shot, write_shot_as};
-pub use lens::{PsfShape, VirtualLens};
+pub use lens::{Aberrations, PsfShape, Seidel, VirtualLens};
 pub use session::{SampleNoise, SimulatedSession};

@@ -98,6 +98,13 @@ pub struct SimulatedSession {
     pub shots_per_setting: usize,
     pub noise: SampleNoise,
     pub seed: u64,
+    /// Keep a measured kernel with every sample: the lens's pixel-level kernel at 3×
+    /// (its optical PSF in the lens's own shape, integrated over the pixel) plus white
+    /// noise of this standard deviation relative to the kernel's peak, clipped at zero
+    /// and renormalised as the estimator's constraints do; each sample's Gaussian is
+    /// then the robust fit of that kernel, as the measured chain's is (and
+    /// [`SampleNoise`] is not used). `None`: Gaussians only.
+    pub kernel_noise: Option<f64>,
 }
 
 impl SimulatedSession {
@@ -117,6 +124,7 @@ impl SimulatedSession {
             shots_per_setting: 1,
             noise: SampleNoise::default(),
             seed: 1,
+            kernel_noise: None,
         }
     }
 
@@ -207,6 +215,7 @@ impl SimulatedSession {
                                 f_number: 0.0,
                                 channel: ch,
                                 gaussian,
+                                kernel: None,
                             });
                         }
                     }
@@ -221,7 +230,36 @@ impl SimulatedSession {
                 );
             }
         }
+        if let Some(level) = self.kernel_noise {
+            self.measure_kernels(&mut ds, lens, level);
+        }
         ds
+    }
+
+    /// Replaces every sample's Gaussian by the robust fit of its noisy true kernel,
+    /// which it keeps (see [`SimulatedSession::kernel_noise`]).
+    fn measure_kernels(&self, ds: &mut Dataset, lens: &VirtualLens, level: f64) {
+        use rand::SeedableRng;
+        use rayon::prelude::*;
+        let (w, h) = (self.width, self.height);
+        let seed = self.seed;
+        ds.samples.par_iter_mut().enumerate().for_each(|(i, s)| {
+            let (u, v) = VirtualLens::normalised(s.x, s.y, w, h);
+            let optical = lens.optical_kernel_uv(s.channel, u, v, s.setting(), 3);
+            let mut k = optical.pixel_integrated();
+            let mut rng = rand_pcg::Pcg64::seed_from_u64(
+                seed ^ (i as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15),
+            );
+            let peak = k.data.iter().copied().fold(0.0, f64::max);
+            if level > 0.0 {
+                for value in &mut k.data {
+                    *value = (*value + level * peak * standard_normal(&mut rng)).max(0.0);
+                }
+                k.normalise();
+            }
+            s.gaussian = crate::experiment::fit_gaussians(&k).0;
+            s.kernel = Some(std::sync::Arc::new(k));
+        });
     }
 }
 

@@ -8,6 +8,7 @@
 use super::super::view_data::{FieldPanel, FieldPoint, PanelContent, PanelOf};
 use super::super::{Command, FieldShow, FieldSource, StudioApp};
 use super::{ellipse_points, setting_sliders_ui, sigma_color, sigma_legend_ui};
+use crate::model::KernelModel;
 use crate::plane::LensSetting;
 use crate::simulate::VirtualLens;
 use egui::{Color32, Rect, Sense, Stroke, Vec2};
@@ -43,17 +44,26 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
         }
         ui.separator();
-        if app.field_source == FieldSource::Measured {
+        if app.field_source != FieldSource::Truth {
+            let predicted = app.field_source == FieldSource::Predicted;
             for (show, label, tip) in [
                 (
                     FieldShow::Ellipses,
                     "Ellipses",
-                    "The 1-σ ellipse of each kernel's Gaussian fit",
+                    if predicted {
+                        "The 1-σ ellipse of each predicted Gaussian"
+                    } else {
+                        "The 1-σ ellipse of each kernel's Gaussian fit"
+                    },
                 ),
                 (
                     FieldShow::Kernels,
                     "Kernel shapes",
-                    "The measured non-parametric kernels themselves, on tiles coloured by their σ",
+                    if predicted {
+                        "The profile's predicted kernels (its shape model where it holds one) at the selected shot's measured squares, on tiles coloured by their σ; hover a square for its error against the measured kernel"
+                    } else {
+                        "The measured non-parametric kernels themselves, on tiles coloured by their σ; hover a square for the profile's predicted kernel error there"
+                    },
                 ),
             ] {
                 if ui
@@ -126,12 +136,27 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             format!("measured on {name} — channel {ch}")
         }
         PanelOf::Profile => match &app.profile {
-            Some((path, _)) => format!(
-                "{} — {:.0} mm f/{:.1}, channel {ch}",
-                app.shown_path(path),
-                s.focal_mm,
-                s.f_number
-            ),
+            Some((path, _)) => {
+                let atlas = app.views.kernel_atlas.as_ref();
+                let shapes = match atlas.and_then(|a| a.model) {
+                    Some(KernelModel::Shape) if app.field_show == FieldShow::Kernels => {
+                        " — predicted kernel shapes (Gaussian + shape model)".to_owned()
+                    }
+                    Some(KernelModel::Gaussian) if app.field_show == FieldShow::Kernels => {
+                        format!(
+                            " — predicted Gaussian kernels; no shape model: {}",
+                            atlas.and_then(|a| a.no_shape.as_deref()).unwrap_or("")
+                        )
+                    }
+                    _ => String::new(),
+                };
+                format!(
+                    "{} — {:.0} mm f/{:.1}, channel {ch}{shapes}",
+                    app.shown_path(path),
+                    s.focal_mm,
+                    s.f_number
+                )
+            }
             None => "predicted".into(),
         },
         PanelOf::NoProfile => "predicted".into(),
@@ -232,11 +257,12 @@ fn field_panel_ui(
             // overlap: drawn white on a tile of its σ's colour, the shape reads on any
             // colour of the palette.
             let side = 0.85 * *pitch_px as f32 * points_per_px;
-            for (x, y, g, uv) in cells {
-                let r = Rect::from_center_size(at(*x, *y), Vec2::splat(side));
+            for c in cells {
+                let g = c.gaussian;
+                let r = Rect::from_center_size(at(c.x, c.y), Vec2::splat(side));
                 painter.rect_filled(r, 2.0, sigma_color((g.sigma_x * g.sigma_y).sqrt()));
                 if let Some(id) = atlas {
-                    painter.image(id, r, *uv, Color32::WHITE);
+                    painter.image(id, r, c.uv, Color32::WHITE);
                 }
             }
             count = cells.len();
@@ -275,8 +301,18 @@ fn field_panel_ui(
                     )
                 },
             );
+            let error = q.kernel_error.map_or_else(String::new, |e| match e.shape {
+                Some(shape) => format!(
+                    "\npredicted kernel error: shapes {shape:.2}, Gaussian {:.2} (relative L2)",
+                    e.gaussian
+                ),
+                None => format!(
+                    "\npredicted kernel error: Gaussian {:.2} (relative L2; the profile holds no shape model)",
+                    e.gaussian
+                ),
+            });
             response.on_hover_text(format!(
-                "x {:.0}, y {:.0}: σ {:.2} px; {mtf}",
+                "x {:.0}, y {:.0}: σ {:.2} px; {mtf}{error}",
                 q.x, q.y, q.sigma
             ));
         }

@@ -60,6 +60,7 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 p.norm.height,
             ));
         });
+        shape_cv_ui(ui, p);
     } else {
         ui.label("No profile yet — press Calibrate once kernels are measured on the shots, or load a profile.");
     }
@@ -274,4 +275,53 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 });
         });
     });
+}
+
+/// The kernel-shape cross-validation the profile holds: per aperture, how far the
+/// predicted kernels miss the held-out measured ones with the Gaussians alone and with
+/// the best shape model.
+fn shape_cv_ui(ui: &mut egui::Ui, p: &crate::profile::Profile) {
+    let Some(cv) = &p.shape_cv else {
+        ui.label("Kernel shapes: no shape cross-validation in this profile (calibrated without measured kernels, or written before shape models); deblurring uses its Gaussians.");
+        return;
+    };
+    let verdict = match (&cv.best_shape, cv.shape_chosen) {
+        (Some(b), true) => format!(
+            "the profile holds the shape model ({} component{}, α {}, β {}) and deblurs with it",
+            b.components,
+            if b.components == 1 { "" } else { "s" },
+            b.alpha,
+            b.beta
+        ),
+        _ => "cross-validation kept the Gaussians".to_owned(),
+    };
+    ui.label(format!(
+        "Kernel shapes: {} held-out kernels in {} folds, predicted around {}; {verdict}. Mean relative L2 error of predicted against measured kernels:",
+        cv.kernels, cv.folds, cv.gaussian_model
+    ));
+    egui::Grid::new("shape-cv")
+        .striped(true)
+        .spacing([18.0, 2.0])
+        .show(ui, |ui| {
+            ui.label("aperture");
+            ui.label("all");
+            for a in &cv.per_aperture {
+                ui.label(format!("f/{:.1}", a.f_number));
+            }
+            ui.end_row();
+            ui.label("Gaussian");
+            ui.monospace(format!("{:.3}", cv.gaussian.mean_rel_l2));
+            for a in &cv.per_aperture {
+                ui.monospace(format!("{:.3}", a.gaussian_mean_rel_l2));
+            }
+            ui.end_row();
+            if let Some(b) = &cv.best_shape {
+                ui.label("shapes");
+                ui.monospace(format!("{:.3}", b.mean_rel_l2));
+                for a in &cv.per_aperture {
+                    ui.monospace(format!("{:.3}", a.shape_mean_rel_l2));
+                }
+                ui.end_row();
+            }
+        });
 }
