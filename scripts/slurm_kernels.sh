@@ -105,7 +105,8 @@ task)
     if [ -n "${focal:-}" ]; then setting+=(--focal "$focal"); fi
     if [ -n "${aperture:-}" ]; then setting+=(--aperture "$aperture"); fi
     mkdir -p -- "$out_dir"
-    "$lensblur" kernels "$shot" --out "$(kernels_path "$out_dir" "$shot")" \
+    # With the arrays: calibration fits the kernel-shape model from them.
+    "$lensblur" kernels "$shot" --with-kernels --out "$(kernels_path "$out_dir" "$shot")" \
         "${setting[@]}" "${chart_args[@]}"
     ;;
 calibrate)
