@@ -1367,53 +1367,6 @@ fn deblur_command_refuses_bad_input_with_one_line_naming_the_file() {
     );
 }
 
-/// [`render_varying`] for large images: the kernel is taken once per 8 × 8 block (at
-/// its centre) instead of per pixel, which a smooth lens field does not notice.
-fn render_varying_blocks(
-    sharp: &Plane,
-    pad: usize,
-    w: usize,
-    h: usize,
-    kernel_at: &(dyn Fn(f64, f64) -> Kernel + Sync),
-) -> Plane {
-    const B: usize = 8;
-    let bands: Vec<Vec<f32>> = (0..h.div_ceil(B))
-        .into_par_iter()
-        .map(|by| {
-            let rows = B.min(h - by * B);
-            let mut band = vec![0.0f32; rows * w];
-            for bx in 0..w.div_ceil(B) {
-                let cols = B.min(w - bx * B);
-                let k = kernel_at(
-                    (bx * B) as f64 + (cols as f64 - 1.0) / 2.0,
-                    (by * B) as f64 + (rows as f64 - 1.0) / 2.0,
-                );
-                let c = k.size / 2;
-                assert!(c <= pad, "kernel wider than the padding");
-                for r in 0..rows {
-                    for q in 0..cols {
-                        let (x, y) = (bx * B + q, by * B + r);
-                        let mut acc = 0.0;
-                        for j in 0..k.size {
-                            let row = &sharp.data[(y + pad + c - j) * sharp.width..];
-                            for i in 0..k.size {
-                                acc += k.at(i, j) * f64::from(row[x + pad + c - i]);
-                            }
-                        }
-                        band[r * w + x] = acc as f32;
-                    }
-                }
-            }
-            band
-        })
-        .collect();
-    Plane {
-        width: w,
-        height: h,
-        data: bands.concat(),
-    }
-}
-
 #[test]
 #[ignore = "10 MP figures, minutes: cargo test --test deblur -- --ignored --nocapture"]
 fn full_size_spatially_varying_figures() {
@@ -1435,7 +1388,8 @@ fn full_size_spatially_varying_figures() {
         };
         let big = dead_leaves(w + 2 * pad, h + 2 * pad, seed);
         let sharp = big.crop(pad, pad, w, h);
-        let mut blurry = render_varying_blocks(&big, pad, w, h, &|x, y| truth(x, y).kernel(1));
+        let mut blurry =
+            lensblur::experiment::blur_varying(&big, pad, w, h, 8, &|x, y| truth(x, y).kernel(1));
         drop(big);
         add_noise(&mut blurry, 0.005, seed);
         let cp = ChannelPlane {
