@@ -859,14 +859,21 @@ pub fn write_png_crop(
 /// 30 % of its weight outside 3σ). Stripes and speckle rise and fall, and every rise
 /// counts.
 ///
-/// Why 0.005, on the simulator's truth (`clean_simulated_kernels_pass_and_striped_tails_are_flagged`,
-/// 16 kernels per shape over the field and the settings' corners, cleaned as the
-/// measurement cleans them): every shape's clean kernels rise by 0.0000; with the
-/// simulator's measured-kernel noise (1 % of the peak per sample) at most 0.0030 (the
-/// aberrated lens's halos); the Gaussian kernels with stripes of 5 % of the peak, 2 px
-/// apart, beyond 2σ — faint ringing of a poorly constrained solve — rise by 0.0075 to
-/// 0.046. The threshold sits between the noisy truth and the faintest stripes.
-pub const NOISY_TAIL_FRACTION: f64 = 0.005;
+/// Why 0.06, on the simulator (`clean_simulated_kernels_pass_and_striped_tails_are_flagged`:
+/// 16 true kernels per shape over the field and the settings' corners, on a measured
+/// kernel's support, cleaned as the measurement cleans them):
+/// - every shape's true kernels rise by 0.0000, and by at most 0.0030 with the
+///   simulator's measured-kernel noise (1 % of the peak per sample);
+/// - the measured chain itself (simulated 1200 × 800 shots of the 24 × 16 chart at
+///   24 mm and 105 mm, f/4; detected and measured, 2 × 1152 kernels) leaves speckle in
+///   the tails: median 0.024, 95th percentile 0.043 and 0.038, largest 0.0625 and
+///   0.0775; 3 of the 2304 lie above 0.06;
+/// - the true Gaussian kernels with stripes of 10 % of the peak, 2 px apart, beyond
+///   2σ rise by 0.062 to 0.18 (5 % stripes: 0.044 to 0.19).
+///
+/// So a flag means the estimate is worse than the measurement's own speckle on a clean
+/// shot, as badly as visibly striped tails.
+pub const NOISY_TAIL_FRACTION: f64 = 0.06;
 
 /// What the noisy-kernel criterion measures of one kernel (see
 /// [`NOISY_TAIL_FRACTION`]): fractions of its absolute weight Σ|k|.
@@ -1471,9 +1478,12 @@ mod tests {
             for focal_mm in [24.0, 105.0] {
                 for f_number in [4.0, 10.0] {
                     let s = LensSetting { focal_mm, f_number };
-                    let mut k = lens
-                        .optical_kernel_uv(Channel::G, u, v, s, 3)
-                        .pixel_integrated();
+                    let mut k = padded(
+                        &lens
+                            .optical_kernel_uv(Channel::G, u, v, s, 3)
+                            .pixel_integrated(),
+                        MEASURED_SIZE,
+                    );
                     let peak = k.data.iter().copied().fold(0.0, f64::max);
                     let fit = crate::experiment::fit_gaussians(&k).0;
                     let c = (k.size / 2) as f64;
@@ -1517,6 +1527,29 @@ mod tests {
         (lo, hi)
     }
 
+    /// The side the measured chain gives kernels of the demo's σ (±6 px at 3×): the
+    /// support a measured kernel's stripes and speckle can spread over.
+    const MEASURED_SIZE: usize = 37;
+
+    /// `k` centred in an `n` × `n` array (or as it is, if larger).
+    fn padded(k: &Kernel, n: usize) -> Kernel {
+        if k.size >= n {
+            return k.clone();
+        }
+        let off = (n - k.size) / 2;
+        let mut data = vec![0.0; n * n];
+        for j in 0..k.size {
+            for i in 0..k.size {
+                data[(j + off) * n + i + off] = k.at(i, j);
+            }
+        }
+        Kernel {
+            size: n,
+            oversample: k.oversample,
+            data,
+        }
+    }
+
     #[test]
     fn clean_simulated_kernels_pass_and_striped_tails_are_flagged() {
         use crate::simulate::PsfShape;
@@ -1531,7 +1564,7 @@ mod tests {
             let (_, noisy) = truth_tail_fractions(shape, 0.01, 0.0);
             assert!(noisy < NOISY_TAIL_FRACTION, "{shape:?} with noise: {noisy}");
         }
-        let (striped, _) = truth_tail_fractions(PsfShape::Gaussian, 0.0, 0.05);
+        let (striped, _) = truth_tail_fractions(PsfShape::Gaussian, 0.0, 0.1);
         assert!(striped > NOISY_TAIL_FRACTION, "striped: {striped}");
         // One kernel, both ways, through the reason the studio shows.
         let g = Gaussian2 {
@@ -1539,7 +1572,7 @@ mod tests {
             sigma_y: 0.9,
             rho: 0.2,
         };
-        let clean = g.kernel(3);
+        let clean = padded(&g.kernel(3), MEASURED_SIZE);
         assert_eq!(noisy_kernel_reason(&clean, &g), None);
         let mut striped = clean.clone();
         let peak = striped.data.iter().copied().fold(0.0, f64::max);
@@ -1550,7 +1583,7 @@ mod tests {
                 let dy = (j as f64 - c) / 3.0;
                 if (dx / 1.2).hypot(dy / 0.9) > 2.0 {
                     striped.data[j * striped.size + i] +=
-                        0.05 * peak * 0.5 * (1.0 + (std::f64::consts::PI * dx).cos());
+                        0.1 * peak * 0.5 * (1.0 + (std::f64::consts::PI * dx).cos());
                 }
             }
         }
