@@ -193,6 +193,9 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         }
     };
     let panels = &field.panels;
+    if let Some(colours) = &field.scale {
+        colour_bar_ui(ui, colours, field.noisy);
+    }
     let avail = ui.available_size();
     let cols = panels.len().max(1) as f32;
     let w = ((avail.x - 16.0 * cols) / cols)
@@ -204,9 +207,6 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     let scale = 0.45 * (panel_size.x / 12.0) / field.max_sigma as f32;
     let atlas = app.views.kernel_atlas.as_ref().map(|a| a.texture.id());
     let mut clicked = None;
-    if let Some(colours) = &field.scale {
-        colour_bar_ui(ui, colours, field.noisy);
-    }
     ui.horizontal(|ui| {
         for p in panels {
             ui.vertical(|ui| {
@@ -386,7 +386,17 @@ fn colour_bar_ui(ui: &mut egui::Ui, colours: &ColourScale, noisy: usize) {
                 [egui::pos2(x, bar.bottom()), egui::pos2(x, bar.bottom() + 4.0)],
                 Stroke::new(1.0, text),
             );
-            let label = if v.abs() < 1e-12 { "0".to_owned() } else { format!("{v}") };
+            // Ticks are round numbers: three decimals, trailing zeros dropped.
+            let label = format!("{v:.3}")
+                .trim_end_matches('0')
+                .trim_end_matches('.')
+                .replace("-0", "−0")
+                .replace('-', "−");
+            let label = if label == "−0" || label.is_empty() {
+                "0".to_owned()
+            } else {
+                label
+            };
             p.text(
                 egui::pos2(x, bar.bottom() + 4.0),
                 egui::Align2::CENTER_TOP,
@@ -446,6 +456,9 @@ fn field_panel_ui(
     atlas: Option<egui::TextureId>,
 ) -> Option<(usize, usize)> {
     let (rect, response) = ui.allocate_exact_size(size, Sense::click());
+    // Named, so that a screen reader (and a test) finds the field.
+    response
+        .widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, "kernel field panel"));
     let painter = ui.painter_at(rect);
     painter.rect_filled(rect, 2.0, Color32::from_gray(18));
     painter.rect_stroke(
@@ -610,7 +623,7 @@ fn point_hover(q: &FieldPoint) -> String {
         }
     }
     if let Some(reason) = &q.noisy {
-        text += &format!("\n⚠ {reason}");
+        text += &format!("\nnot to be trusted, {reason}");
     }
     if let Some(e) = q.kernel_error {
         text += &match e.shape {

@@ -392,7 +392,7 @@ fn setting_sliders_ui(app: &mut StudioApp, ui: &mut egui::Ui, lens: &VirtualLens
             slider_ticks(ui, rail_left, r.rect, a, a_range, true);
         }
         if shot_at.is_some() {
-            ui.weak("▲ settings with shots")
+            ui.weak("ticks: settings with shots")
                 .on_hover_text("The ticks under the sliders mark the focal lengths and apertures the session has shots at: the model is measured there and interpolates between them.");
         }
     });

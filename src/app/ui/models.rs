@@ -292,7 +292,7 @@ fn cdf_legend_ui(ui: &mut egui::Ui, families: &[(&str, &crate::crossval::Selecti
         ui.set_max_width(width);
         ui.set_height(CDF_LEGEND_H - 4.0);
         for (name, _) in families {
-            ui.colored_label(family_color(name), format!("■ {name}"));
+            ui.colored_label(family_color(name), format!("— {name}"));
         }
         ui.separator();
         let color = ui.visuals().text_color();
@@ -331,10 +331,10 @@ pub(super) fn advice_ui(app: &StudioApp, ui: &mut egui::Ui) {
     for a in &c.advice {
         match a.level {
             crate::review::AdviceLevel::Warning => {
-                ui.colored_label(ui.visuals().warn_fg_color, format!("⚠ {}", a.text));
+                ui.colored_label(ui.visuals().warn_fg_color, format!("Warning: {}", a.text));
             }
             crate::review::AdviceLevel::Note => {
-                ui.weak(format!("ℹ {}", a.text));
+                ui.weak(format!("Note: {}", a.text));
             }
         }
     }
