@@ -291,13 +291,15 @@ fn cdf_legend_ui(ui: &mut egui::Ui, families: &[(&str, &crate::crossval::Selecti
     ui.horizontal(|ui| {
         ui.set_max_width(width);
         ui.set_height(CDF_LEGEND_H - 4.0);
+        // Tight, so that both families and the three styles fit a third of the window.
+        ui.spacing_mut().item_spacing.x = 5.0;
         for (name, _) in families {
-            ui.colored_label(family_color(name), format!("— {name}"));
+            ui.colored_label(family_color(name), *name);
         }
         ui.separator();
         let color = ui.visuals().text_color();
         for (param, style) in CDF_STYLES {
-            let (r, _) = ui.allocate_exact_size(egui::Vec2::new(28.0, 12.0), egui::Sense::hover());
+            let (r, _) = ui.allocate_exact_size(egui::Vec2::new(24.0, 12.0), egui::Sense::hover());
             let line = [r.left_center(), r.right_center()];
             let shapes = match style {
                 egui_plot::LineStyle::Solid => {
