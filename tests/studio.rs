@@ -8,6 +8,7 @@
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
+use lensblur::app::view_data::{ColourRange, FieldOptions};
 use lensblur::app::{
     AppOptions, Command, FieldShow, FieldSource, PlotId, StudioApp, SweepAxis, View,
 };
@@ -321,6 +322,32 @@ fn every_view_on_the_demo_session() {
     h.run_steps(3);
     assert_eq!(h.state().view, View::KernelField);
     snapshot(&mut h, "studio_kernel_field");
+    // The colour range from the data spans the measured σ; fixed, it is what was set.
+    {
+        let scale = h.state().views.field.as_ref().and_then(|f| f.scale.clone());
+        let [lo, hi] = scale.expect("a colour scale").range;
+        assert!(0.3 < lo && lo < hi && hi < 3.0, "{lo}–{hi}");
+    }
+    h.state_mut()
+        .commands
+        .push(Command::SetFieldOptions(FieldOptions {
+            range: ColourRange::Fixed { min: 0.5, max: 3.5 },
+            difference: None,
+        }));
+    h.run_steps(2);
+    assert_eq!(
+        h.state()
+            .views
+            .field
+            .as_ref()
+            .and_then(|f| f.scale.as_ref())
+            .map(|s| s.range),
+        Some([0.5, 3.5])
+    );
+    h.state_mut()
+        .commands
+        .push(Command::SetFieldOptions(FieldOptions::default()));
+    h.run_steps(2);
     h.get_by_label("Kernel shapes").click();
     h.run_steps(3);
     assert!(h.state().views.kernel_atlas.is_some());

@@ -365,6 +365,7 @@ fn setting_sliders_ui(app: &mut StudioApp, ui: &mut egui::Ui, lens: &VirtualLens
         .views
         .calibrated
         .as_ref()
+        .filter(|c| !c.focal_mm.is_empty() || !c.f_number.is_empty())
         .map(|c| (c.focal_mm.clone(), c.f_number.clone()));
     ui.horizontal(|ui| {
         let rail_left = ui.cursor().left();
