@@ -491,6 +491,17 @@ fn every_view_on_the_demo_session() {
     h.run_steps(3);
     assert!(h.state().compare_units);
     snapshot(&mut h, "studio_kernel_field_compare");
+    // Unit A − unit B of the demo lens: one difference panel, each grid point paired.
+    h.get_by_label("unit A − unit B").click();
+    h.run_steps(3);
+    {
+        let field = h.state().views.field.as_ref().expect("field");
+        assert_eq!(field.panels.len(), 1);
+        assert_eq!(field.panels[0].points.len(), 12 * 8);
+        assert!(field.scale.as_ref().is_some_and(|s| s.diverging));
+    }
+    h.get_by_label("σ").click();
+    h.run_steps(2);
 
     // Deblur preview: the selected shot as the photo, a region deblurred with the
     // predicted Gaussians and with the shot's own measured kernels.
