@@ -846,6 +846,382 @@ pub fn write_png_crop(
     crate::io::write_atomic(path, &bytes).map_err(|e| e.to_string())
 }
 
+/// Largest rise of a measured kernel's tails (a fraction of its weight) before the
+/// studio marks the kernel as a noisy estimate.
+///
+/// Criterion ([`kernel_tails`]): seen at the sensor's resolution (the kernel averaged
+/// over a 1-px box), walk outwards from the kernel's core (the centroid of its samples
+/// at or above half the peak) along rays, and add up every rise — how much each sample
+/// outside the 3σ ellipse of the kernel's robust Gaussian fit exceeds the sample one px
+/// nearer the core — as a fraction of the kernel's weight Σ|k|. A lens's blur falls
+/// off away from its core: a Gaussian, a defocus disc, a comet's tail and a diffraction
+/// halo all do, however much weight they carry out there (the aberrated lens keeps up to
+/// 30 % of its weight outside 3σ). Stripes and speckle rise and fall, and every rise
+/// counts.
+///
+/// Why 0.06, on the simulator (`clean_simulated_kernels_pass_and_striped_tails_are_flagged`:
+/// 16 true kernels per shape over the field and the settings' corners, on a measured
+/// kernel's support, cleaned as the measurement cleans them):
+/// - every shape's true kernels rise by 0.0000, and by at most 0.0030 with the
+///   simulator's measured-kernel noise (1 % of the peak per sample);
+/// - the measured chain itself (simulated 1200 × 800 shots of the 24 × 16 chart at
+///   24 mm and 105 mm, f/4; detected and measured, 2 × 1152 kernels) leaves speckle in
+///   the tails: median 0.024, 95th percentile 0.043 and 0.038, largest 0.0625 and
+///   0.0775; 3 of the 2304 lie above 0.06;
+/// - the true Gaussian kernels with stripes of 10 % of the peak, 2 px apart, beyond
+///   2σ rise by 0.062 to 0.18 (5 % stripes: 0.044 to 0.19).
+///
+/// So a flag means the estimate is worse than the measurement's own speckle on a clean
+/// shot, as badly as visibly striped tails.
+pub const NOISY_TAIL_FRACTION: f64 = 0.06;
+
+/// What the noisy-kernel criterion measures of one kernel (see
+/// [`NOISY_TAIL_FRACTION`]): fractions of its absolute weight Σ|k|.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KernelTails {
+    /// Outside the 3σ ellipse of the fit.
+    pub outside: f64,
+    /// How much the kernel rises outside that ellipse, walking outwards from its core:
+    /// Σ max(0, k(p) − k(p′)) over the samples p outside, with p′ one sample nearer the
+    /// core along the ray through p. A lens's blur falls off away from its core (a
+    /// halo, a comet's tail, a disc's edge all do); stripes and speckle rise and fall.
+    pub rising: f64,
+}
+
+/// The kernel averaged over a 1-px box (`oversample` samples a side, rounded up to odd),
+/// zero outside.
+fn box_1px(kernel: &Kernel) -> Vec<f64> {
+    let n = kernel.size;
+    let r = (kernel.oversample / 2) as isize;
+    let pass = |src: &[f64], along_x: bool| -> Vec<f64> {
+        let mut out = vec![0.0; n * n];
+        for j in 0..n {
+            for i in 0..n {
+                let mut acc = 0.0;
+                for d in -r..=r {
+                    let (ii, jj) = if along_x {
+                        (i as isize + d, j as isize)
+                    } else {
+                        (i as isize, j as isize + d)
+                    };
+                    if ii >= 0 && jj >= 0 && (ii as usize) < n && (jj as usize) < n {
+                        acc += src[jj as usize * n + ii as usize];
+                    }
+                }
+                out[j * n + i] = acc / (2 * r + 1) as f64;
+            }
+        }
+        out
+    };
+    pass(&pass(&kernel.data, true), false)
+}
+
+/// `data` (`n` × `n`, row-major) between samples at (u, w), zero outside.
+fn bilinear(data: &[f64], n: usize, u: f64, w: f64) -> f64 {
+    let (u0, w0) = (u.floor(), w.floor());
+    let (fu, fw) = (u - u0, w - w0);
+    let get = |i: f64, j: f64| -> f64 {
+        if i < 0.0 || j < 0.0 || i >= n as f64 || j >= n as f64 {
+            0.0
+        } else {
+            data[j as usize * n + i as usize]
+        }
+    };
+    (get(u0, w0) * (1.0 - fu) + get(u0 + 1.0, w0) * fu) * (1.0 - fw)
+        + (get(u0, w0 + 1.0) * (1.0 - fu) + get(u0 + 1.0, w0 + 1.0) * fu) * fw
+}
+
+/// The tails of `kernel` against the 3σ ellipse of `fit` (see [`NOISY_TAIL_FRACTION`]);
+/// `None` for an empty kernel or a degenerate fit.
+#[must_use]
+pub fn kernel_tails(kernel: &Kernel, fit: &Gaussian2) -> Option<KernelTails> {
+    let (vx, vy, cxy) = (
+        fit.sigma_x * fit.sigma_x,
+        fit.sigma_y * fit.sigma_y,
+        fit.cov_xy(),
+    );
+    let det = vx * vy - cxy * cxy;
+    let n = kernel.size;
+    if !(det.is_finite() && det > 0.0)
+        || n == 0
+        || kernel.oversample == 0
+        || kernel.data.len() != n * n
+    {
+        return None;
+    }
+    let c = (n / 2) as f64;
+    let os = kernel.oversample as f64;
+    let peak = kernel.data.iter().copied().fold(0.0, f64::max);
+    if peak <= 0.0 {
+        return None;
+    }
+    // The core's centroid: the tails themselves must not move the ellipse they are
+    // measured against.
+    let (mut w0, mut mx, mut my) = (0.0, 0.0, 0.0);
+    for j in 0..n {
+        for i in 0..n {
+            let v = kernel.at(i, j);
+            if v >= 0.5 * peak {
+                w0 += v;
+                mx += v * (i as f64 - c) / os;
+                my += v * (j as f64 - c) / os;
+            }
+        }
+    }
+    let (mx, my) = (mx / w0, my / w0);
+    // Seen at the sensor's resolution (a 1-px box): sample noise averages down, while
+    // stripes the sensor resolves (2 px apart or more) stay.
+    let smooth = box_1px(kernel);
+    let (mut total, mut outside, mut rising) = (0.0, 0.0, 0.0);
+    for j in 0..n {
+        for i in 0..n {
+            let v = kernel.at(i, j);
+            let (dx, dy) = ((i as f64 - c) / os - mx, (j as f64 - c) / os - my);
+            let d2 = (vy * dx * dx - 2.0 * cxy * dx * dy + vx * dy * dy) / det;
+            total += v.abs();
+            if d2 > 9.0 {
+                outside += v.abs();
+                // One px nearer the core along the ray (bilinear between samples).
+                let r = dx.hypot(dy);
+                let (u, w) = (i as f64 - dx / r * os, j as f64 - dy / r * os);
+                let inward = bilinear(&smooth, n, u, w);
+                rising += (smooth[j * n + i] - inward).max(0.0);
+            }
+        }
+    }
+    (total > 0.0).then(|| KernelTails {
+        outside: outside / total,
+        rising: rising / total,
+    })
+}
+
+/// The fraction the criterion compares with [`NOISY_TAIL_FRACTION`].
+#[must_use]
+pub fn kernel_tail_fraction(kernel: &Kernel, fit: &Gaussian2) -> Option<f64> {
+    kernel_tails(kernel, fit).map(|t| t.rising)
+}
+
+/// Why a measured kernel is not to be trusted, in one line, or `None` where it passes
+/// (see [`NOISY_TAIL_FRACTION`]).
+#[must_use]
+pub fn noisy_kernel_reason(kernel: &Kernel, fit: &Gaussian2) -> Option<String> {
+    let t = kernel_tail_fraction(kernel, fit)?;
+    (t > NOISY_TAIL_FRACTION).then(|| {
+        format!(
+            "noisy estimate: its tails beyond 3σ rise again by {:.1} % of its weight (a lens's blur only falls off there; flagged above {:.1} %): stripes or speckle, not the lens",
+            100.0 * t,
+            100.0 * NOISY_TAIL_FRACTION
+        )
+    })
+}
+
+/// One point of a difference map: the Gaussians of field A and field B at (about) the
+/// same sensor position.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FieldDifference {
+    pub x: f64,
+    pub y: f64,
+    pub a: Gaussian2,
+    pub b: Gaussian2,
+}
+
+impl FieldDifference {
+    /// σ(A) − σ(B), px: what the difference map colours.
+    #[must_use]
+    pub fn delta_sigma(&self) -> f64 {
+        self.a.sigma() - self.b.sigma()
+    }
+}
+
+/// Pairs each point of field `a` with the nearest point of field `b` within
+/// `max_distance` px (points of `a` with none are left out): the difference map of A
+/// − B, at A's positions.
+#[must_use]
+pub fn field_difference(
+    a: &[(f64, f64, Gaussian2)],
+    b: &[(f64, f64, Gaussian2)],
+    max_distance: f64,
+) -> Vec<FieldDifference> {
+    a.iter()
+        .filter_map(|&(x, y, ga)| {
+            let d2 = |p: &(f64, f64, Gaussian2)| (p.0 - x).powi(2) + (p.1 - y).powi(2);
+            let nearest = b.iter().min_by(|p, q| d2(p).total_cmp(&d2(q)))?;
+            (d2(nearest) <= max_distance * max_distance).then_some(FieldDifference {
+                x,
+                y,
+                a: ga,
+                b: nearest.2,
+            })
+        })
+        .collect()
+}
+
+/// A profile's predicted Gaussians at sensor `points` and `setting`.
+///
+/// # Errors
+/// The profile cannot predict at some point: the first failure, one line.
+pub fn predicted_at(
+    profile: &Profile,
+    channel: Channel,
+    points: &[[f64; 2]],
+    setting: LensSetting,
+) -> Result<Vec<(f64, f64, Gaussian2)>, String> {
+    points
+        .iter()
+        .map(|&[x, y]| {
+            profile
+                .predict(channel, x, y, setting)
+                .map(|g| (x, y, g))
+                .map_err(|e| e.to_string())
+        })
+        .collect()
+}
+
+/// The colour range of a map from its finite `values`: [min, max], or for a difference
+/// map (`symmetric`) [−m, m] with m the largest magnitude, so that white is exactly 0.
+/// Never empty: a constant field gets a small span around its value.
+#[must_use]
+pub fn colour_range(values: impl IntoIterator<Item = f64>, symmetric: bool) -> Option<[f64; 2]> {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for v in values.into_iter().filter(|v| v.is_finite()) {
+        lo = lo.min(v);
+        hi = hi.max(v);
+    }
+    if lo > hi {
+        return None;
+    }
+    if symmetric {
+        let m = lo.abs().max(hi.abs()).max(1e-3);
+        return Some([-m, m]);
+    }
+    if hi - lo < 1e-3 {
+        return Some([lo - 0.05, hi + 0.05]);
+    }
+    Some([lo, hi])
+}
+
+/// Round tick values (1, 2 or 5 × 10ⁿ apart) inside `range`, about `n` of them: a
+/// colour bar's labels.
+#[must_use]
+pub fn nice_ticks(range: [f64; 2], n: usize) -> Vec<f64> {
+    let [lo, hi] = range;
+    if !(lo.is_finite() && hi.is_finite() && hi > lo) {
+        return Vec::new();
+    }
+    let raw = (hi - lo) / n.max(1) as f64;
+    let p = 10f64.powf(raw.log10().floor());
+    let step = [1.0, 2.0, 5.0, 10.0]
+        .into_iter()
+        .map(|m| m * p)
+        .find(|s| *s >= raw)
+        .unwrap_or(10.0 * p);
+    let first = (lo / step).ceil() as i64;
+    let last = (hi / step).floor() as i64;
+    (first..=last)
+        // Ticks at multiples of the step, so 0 is exact on a symmetric bar.
+        .map(|k| k as f64 * step)
+        .collect()
+}
+
+/// How serious a piece of shooting advice is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AdviceLevel {
+    /// The session cannot determine the model asked for (or any that follows a
+    /// setting).
+    Warning,
+    /// The model is determined but limited by the settings shot.
+    Note,
+}
+
+/// What the session's settings allow the model, and what to shoot next.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShootingAdvice {
+    pub level: AdviceLevel,
+    pub text: String,
+}
+
+/// Where one more value of a setting tells the model most: the middle of the widest gap
+/// between the values shot (in stops for apertures, as the slider moves).
+fn widest_gap(values: &[f64], aperture: bool) -> Option<(f64, f64)> {
+    values.windows(2).map(|w| (w[0], w[1])).max_by(|a, b| {
+        let span = |(lo, hi): (f64, f64)| if aperture { (hi / lo).ln() } else { hi - lo };
+        span(*a).total_cmp(&span(*b))
+    })
+}
+
+/// What the settings shot (the distinct focal lengths and f-numbers, sorted) allow the
+/// model in focal length and aperture, for a β fixed by the session's settings or
+/// chosen by cross-validation (`None`): the model's β-order polynomial in f and a needs
+/// β + 1 distinct values of each setting that varies (β < N = min(N_f, N_a)), and a
+/// setting shot at one value only cannot be followed at all. Each problem comes with
+/// what to shoot next.
+#[must_use]
+pub fn shooting_advice(
+    focals: &[f64],
+    f_numbers: &[f64],
+    beta: Option<usize>,
+) -> Vec<ShootingAdvice> {
+    let mut out = Vec::new();
+    if focals.is_empty() || f_numbers.is_empty() {
+        return out;
+    }
+    let fmt_f = |v: f64| format!("{v:.0} mm");
+    let fmt_a = |v: f64| format!("f/{v:.1}");
+    // Name, values shot, whether in stops (apertures), how a value reads.
+    type Dim<'a> = (&'a str, &'a [f64], bool, &'a dyn Fn(f64) -> String);
+    let dims: [Dim; 2] = [
+        ("focal length", focals, false, &fmt_f),
+        ("aperture", f_numbers, true, &fmt_a),
+    ];
+    for (name, values, _, fmt) in dims {
+        if values.len() == 1 {
+            out.push(ShootingAdvice {
+                level: AdviceLevel::Warning,
+                text: format!(
+                    "Every shot is at {}: the model cannot follow the {name}, and the profile predicts nowhere else. Shoot at least one more {name} (the range's other end first).",
+                    fmt(values[0])
+                ),
+            });
+        }
+    }
+    let varying: Vec<_> = dims.iter().filter(|d| d.1.len() > 1).collect();
+    let n = varying.iter().map(|d| d.1.len()).min().unwrap_or(1);
+    let need = beta.map_or(2, |b| b + 1);
+    for (name, values, aperture, fmt) in &varying {
+        if values.len() >= need.max(3) {
+            continue;
+        }
+        let Some((lo, hi)) = widest_gap(values, *aperture) else {
+            continue;
+        };
+        let more = need.max(3) - values.len();
+        let shoot = format!(
+            "shoot at least {more} more {name}{} between {} and {}",
+            if more == 1 { "" } else { "s" },
+            fmt(lo),
+            fmt(hi)
+        );
+        match beta {
+            Some(b) if values.len() <= b => out.push(ShootingAdvice {
+                level: AdviceLevel::Warning,
+                text: format!(
+                    "β = {b} (the session's setting) needs {} distinct {name}s, the session has {}: the model is not determined; {shoot}, or lower β.",
+                    b + 1,
+                    values.len()
+                ),
+            }),
+            _ if values.len() == 2 && n == 2 => out.push(ShootingAdvice {
+                level: AdviceLevel::Note,
+                text: format!(
+                    "With 2 {name}s the model is at most linear in {name} (β ≤ 1); to let it curve, {shoot}."
+                ),
+            }),
+            _ => {}
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1080,6 +1456,195 @@ mod tests {
         );
         assert!(sweep_points(&ds, Channel::R, (0.0, 0.0), false, 4.0).is_empty());
         assert_eq!(nearest_value(&[4.0, 5.6, 10.0], 6.0), Some(5.6));
+    }
+
+    /// The tail fraction of the simulator's true kernels (each shape, over the field and
+    /// the settings, clean and with the simulated measurement noise) and of the same
+    /// clean kernels with striped tails added: the numbers behind
+    /// [`NOISY_TAIL_FRACTION`] (shown with --nocapture).
+    fn truth_tail_fractions(
+        shape: crate::simulate::PsfShape,
+        noise: f64,
+        stripes: f64,
+    ) -> (f64, f64) {
+        use crate::simulate::VirtualLens;
+        let lens = VirtualLens {
+            shape,
+            ..VirtualLens::demo()
+        };
+        let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+        let mut seed = 7u64;
+        for (u, v) in [(0.0, 0.0), (0.9, 0.0), (-0.9, 0.6), (0.7, -0.7)] {
+            for focal_mm in [24.0, 105.0] {
+                for f_number in [4.0, 10.0] {
+                    let s = LensSetting { focal_mm, f_number };
+                    let mut k = padded(
+                        &lens
+                            .optical_kernel_uv(Channel::G, u, v, s, 3)
+                            .pixel_integrated(),
+                        MEASURED_SIZE,
+                    );
+                    let peak = k.data.iter().copied().fold(0.0, f64::max);
+                    let fit = crate::experiment::fit_gaussians(&k).0;
+                    let c = (k.size / 2) as f64;
+                    for j in 0..k.size {
+                        for i in 0..k.size {
+                            let (dx, dy) = ((i as f64 - c) / 3.0, (j as f64 - c) / 3.0);
+                            // A fixed pseudo-random draw per sample (uniform, the
+                            // simulator's 1 % of the peak as its standard deviation).
+                            seed = seed
+                                .wrapping_mul(6_364_136_223_846_793_005)
+                                .wrapping_add(1_442_695_040_888_963_407);
+                            let r =
+                                ((seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 12f64.sqrt();
+                            let d = (dx / fit.sigma_x).hypot(dy / fit.sigma_y);
+                            // Stripes across x, 2 px apart (the sensor's Nyquist),
+                            // beyond 2σ: the ringing of a poorly constrained solve.
+                            let stripe = if d > 2.0 {
+                                stripes * peak * 0.5 * (1.0 + (std::f64::consts::PI * dx).cos())
+                            } else {
+                                0.0
+                            };
+                            let v = &mut k.data[j * k.size + i];
+                            *v += noise * peak * r + stripe;
+                            // As the measurement cleans a kernel: negatives and samples
+                            // under 2 % of the peak are zeroed.
+                            if *v < 0.02 * peak {
+                                *v = 0.0;
+                            }
+                        }
+                    }
+                    k.normalise();
+                    let tails = kernel_tails(&k, &crate::experiment::fit_gaussians(&k).0)
+                        .expect("a fraction");
+                    let t = tails.rising;
+                    lo = lo.min(t);
+                    hi = hi.max(t);
+                }
+            }
+        }
+        eprintln!("{shape:?} noise {noise} stripes {stripes}: tail fraction {lo:.4}–{hi:.4}");
+        (lo, hi)
+    }
+
+    /// The side the measured chain gives kernels of the demo's σ (±6 px at 3×): the
+    /// support a measured kernel's stripes and speckle can spread over.
+    const MEASURED_SIZE: usize = 37;
+
+    /// `k` centred in an `n` × `n` array (or as it is, if larger).
+    fn padded(k: &Kernel, n: usize) -> Kernel {
+        if k.size >= n {
+            return k.clone();
+        }
+        let off = (n - k.size) / 2;
+        let mut data = vec![0.0; n * n];
+        for j in 0..k.size {
+            for i in 0..k.size {
+                data[(j + off) * n + i + off] = k.at(i, j);
+            }
+        }
+        Kernel {
+            size: n,
+            oversample: k.oversample,
+            data,
+        }
+    }
+
+    #[test]
+    fn clean_simulated_kernels_pass_and_striped_tails_are_flagged() {
+        use crate::simulate::PsfShape;
+        for shape in [
+            PsfShape::Gaussian,
+            PsfShape::Disc,
+            PsfShape::Comet,
+            PsfShape::Aberrated,
+        ] {
+            let (_, clean) = truth_tail_fractions(shape, 0.0, 0.0);
+            assert!(clean < NOISY_TAIL_FRACTION / 2.0, "{shape:?}: {clean}");
+            let (_, noisy) = truth_tail_fractions(shape, 0.01, 0.0);
+            assert!(noisy < NOISY_TAIL_FRACTION, "{shape:?} with noise: {noisy}");
+        }
+        let (striped, _) = truth_tail_fractions(PsfShape::Gaussian, 0.0, 0.1);
+        assert!(striped > NOISY_TAIL_FRACTION, "striped: {striped}");
+        // One kernel, both ways, through the reason the studio shows.
+        let g = Gaussian2 {
+            sigma_x: 1.2,
+            sigma_y: 0.9,
+            rho: 0.2,
+        };
+        let clean = padded(&g.kernel(3), MEASURED_SIZE);
+        assert_eq!(noisy_kernel_reason(&clean, &g), None);
+        let mut striped = clean.clone();
+        let peak = striped.data.iter().copied().fold(0.0, f64::max);
+        let c = (striped.size / 2) as f64;
+        for j in 0..striped.size {
+            for i in 0..striped.size {
+                let dx = (i as f64 - c) / 3.0;
+                let dy = (j as f64 - c) / 3.0;
+                if (dx / 1.2).hypot(dy / 0.9) > 2.0 {
+                    striped.data[j * striped.size + i] +=
+                        0.1 * peak * 0.5 * (1.0 + (std::f64::consts::PI * dx).cos());
+                }
+            }
+        }
+        striped.normalise();
+        let reason = noisy_kernel_reason(&striped, &g).expect("flagged");
+        assert!(reason.contains("rise again"), "{reason}");
+    }
+
+    #[test]
+    fn difference_maps_pair_points_and_ranges_are_symmetric() {
+        let g = |s: f64| Gaussian2::isotropic(s);
+        let a = [
+            (0.0, 0.0, g(2.0)),
+            (100.0, 0.0, g(1.0)),
+            (500.0, 0.0, g(1.0)),
+        ];
+        let b = [(1.0, 1.0, g(1.5)), (100.0, 2.0, g(1.25))];
+        let d = field_difference(&a, &b, 10.0);
+        assert_eq!(d.len(), 2, "the far point has no partner");
+        assert!((d[0].delta_sigma() - 0.5).abs() < 1e-12);
+        assert!((d[1].delta_sigma() + 0.25).abs() < 1e-12);
+        assert_eq!(
+            colour_range(d.iter().map(FieldDifference::delta_sigma), true),
+            Some([-0.5, 0.5])
+        );
+        assert_eq!(colour_range([1.0, 3.0, f64::NAN], false), Some([1.0, 3.0]));
+        assert_eq!(colour_range([], false), None);
+        assert_eq!(nice_ticks([-0.5, 0.5], 4), vec![-0.5, 0.0, 0.5]);
+        assert_eq!(nice_ticks([0.93, 3.1], 5), vec![1.0, 1.5, 2.0, 2.5, 3.0]);
+    }
+
+    #[test]
+    fn shooting_advice_says_what_to_shoot_next() {
+        // One focal length: the model cannot follow it.
+        let a = shooting_advice(&[50.0], &[4.0, 8.0, 16.0], None);
+        assert!(
+            a.iter()
+                .any(|x| x.level == AdviceLevel::Warning
+                    && x.text.contains("Every shot is at 50 mm"))
+        );
+        // β fixed at 2 with two focal lengths: a third between them.
+        let b = shooting_advice(&[24.0, 105.0], &[4.0, 5.6, 10.0], Some(2));
+        let w = b
+            .iter()
+            .find(|x| x.level == AdviceLevel::Warning)
+            .expect("warning");
+        assert!(
+            w.text
+                .contains("shoot at least 1 more focal length between 24 mm and 105 mm"),
+            "{}",
+            w.text
+        );
+        // The demo's 2 × 2 grid: determined for β ≤ 1, with a note for a curve.
+        let c = shooting_advice(&[24.0, 105.0], &[4.0, 10.0], None);
+        assert!(c.iter().all(|x| x.level == AdviceLevel::Note), "{c:?}");
+        assert!(
+            c.iter()
+                .any(|x| x.text.contains("between f/4.0 and f/10.0"))
+        );
+        // Enough of both.
+        assert!(shooting_advice(&[24.0, 50.0, 105.0], &[4.0, 5.6, 10.0], None).is_empty());
     }
 
     #[test]

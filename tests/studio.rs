@@ -8,6 +8,7 @@
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
+use lensblur::app::view_data::{ColourRange, FieldOptions};
 use lensblur::app::{
     AppOptions, Command, FieldShow, FieldSource, PlotId, StudioApp, SweepAxis, View,
 };
@@ -321,10 +322,37 @@ fn every_view_on_the_demo_session() {
     h.run_steps(3);
     assert_eq!(h.state().view, View::KernelField);
     snapshot(&mut h, "studio_kernel_field");
+    // The colour range from the data spans the measured σ; fixed, it is what was set.
+    {
+        let scale = h.state().views.field.as_ref().and_then(|f| f.scale.clone());
+        let [lo, hi] = scale.expect("a colour scale").range;
+        assert!(0.3 < lo && lo < hi && hi < 3.0, "{lo}–{hi}");
+    }
+    h.state_mut()
+        .commands
+        .push(Command::SetFieldOptions(FieldOptions {
+            range: ColourRange::Fixed { min: 0.5, max: 3.5 },
+            difference: None,
+        }));
+    h.run_steps(2);
+    assert_eq!(
+        h.state()
+            .views
+            .field
+            .as_ref()
+            .and_then(|f| f.scale.as_ref())
+            .map(|s| s.range),
+        Some([0.5, 3.5])
+    );
+    h.state_mut()
+        .commands
+        .push(Command::SetFieldOptions(FieldOptions::default()));
+    h.run_steps(2);
     h.get_by_label("Kernel shapes").click();
     h.run_steps(3);
     assert!(h.state().views.kernel_atlas.is_some());
     snapshot(&mut h, "studio_kernel_field_kernels");
+    noisy_kernel_is_hatched_and_a_click_inspects_it(&mut h, (row, col));
 
     // Measured points appear in the sweeps before any model exists.
     h.get_by_label("Sweeps").click();
@@ -430,12 +458,50 @@ fn every_view_on_the_demo_session() {
     h.get_by_label("Ellipses").click();
     h.run_steps(3);
     snapshot(&mut h, "studio_kernel_field_predicted");
+    // Difference maps: measured − predicted at the shot's setting, on one diverging
+    // scale symmetric about 0; R − B of the predicted field.
+    h.get_by_label("measured − predicted").click();
+    h.run_steps(3);
+    {
+        let field = h.state().views.field.as_ref().expect("field");
+        let scale = field.scale.as_ref().expect("a colour scale");
+        assert!(scale.diverging && scale.range[0] == -scale.range[1]);
+        assert!(scale.ticks.contains(&0.0), "{:?}", scale.ticks);
+        let points = &field.panels[0].points;
+        assert!(!points.is_empty() && points.iter().all(|p| p.other.is_some()));
+        // A good model misses the demo's measured σ by a small fraction of it.
+        assert!(scale.range[1] < 1.0, "{:?}", scale.range);
+    }
+    snapshot(&mut h, "studio_kernel_field_difference");
+    h.get_by_label("R − B").click();
+    h.run_steps(3);
+    assert!(
+        h.state()
+            .views
+            .field
+            .as_ref()
+            .is_some_and(|f| !f.panels[0].points.is_empty())
+    );
+    h.get_by_label("σ").click();
+    h.run_steps(2);
+    assert_eq!(h.state().field_options.difference, None);
     h.get_by_label("Ground truth").click();
     h.run_steps(2);
     h.get_by_label("Compare with a second unit").click();
     h.run_steps(3);
     assert!(h.state().compare_units);
     snapshot(&mut h, "studio_kernel_field_compare");
+    // Unit A − unit B of the demo lens: one difference panel, each grid point paired.
+    h.get_by_label("unit A − unit B").click();
+    h.run_steps(3);
+    {
+        let field = h.state().views.field.as_ref().expect("field");
+        assert_eq!(field.panels.len(), 1);
+        assert_eq!(field.panels[0].points.len(), 12 * 8);
+        assert!(field.scale.as_ref().is_some_and(|s| s.diverging));
+    }
+    h.get_by_label("σ").click();
+    h.run_steps(2);
 
     // Deblur preview: the selected shot as the photo, a region deblurred with the
     // predicted Gaussians and with the shot's own measured kernels.
@@ -568,6 +634,92 @@ fn every_view_on_the_demo_session() {
                 && a.cv.is_some()
                 && idle(a)
         },
+    );
+}
+
+/// On the measured Kernel field (kernel shapes) of the first shot: the demo's clean
+/// kernels pass the core's noisy-kernel criterion; the kernel of `square` given striped
+/// tails is hatched, its hover says why, and a click on it opens the square's
+/// inspector in the Shot view. The shot's kernels are restored afterwards.
+fn noisy_kernel_is_hatched_and_a_click_inspects_it(
+    h: &mut Harness<'_, StudioApp>,
+    square: (usize, usize),
+) {
+    let natural = h.state().views.field.as_ref().map_or(0, |f| f.noisy);
+    let shot = h.state().selected_shot.expect("a selected shot");
+    let original = std::sync::Arc::clone(&h.state().measured[&shot]);
+    let total = original
+        .samples
+        .iter()
+        .filter(|s| s.kernel.is_some())
+        .count();
+    eprintln!("noisy kernels on the demo's shot: {natural} of {total} in the channel shown");
+    assert!(natural * 10 <= total, "{natural} of {total} flagged");
+    let mut striped = (*original).clone();
+    let os = striped.oversample as f64;
+    let sample = striped
+        .samples
+        .iter_mut()
+        .find(|s| {
+            s.channel == lensblur::plane::Channel::G
+                && (s.row, s.col) == (Some(square.0), Some(square.1))
+        })
+        .expect("the square's kernel");
+    let (x, y) = (sample.x, sample.y);
+    let k = sample.kernel.as_mut().expect("a kernel array");
+    let peak = k.data.iter().copied().fold(0.0, f64::max);
+    let c = (k.size / 2) as f64;
+    let sigma = sample.cxx.unwrap_or(1.0).max(sample.cyy.unwrap_or(1.0));
+    // Stripes 2 px apart, a fifth of the peak, beyond 2σ: the ringing of a poor solve.
+    for j in 0..k.size {
+        for i in 0..k.size {
+            let (dx, dy) = ((i as f64 - c) / os, (j as f64 - c) / os);
+            if dx.hypot(dy) > 2.0 * sigma {
+                k.data[j * k.size + i] +=
+                    0.2 * peak * 0.5 * (1.0 + (std::f64::consts::PI * dx).cos());
+            }
+        }
+    }
+    h.state_mut()
+        .measured
+        .insert(shot, std::sync::Arc::new(striped));
+    h.run_steps(3);
+    let field = h.state().views.field.as_ref().expect("field");
+    assert!(field.noisy > natural, "the striped kernel is flagged");
+    let point = field.panels[0]
+        .points
+        .iter()
+        .find(|p| p.square == Some(square))
+        .expect("the square is drawn");
+    assert!(point.noisy.is_some());
+    // Hover the square until its tooltip shows (the harness steps a quarter second).
+    let panel = h.get_by_label("kernel field panel").rect();
+    let sensor_w = original.width as f32;
+    let scale = panel.width() / sensor_w;
+    let pos = panel.min + egui::Vec2::new(x as f32 * scale, y as f32 * scale);
+    h.hover_at(pos);
+    h.run_steps(4);
+    h.get_by_label_contains("noisy estimate");
+    h.get_by_label_contains("in the worst direction");
+    h.snapshot("studio_kernel_field_noisy");
+    click_at(h, pos);
+    h.run_steps(2);
+    assert_eq!(h.state().view, View::Shot);
+    assert_eq!(h.state().selected_square, Some(square));
+    h.state_mut().measured.insert(shot, original);
+    h.state_mut()
+        .commands
+        .push(Command::SelectView(View::KernelField));
+    h.run_steps(3);
+    assert_eq!(
+        h.state().views.field.as_ref().map(|f| f.noisy),
+        Some(natural)
+    );
+    step_until(
+        h,
+        "the inspector after the click",
+        Duration::from_secs(30),
+        |a| idle(a) && a.views.inspection().is_some(),
     );
 }
 
@@ -1128,4 +1280,65 @@ fn predicted_kernel_shapes_of_a_profile_with_a_shape_model() {
     }
     h.get_by_label_contains("predicted kernel shapes");
     snapshot(&mut h, "studio_kernel_field_predicted_shapes");
+}
+
+/// Shots at one focal length and two apertures, with β fixed at 2 in the session's
+/// settings: the Models view warns that the model cannot follow the focal length and
+/// is not determined in aperture, and says what to shoot next.
+#[test]
+fn models_warn_what_to_shoot_when_the_settings_cannot_determine_the_model() {
+    let demo = tempfile::tempdir().expect("temp dir");
+    let parent = tempfile::tempdir().expect("temp dir");
+    let folder = parent.path().join("one focal length");
+    std::fs::create_dir(&folder).expect("session folder");
+    let made = tempfile::tempdir().expect("temp dir");
+    let shot_spec = DemoSpec::grid(320, 240, &[35.0], &[4.0, 8.0]).with_chart(6, 4);
+    let made_session =
+        make_demo(made.path(), &shot_spec, &JobContext::silent()).expect("simulated shots");
+    let shots: Vec<_> = (0..2)
+        .map(|i| {
+            let p = folder.join(format!("shot_{i}.png"));
+            std::fs::copy(made_session.shot_path(i), &p).expect("copy shot");
+            p
+        })
+        .collect();
+    let mut h = new_harness(demo.path(), Some(&folder));
+    h.run_steps(2);
+    h.state_mut().commands.push(Command::AddShots(shots));
+    step_until(&mut h, "the shots", Duration::from_secs(30), |a| {
+        a.previews.len() == 2 && idle(a)
+    });
+    let session = h.state().session.clone().expect("session");
+    for (shot, f_number) in session.shots.iter().zip([4.0, 8.0]) {
+        h.state_mut().commands.push(Command::SetShotSetting {
+            shot: shot.id,
+            focal_mm: Some(35.0),
+            f_number: Some(f_number),
+        });
+    }
+    let mut settings = session.settings.clone();
+    settings.beta = Some(2);
+    let app = h.state_mut();
+    app.commands.push(Command::ApplySettings {
+        chart: session.chart.clone(),
+        settings,
+    });
+    app.commands.push(Command::SelectView(View::Models));
+    h.run_steps(3);
+    let advice = &h
+        .state()
+        .views
+        .calibrated
+        .as_ref()
+        .expect("the session's settings")
+        .advice;
+    assert_eq!(advice.len(), 2, "{advice:?}");
+    assert!(
+        advice
+            .iter()
+            .all(|a| a.level == lensblur::review::AdviceLevel::Warning)
+    );
+    h.get_by_label_contains("Every shot is at 35 mm");
+    h.get_by_label_contains("shoot at least 1 more aperture between f/4.0 and f/8.0");
+    snapshot(&mut h, "studio_models_warning");
 }

@@ -392,6 +392,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
             app.field_f_number = f_number;
         }
         Command::SetCompareUnits(on) => app.compare_units = on,
+        Command::SetFieldOptions(o) => app.field_options = o,
         Command::OpenPhotoDialog => {
             if let Some(p) = rfd::FileDialog::new()
                 .set_title("Open a photo to deblur")

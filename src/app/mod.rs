@@ -174,6 +174,8 @@ pub enum Command {
     },
     /// Show the demo lens's second unit beside the first.
     SetCompareUnits(bool),
+    /// The Kernel field view's colour range and difference map.
+    SetFieldOptions(view_data::FieldOptions),
     OpenSessionDialog,
     /// Opens (or creates) the session in a folder, or from a session file or manifest.
     OpenSession(PathBuf),
@@ -557,6 +559,7 @@ pub struct StudioApp {
     /// What the Kernel field view shows.
     pub field_source: FieldSource,
     pub field_show: FieldShow,
+    pub field_options: view_data::FieldOptions,
     pub sweep_axis: SweepAxis,
     pub plot_png: Option<PendingPlotPng>,
     /// What the views show that takes computing, cached by what it depends on.
@@ -615,6 +618,7 @@ impl StudioApp {
             cv: None,
             field_source: FieldSource::Measured,
             field_show: FieldShow::Ellipses,
+            field_options: view_data::FieldOptions::default(),
             sweep_axis: SweepAxis::Sigma,
             plot_png: None,
             views: view_data::ViewData::default(),

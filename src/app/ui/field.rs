@@ -2,12 +2,20 @@
 //! positions, coloured by σ; the field a profile predicts at any setting; the demo
 //! lens's truth; two lens units side by side.
 //!
-//! Draws the panels `view_data` made (the fields, the kernel atlas) and the controls
-//! that choose them; computes nothing.
+//! Colours come from the data's range (or one the user fixes) on a labelled colour bar;
+//! difference maps (measured − predicted, unit A − unit B, R − B) use a diverging
+//! palette, white at 0. Hover names a square's Gaussian and MTF50, a click opens its
+//! inspector, and kernels the core finds too noisy to trust are hatched.
+//!
+//! Draws the panels `view_data` made (the fields, the kernel atlas, the colour scale)
+//! and the controls that choose them; computes nothing.
 
-use super::super::view_data::{FieldPanel, FieldPoint, PanelContent, PanelOf};
-use super::super::{Command, FieldShow, FieldSource, StudioApp};
-use super::{ellipse_points, setting_sliders_ui, sigma_color, sigma_legend_ui};
+use super::super::view_data::{
+    ColourRange, ColourScale, Difference, FieldOptions, FieldPanel, FieldPoint, PanelContent,
+    PanelOf,
+};
+use super::super::{Command, FieldShow, FieldSource, StudioApp, View};
+use super::{TIP_CXX, TIP_CYY, ellipse_points, setting_sliders_ui};
 use crate::model::KernelModel;
 use crate::plane::LensSetting;
 use crate::simulate::VirtualLens;
@@ -74,10 +82,9 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                     app.commands.push(Command::SetFieldShow(show));
                 }
             }
-            ui.separator();
         }
-        sigma_legend_ui(ui);
     });
+    options_ui(app, ui);
     let s = LensSetting {
         focal_mm: app.field_focal_mm,
         f_number: app.field_f_number,
@@ -122,7 +129,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         });
         return;
     };
-    let title = |p: &FieldPanel| match p.of {
+    let title = |p: &FieldPanel| match &p.of {
         PanelOf::Measured => {
             let name = app
                 .selected_shot
@@ -164,8 +171,20 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             Some((path, _)) => format!("{} — channel {ch}", app.shown_path(path)),
             None => String::new(),
         },
+        PanelOf::Difference { of, a, b } => {
+            let what = match of {
+                Difference::MeasuredMinusPredicted => "measured − predicted",
+                Difference::UnitAMinusB => "unit A − unit B",
+                Difference::RedMinusBlue => "R − B",
+            };
+            if a.is_empty() {
+                format!("{what}, σ")
+            } else {
+                format!("{what}, σ: {a} − {b}; channel {ch}")
+            }
+        }
         PanelOf::Truth { second_unit } => {
-            let unit = if second_unit {
+            let unit = if *second_unit {
                 VirtualLens::demo_second_unit()
             } else {
                 VirtualLens::demo()
@@ -174,6 +193,9 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         }
     };
     let panels = &field.panels;
+    if let Some(colours) = &field.scale {
+        colour_bar_ui(ui, colours, field.noisy);
+    }
     let avail = ui.available_size();
     let cols = panels.len().max(1) as f32;
     let w = ((avail.x - 16.0 * cols) / cols)
@@ -184,43 +206,259 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     // 1-σ radius fills 45 % of a twelfth of the sensor width.
     let scale = 0.45 * (panel_size.x / 12.0) / field.max_sigma as f32;
     let atlas = app.views.kernel_atlas.as_ref().map(|a| a.texture.id());
+    let mut clicked = None;
     ui.horizontal(|ui| {
         for p in panels {
             ui.vertical(|ui| {
                 ui.label(title(p));
-                match &p.content {
-                    Ok(content) => field_panel_ui(
-                        ui,
-                        content,
-                        (&p.points, &p.failed),
-                        size,
-                        scale,
-                        panel_size,
-                        atlas,
-                    ),
-                    Err(reason) => {
+                match (&p.content, &field.scale) {
+                    (Ok(content), Some(colours)) => {
+                        clicked = clicked.or(field_panel_ui(
+                            ui,
+                            content,
+                            (&p.points, &p.failed),
+                            size,
+                            (scale, colours),
+                            panel_size,
+                            atlas,
+                        ));
+                    }
+                    (Ok(_), None) => {
+                        ui.label("Nothing to show here.");
+                    }
+                    (Err(reason), _) => {
                         ui.label(reason);
                     }
                 }
             });
         }
     });
+    // The square's inspector lives in the Shot view, beside the shot it was measured on.
+    if let Some(square) = clicked {
+        app.commands.push(Command::SelectView(View::Shot));
+        app.commands.push(Command::SelectSquare(square));
+    }
 }
 
-/// One panel: ellipses (1 σ, coloured by σ = √(C_xx·C_yy)) or kernels (tinted by the
-/// same colour) at their sensor positions, magnified by `scale` screen points per px
-/// of σ, and red crosses where a kernel failed. Hovering a Gaussian shows its σ and
-/// MTF50, hovering a cross the reason.
+/// The map and colour-range choices: the fields or a difference map, the colours from
+/// the data or a range the user fixes.
+fn options_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    let options = app.field_options;
+    let mut set = |o: FieldOptions| app.commands.push(Command::SetFieldOptions(o));
+    ui.horizontal_wrapped(|ui| {
+        ui.label("Map:");
+        for (d, label, tip) in [
+            (None, "σ", "Each square coloured by its σ = √(C_xx·C_yy)"),
+            (
+                Some(Difference::MeasuredMinusPredicted),
+                "measured − predicted",
+                "The selected shot's measured σ minus the profile's prediction at the same square and the shot's setting: where the model misses",
+            ),
+            (
+                Some(Difference::UnitAMinusB),
+                "unit A − unit B",
+                "The profile minus the second profile loaded (or, on the demo session, the demo lens minus its second unit) at the sliders' setting: how two copies of one lens differ",
+            ),
+            (
+                Some(Difference::RedMinusBlue),
+                "R − B",
+                "Channel R minus channel B of the source shown: the blur's colour fringing",
+            ),
+        ] {
+            if ui
+                .selectable_label(options.difference == d, label)
+                .on_hover_text(tip)
+                .clicked()
+            {
+                set(FieldOptions {
+                    difference: d,
+                    ..options
+                });
+            }
+        }
+        ui.separator();
+        if options.difference.is_some() {
+            ui.weak("Difference maps: blue where A is sharper, red where A is blurrier, white at 0; the range is symmetric about 0 and spans the largest difference.");
+            return;
+        }
+        ui.label("Colours:");
+        let fixed = matches!(options.range, ColourRange::Fixed { .. });
+        if ui
+            .selectable_label(!fixed, "from the data")
+            .on_hover_text("The palette spans the smallest to the largest σ shown")
+            .clicked()
+        {
+            set(FieldOptions {
+                range: ColourRange::Data,
+                ..options
+            });
+        }
+        if ui
+            .selectable_label(fixed, "fixed range")
+            .on_hover_text("The palette spans a range you set, kept across shots, channels and settings so that fields compare by eye")
+            .clicked()
+            && !fixed
+        {
+            set(FieldOptions {
+                range: ColourRange::Fixed { min: 0.5, max: 3.5 },
+                ..options
+            });
+        }
+        if let ColourRange::Fixed { mut min, mut max } = options.range {
+            let a = ui.add(
+                egui::DragValue::new(&mut min)
+                    .speed(0.02)
+                    .range(0.0..=max - 0.05)
+                    .fixed_decimals(2)
+                    .suffix(" px"),
+            );
+            ui.label("to");
+            let b = ui.add(
+                egui::DragValue::new(&mut max)
+                    .speed(0.02)
+                    .range(min + 0.05..=50.0)
+                    .fixed_decimals(2)
+                    .suffix(" px"),
+            );
+            if a.changed() || b.changed() {
+                set(FieldOptions {
+                    range: ColourRange::Fixed { min, max },
+                    ..options
+                });
+            }
+        }
+    });
+}
+
+/// The palette at `t` in 0–1: viridis for σ; blue–white–red for a difference, white at
+/// the middle (0 on a symmetric range).
+fn palette(t: f32, diverging: bool) -> Color32 {
+    const VIRIDIS: [[u8; 3]; 5] = [
+        [68, 1, 84],
+        [59, 82, 139],
+        [33, 145, 140],
+        [94, 201, 98],
+        [253, 231, 37],
+    ];
+    const BWR: [[u8; 3]; 5] = [
+        [33, 102, 172],
+        [146, 197, 222],
+        [247, 247, 247],
+        [244, 165, 130],
+        [178, 24, 43],
+    ];
+    let stops = if diverging { &BWR } else { &VIRIDIS };
+    let t = t.clamp(0.0, 1.0) * 4.0;
+    let k = (t.floor() as usize).min(3);
+    let f = t - k as f32;
+    let [a, b] = [stops[k], stops[k + 1]];
+    let mix = |i: usize| (f32::from(a[i]) * (1.0 - f) + f32::from(b[i]) * f) as u8;
+    Color32::from_rgb(mix(0), mix(1), mix(2))
+}
+
+fn scale_color(colours: &ColourScale, v: f64) -> Color32 {
+    palette(colours.position(v), colours.diverging)
+}
+
+/// The colour bar: its title with the unit, the palette, ticks and their values, and
+/// the hatching's meaning where kernels are flagged.
+fn colour_bar_ui(ui: &mut egui::Ui, colours: &ColourScale, noisy: usize) {
+    ui.horizontal(|ui| {
+        ui.label(&colours.title)
+            .on_hover_text(format!("{TIP_CXX}\n{TIP_CYY}"));
+        let (rect, _) = ui.allocate_exact_size(Vec2::new(320.0, 30.0), Sense::hover());
+        let p = ui.painter_at(rect.expand(2.0));
+        let bar = Rect::from_min_size(rect.min, Vec2::new(rect.width(), 12.0));
+        let n = 64;
+        for k in 0..n {
+            let t = (k as f32 + 0.5) / n as f32;
+            let r = Rect::from_min_size(
+                bar.min + Vec2::new(k as f32 / n as f32 * bar.width(), 0.0),
+                Vec2::new(bar.width() / n as f32 + 0.5, bar.height()),
+            );
+            p.rect_filled(r, 0.0, palette(t, colours.diverging));
+        }
+        let text = ui.visuals().text_color();
+        p.rect_stroke(bar, 0.0, Stroke::new(1.0, text), egui::StrokeKind::Outside);
+        for &v in &colours.ticks {
+            let x = bar.left() + colours.position(v) * bar.width();
+            p.line_segment(
+                [egui::pos2(x, bar.bottom()), egui::pos2(x, bar.bottom() + 4.0)],
+                Stroke::new(1.0, text),
+            );
+            // Ticks are round numbers: three decimals, trailing zeros dropped.
+            let label = format!("{v:.3}")
+                .trim_end_matches('0')
+                .trim_end_matches('.')
+                .replace("-0", "−0")
+                .replace('-', "−");
+            let label = if label == "−0" || label.is_empty() {
+                "0".to_owned()
+            } else {
+                label
+            };
+            p.text(
+                egui::pos2(x, bar.bottom() + 4.0),
+                egui::Align2::CENTER_TOP,
+                label,
+                egui::FontId::proportional(11.0),
+                text,
+            );
+        }
+        ui.label(format!(
+            "{:.2} to {:.2}",
+            colours.range[0], colours.range[1]
+        ));
+        if noisy > 0 {
+            ui.separator();
+            let (r, _) = ui.allocate_exact_size(Vec2::splat(14.0), Sense::hover());
+            hatch(&ui.painter_at(r), r);
+            ui.label(format!("noisy kernel ({noisy}): hover for why"))
+                .on_hover_text(format!(
+                    "Hatched: the kernel's tails beyond its Gaussian's 3σ ellipse rise again, walking away from its core, by more than {:.1} % of its weight. A lens's blur only falls off there; stripes and speckle of the estimate do not. Its Gaussian is drawn but not to be trusted.",
+                    100.0 * crate::review::NOISY_TAIL_FRACTION
+                ));
+        }
+    });
+}
+
+/// Grey diagonal hatching over `r`: a kernel not to be trusted.
+fn hatch(painter: &egui::Painter, r: Rect) {
+    let painter = painter.with_clip_rect(r.intersect(painter.clip_rect()));
+    painter.rect_filled(r, 1.0, Color32::from_black_alpha(120));
+    let stroke = Stroke::new(1.2, Color32::from_gray(200));
+    let step = 4.0;
+    let mut d = -r.height();
+    while d < r.width() {
+        painter.line_segment(
+            [
+                egui::pos2(r.left() + d, r.bottom()),
+                egui::pos2(r.left() + d + r.height(), r.top()),
+            ],
+            stroke,
+        );
+        d += step;
+    }
+}
+
+/// One panel: ellipses (1 σ), kernels (on tiles) or difference tiles, each coloured by
+/// its value on the shared scale, at their sensor positions magnified by `scale` screen
+/// points per px of σ; red crosses where a kernel failed; hatching over a kernel too
+/// noisy to trust. Hovering a square names its Gaussian, MTF50 and flags; hovering a
+/// cross the reason. Returns the chart square clicked, to inspect.
 fn field_panel_ui(
     ui: &mut egui::Ui,
     content: &PanelContent,
     (points, failed): (&[FieldPoint], &[(f64, f64, String)]),
     (w, h): (usize, usize),
-    scale: f32,
+    (scale, colours): (f32, &ColourScale),
     size: Vec2,
     atlas: Option<egui::TextureId>,
-) {
-    let (rect, response) = ui.allocate_exact_size(size, Sense::hover());
+) -> Option<(usize, usize)> {
+    let (rect, response) = ui.allocate_exact_size(size, Sense::click());
+    // Named, so that a screen reader (and a test) finds the field.
+    response
+        .widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, "kernel field panel"));
     let painter = ui.painter_at(rect);
     painter.rect_filled(rect, 2.0, Color32::from_gray(18));
     painter.rect_stroke(
@@ -234,17 +472,25 @@ fn field_panel_ui(
         |x: f64, y: f64| rect.min + Vec2::new(x as f32 * points_per_px, y as f32 * points_per_px);
     let count;
     let what;
+    // Hatching goes over a square as wide as what is drawn there.
+    let mut hatch_side = 10.0;
     match content {
         PanelContent::Ellipses(samples) => {
             // A light rim keeps the dark end of the palette visible on the dark panel.
             let rim = Stroke::new(1.0, Color32::from_white_alpha(110));
-            for (x, y, g) in samples {
+            for ((x, y, g), q) in samples.iter().zip(points) {
+                let fill = if q.noisy.is_some() {
+                    Color32::from_gray(110)
+                } else {
+                    scale_color(colours, q.value)
+                };
                 painter.add(egui::Shape::convex_polygon(
                     ellipse_points(at(*x, *y), g, scale),
-                    sigma_color((g.sigma_x * g.sigma_y).sqrt()),
+                    fill,
                     rim,
                 ));
             }
+            hatch_side = 2.0 * scale * points.iter().map(|q| q.sigma as f32).fold(1.0, f32::max);
             count = samples.len();
             what = format!("ellipses: 1 σ, magnified {:.1}×", scale / points_per_px);
         }
@@ -254,23 +500,41 @@ fn field_panel_ui(
             pitch_px,
         } => {
             // Each kernel fills 85 % of the pitch between squares, so neighbours never
-            // overlap: drawn white on a tile of its σ's colour, the shape reads on any
-            // colour of the palette.
+            // overlap: drawn white on a tile of its value's colour, the shape reads on
+            // any colour of the palette.
             let side = 0.85 * *pitch_px as f32 * points_per_px;
-            for c in cells {
-                let g = c.gaussian;
+            for (c, q) in cells.iter().zip(points) {
                 let r = Rect::from_center_size(at(c.x, c.y), Vec2::splat(side));
-                painter.rect_filled(r, 2.0, sigma_color((g.sigma_x * g.sigma_y).sqrt()));
+                painter.rect_filled(r, 2.0, scale_color(colours, q.value));
                 if let Some(id) = atlas {
                     painter.image(id, r, c.uv, Color32::WHITE);
                 }
             }
+            hatch_side = side;
             count = cells.len();
             what = format!(
                 "kernels, each ±{extent_px:.1} px around its centre scaled to its peak, magnified {:.1}×",
                 side / (2.0 * *extent_px as f32 * points_per_px)
             );
         }
+        PanelContent::Difference {
+            points: diffs,
+            pitch_px,
+        } => {
+            let side = 0.85 * *pitch_px as f32 * points_per_px;
+            for (d, q) in diffs.iter().zip(points) {
+                let r = Rect::from_center_size(at(d.x, d.y), Vec2::splat(side));
+                painter.rect_filled(r, 2.0, scale_color(colours, q.value));
+            }
+            count = diffs.len();
+            what = "squares: σ(A) − σ(B)".to_owned();
+        }
+    }
+    for q in points.iter().filter(|q| q.noisy.is_some()) {
+        hatch(
+            &painter,
+            Rect::from_center_size(at(q.x, q.y), Vec2::splat(hatch_side)),
+        );
     }
     let red = Stroke::new(1.5, Color32::from_rgb(230, 60, 60));
     for (x, y, _) in failed {
@@ -279,6 +543,7 @@ fn field_panel_ui(
         painter.line_segment([c + Vec2::new(-d, -d), c + Vec2::new(d, d)], red);
         painter.line_segment([c + Vec2::new(-d, d), c + Vec2::new(d, -d)], red);
     }
+    let mut clicked = None;
     if let Some(p) = response.hover_pos() {
         let distance = |x: f64, y: f64| (at(x, y) - p).length();
         let near_failed = failed
@@ -288,33 +553,14 @@ fn field_panel_ui(
         let near_point = points
             .iter()
             .min_by(|a, b| distance(a.x, a.y).total_cmp(&distance(b.x, b.y)))
-            .filter(|q| distance(q.x, q.y) < 16.0);
+            .filter(|q| distance(q.x, q.y) < 16.0_f32.max(0.5 * hatch_side));
         if let Some((x, y, reason)) = near_failed {
             response.on_hover_text(format!("x {x:.0}, y {y:.0}: {reason}"));
         } else if let Some(q) = near_point {
-            let mtf = q.mtf50.map_or_else(
-                || "no MTF50 (degenerate Gaussian)".to_owned(),
-                |m| {
-                    format!(
-                        "MTF50 {:.3} cycles/px ({:.0} lp/ph) in the worst direction ({:.0}°), {:.3} in the best, {:.3} isotropic",
-                        m.worst, m.worst_lp_ph, m.worst_deg, m.best, m.isotropic
-                    )
-                },
-            );
-            let error = q.kernel_error.map_or_else(String::new, |e| match e.shape {
-                Some(shape) => format!(
-                    "\npredicted kernel error: shapes {shape:.2}, Gaussian {:.2} (relative L2)",
-                    e.gaussian
-                ),
-                None => format!(
-                    "\npredicted kernel error: Gaussian {:.2} (relative L2; the profile holds no shape model)",
-                    e.gaussian
-                ),
-            });
-            response.on_hover_text(format!(
-                "x {:.0}, y {:.0}: σ {:.2} px; {mtf}{error}",
-                q.x, q.y, q.sigma
-            ));
+            if response.clicked() {
+                clicked = q.square;
+            }
+            response.on_hover_text(point_hover(q));
         }
     }
     let failed_note = if failed.is_empty() {
@@ -322,7 +568,77 @@ fn field_panel_ui(
     } else {
         format!("; {} failed (red ×, hover for the reason)", failed.len())
     };
+    let click_note = if points.iter().any(|q| q.square.is_some()) {
+        "; click a square to inspect it"
+    } else {
+        ""
+    };
     ui.label(
-        egui::RichText::new(format!("{count} {what} (sensor {w} × {h} px){failed_note}")).small(),
+        egui::RichText::new(format!(
+            "{count} {what} (sensor {w} × {h} px){failed_note}{click_note}"
+        ))
+        .small(),
     );
+    clicked
+}
+
+/// What hovering a drawn square says: where it is, its Gaussian's three parameters, σ
+/// and MTF50; on a difference map both fields' σ; why its kernel is flagged; how far
+/// the profile's kernels miss it; that a click inspects it.
+fn point_hover(q: &FieldPoint) -> String {
+    let g = q.gaussian;
+    let gaussian = |g: &crate::psf::Gaussian2| {
+        format!(
+            "C_xx {:.2} px, C_yy {:.2} px, C_or {:+.2}; σ {:.2} px",
+            g.sigma_x,
+            g.sigma_y,
+            g.rho,
+            g.sigma()
+        )
+    };
+    let mut text = format!("x {:.0}, y {:.0}", q.x, q.y);
+    if let Some((row, col)) = q.square {
+        text += &format!(", square row {row}, column {col}");
+    }
+    match &q.other {
+        Some(b) => {
+            text += &format!(
+                "\nΔσ = {:+.3} px\nA: {}\nB: {}",
+                q.value,
+                gaussian(&g),
+                gaussian(b)
+            );
+        }
+        None => {
+            text += &format!("\n{}", gaussian(&g));
+            text += &q.mtf50.map_or_else(
+                || "\nno MTF50 (degenerate Gaussian)".to_owned(),
+                |m| {
+                    format!(
+                        "\nMTF50 {:.3} cycles/px ({:.0} lp/ph) in the worst direction ({:.0}°), {:.3} in the best, {:.3} isotropic",
+                        m.worst, m.worst_lp_ph, m.worst_deg, m.best, m.isotropic
+                    )
+                },
+            );
+        }
+    }
+    if let Some(reason) = &q.noisy {
+        text += &format!("\nnot to be trusted, {reason}");
+    }
+    if let Some(e) = q.kernel_error {
+        text += &match e.shape {
+            Some(shape) => format!(
+                "\npredicted kernel error: shapes {shape:.2}, Gaussian {:.2} (relative L2)",
+                e.gaussian
+            ),
+            None => format!(
+                "\npredicted kernel error: Gaussian {:.2} (relative L2; the profile holds no shape model)",
+                e.gaussian
+            ),
+        };
+    }
+    if q.square.is_some() {
+        text += "\nclick to open the square's inspector";
+    }
+    text
 }

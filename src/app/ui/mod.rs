@@ -14,7 +14,7 @@ use super::{Command, DeblurResult, PlotId, StudioApp, View};
 use crate::plane::Channel;
 use crate::psf::Gaussian2;
 use crate::simulate::VirtualLens;
-use egui::{Color32, Key, KeyboardShortcut, Modifiers, Pos2, Rect, Sense, Vec2};
+use egui::{Color32, Key, KeyboardShortcut, Modifiers, Pos2, Rect, Vec2};
 
 pub const TIP_CXX: &str = "C_xx: standard deviation σx of the Gaussian blur along the sensor's x axis, in full-resolution sensor pixels (includes the pixel's own 1-px integration).";
 pub const TIP_CYY: &str = "C_yy: standard deviation σy of the Gaussian blur along the sensor's y axis, in full-resolution sensor pixels.";
@@ -340,42 +340,6 @@ fn caption(painter: &egui::Painter, pos: Pos2, align: egui::Align2, text: String
     painter.galley(rect.min, galley, Color32::WHITE);
 }
 
-/// Viridis-like colour for σ in px over [0.5, 3.5].
-fn sigma_color(sigma_px: f64) -> Color32 {
-    const STOPS: [[u8; 3]; 5] = [
-        [68, 1, 84],
-        [59, 82, 139],
-        [33, 145, 140],
-        [94, 201, 98],
-        [253, 231, 37],
-    ];
-    let t = ((sigma_px - 0.5) / 3.0).clamp(0.0, 1.0) * 4.0;
-    let k = (t.floor() as usize).min(3);
-    let f = (t - k as f64) as f32;
-    let [a, b] = [STOPS[k], STOPS[k + 1]];
-    let mix = |i: usize| (f32::from(a[i]) * (1.0 - f) + f32::from(b[i]) * f) as u8;
-    Color32::from_rgb(mix(0), mix(1), mix(2))
-}
-
-fn sigma_legend_ui(ui: &mut egui::Ui) {
-    ui.horizontal(|ui| {
-        ui.label("σ = √(C_xx·C_yy)")
-            .on_hover_text(format!("{TIP_CXX}\n{TIP_CYY}"));
-        ui.label("0.5 px");
-        let (rect, _) = ui.allocate_exact_size(Vec2::new(160.0, 12.0), Sense::hover());
-        let p = ui.painter_at(rect);
-        for k in 0..32 {
-            let t = k as f32 / 32.0;
-            let r = Rect::from_min_size(
-                rect.min + Vec2::new(t * rect.width(), 0.0),
-                Vec2::new(rect.width() / 32.0 + 0.5, rect.height()),
-            );
-            p.rect_filled(r, 0.0, sigma_color(0.5 + 3.0 * f64::from(t)));
-        }
-        ui.label("3.5 px");
-    });
-}
-
 /// The 1-σ ellipse of `g` scaled by `scale` screen points per px, as a closed polyline.
 fn ellipse_points(centre: Pos2, g: &Gaussian2, scale: f32) -> Vec<Pos2> {
     let (sx, sy, r) = (g.sigma_x, g.sigma_y, g.rho.clamp(-0.999, 0.999));
@@ -391,32 +355,89 @@ fn ellipse_points(centre: Pos2, g: &Gaussian2, scale: f32) -> Vec<Pos2> {
         .collect()
 }
 
+/// The sliders of the setting the predicted and true fields and the sweeps show, with a
+/// tick under each rail at every setting the session has shots at.
 fn setting_sliders_ui(app: &mut StudioApp, ui: &mut egui::Ui, lens: &VirtualLens) {
     let (f_range, a_range) = setting_ranges(app, lens);
     let (mut focal_mm, mut f_number) = (app.field_focal_mm, app.field_f_number);
     let mut changed = false;
+    let shot_at = app
+        .views
+        .calibrated
+        .as_ref()
+        .filter(|c| !c.focal_mm.is_empty() || !c.f_number.is_empty())
+        .map(|c| (c.focal_mm.clone(), c.f_number.clone()));
     ui.horizontal(|ui| {
-        changed |= ui
-            .add(
-                egui::Slider::new(&mut focal_mm, f_range[0]..=f_range[1])
-                    .suffix(" mm")
-                    .fixed_decimals(0)
-                    .text("focal length"),
-            )
-            .changed();
+        let rail_left = ui.cursor().left();
+        let r = ui.add(
+            egui::Slider::new(&mut focal_mm, f_range[0]..=f_range[1])
+                .suffix(" mm")
+                .fixed_decimals(0)
+                .text("focal length"),
+        );
+        changed |= r.changed();
+        if let Some((f, _)) = &shot_at {
+            slider_ticks(ui, rail_left, r.rect, f, f_range, false);
+        }
         ui.add_space(12.0);
-        changed |= ui
-            .add(
-                egui::Slider::new(&mut f_number, a_range[0]..=a_range[1])
-                    .prefix("f/")
-                    .fixed_decimals(1)
-                    .logarithmic(true)
-                    .text("aperture"),
-            )
-            .changed();
+        let rail_left = ui.cursor().left();
+        let r = ui.add(
+            egui::Slider::new(&mut f_number, a_range[0]..=a_range[1])
+                .prefix("f/")
+                .fixed_decimals(1)
+                .logarithmic(true)
+                .text("aperture"),
+        );
+        changed |= r.changed();
+        if let Some((_, a)) = &shot_at {
+            slider_ticks(ui, rail_left, r.rect, a, a_range, true);
+        }
+        if shot_at.is_some() {
+            ui.weak("ticks: settings with shots")
+                .on_hover_text("The ticks under the sliders mark the focal lengths and apertures the session has shots at: the model is measured there and interpolates between them.");
+        }
     });
     if changed {
         app.commands
             .push(Command::SetFieldSetting { focal_mm, f_number });
+    }
+}
+
+/// Ticks under a slider's rail (it starts at `rail_left` and is as wide as the style's
+/// slider width) at `values`, placed as the slider places its handle (linear, or in
+/// stops for a logarithmic one).
+fn slider_ticks(
+    ui: &egui::Ui,
+    rail_left: f32,
+    row: Rect,
+    values: &[f64],
+    range: [f64; 2],
+    logarithmic: bool,
+) {
+    let width = ui.spacing().slider_width;
+    // The handle's centre stays a handle's radius inside the rail's ends.
+    let inset = row.height() / 2.5;
+    let (lo, hi) = (rail_left + inset, rail_left + width - inset);
+    let color = ui.visuals().strong_text_color();
+    for &v in values {
+        let t = if logarithmic {
+            (v / range[0]).ln() / (range[1] / range[0]).ln()
+        } else {
+            (v - range[0]) / (range[1] - range[0])
+        };
+        if !(0.0..=1.0).contains(&t) {
+            continue;
+        }
+        let x = lo + (hi - lo) * t as f32;
+        let y = row.bottom();
+        ui.painter().add(egui::Shape::convex_polygon(
+            vec![
+                Pos2::new(x, y - 4.0),
+                Pos2::new(x - 3.5, y + 1.0),
+                Pos2::new(x + 3.5, y + 1.0),
+            ],
+            color,
+            egui::Stroke::NONE,
+        ));
     }
 }

@@ -1,5 +1,6 @@
 //! The Models view: cross-validation over α and β (the paper's Fig. 5), the error
-//! distributions of the chosen models (Fig. 6), the profile in use; load and save.
+//! distributions of the chosen models (Fig. 6), the profile in use; load and save; and
+//! what the session's settings allow the model, with what to shoot next.
 
 use super::super::{Command, PlotId, StudioApp};
 use super::{TIP_ALPHA, TIP_BETA, TIP_COR, TIP_CXX, TIP_CYY};
@@ -41,6 +42,7 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             app.commands.push(Command::SaveProfileDialog);
         }
     });
+    advice_ui(app, ui);
     if let Some((path, p)) = &app.profile {
         let kind = format!("{:?}", p.preferred).to_lowercase();
         let orders = |g: Option<(usize, usize)>| {
@@ -232,6 +234,7 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 "Fraction of held-out samples whose prediction error is below each value: solid C_xx, dashed C_yy, dotted C_or",
                 plot_w,
             );
+            cdf_legend_ui(ui, &families, plot_w);
             // The worst few samples would stretch the axis until the curves are a wall
             // at zero: show up to the 99th percentile.
             let x_max = families
@@ -246,23 +249,18 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .fold(1e-6, f64::max);
             let plot = Plot::new(format!("cv-cdf-{report_id}"))
                 .width(plot_w)
-                .height(plot_h)
+                .height(plot_h - CDF_LEGEND_H)
                 .custom_x_axes(vec![super::x_axis("error (% of range)")])
                 .y_axis_label("held-out samples (%)")
                 .default_x_bounds(0.0, x_max * 1.02)
                 .default_y_bounds(0.0, 101.0)
-                .legend(Legend::default().position(Corner::RightBottom))
                 .allow_scroll(false);
             super::show_plot(ui, PlotId::CvCdf, plot, |plot| {
                     for (name, sel) in &families {
                         let color = family_color(name);
-                        let styles = [
-                            LineStyle::Solid,
-                            LineStyle::dashed_dense(),
-                            LineStyle::dotted_dense(),
-                        ];
-                        for ((param, pts), style) in
-                            crate::review::cv_cdf_curves(sel).into_iter().zip(styles)
+                        // The legend above the plot shows these same styles.
+                        for ((param, pts), (_, style)) in
+                            crate::review::cv_cdf_curves(sel).into_iter().zip(CDF_STYLES)
                         {
                             plot.line(
                                 Line::new(format!("{name} {param}"), PlotPoints::from(pts))
@@ -275,6 +273,73 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 });
         });
     });
+}
+
+/// The line styles that tell the CDF's parameters apart, as the plot draws them.
+const CDF_STYLES: [(&str, egui_plot::LineStyle); 3] = [
+    ("C_xx", egui_plot::LineStyle::Solid),
+    ("C_yy", egui_plot::LineStyle::Dashed { length: 5.0 }),
+    ("C_or", egui_plot::LineStyle::Dotted { spacing: 5.0 }),
+];
+
+/// Height of the CDF's legend row, taken from its plot so the three plots end level.
+const CDF_LEGEND_H: f32 = 22.0;
+
+/// The CDF's legend above its plot: each family's colour, and a sample of each
+/// parameter's line style (solid, dashed, dotted) so the curves read without colour.
+fn cdf_legend_ui(ui: &mut egui::Ui, families: &[(&str, &crate::crossval::Selection)], width: f32) {
+    ui.horizontal(|ui| {
+        ui.set_max_width(width);
+        ui.set_height(CDF_LEGEND_H - 4.0);
+        // Tight, so that both families and the three styles fit a third of the window.
+        ui.spacing_mut().item_spacing.x = 5.0;
+        for (name, _) in families {
+            ui.colored_label(family_color(name), *name);
+        }
+        ui.separator();
+        let color = ui.visuals().text_color();
+        for (param, style) in CDF_STYLES {
+            let (r, _) = ui.allocate_exact_size(egui::Vec2::new(24.0, 12.0), egui::Sense::hover());
+            let line = [r.left_center(), r.right_center()];
+            let shapes = match style {
+                egui_plot::LineStyle::Solid => {
+                    vec![egui::Shape::line_segment(
+                        line,
+                        egui::Stroke::new(1.5, color),
+                    )]
+                }
+                egui_plot::LineStyle::Dashed { length } => egui::Shape::dashed_line(
+                    &line,
+                    egui::Stroke::new(1.5, color),
+                    length,
+                    length * (std::f32::consts::GOLDEN_RATIO - 1.0),
+                ),
+                egui_plot::LineStyle::Dotted { spacing } => {
+                    egui::Shape::dotted_line(&line, color, spacing, 1.5)
+                }
+            };
+            ui.painter().extend(shapes);
+            ui.label(param);
+        }
+    });
+}
+
+/// What the session's settings allow the model: warnings where it cannot be
+/// determined, notes where it is limited, each saying what to shoot next.
+pub(super) fn advice_ui(app: &StudioApp, ui: &mut egui::Ui) {
+    let Some(c) = &app.views.calibrated else {
+        return;
+    };
+    for a in &c.advice {
+        match a.level {
+            crate::review::AdviceLevel::Warning => {
+                ui.colored_label(ui.visuals().warn_fg_color, format!("Warning: {}", a.text));
+            }
+            crate::review::AdviceLevel::Note => {
+                ui.weak(format!("Note: {}", a.text));
+            }
+        }
+    }
 }
 
 /// The kernel-shape cross-validation the profile holds: per aperture, how far the

@@ -1,7 +1,9 @@
 //! The Sweeps view (the paper's Fig. 4): C_xx, C_yy, C_or against aperture at a fixed
 //! focal length and against focal length at a fixed aperture, one colour per sensor
 //! location: measured points, the profile's model curves, the demo lens's truth; or,
-//! switched, the MTF50 of the same Gaussians.
+//! switched, the MTF50 of the same Gaussians. The settings the session has shots at are
+//! marked on the sliders and as dotted vertical lines on the plots; a warning says when
+//! they cannot determine the model, and what to shoot next.
 //!
 //! Plots the series `view_data` made for the sliders' setting; computes nothing.
 
@@ -25,7 +27,7 @@ const LOCATION_COLORS: [Color32; 5] = [
 ];
 
 pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
-    use egui_plot::{Line, LineStyle, MarkerShape, Plot, PlotPoints, Points};
+    use egui_plot::{Line, LineStyle, MarkerShape, Plot, PlotPoints, Points, VLine};
     ui.heading("Sweeps");
     let is_demo = app.session.as_ref().is_some_and(|s| s.is_demo);
     let lens = VirtualLens::demo();
@@ -34,6 +36,7 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         return;
     }
     setting_sliders_ui(app, ui, &lens);
+    super::models::advice_ui(app, ui);
     // One colour per location across the six plots, named once here rather than in six
     // legends that would cover the curves; the glyphs say which series is which.
     ui.horizontal_wrapped(|ui| {
@@ -44,9 +47,9 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     });
     ui.horizontal_wrapped(|ui| {
         ui.label(if is_demo {
-            "Dots: measured at the square nearest each location. Solid: the profile's model and dashed: the demo lens's truth, both at that square."
+            "Dots: measured at the square nearest each location. Solid: the profile's model and dashed: the demo lens's truth, both at that square. Dotted verticals: settings with shots."
         } else {
-            "Dots: measured at the square nearest each location. Solid: the profile's model at that square."
+            "Dots: measured at the square nearest each location. Solid: the profile's model at that square. Dotted verticals: settings with shots."
         });
         if app.dataset.is_none() {
             ui.weak("No measured points yet: run Kernels (Ctrl+K).");
@@ -88,6 +91,14 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         SweepAxis::Mtf50 => [TIP_MTF50; 3],
     };
 
+    // Vertical lines at the settings with shots: the model is measured there and
+    // interpolates between them.
+    let (shot_f, shot_a) = app
+        .views
+        .calibrated
+        .as_ref()
+        .map(|c| (c.focal_mm.clone(), c.f_number.clone()))
+        .unwrap_or_default();
     let avail = ui.available_size();
     let plot_w = (avail.x - 24.0) / 3.0;
     let plot_h = ((avail.y - 72.0) / 2.0).max(120.0);
@@ -96,6 +107,12 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             for (param, (p, tip)) in params.iter().zip(tips).enumerate() {
                 let id = PlotId::Sweep { vs_aperture, param };
                 let series = sweep_series(data, vs_aperture, p);
+                let shot_at = if vs_aperture {
+                    shot_a.clone()
+                } else {
+                    shot_f.clone()
+                };
+                let mark = ui.visuals().weak_text_color();
                 ui.vertical(|ui| {
                     let name = p.name;
                     let title = if vs_aperture {
@@ -111,6 +128,15 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                         .custom_y_axes(vec![super::y_axis(&sweep_y_label(p))])
                         .allow_scroll(false);
                     super::show_plot(ui, id, plot, move |plot| {
+                        for v in shot_at {
+                            // Unnamed: out of the legend and the CSV.
+                            plot.vline(
+                                VLine::new("", v)
+                                    .color(mark)
+                                    .style(LineStyle::dotted_loose())
+                                    .width(1.0),
+                            );
+                        }
                         for s in series {
                             let color = LOCATION_COLORS[s.location % LOCATION_COLORS.len()];
                             let pts = PlotPoints::from(s.points);
