@@ -1408,7 +1408,7 @@ fn full_size_spatially_varying_figures() {
         let wiener = DeblurOptions {
             method: Method::Wiener(WienerParams::default()),
             tile_step_px: None,
-        ..DeblurOptions::default()
+            ..DeblurOptions::default()
         };
         let t = std::time::Instant::now();
         let x_pred = deblur_channel_plane(&cp, w, h, &predicted, &hqs, &job).expect("deblur");
@@ -1577,8 +1577,16 @@ fn gpu_deblur_matches_the_cpu_path() {
                 a.channel
             );
             assert!(s >= 0.9999, "{}: SSIM {s}", method.name());
-            assert!(max <= 1.0 / 510.0, "{}: max difference {max}", method.name());
-            assert!(median <= 1e-5, "{}: median difference {median}", method.name());
+            assert!(
+                max <= 1.0 / 510.0,
+                "{}: max difference {max}",
+                method.name()
+            );
+            assert!(
+                median <= 1e-5,
+                "{}: median difference {median}",
+                method.name()
+            );
         }
     }
 }
@@ -1595,14 +1603,17 @@ fn gpu_fallback_is_the_cpu_path() {
         device,
         ..DeblurOptions::default()
     };
-    let cpu = deblur_capture(&cap, &source, &on(Method::default(), Device::Cpu), &job)
-        .expect("cpu");
+    let cpu =
+        deblur_capture(&cap, &source, &on(Method::default(), Device::Cpu), &job).expect("cpu");
     let hardware = gpu::shared().is_ok_and(|g| !g.adapter().software);
     if !hardware {
         let auto = deblur_capture(&cap, &source, &on(Method::default(), Device::Auto), &job)
             .expect("auto");
         assert!(
-            cpu.planes.iter().zip(&auto.planes).all(|(a, b)| a.plane.data == b.plane.data),
+            cpu.planes
+                .iter()
+                .zip(&auto.planes)
+                .all(|(a, b)| a.plane.data == b.plane.data),
             "auto without a hardware adapter must be the CPU path"
         );
         let said = gpu::describe(Device::Auto, &Method::default());
@@ -1613,9 +1624,12 @@ fn gpu_fallback_is_the_cpu_path() {
         cg_iterations: 3,
         ..IrlsParams::default()
     });
-    let err = deblur_capture(&cap, &source, &on(irls, Device::Gpu), &job)
-        .expect_err("IRLS on the GPU");
-    assert_eq!(err.to_string(), "the GPU path has no IRLS: it runs on the CPU");
+    let err =
+        deblur_capture(&cap, &source, &on(irls, Device::Gpu), &job).expect_err("IRLS on the GPU");
+    assert_eq!(
+        err.to_string(),
+        "the GPU path has no IRLS: it runs on the CPU"
+    );
     let auto = deblur_capture(&cap, &source, &on(irls, Device::Auto), &job).expect("auto");
     let cpu_irls = deblur_capture(&cap, &source, &on(irls, Device::Cpu), &job).expect("cpu");
     assert!(

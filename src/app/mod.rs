@@ -125,6 +125,19 @@ pub enum Command {
     /// Deblur a crop around this sensor point with both kernel sources.
     DeblurAt([f64; 2]),
     SetDeblurLayout(DeblurLayout),
+    /// The compared panes' magnification; the region follows the panes' size.
+    SetDeblurZoom(DeblurZoom),
+    /// The region (sensor px) the panes show at their zoom, as laid out this frame.
+    SetDeblurViewport([usize; 2]),
+    /// The region's side at Fit.
+    SetDeblurCrop(usize),
+    /// The view's own method and strength, applied live to the region.
+    SetDeblurMethod(crate::deblur::Method),
+    SetDeblurDevice(crate::deblur::Device),
+    /// Drag of the compared panes in progress (sensor px), drawn as a shift.
+    DragDeblur([f32; 2]),
+    /// The drag ended: the region moves by it and is deblurred there.
+    EndDragDeblur,
     SetSliderResult(DeblurResult),
     ExportDeblurDialog(DeblurResult),
     ExportDeblur {
@@ -468,11 +481,41 @@ impl ComparisonView {
     }
 }
 
+/// Magnification of the compared panes: the region fitted to them, or shown with one
+/// sensor pixel on 1, 2 or 4 screen pixels (the region is then what the panes hold).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DeblurZoom {
+    Fit,
+    Times(u8),
+}
+
+impl DeblurZoom {
+    pub const ALL: [Self; 4] = [Self::Fit, Self::Times(1), Self::Times(2), Self::Times(4)];
+
+    #[must_use]
+    pub fn label(self) -> String {
+        match self {
+            Self::Fit => "Fit".into(),
+            Self::Times(z) => format!("{} %", 100 * u32::from(z)),
+        }
+    }
+}
+
 /// The Deblur view's state.
 pub struct DeblurState {
     pub photo: Option<Photo>,
-    /// Side of the compared crop, sensor px.
+    /// Side of the compared crop at Fit, sensor px.
     pub crop_px: usize,
+    pub zoom: DeblurZoom,
+    /// The region the panes hold at a zoom other than Fit, sensor px (set by the layout).
+    pub viewport: Option<[usize; 2]>,
+    /// The view's method and strength; `None` until changed here: the session's method.
+    pub method: Option<crate::deblur::Method>,
+    pub device: crate::deblur::Device,
+    /// Where the preview runs and, when not where asked, why (said once per change).
+    pub device_note: Option<String>,
+    /// The panes' drag in progress, sensor px.
+    pub drag: [f32; 2],
     pub comparison: Option<ComparisonView>,
     pub layout: DeblurLayout,
     /// Divider position in the slider layout, 0 (all result) to 1 (all original).
@@ -621,6 +664,12 @@ impl StudioApp {
             deblur: DeblurState {
                 photo: None,
                 crop_px: 160,
+                zoom: DeblurZoom::Fit,
+                viewport: None,
+                method: None,
+                device: crate::deblur::Device::Auto,
+                device_note: None,
+                drag: [0.0; 2],
                 comparison: None,
                 layout: DeblurLayout::SideBySide,
                 slider: 0.5,
@@ -957,7 +1006,17 @@ pub fn run(options: AppOptions) -> Result<(), String> {
     eframe::run_native(
         "lensblur studio",
         native,
-        Box::new(move |cc| Ok(Box::new(StudioApp::new(&cc.egui_ctx, options)))),
+        Box::new(move |cc| {
+            // The preview deblurs on the device the window draws with, not a second one.
+            if let Some(rs) = &cc.wgpu_render_state {
+                let _ = crate::deblur::gpu::lend(
+                    rs.device.clone(),
+                    rs.queue.clone(),
+                    &rs.adapter.get_info(),
+                );
+            }
+            Ok(Box::new(StudioApp::new(&cc.egui_ctx, options)))
+        }),
     )
     .map_err(|e| format!("cannot open the studio window: {e}"))
 }

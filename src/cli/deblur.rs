@@ -8,7 +8,9 @@ use super::common::progress_job;
 use anyhow::{Context, Result, bail};
 use lensblur::deblur::output::{profile_described, write_deblurred};
 use lensblur::deblur::source::{Prefer, ScatteredKernels, load_kernels};
-use lensblur::deblur::{DeblurOptions, Device, KernelSource, Method, ProfileKernels, deblur_capture};
+use lensblur::deblur::{
+    DeblurOptions, Device, KernelSource, Method, ProfileKernels, deblur_capture,
+};
 use lensblur::job::JobContext;
 use lensblur::model::KernelModel;
 use lensblur::plane::{Capture, LensSetting};

@@ -274,12 +274,11 @@ impl GpuDeblurrer {
             bind_group_layouts: &[Some(&fft_layout)],
             immediate_size: 0,
         });
-        let main_pipeline_layout =
-            device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some("deblur"),
-                bind_group_layouts: &[Some(&main_layout), Some(&step_layout)],
-                immediate_size: 0,
-            });
+        let main_pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("deblur"),
+            bind_group_layouts: &[Some(&main_layout), Some(&step_layout)],
+            immediate_size: 0,
+        });
         let pipeline = |layout: &wgpu::PipelineLayout,
                         module: &wgpu::ShaderModule,
                         entry: &str,
@@ -370,7 +369,10 @@ impl GpuDeblurrer {
             })
             .collect::<Result<_, _>>()?;
         job.check()?;
-        let _busy = self.busy.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let _busy = self
+            .busy
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         let scope_oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let out = self.run(&cp.plane, &grid, &kernels, &solve, job);
@@ -488,8 +490,14 @@ impl GpuDeblurrer {
         let inv_n = 1.0 / (bw * bh) as f32;
         // Rows then columns, forward and inverse; the inverse scales on its last pass.
         let passes = [
-            [fft_params(bw, 1, bw, -1.0, 1.0), fft_params(bh, bw, 1, -1.0, 1.0)],
-            [fft_params(bw, 1, bw, 1.0, 1.0), fft_params(bh, bw, 1, 1.0, inv_n)],
+            [
+                fft_params(bw, 1, bw, -1.0, 1.0),
+                fft_params(bh, bw, 1, -1.0, 1.0),
+            ],
+            [
+                fft_params(bw, 1, bw, 1.0, 1.0),
+                fft_params(bh, bw, 1, 1.0, inv_n),
+            ],
         ];
         let roots = |n: usize| {
             let table: Vec<[f32; 2]> = (0..n)
@@ -597,12 +605,14 @@ impl GpuDeblurrer {
                 info.extend([taps.len() as u32, k.size as u32]);
                 taps.extend(k.data.iter().map(|&v| v as f32));
             }
-            self.queue.write_buffer(&kinfo, 0, bytemuck::cast_slice(&info));
-            self.queue.write_buffer(&aux, 0, bytemuck::cast_slice(&taps));
+            self.queue
+                .write_buffer(&kinfo, 0, bytemuck::cast_slice(&info));
+            self.queue
+                .write_buffer(&aux, 0, bytemuck::cast_slice(&taps));
             let (ty0, ty1) = (first / grid.x.count, (first + tiles - 1) / grid.x.count);
             let row0 = grid.y.window_start(ty0).max(0) as usize;
-            let row1 = ((grid.y.window_start(ty1) + grid.y.window_len() as isize).max(0) as usize)
-                .min(h);
+            let row1 =
+                ((grid.y.window_start(ty1) + grid.y.window_len() as isize).max(0) as usize).min(h);
             let p = Params {
                 bw: bw as u32,
                 bh: bh as u32,
