@@ -37,7 +37,10 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                 result: Err(e),
                 ..
             } => {
-                if e == "cancelled" {
+                // A preview cancelled by a newer one (a control being dragged) is not
+                // news: the newer one's result follows.
+                if e == "cancelled" && name == "deblur preview" {
+                } else if e == "cancelled" {
                     app.info(format!("{name}: cancelled"));
                 } else {
                     app.error(e);

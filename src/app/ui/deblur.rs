@@ -256,10 +256,10 @@ fn controls_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 app.commands.push(Command::SetDeblurDevice(d));
             }
         }
-        if let Some(note) = &app.deblur.device_note {
-            ui.label(egui::RichText::new(format!("runs on: {note}")).weak());
-        }
     });
+    if let Some(note) = &app.deblur.device_note {
+        ui.label(egui::RichText::new(format!("The preview runs on the {note}.")).weak());
+    }
 }
 
 /// The regularisation strength of the method: the data weight λ of HQS and IRLS (more:
@@ -364,6 +364,14 @@ fn titles(app: &StudioApp) -> [String; 3] {
     ]
 }
 
+/// The room left on screen: long labels above can make the panel wider than the window,
+/// and panes sized to that would run off its edge.
+fn visible_size(ui: &egui::Ui) -> Vec2 {
+    let avail = ui.available_size();
+    let right = ui.clip_rect().right() - ui.cursor().left();
+    Vec2::new(avail.x.min(right), avail.y)
+}
+
 /// How many screen points one region pixel takes in the panes: `None` at Fit.
 fn points_per_pixel(app: &StudioApp, ui: &egui::Ui) -> Option<f32> {
     match app.deblur.zoom {
@@ -429,7 +437,7 @@ fn side_by_side_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ];
     let shown = view.shown(app.viewer.developed).clone();
     let titles = titles(app);
-    let avail = ui.available_size();
+    let avail = visible_size(ui);
     let per_px = points_per_pixel(app, ui);
     let pane = match per_px {
         None => Vec2::splat(((avail.x - 24.0) / 3.0).min(avail.y - 40.0).max(64.0)),
@@ -508,7 +516,7 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         );
         return;
     };
-    let avail = ui.available_size();
+    let avail = visible_size(ui);
     let size = original.size_vec2();
     let per_px = points_per_pixel(app, ui);
     let (pane, scale) = match per_px {
