@@ -279,7 +279,9 @@ pub struct AppOptions {
     /// (`LENSBLUR_FRAME_LOG=1`; what scripts/xvfb_screenshot.sh reads).
     pub log_frame_times: bool,
     /// Stages to run by themselves once the session's shots are loaded, e.g.
-    /// `LENSBLUR_AUTORUN=detect,kernels` (for measuring frame times under load).
+    /// `LENSBLUR_AUTORUN=detect,kernels` (for measuring frame times under load);
+    /// `deblur,drag-strength` opens LENSBLUR_PHOTO (else the first shot) in the Deblur
+    /// view at 100 % and drags the strength control.
     pub autorun: Vec<String>,
     /// Threads jobs compute on; 0: every core but one, so the UI thread (and a software
     /// renderer) always has one.
@@ -619,6 +621,8 @@ pub struct StudioApp {
     /// The open session folder's lock: one studio or command writes there at a time.
     session_lock: Option<crate::lock::FolderLock>,
     first_frame_logged: bool,
+    /// Frames left of the autorun's strength drag.
+    drag_frames: usize,
     ready_logged: bool,
 }
 
@@ -684,6 +688,7 @@ impl StudioApp {
             session_generation: 0,
             session_lock: None,
             first_frame_logged: false,
+            drag_frames: 0,
             ready_logged: false,
         };
         ctx.set_theme(egui::Theme::Dark);
@@ -885,8 +890,51 @@ impl StudioApp {
                 "detect" => self.commands.push(Command::RunDetect(None)),
                 "kernels" => self.commands.push(Command::RunKernels(None)),
                 "calibrate" => self.commands.push(Command::RunCalibrate),
+                // The Deblur view at 100 % in the slider layout (one pane as large as
+                // the window allows) on LENSBLUR_PHOTO, else the first shot.
+                "deblur" => {
+                    let photo = std::env::var_os("LENSBLUR_PHOTO")
+                        .map(PathBuf::from)
+                        .or_else(|| {
+                            let s = self.session.as_ref()?;
+                            Some(s.path_of(s.shots.first()?))
+                        });
+                    if let Some(p) = photo {
+                        self.commands.push(Command::SelectView(View::Deblur));
+                        self.commands
+                            .push(Command::SetDeblurLayout(DeblurLayout::Slider));
+                        self.commands
+                            .push(Command::SetDeblurZoom(DeblurZoom::Times(1)));
+                        self.commands.push(Command::OpenPhoto(p));
+                    }
+                }
+                // The strength slider dragged for 300 frames, as a hand would: frame
+                // times are then those of a live control.
+                "drag-strength" => {
+                    self.frames = FrameLog::default();
+                    self.drag_frames = 300;
+                    if let Some(c) = &self.deblur.comparison {
+                        let r = c.comparison.region;
+                        eprintln!(
+                            "studio: dragging the strength on a {} × {} region",
+                            r.width, r.height
+                        );
+                    }
+                }
                 other => self.error(format!("LENSBLUR_AUTORUN: unknown stage '{other}'")),
             }
+        }
+        if self.drag_frames > 0 {
+            self.drag_frames -= 1;
+            let k = self.drag_frames as f64;
+            let lambda = 3000.0 * 10f64.powf((k / 25.0).sin());
+            self.commands
+                .push(Command::SetDeblurMethod(crate::deblur::Method::Hqs(
+                    crate::deblur::HqsParams {
+                        lambda,
+                        ..Default::default()
+                    },
+                )));
         }
     }
 }
@@ -902,8 +950,11 @@ fn middle_setting(s: &Session) -> Option<(f64, f64)> {
 }
 
 impl eframe::App for StudioApp {
-    fn logic(&mut self, _ctx: &egui::Context, _frame: &mut eframe::Frame) {
+    fn logic(&mut self, ctx: &egui::Context, _frame: &mut eframe::Frame) {
         self.logic_step();
+        if self.drag_frames > 0 {
+            ctx.request_repaint();
+        }
     }
 
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
