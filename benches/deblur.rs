@@ -1,13 +1,16 @@
 //! Deblurring: a 10-megapixel RGB photo (3872 × 2592, three full planes: dead-leaves
 //! scenes blurred by a σ = 1.5 px Gaussian) with the spatially varying field a lens
-//! profile predicts, by HQS (the default); and one tile of that photo by each solver,
-//! the unit the whole is made of.
+//! profile predicts, by HQS (the default) on the CPU and on the GPU; and one tile of
+//! that photo by each solver, the unit the whole is made of.
+//!
+//! The GPU case runs on a hardware adapter; on a software one (llvmpipe) only with
+//! `LENSBLUR_BENCH_SOFTWARE_GPU=1` (minutes per run), and not at all without an adapter.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
 use lensblur::deblur::solve::Deconvolver;
 use lensblur::deblur::{
-    DeblurOptions, KernelSource, Method, ProfileKernels, deblur_capture, plane_tile_grid,
+    DeblurOptions, Device, KernelSource, Method, ProfileKernels, deblur_capture, plane_tile_grid,
 };
 use lensblur::experiment::dead_leaves;
 use lensblur::job::JobContext;
@@ -94,6 +97,27 @@ fn bench(c: &mut Criterion) {
             black_box(deblur_capture(&capture, &source, &deblur_opts, &job).expect("deblur"))
         });
     });
+    match lensblur::deblur::gpu::shared() {
+        Ok(gpu)
+            if !gpu.adapter().software
+                || std::env::var_os("LENSBLUR_BENCH_SOFTWARE_GPU").is_some() =>
+        {
+            eprintln!("GPU: {}", gpu.adapter());
+            let on_gpu = DeblurOptions {
+                device: Device::Gpu,
+                ..deblur_opts
+            };
+            // Pipelines are built and the first buffers made before timing starts.
+            black_box(deblur_capture(&capture, &source, &on_gpu, &job).expect("deblur"));
+            g.bench_function("hqs_10mp_rgb_varying_field_gpu", |b| {
+                b.iter(|| {
+                    black_box(deblur_capture(&capture, &source, &on_gpu, &job).expect("deblur"))
+                });
+            });
+        }
+        Ok(gpu) => eprintln!("GPU case skipped: {} is a software adapter", gpu.adapter()),
+        Err(e) => eprintln!("GPU case skipped: {e}"),
+    }
     g.finish();
 
     // One tile of the green plane at the top-left corner (the widest kernel), as the

@@ -409,9 +409,22 @@ impl Region {
     /// sensor allows, its corner and size even so that a Bayer mosaic keeps its phase.
     #[must_use]
     pub fn around(cx: f64, cy: f64, size: usize, sensor_w: usize, sensor_h: usize) -> Self {
+        Self::around_size(cx, cy, size, size, sensor_w, sensor_h)
+    }
+
+    /// [`Self::around`] for a `width` × `height` region.
+    #[must_use]
+    pub fn around_size(
+        cx: f64,
+        cy: f64,
+        width: usize,
+        height: usize,
+        sensor_w: usize,
+        sensor_h: usize,
+    ) -> Self {
         let even = |v: usize| v & !1;
-        let w = even(size.min(sensor_w)).max(2.min(sensor_w));
-        let h = even(size.min(sensor_h)).max(2.min(sensor_h));
+        let w = even(width.min(sensor_w)).max(2.min(sensor_w));
+        let h = even(height.min(sensor_h)).max(2.min(sensor_h));
         let place = |c: f64, len: usize, full: usize| -> usize {
             let start = (c - len as f64 / 2.0).round().max(0.0) as usize;
             even(start.min(full.saturating_sub(len)))

@@ -164,6 +164,17 @@ fn dropped(p: &Path) -> egui::DroppedFileHandle {
     std::sync::Arc::new(DroppedPath(p.to_path_buf()))
 }
 
+/// The predicted deblurred region's first plane, as the preview holds it.
+fn deblurred_region(app: &StudioApp) -> Vec<f32> {
+    app.deblur
+        .comparison
+        .as_ref()
+        .and_then(|c| c.comparison.predicted.as_ref().ok())
+        .and_then(|p| p.first())
+        .map(|(_, plane)| plane.data.clone())
+        .unwrap_or_default()
+}
+
 fn demo_ready(app: &StudioApp) -> bool {
     app.session
         .as_ref()
@@ -537,6 +548,93 @@ fn every_view_on_the_demo_session() {
     h.get_by_label("Slider").click();
     h.run_steps(3);
     snapshot(&mut h, "studio_deblur_slider");
+    h.get_by_label("Side by side").click();
+    h.run_steps(2);
+    // The preview on the GPU path (the software Vulkan here: asked for explicitly, as
+    // Auto keeps to the CPU on a software adapter), then back to Auto.
+    let before = deblurred_region(h.state());
+    h.state_mut()
+        .commands
+        .push(Command::SetDeblurDevice(lensblur::deblur::Device::Gpu));
+    step_until(&mut h, "the GPU preview", Duration::from_secs(300), |a| {
+        idle(a) && a.deblur.comparison.is_some()
+    });
+    {
+        let note = h.state().deblur.device_note.clone().unwrap_or_default();
+        assert!(note.starts_with("GPU: "), "{note}");
+        let on_gpu = deblurred_region(h.state());
+        assert_eq!(on_gpu.len(), before.len());
+        let worst = on_gpu
+            .iter()
+            .zip(&before)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0_f32, f32::max);
+        // The tolerance of tests/deblur.rs's GPU-against-CPU test: half an 8-bit level.
+        assert!(
+            worst <= 1.0 / 510.0,
+            "GPU preview differs from the CPU's by {worst}"
+        );
+    }
+    h.state_mut()
+        .commands
+        .push(Command::SetDeblurDevice(lensblur::deblur::Device::Auto));
+    // 100 %: the region is what the panes hold, one photo pixel per screen pixel, the
+    // three panes showing the same region (synced).
+    h.get_by_label("100 %").click();
+    let region_fills_viewport = |a: &StudioApp| {
+        let (Some([vw, vh]), Some(c), Some(p)) = (
+            a.deblur.viewport,
+            a.deblur.comparison.as_ref(),
+            a.deblur.photo.as_ref(),
+        ) else {
+            return false;
+        };
+        let r = c.comparison.region;
+        r.width == vw.min(p.capture.width) & !1 && r.height == vh.min(p.capture.height) & !1
+    };
+    step_until(&mut h, "the 100 % preview", Duration::from_secs(120), |a| {
+        idle(a) && region_fills_viewport(a)
+    });
+    assert!(
+        h.state()
+            .deblur
+            .device_note
+            .as_deref()
+            .is_some_and(|n| n.starts_with("CPU")),
+        "Auto on a software adapter runs on the CPU"
+    );
+    snapshot(&mut h, "studio_deblur_100");
+    // Live strength: a new λ deblurs the same region again, sharper.
+    let soft = deblurred_region(h.state());
+    h.state_mut()
+        .commands
+        .push(Command::SetDeblurMethod(lensblur::deblur::Method::Hqs(
+            lensblur::deblur::HqsParams {
+                lambda: 30_000.0,
+                ..Default::default()
+            },
+        )));
+    step_until(
+        &mut h,
+        "the stronger preview",
+        Duration::from_secs(120),
+        |a| idle(a) && a.deblur.comparison.is_some(),
+    );
+    let sharp = deblurred_region(h.state());
+    assert_eq!(soft.len(), sharp.len(), "the region stays where it was");
+    assert!(soft != sharp, "a new strength must change the preview");
+    h.get_by_label("200 %").click();
+    step_until(&mut h, "the 200 % preview", Duration::from_secs(120), |a| {
+        idle(a) && a.deblur.comparison.is_some()
+    });
+    snapshot(&mut h, "studio_deblur_200_strength");
+    h.get_by_label("Fit").click();
+    step_until(
+        &mut h,
+        "the fitted preview",
+        Duration::from_secs(120),
+        |a| idle(a) && a.deblur.comparison.is_some(),
+    );
     // Export the whole photo deblurred with the predicted Gaussians.
     let out = dir.path().join("deblurred.tiff");
     h.state_mut().commands.push(Command::ExportDeblur {

@@ -6,8 +6,8 @@
 use super::jobs::{Emitter, JobEvent, JobScope};
 use super::view_data;
 use super::{
-    Command, ComparisonView, DeblurResult, JobOutput, PendingPlotPng, Photo, PlotId, ShotPreview,
-    StudioApp,
+    Command, ComparisonView, DeblurResult, DeblurZoom, JobOutput, PendingPlotPng, Photo, PlotId,
+    ShotPreview, StudioApp,
 };
 use crate::deblur::{DeblurOptions, KernelSource, Method};
 use crate::detect::Detection;
@@ -37,7 +37,10 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                 result: Err(e),
                 ..
             } => {
-                if e == "cancelled" {
+                // A preview cancelled by a newer one (a control being dragged) is not
+                // news: the newer one's result follows.
+                if e == "cancelled" && name == "deblur preview" {
+                } else if e == "cancelled" {
                     app.info(format!("{name}: cancelled"));
                 } else {
                     app.error(e);
@@ -426,7 +429,47 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
             }
         }
         Command::DeblurAt(centre) => run_deblur_preview(app, centre),
-        Command::SetDeblurLayout(l) => app.deblur.layout = l,
+        Command::SetDeblurLayout(l) => {
+            app.deblur.layout = l;
+            app.deblur.viewport = None;
+        }
+        Command::SetDeblurZoom(z) => {
+            app.deblur.zoom = z;
+            app.deblur.viewport = None;
+            if z == DeblurZoom::Fit {
+                redeblur(app);
+            }
+        }
+        Command::SetDeblurViewport(v) => {
+            if app.deblur.viewport != Some(v) {
+                app.deblur.viewport = Some(v);
+                redeblur(app);
+            }
+        }
+        Command::SetDeblurCrop(px) => {
+            app.deblur.crop_px = px.clamp(32, 4096);
+            redeblur(app);
+        }
+        Command::SetDeblurMethod(m) => {
+            app.deblur.method = Some(m);
+            redeblur(app);
+        }
+        Command::SetDeblurDevice(d) => {
+            app.deblur.device = d;
+            app.deblur.device_note = None;
+            redeblur(app);
+        }
+        Command::DragDeblur(d) => {
+            app.deblur.drag[0] += d[0];
+            app.deblur.drag[1] += d[1];
+        }
+        Command::EndDragDeblur => {
+            let d = std::mem::take(&mut app.deblur.drag);
+            if let Some(c) = app.deblur.comparison.as_ref() {
+                let [cx, cy] = c.comparison.region.centre();
+                run_deblur_preview(app, [cx - f64::from(d[0]), cy - f64::from(d[1])]);
+            }
+        }
         Command::SetSliderResult(r) => app.deblur.slider_result = r,
         Command::ExportDeblurDialog(result) => {
             let Some(photo) = &app.deblur.photo else {
@@ -1182,16 +1225,32 @@ fn run_kernels(app: &mut StudioApp, which: Option<ShotId>) {
     }
 }
 
+/// The method the Deblur view uses: its own once changed there, else the session's.
+pub(crate) fn deblur_method(app: &StudioApp) -> Method {
+    app.deblur.method.unwrap_or_else(|| {
+        app.session
+            .as_ref()
+            .and_then(|s| Method::from_name(&s.settings.deblur_method))
+            .unwrap_or_default()
+    })
+}
+
 fn deblur_options(app: &StudioApp) -> DeblurOptions {
-    let method = app
-        .session
-        .as_ref()
-        .and_then(|s| Method::from_name(&s.settings.deblur_method))
-        .unwrap_or_default();
     DeblurOptions {
-        method,
+        method: deblur_method(app),
+        device: app.deblur.device,
         ..DeblurOptions::default()
     }
+}
+
+/// Deblurs the region again where it is (after a control changed).
+fn redeblur(app: &mut StudioApp) {
+    let centre = match (&app.deblur.comparison, &app.deblur.photo) {
+        (Some(c), _) => c.comparison.region.centre(),
+        (None, Some(p)) => [p.capture.width as f64 / 2.0, p.capture.height as f64 / 2.0],
+        (None, None) => return,
+    };
+    run_deblur_preview(app, centre);
 }
 
 /// The two kernel sources of the open photo: the profile's prediction and the measured
@@ -1247,15 +1306,25 @@ fn run_deblur_preview(app: &mut StudioApp, centre: [f64; 2]) {
         }
     }
     let cap = Arc::clone(&photo.capture);
-    let region = crate::review::Region::around(
-        centre[0],
-        centre[1],
-        app.deblur.crop_px,
-        cap.width,
-        cap.height,
-    );
+    let region = match (app.deblur.zoom, app.deblur.viewport) {
+        (DeblurZoom::Times(_), Some([w, h])) => {
+            crate::review::Region::around_size(centre[0], centre[1], w, h, cap.width, cap.height)
+        }
+        _ => crate::review::Region::around(
+            centre[0],
+            centre[1],
+            app.deblur.crop_px,
+            cap.width,
+            cap.height,
+        ),
+    };
     let (predicted, measured, from) = photo_sources(app, photo);
     let opts = deblur_options(app);
+    if app.deblur.device_note.is_none() {
+        // Where the preview runs, said once per choice (opening a device is the core's).
+        let note = crate::deblur::gpu::describe(opts.device, &opts.method);
+        app.deblur.device_note = Some(note);
+    }
     let r = app.jobs.spawn("deblur preview", move |ctx, out| {
         let comparison = crate::review::compare_deblur(
             &cap,

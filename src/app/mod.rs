@@ -125,6 +125,19 @@ pub enum Command {
     /// Deblur a crop around this sensor point with both kernel sources.
     DeblurAt([f64; 2]),
     SetDeblurLayout(DeblurLayout),
+    /// The compared panes' magnification; the region follows the panes' size.
+    SetDeblurZoom(DeblurZoom),
+    /// The region (sensor px) the panes show at their zoom, as laid out this frame.
+    SetDeblurViewport([usize; 2]),
+    /// The region's side at Fit.
+    SetDeblurCrop(usize),
+    /// The view's own method and strength, applied live to the region.
+    SetDeblurMethod(crate::deblur::Method),
+    SetDeblurDevice(crate::deblur::Device),
+    /// Drag of the compared panes in progress (sensor px), drawn as a shift.
+    DragDeblur([f32; 2]),
+    /// The drag ended: the region moves by it and is deblurred there.
+    EndDragDeblur,
     SetSliderResult(DeblurResult),
     ExportDeblurDialog(DeblurResult),
     ExportDeblur {
@@ -268,7 +281,9 @@ pub struct AppOptions {
     /// (`LENSBLUR_FRAME_LOG=1`; what scripts/xvfb_screenshot.sh reads).
     pub log_frame_times: bool,
     /// Stages to run by themselves once the session's shots are loaded, e.g.
-    /// `LENSBLUR_AUTORUN=detect,kernels` (for measuring frame times under load).
+    /// `LENSBLUR_AUTORUN=detect,kernels` (for measuring frame times under load);
+    /// `deblur,drag-strength` opens LENSBLUR_PHOTO (else the first shot) in the Deblur
+    /// view at 100 % and drags the strength control.
     pub autorun: Vec<String>,
     /// Threads jobs compute on; 0: every core but one, so the UI thread (and a software
     /// renderer) always has one.
@@ -470,11 +485,41 @@ impl ComparisonView {
     }
 }
 
+/// Magnification of the compared panes: the region fitted to them, or shown with one
+/// sensor pixel on 1, 2 or 4 screen pixels (the region is then what the panes hold).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DeblurZoom {
+    Fit,
+    Times(u8),
+}
+
+impl DeblurZoom {
+    pub const ALL: [Self; 4] = [Self::Fit, Self::Times(1), Self::Times(2), Self::Times(4)];
+
+    #[must_use]
+    pub fn label(self) -> String {
+        match self {
+            Self::Fit => "Fit".into(),
+            Self::Times(z) => format!("{} %", 100 * u32::from(z)),
+        }
+    }
+}
+
 /// The Deblur view's state.
 pub struct DeblurState {
     pub photo: Option<Photo>,
-    /// Side of the compared crop, sensor px.
+    /// Side of the compared crop at Fit, sensor px.
     pub crop_px: usize,
+    pub zoom: DeblurZoom,
+    /// The region the panes hold at a zoom other than Fit, sensor px (set by the layout).
+    pub viewport: Option<[usize; 2]>,
+    /// The view's method and strength; `None` until changed here: the session's method.
+    pub method: Option<crate::deblur::Method>,
+    pub device: crate::deblur::Device,
+    /// Where the preview runs and, when not where asked, why (said once per change).
+    pub device_note: Option<String>,
+    /// The panes' drag in progress, sensor px.
+    pub drag: [f32; 2],
     pub comparison: Option<ComparisonView>,
     pub layout: DeblurLayout,
     /// Divider position in the slider layout, 0 (all result) to 1 (all original).
@@ -579,6 +624,8 @@ pub struct StudioApp {
     /// The open session folder's lock: one studio or command writes there at a time.
     session_lock: Option<crate::lock::FolderLock>,
     first_frame_logged: bool,
+    /// Frames left of the autorun's strength drag.
+    drag_frames: usize,
     ready_logged: bool,
 }
 
@@ -625,6 +672,12 @@ impl StudioApp {
             deblur: DeblurState {
                 photo: None,
                 crop_px: 160,
+                zoom: DeblurZoom::Fit,
+                viewport: None,
+                method: None,
+                device: crate::deblur::Device::Auto,
+                device_note: None,
+                drag: [0.0; 2],
                 comparison: None,
                 layout: DeblurLayout::SideBySide,
                 slider: 0.5,
@@ -639,6 +692,7 @@ impl StudioApp {
             session_generation: 0,
             session_lock: None,
             first_frame_logged: false,
+            drag_frames: 0,
             ready_logged: false,
         };
         ctx.set_theme(egui::Theme::Dark);
@@ -840,8 +894,51 @@ impl StudioApp {
                 "detect" => self.commands.push(Command::RunDetect(None)),
                 "kernels" => self.commands.push(Command::RunKernels(None)),
                 "calibrate" => self.commands.push(Command::RunCalibrate),
+                // The Deblur view at 100 % in the slider layout (one pane as large as
+                // the window allows) on LENSBLUR_PHOTO, else the first shot.
+                "deblur" => {
+                    let photo = std::env::var_os("LENSBLUR_PHOTO")
+                        .map(PathBuf::from)
+                        .or_else(|| {
+                            let s = self.session.as_ref()?;
+                            Some(s.path_of(s.shots.first()?))
+                        });
+                    if let Some(p) = photo {
+                        self.commands.push(Command::SelectView(View::Deblur));
+                        self.commands
+                            .push(Command::SetDeblurLayout(DeblurLayout::Slider));
+                        self.commands
+                            .push(Command::SetDeblurZoom(DeblurZoom::Times(1)));
+                        self.commands.push(Command::OpenPhoto(p));
+                    }
+                }
+                // The strength slider dragged for 300 frames, as a hand would: frame
+                // times are then those of a live control.
+                "drag-strength" => {
+                    self.frames = FrameLog::default();
+                    self.drag_frames = 300;
+                    if let Some(c) = &self.deblur.comparison {
+                        let r = c.comparison.region;
+                        eprintln!(
+                            "studio: dragging the strength on a {} × {} region",
+                            r.width, r.height
+                        );
+                    }
+                }
                 other => self.error(format!("LENSBLUR_AUTORUN: unknown stage '{other}'")),
             }
+        }
+        if self.drag_frames > 0 {
+            self.drag_frames -= 1;
+            let k = self.drag_frames as f64;
+            let lambda = 3000.0 * 10f64.powf((k / 25.0).sin());
+            self.commands
+                .push(Command::SetDeblurMethod(crate::deblur::Method::Hqs(
+                    crate::deblur::HqsParams {
+                        lambda,
+                        ..Default::default()
+                    },
+                )));
         }
     }
 }
@@ -857,8 +954,11 @@ fn middle_setting(s: &Session) -> Option<(f64, f64)> {
 }
 
 impl eframe::App for StudioApp {
-    fn logic(&mut self, _ctx: &egui::Context, _frame: &mut eframe::Frame) {
+    fn logic(&mut self, ctx: &egui::Context, _frame: &mut eframe::Frame) {
         self.logic_step();
+        if self.drag_frames > 0 {
+            ctx.request_repaint();
+        }
     }
 
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
@@ -961,7 +1061,17 @@ pub fn run(options: AppOptions) -> Result<(), String> {
     eframe::run_native(
         "lensblur studio",
         native,
-        Box::new(move |cc| Ok(Box::new(StudioApp::new(&cc.egui_ctx, options)))),
+        Box::new(move |cc| {
+            // The preview deblurs on the device the window draws with, not a second one.
+            if let Some(rs) = &cc.wgpu_render_state {
+                let _ = crate::deblur::gpu::lend(
+                    rs.device.clone(),
+                    rs.queue.clone(),
+                    &rs.adapter.get_info(),
+                );
+            }
+            Ok(Box::new(StudioApp::new(&cc.egui_ctx, options)))
+        }),
     )
     .map_err(|e| format!("cannot open the studio window: {e}"))
 }

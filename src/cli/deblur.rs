@@ -1,5 +1,5 @@
 //! `lensblur deblur PHOTO --out OUT.{tiff,png,dng} (--profile P.json | --kernels K.json)
-//! [--focal F --aperture A] [--method hqs|irls|wiener]`: remove the lens blur with the
+//! [--focal F --aperture A] [--method hqs|irls|wiener] [--device auto|gpu|cpu]`: remove the lens blur with the
 //! kernels a profile predicts at the photo's settings, or a kernels file's. A RAW photo
 //! can be written back as a DNG (its CFA deblurred, its metadata kept) for a RAW editor.
 //! With `--out-dir` and `--profiles`, many photos at once (`deblur_batch`).
@@ -8,7 +8,9 @@ use super::common::progress_job;
 use anyhow::{Context, Result, bail};
 use lensblur::deblur::output::{profile_described, write_deblurred};
 use lensblur::deblur::source::{Prefer, ScatteredKernels, load_kernels};
-use lensblur::deblur::{DeblurOptions, KernelSource, Method, ProfileKernels, deblur_capture};
+use lensblur::deblur::{
+    DeblurOptions, Device, KernelSource, Method, ProfileKernels, deblur_capture,
+};
 use lensblur::job::JobContext;
 use lensblur::model::KernelModel;
 use lensblur::plane::{Capture, LensSetting};
@@ -47,6 +49,11 @@ pub struct Args {
     /// hqs (fast, hyper-Laplacian prior), irls (Levin et al.), or wiener (preview).
     #[arg(long, default_value = "hqs")]
     pub method: String,
+    /// Where to deblur: gpu (any adapter, a software one included; an error without
+    /// one), cpu (the reference), or auto (a hardware GPU when there is one, else the
+    /// CPU). HQS and Wiener run on the GPU; IRLS on the CPU only.
+    #[arg(long, default_value = "auto")]
+    pub device: String,
     /// From a kernels file holding both: use the non-parametric kernels or the Gaussians.
     #[arg(long, value_enum, default_value = "kernels")]
     pub prefer: PreferArg,
@@ -94,8 +101,17 @@ pub fn run(args: Args) -> Result<()> {
             args.method
         );
     };
+    let Some(device) = Device::from_name(&args.device) else {
+        bail!("--device must be auto, gpu or cpu (got '{}')", args.device);
+    };
+    // Said once, before the work: where it runs and, when not where asked, why.
+    let on = lensblur::deblur::gpu::describe(device, &method);
+    if device != Device::Cpu {
+        eprintln!("lensblur: deblurring on the {on}");
+    }
     let opts = DeblurOptions {
         method,
+        device,
         ..DeblurOptions::default()
     };
     if args.batch.out_dir.is_some() {

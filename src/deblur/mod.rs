@@ -10,10 +10,12 @@
 //! buffers (the plans are shared by the whole process), and only that row's results
 //! are held before they are summed in.
 
+pub mod gpu;
 pub mod output;
 pub mod solve;
 pub mod source;
 
+pub use gpu::{Device, GpuError};
 pub use solve::{HqsParams, IrlsParams, Method, WienerParams};
 pub use source::{
     ConstantKernel, KernelSource, KernelsFile, ProfileKernels, ScatteredKernels, SourceError,
@@ -36,6 +38,8 @@ pub enum DeblurError {
     Source(#[from] SourceError),
     #[error("empty image")]
     Empty,
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
 }
 
 /// How to deblur.
@@ -45,6 +49,9 @@ pub struct DeblurOptions {
     /// Tile step (the distance between tile centres) in plane pixels; `None` picks it
     /// from the kernel size and the plane size ([`TileGrid::for_plane`]).
     pub tile_step_px: Option<usize>,
+    /// Where to run: the CPU (the reference), the GPU, or the GPU when a hardware one
+    /// is there.
+    pub device: Device,
 }
 
 /// One axis of the tile grid: `count` tiles, tile t owning [t·step, (t+1)·step) and
@@ -203,7 +210,7 @@ pub fn plane_kernel(k: &Kernel, step: usize) -> Kernel {
 
 /// Crops a kernel to at most `max_size` (odd) samples a side, renormalised: a kernel
 /// wider than the block's margin could hold would wrap around the block.
-fn cropped(k: Kernel, max_size: usize) -> Kernel {
+pub(crate) fn cropped(k: Kernel, max_size: usize) -> Kernel {
     if k.size <= max_size {
         return k;
     }
@@ -251,7 +258,7 @@ pub fn deblur_plane_invariant(
 }
 
 /// The 1× plane-resolution kernel of `source` at plane pixel (i, j) of `cp`.
-fn plane_kernel_at(
+pub(crate) fn plane_kernel_at(
     cp: &ChannelPlane,
     sensor_width: usize,
     sensor_height: usize,
@@ -458,19 +465,24 @@ fn deblur_plane_on_grid(
 }
 
 /// Deblurs every plane of a capture (each CFA plane on its own for RAW, before any
-/// colour processing).
+/// colour processing), on the device `opts` asks for.
 ///
 /// # Errors
-/// As [`deblur_channel_plane`].
+/// As [`deblur_channel_plane`]; with [`Device::Gpu`], also when no adapter can run the
+/// GPU path or it fails.
 pub fn deblur_capture(
     cap: &Capture,
     source: &dyn KernelSource,
     opts: &DeblurOptions,
     job: &JobContext,
 ) -> Result<Capture, DeblurError> {
+    let gpu = gpu::resolve(opts.device, &opts.method)?;
     let mut out = cap.clone();
     for cp in &mut out.planes {
-        cp.plane = deblur_channel_plane(cp, cap.width, cap.height, source, opts, job)?;
+        cp.plane = match &gpu {
+            Some(g) => g.deblur_channel_plane(cp, cap.width, cap.height, source, opts, job)?,
+            None => deblur_channel_plane(cp, cap.width, cap.height, source, opts, job)?,
+        };
     }
     Ok(out)
 }

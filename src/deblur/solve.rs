@@ -477,6 +477,18 @@ fn shared_lut(beta: f64, alpha: f64) -> std::sync::Arc<ShrinkLut> {
     lut
 }
 
+/// The table the CPU solver interpolates the shrinkage from at (β, α), for the GPU
+/// path to interpolate the same one: (range, 1 / node spacing, the values at the nodes
+/// from −range to range). Past the range both solve exactly.
+pub(crate) fn shrink_table(beta: f64, alpha: f64) -> (f64, f64, Vec<f64>) {
+    let lut = shared_lut(beta, alpha);
+    let mut values: Vec<f64> = lut.nodes.iter().map(|n| n[0]).collect();
+    if let Some(last) = lut.nodes.last() {
+        values.push(last[0] + last[1]);
+    }
+    (lut.range, lut.inv_step, values)
+}
+
 struct ShrinkLut {
     inv_step: f64,
     range: f64,

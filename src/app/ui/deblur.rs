@@ -2,15 +2,12 @@
 //! predicts and with the kernels measured at the photo's setting (the paper's
 //! Fig. 7–8), side by side or with a slider, and export of the whole photo.
 
-use super::super::{Command, DeblurLayout, DeblurResult, StudioApp, ViewerState};
+use super::super::{Command, DeblurLayout, DeblurResult, DeblurZoom, StudioApp, ViewerState};
+use crate::deblur::{Device, HqsParams, IrlsParams, Method, WienerParams};
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
 
 pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ui.heading("Deblur");
-    let method = app
-        .session
-        .as_ref()
-        .map_or_else(|| "hqs".to_owned(), |s| s.settings.deblur_method.clone());
     ui.horizontal(|ui| {
         if ui
             .button("Open photo…")
@@ -33,9 +30,6 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         {
             app.commands.push(Command::OpenPhoto(path));
         }
-        ui.separator();
-        ui.label(format!("method: {method}"))
-            .on_hover_text("Set in the session panel's Settings");
         ui.separator();
         for (layout, label) in [
             (DeblurLayout::SideBySide, "Side by side"),
@@ -100,6 +94,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         .response
         .on_hover_text("Write the open photo deblurred, or a set of photos");
     });
+    controls_ui(app, ui);
     let Some(photo) = &app.deblur.photo else {
         ui.label("No photo open. Open one, drop one on this view, or deblur the selected shot of the session.");
         return;
@@ -198,8 +193,112 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     }
 }
 
-/// The whole photo at a small scale with the compared region outlined; a click moves
-/// the region there.
+/// Zoom, region size, method and strength, and the device: each change deblurs the
+/// region again (a newer preview replaces one still running), so dragging the strength
+/// updates the region live.
+fn controls_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    let method = super::super::logic::deblur_method(app);
+    ui.horizontal(|ui| {
+        ui.label("zoom");
+        for z in DeblurZoom::ALL {
+            if ui
+                .selectable_label(app.deblur.zoom == z, z.label())
+                .on_hover_text("Fit: the region scaled into the panes; 100–400 %: one photo pixel on 1, 2 or 4 screen pixels, the region as large as the panes (drag a pane to pan; all panes move together)")
+                .clicked()
+            {
+                app.commands.push(Command::SetDeblurZoom(z));
+            }
+        }
+        if app.deblur.zoom == DeblurZoom::Fit {
+            let mut side = app.deblur.crop_px as f64;
+            let r = ui
+                .add(
+                    egui::Slider::new(&mut side, 64.0..=1024.0)
+                        .logarithmic(true)
+                        .suffix(" px")
+                        .text("region"),
+                )
+                .on_hover_text("Side of the compared region, photo pixels");
+            if r.drag_stopped() || (r.changed() && !r.dragged()) {
+                app.commands.push(Command::SetDeblurCrop(side.round() as usize));
+            }
+        }
+        ui.separator();
+        ui.label("method");
+        let choices = [
+            ("HQS", matches!(method, Method::Hqs(_)), Method::Hqs(HqsParams::default())),
+            ("Wiener", matches!(method, Method::Wiener(_)), Method::Wiener(WienerParams::default())),
+            ("IRLS", matches!(method, Method::Irls(_)), Method::Irls(IrlsParams::default())),
+        ];
+        for (label, on, m) in choices {
+            if ui
+                .selectable_label(on, label)
+                .on_hover_text("HQS: hyper-Laplacian prior, fast (the default); Wiener: quadratic prior, fastest, rings more; IRLS: the paper's solver, slow, CPU only")
+                .clicked()
+                && !on
+            {
+                app.commands.push(Command::SetDeblurMethod(m));
+            }
+        }
+        strength_ui(app, ui, method);
+        ui.separator();
+        ui.label("device");
+        for (d, label, tip) in [
+            (Device::Auto, "Auto", "The GPU the window draws with when it is a hardware one, else the CPU"),
+            (Device::Gpu, "GPU", "The window's GPU whatever it is (a software rasteriser is slow)"),
+            (Device::Cpu, "CPU", "The reference path"),
+        ] {
+            if ui
+                .selectable_label(app.deblur.device == d, label)
+                .on_hover_text(tip)
+                .clicked()
+            {
+                app.commands.push(Command::SetDeblurDevice(d));
+            }
+        }
+    });
+    if let Some(note) = &app.deblur.device_note {
+        ui.label(egui::RichText::new(format!("The preview runs on the {note}.")).weak());
+    }
+}
+
+/// The regularisation strength of the method: the data weight λ of HQS and IRLS (more:
+/// sharper and noisier), the noise-to-signal ratio of Wiener (more: smoother).
+fn strength_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
+    let (mut v, range, text, tip) = match method {
+        Method::Hqs(p) => (
+            p.lambda,
+            100.0..=100_000.0,
+            "λ",
+            "Data weight: higher sharpens more and keeps more noise",
+        ),
+        Method::Irls(p) => (
+            p.lambda,
+            100.0..=100_000.0,
+            "λ",
+            "Data weight: higher sharpens more and keeps more noise",
+        ),
+        Method::Wiener(p) => (p.nsr, 1e-5..=0.1, "noise/signal", "Higher smooths more"),
+    };
+    let r = ui
+        .add(
+            egui::Slider::new(&mut v, range)
+                .logarithmic(true)
+                .text(text),
+        )
+        .on_hover_text(tip);
+    if r.changed() {
+        let m = match method {
+            Method::Hqs(p) => Method::Hqs(HqsParams { lambda: v, ..p }),
+            Method::Irls(p) => Method::Irls(IrlsParams { lambda: v, ..p }),
+            Method::Wiener(_) => Method::Wiener(WienerParams { nsr: v }),
+        };
+        app.commands.push(Command::SetDeblurMethod(m));
+    }
+}
+
+/// The whole photo at a small scale with the compared region outlined: the navigator;
+/// a click moves the region there.
 fn overview_ui(app: &mut StudioApp, ui: &mut egui::Ui, width: f32) {
     let Some(photo) = &app.deblur.photo else {
         return;
@@ -265,27 +364,98 @@ fn titles(app: &StudioApp) -> [String; 3] {
     ]
 }
 
-fn side_by_side_ui(app: &StudioApp, ui: &mut egui::Ui) {
+/// The room left on screen: long labels above can make the panel wider than the window,
+/// and panes sized to that would run off its edge.
+fn visible_size(ui: &egui::Ui) -> Vec2 {
+    let avail = ui.available_size();
+    let right = ui.clip_rect().right() - ui.cursor().left();
+    Vec2::new(avail.x.min(right), avail.y)
+}
+
+/// How many screen points one region pixel takes in the panes: `None` at Fit.
+fn points_per_pixel(app: &StudioApp, ui: &egui::Ui) -> Option<f32> {
+    match app.deblur.zoom {
+        DeblurZoom::Fit => None,
+        DeblurZoom::Times(z) => Some(f32::from(z) / ui.ctx().pixels_per_point()),
+    }
+}
+
+/// At a zoom, the region the panes hold: asked for when the layout changes it.
+fn request_viewport(app: &mut StudioApp, pane: Vec2, per_px: Option<f32>) {
+    if let Some(pp) = per_px {
+        let v = [
+            ((pane.x / pp) as usize).max(16),
+            ((pane.y / pp) as usize).max(16),
+        ];
+        if app.deblur.viewport != Some(v) {
+            app.commands.push(Command::SetDeblurViewport(v));
+        }
+    }
+}
+
+/// One compared pane: the texture at the zoom (or fitted), shifted by a drag in
+/// progress; dragging it pans every pane at once.
+fn pane_ui(
+    app: &mut StudioApp,
+    ui: &mut egui::Ui,
+    texture: &egui::TextureHandle,
+    size: Vec2,
+    per_px: Option<f32>,
+    label: &str,
+) {
+    let (rect, response) = ui.allocate_exact_size(size, Sense::drag());
+    response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, label));
+    let tex = texture.size_vec2();
+    let scale = per_px.unwrap_or_else(|| (size.x / tex.x).min(size.y / tex.y));
+    let shift = Vec2::new(app.deblur.drag[0], app.deblur.drag[1]) * scale;
+    let shown = Rect::from_center_size(rect.center() + shift, tex * scale);
+    let painter = ui.painter_at(rect);
+    painter.image(
+        texture.id(),
+        shown,
+        Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)),
+        Color32::WHITE,
+    );
+    if response.dragged() {
+        let d = response.drag_delta() / scale;
+        app.commands.push(Command::DragDeblur([d.x, d.y]));
+    }
+    if response.drag_stopped() {
+        app.commands.push(Command::EndDragDeblur);
+    }
+}
+
+fn side_by_side_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     let Some(view) = &app.deblur.comparison else {
         return;
     };
     let c = &view.comparison;
-    let reasons = [None, c.predicted.as_ref().err(), c.measured.as_ref().err()];
+    let reasons = [
+        None,
+        c.predicted.as_ref().err().cloned(),
+        c.measured.as_ref().err().cloned(),
+    ];
+    let shown = view.shown(app.viewer.developed).clone();
     let titles = titles(app);
-    let avail = ui.available_size();
-    let side = ((avail.x - 24.0) / 3.0).min(avail.y - 40.0).max(64.0);
+    let avail = visible_size(ui);
+    let per_px = points_per_pixel(app, ui);
+    let pane = match per_px {
+        None => Vec2::splat(((avail.x - 24.0) / 3.0).min(avail.y - 40.0).max(64.0)),
+        Some(_) => Vec2::new(
+            ((avail.x - 24.0) / 3.0).max(64.0),
+            (avail.y - 40.0).max(64.0),
+        ),
+    };
+    request_viewport(app, pane, per_px);
     ui.horizontal_top(|ui| {
         for k in 0..3 {
             ui.vertical(|ui| {
-                ui.set_width(side);
+                ui.set_width(pane.x);
                 ui.add(egui::Label::new(&titles[k]).truncate());
-                match (&view.shown(app.viewer.developed)[k], reasons[k]) {
-                    (Some(t), _) => {
-                        let size = t.size_vec2();
-                        ui.image((t.id(), size * (side / size.x.max(size.y))));
-                    }
+                match (&shown[k], &reasons[k]) {
+                    (Some(t), _) => pane_ui(app, ui, t, pane, per_px, &titles[k]),
                     (None, Some(reason)) => {
-                        let (rect, _) = ui.allocate_exact_size(Vec2::splat(side), Sense::hover());
+                        let (rect, _) = ui.allocate_exact_size(pane, Sense::hover());
                         ui.painter().rect_stroke(
                             rect,
                             2.0,
@@ -317,7 +487,7 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         return;
     };
     ui.horizontal(|ui| {
-        ui.label("right of the divider:");
+        ui.label("right of the divider (pan: click the overview):");
         for (r, k) in [(DeblurResult::Predicted, 1), (DeblurResult::Measured, 2)] {
             if ui
                 .selectable_label(app.deblur.slider_result == r, &titles[k])
@@ -346,12 +516,21 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         );
         return;
     };
-    let avail = ui.available_size();
+    let avail = visible_size(ui);
     let size = original.size_vec2();
-    let scale = ((avail.x - 8.0) / size.x)
-        .min((avail.y - 8.0) / size.y)
-        .max(0.1);
-    let (rect, response) = ui.allocate_exact_size(size * scale, Sense::click_and_drag());
+    let per_px = points_per_pixel(app, ui);
+    let (pane, scale) = match per_px {
+        None => {
+            let fit = ((avail.x - 8.0) / size.x)
+                .min((avail.y - 8.0) / size.y)
+                .max(0.1);
+            (size * fit, fit)
+        }
+        Some(pp) => ((avail - Vec2::splat(8.0)).max(Vec2::splat(64.0)), pp),
+    };
+    let (original, result) = (original.clone(), result.clone());
+    request_viewport(app, pane, per_px);
+    let (rect, response) = ui.allocate_exact_size(pane, Sense::click_and_drag());
     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Slider, true, "divider"));
     let mut t = app.deblur.slider;
     if (response.dragged() || response.clicked())
@@ -362,18 +541,18 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     }
     let split = rect.left() + t * rect.width();
     let painter = ui.painter_at(rect);
-    painter.image(
-        original.id(),
-        Rect::from_min_max(rect.min, Pos2::new(split, rect.bottom())),
-        Rect::from_min_max(Pos2::ZERO, Pos2::new(t, 1.0)),
-        Color32::WHITE,
-    );
-    painter.image(
-        result.id(),
-        Rect::from_min_max(Pos2::new(split, rect.top()), rect.max),
-        Rect::from_min_max(Pos2::new(t, 0.0), Pos2::new(1.0, 1.0)),
-        Color32::WHITE,
-    );
+    // Both crops at the same place and scale, each clipped to its side of the divider.
+    let shown = Rect::from_center_size(rect.center(), size * scale);
+    let full = Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0));
+    painter
+        .with_clip_rect(Rect::from_min_max(
+            rect.min,
+            Pos2::new(split, rect.bottom()),
+        ))
+        .image(original.id(), shown, full, Color32::WHITE);
+    painter
+        .with_clip_rect(Rect::from_min_max(Pos2::new(split, rect.top()), rect.max))
+        .image(result.id(), shown, full, Color32::WHITE);
     painter.line_segment(
         [
             Pos2::new(split, rect.top()),
