@@ -37,8 +37,8 @@ fn new_harness(demo_dir: &Path, session: Option<&Path>) -> Harness<'static, Stud
         // The test's UI thread mostly sleeps between steps: jobs may have every core.
         job_threads: std::thread::available_parallelism().map_or(2, std::num::NonZeroUsize::get),
         started: Instant::now(),
-        // Beside the demo, in the test's own temporary folder.
-        recent_file: Some(demo_dir.with_file_name("recent.json")),
+        // In the test's own demo folder: no test sees another's list.
+        recent_file: Some(demo_dir.join("recent.json")),
     };
     Harness::builder()
         .with_size(egui::Vec2::new(1280.0, 800.0))
@@ -744,7 +744,10 @@ fn light_theme_and_user_session() {
         folder.join("session.json").is_file(),
         "a new session is saved at once"
     );
-    h.get_by_label("Light theme").click();
+    h.get_by_label("View").click();
+    h.run_steps(2);
+    // The entry's label carries its shortcut.
+    h.get_by_label_contains("Light theme").click();
     h.run_steps(2);
     assert!(!h.state().dark);
     // Drag and drop a file onto the window.
@@ -1185,6 +1188,12 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
         (p.focal_mm, p.f_number),
         (Some(photo.focal_mm), Some(photo.f_number))
     );
+    h.state_mut()
+        .commands
+        .push(Command::SelectView(View::Deblur));
+    h.run_steps(1);
+    step_until(&mut h, "the photo's preview", Duration::from_secs(60), idle);
+    snapshot(&mut h, "studio_deblur_demo_photo");
 }
 
 /// Messages of this run in the log panel, the question asked before removing a shot,
@@ -1230,6 +1239,7 @@ fn log_panel_confirmation_about_and_recent_sessions() {
 
     // Detect on the rest: its end is said in words, with the count.
     h.state_mut().commands.push(Command::RunDetect(None));
+    h.run_steps(1);
     step_until(&mut h, "detection", Duration::from_secs(120), idle);
     let said = h.state().log.iter().any(|m| {
         m.text
@@ -1262,7 +1272,7 @@ fn log_panel_confirmation_about_and_recent_sessions() {
     h.run_steps(2);
 
     // The session is remembered, and listed under File ▸ Recent sessions.
-    let recent = lensblur::session::read_recent(&demo_dir.with_file_name("recent.json"));
+    let recent = lensblur::session::read_recent(&demo_dir.join("recent.json"));
     assert_eq!(recent.len(), 1, "{recent:?}");
     assert!(recent[0].ends_with("session"));
     h.get_by_label("File").click();

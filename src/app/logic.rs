@@ -85,8 +85,9 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                 let tally = app.tallies.remove(&job);
                 match result {
                     Err(e) if e == "cancelled" => {
-                        let done = tally.map_or(String::new(), |t| {
-                            format!(" after {} shots", t.ok + t.failed.len())
+                        let done = tally.map_or(String::new(), |t| match t.ok + t.failed.len() {
+                            1 => " after 1 shot".to_owned(),
+                            n => format!(" after {n} shots"),
                         });
                         app.info(format!("{name}: cancelled{done}"));
                     }

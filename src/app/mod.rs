@@ -924,7 +924,12 @@ impl StudioApp {
         logic::read_results(self, &s);
         if s.is_demo {
             self.open_demo_photo(&s);
-        } else if let Some(file) = self.options.recent_file.clone() {
+        }
+        // Every session the user opens is remembered, but not the built-in demo: it is
+        // what the studio opens by itself.
+        if s.folder() != self.options.demo_dir
+            && let Some(file) = self.options.recent_file.clone()
+        {
             match crate::session::remember_recent(&file, s.folder()) {
                 Ok(list) => self.recent = list,
                 Err(e) => self.error(format!("cannot remember the session as recent: {e}")),

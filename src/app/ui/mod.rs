@@ -312,6 +312,8 @@ fn help_ui(app: &mut StudioApp, ctx: &egui::Context) {
     egui::Window::new("How the studio works")
         .open(&mut open)
         .collapsible(false)
+        .pivot(egui::Align2::CENTER_CENTER)
+        .default_pos(ctx.content_rect().center())
         .default_width(460.0)
         .show(ctx, |ui| {
             for (step, what) in HELP {
@@ -348,6 +350,7 @@ fn about_ui(app: &mut StudioApp, ctx: &egui::Context) {
         .open(&mut open)
         .collapsible(false)
         .resizable(false)
+        .anchor(egui::Align2::CENTER_CENTER, [0.0, 0.0])
         .show(ctx, |ui| {
             ui.heading(format!("lensblur {}", env!("CARGO_PKG_VERSION")));
             ui.label(env!("CARGO_PKG_DESCRIPTION"));
@@ -372,7 +375,10 @@ fn about_ui(app: &mut StudioApp, ctx: &egui::Context) {
 fn log_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         ui.strong("Log");
-        ui.label(format!("{} messages", app.log.len()));
+        ui.label(match app.log.len() {
+            1 => "1 message".to_owned(),
+            n => format!("{n} messages"),
+        });
         ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
             if ui.small_button("Close").on_hover_text("Ctrl+L").clicked() {
                 app.commands.push(Command::SetLogOpen(false));
