@@ -838,7 +838,7 @@ impl StudioApp {
         let spec = self.options.demo_spec.clone();
         let started = self
             .jobs
-            .spawn("demo session", move |ctx: &JobContext, out| {
+            .spawn_apart("demo session", move |ctx: &JobContext, out| {
                 // Each shot is shown as soon as it is on disk: a newcomer sees a
                 // session within seconds instead of waiting for all of them.
                 let s = crate::session::make_demo_streaming(&dir, &spec, ctx, &mut |s| {
