@@ -867,8 +867,28 @@ fn image_dimensions(path: &Path, bytes: &[u8]) -> Result<(usize, usize), LoadErr
         .map(|(w, h)| (w as usize, h as usize))
         .map_err(|e| LoadError::Corrupt {
             path: path.to_path_buf(),
-            reason: e.to_string(),
+            reason: image_error_words(&e),
         })
+}
+
+/// A decoder's failure in words: image-rs's decoding errors print the decoder's
+/// internal state (a PNG chunk's fields, as Rust debug output), which tells a
+/// photographer nothing but that the file is damaged.
+fn image_error_words(e: &image::ImageError) -> String {
+    match e {
+        image::ImageError::Decoding(d) => match d.format_hint() {
+            image::error::ImageFormatHint::Exact(f) => format!(
+                "the {} data is damaged or truncated",
+                f.extensions_str()
+                    .first()
+                    .copied()
+                    .unwrap_or("image")
+                    .to_uppercase()
+            ),
+            _ => "the image data is damaged or truncated".into(),
+        },
+        other => other.to_string(),
+    }
 }
 
 /// PNG/TIFF/JPEG into linear planes: one `Y` plane for grey images, R, G, B otherwise.
@@ -877,7 +897,7 @@ fn image_dimensions(path: &Path, bytes: &[u8]) -> Result<(usize, usize), LoadErr
 fn load_image(path: &Path, bytes: &[u8], options: &LoadOptions) -> Result<Capture, LoadError> {
     let corrupt = |e: image::ImageError| LoadError::Corrupt {
         path: path.to_path_buf(),
-        reason: e.to_string(),
+        reason: image_error_words(&e),
     };
     let (w, h) = image_dimensions(path, bytes)?;
     check_size(path, w, h)?;

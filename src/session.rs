@@ -249,8 +249,21 @@ pub struct Session {
     /// The id the next added shot gets.
     #[serde(default)]
     pub next_shot_id: u64,
+    /// For the demo: a natural photo blurred by the virtual lens, which the Deblur view
+    /// opens, so a newcomer sees deblurring on a photo rather than on the chart.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub demo_photo: Option<DemoPhoto>,
     #[serde(skip)]
     folder: PathBuf,
+}
+
+/// The demo's photo: its file (relative to the session folder) and the setting the
+/// virtual lens blurred it at (a PNG carries no EXIF to say so).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DemoPhoto {
+    pub path: PathBuf,
+    pub focal_mm: f64,
+    pub f_number: f64,
 }
 
 impl Session {
@@ -270,6 +283,7 @@ impl Session {
             is_demo: false,
             demo_key: None,
             next_shot_id: 1,
+            demo_photo: None,
             folder: folder.to_path_buf(),
         }
     }
@@ -672,6 +686,55 @@ pub fn default_demo_dir() -> PathBuf {
     base.join("lensblur").join("demo")
 }
 
+/// Where the studio keeps its list of recently opened sessions: beside the demo.
+#[must_use]
+pub fn default_recent_file() -> PathBuf {
+    let demo = default_demo_dir();
+    crate::io::parent_dir(&demo).join("recent.json")
+}
+
+/// How many recent sessions are remembered.
+pub const RECENT_MAX: usize = 10;
+
+/// The recently opened session folders listed in `file`, most recent first, those no
+/// longer there dropped. A missing or unreadable list is an empty one: forgetting it
+/// costs the user nothing but a menu entry.
+#[must_use]
+pub fn read_recent(file: &Path) -> Vec<PathBuf> {
+    let Ok(text) = std::fs::read_to_string(file) else {
+        return Vec::new();
+    };
+    let list: Vec<PathBuf> = serde_json::from_str(&text).unwrap_or_default();
+    list.into_iter()
+        .filter(|p| p.exists())
+        .take(RECENT_MAX)
+        .collect()
+}
+
+/// Puts `folder` first in the recent list in `file` and writes it; returns the list.
+///
+/// # Errors
+/// The list cannot be written.
+pub fn remember_recent(file: &Path, folder: &Path) -> Result<Vec<PathBuf>, SessionError> {
+    let folder = std::fs::canonicalize(folder).unwrap_or_else(|_| folder.to_path_buf());
+    let mut list = read_recent(file);
+    list.retain(|p| p != &folder);
+    list.insert(0, folder);
+    list.truncate(RECENT_MAX);
+    if let Some(dir) = file.parent() {
+        std::fs::create_dir_all(dir).map_err(|source| SessionError::Write {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+    }
+    let text = serde_json::to_vec_pretty(&list).map_err(|e| SessionError::Write {
+        path: file.to_path_buf(),
+        source: std::io::Error::other(e),
+    })?;
+    write_atomic(file, &text)?;
+    Ok(list)
+}
+
 /// The size and settings of a demo session.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DemoSpec {
@@ -777,6 +840,21 @@ pub fn make_demo(
     spec: &DemoSpec,
     job: &crate::job::JobContext,
 ) -> Result<Session, SessionError> {
+    make_demo_streaming(dir, spec, job, &mut |_| {})
+}
+
+/// [`make_demo`], handing the session to `on_shot` each time a shot is on disk, so a
+/// window can show the first shot within seconds rather than after the whole demo.
+/// The session passed is not saved yet; the one returned is, with the demo's photo.
+///
+/// # Errors
+/// As [`make_demo`].
+pub fn make_demo_streaming(
+    dir: &Path,
+    spec: &DemoSpec,
+    job: &crate::job::JobContext,
+    on_shot: &mut dyn FnMut(&Session),
+) -> Result<Session, SessionError> {
     use crate::simulate::{CaptureParams, Pose, VirtualLens, simulate_shot};
     let chart = spec.chart();
     let lens = VirtualLens::demo();
@@ -853,10 +931,134 @@ pub fn make_demo(
             ..Shot::blank()
         });
         job.report("simulating demo shots", k + 1, total);
+        on_shot(&session);
     }
+    session.demo_photo = Some(make_demo_photo(dir, spec, &lens, job)?);
     session.write_manifest()?;
     session.save()?;
     Ok(session)
+}
+
+/// The demo photo's file name.
+pub const DEMO_PHOTO_FILE: &str = "demo_photo.png";
+
+/// The public-domain photo the demo blurs (assets/README.md says where it comes from).
+const DEMO_PHOTO_SOURCE: &[u8] = include_bytes!("../assets/astronaut.png");
+
+/// The demo's photo: a natural image seen through the virtual lens at the demo's middle
+/// setting (one it measures, so both the profile's and the measured kernels apply),
+/// on the shots' sensor, with the lens's true, spatially varying kernels. Kept when it
+/// is already there (the folder's key says it was made by this spec).
+fn make_demo_photo(
+    dir: &Path,
+    spec: &DemoSpec,
+    lens: &crate::simulate::VirtualLens,
+    job: &crate::job::JobContext,
+) -> Result<DemoPhoto, SessionError> {
+    use crate::plane::{Capture, Channel, ChannelPlane, Plane};
+    let path = dir.join(DEMO_PHOTO_FILE);
+    let setting = spec
+        .settings
+        .get(spec.settings.len() / 2)
+        .copied()
+        .unwrap_or(LensSetting {
+            focal_mm: 50.0,
+            f_number: 5.6,
+        });
+    let photo = DemoPhoto {
+        path: PathBuf::from(DEMO_PHOTO_FILE),
+        focal_mm: setting.focal_mm,
+        f_number: setting.f_number,
+    };
+    if path.is_file() {
+        return Ok(photo);
+    }
+    job.report("blurring the demo photo", 0, 1);
+    let (w, h) = (spec.width, spec.height);
+    let parse = |reason: String| SessionError::Parse {
+        path: path.clone(),
+        reason,
+    };
+    let true_kernel = |channel: Channel, x: f64, y: f64| {
+        let (u, v) = crate::simulate::VirtualLens::normalised(x, y, w, h);
+        crate::deblur::plane_kernel(
+            &lens
+                .optical_kernel_uv(channel, u, v, setting, 3)
+                .pixel_integrated(),
+            1,
+        )
+    };
+    // The widest kernel is in a corner; the sharp image extends past the frame by that
+    // much so the frame's edges are blurred from real content, not from a border.
+    let pad = [Channel::R, Channel::G, Channel::B]
+        .iter()
+        .flat_map(|&c| {
+            [
+                (0.0, 0.0),
+                ((w - 1) as f64, 0.0),
+                (0.0, (h - 1) as f64),
+                ((w - 1) as f64, (h - 1) as f64),
+            ]
+            .map(|(x, y)| true_kernel(c, x, y).size / 2)
+        })
+        .max()
+        .unwrap_or(0)
+        + 2;
+    let (pw, ph) = (w + 2 * pad, h + 2 * pad);
+    let source = image::load_from_memory(DEMO_PHOTO_SOURCE)
+        .map_err(|e| parse(format!("the built-in photo: {e}")))?
+        .into_rgb8();
+    // Cover the padded frame (scale to fill, centre crop), as a print fills a frame.
+    let scale = (pw as f64 / f64::from(source.width())).max(ph as f64 / f64::from(source.height()));
+    let (sw, sh) = (
+        ((f64::from(source.width()) * scale).ceil() as u32).max(pw as u32),
+        ((f64::from(source.height()) * scale).ceil() as u32).max(ph as u32),
+    );
+    let scaled = image::imageops::resize(&source, sw, sh, image::imageops::FilterType::Lanczos3);
+    let (x0, y0) = ((sw as usize - pw) / 2, (sh as usize - ph) / 2);
+    // The shots are linear; the photo is sRGB-encoded: blur what the sensor sees.
+    let linear = |v: u8| {
+        let c = f32::from(v) / 255.0;
+        if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    let mut planes = Vec::with_capacity(3);
+    for (i, channel) in [Channel::R, Channel::G, Channel::B].into_iter().enumerate() {
+        job.check().map_err(|e| parse(e.to_string()))?;
+        let mut sharp = Plane::new(pw, ph);
+        for y in 0..ph {
+            for x in 0..pw {
+                sharp.data[y * pw + x] =
+                    linear(scaled.get_pixel((x0 + x) as u32, (y0 + y) as u32)[i]);
+            }
+        }
+        let blurred = crate::experiment::blur_varying(&sharp, pad, w, h, 16, &|x, y| {
+            true_kernel(channel, x, y)
+        });
+        planes.push(ChannelPlane {
+            channel,
+            plane: blurred,
+            step: 1,
+            offset_x: 0,
+            offset_y: 0,
+        });
+    }
+    let capture = Capture {
+        width: w,
+        height: h,
+        planes,
+        setting_focal_mm: None,
+        setting_f_number: None,
+        identity: crate::plane::CameraIdentity::default(),
+        is_raw: false,
+        raw: None,
+    };
+    write_rgb16_png(&path, &capture)?;
+    job.report("blurring the demo photo", 1, 1);
+    Ok(photo)
 }
 
 /// Which spec the demo files in a folder were made for.

@@ -38,6 +38,8 @@ fn new_harness(demo_dir: &Path, session: Option<&Path>) -> Harness<'static, Stud
         // The test's UI thread mostly sleeps between steps: jobs may have every core.
         job_threads: std::thread::available_parallelism().map_or(2, std::num::NonZeroUsize::get),
         started: Instant::now(),
+        // In the test's own demo folder: no test sees another's list.
+        recent_file: Some(demo_dir.join("recent.json")),
     };
     Harness::builder()
         .with_size(egui::Vec2::new(1280.0, 800.0))
@@ -992,7 +994,10 @@ fn light_theme_and_user_session() {
         folder.join("session.json").is_file(),
         "a new session is saved at once"
     );
-    h.get_by_label("Light theme").click();
+    h.get_by_label("View").click();
+    h.run_steps(2);
+    // The entry's label carries its shortcut.
+    h.get_by_label_contains("Light theme").click();
     h.run_steps(2);
     assert!(!h.state().dark);
     // Drag and drop a file onto the window.
@@ -1439,4 +1444,151 @@ fn models_warn_what_to_shoot_when_the_settings_cannot_determine_the_model() {
     h.get_by_label_contains("Every shot is at 35 mm");
     h.get_by_label_contains("shoot at least 1 more aperture between f/4.0 and f/8.0");
     snapshot(&mut h, "studio_models_warning");
+}
+
+/// The demo is handed over shot by shot, so the studio shows the first shot while the
+/// rest are simulated; the finished demo holds a natural photo blurred by the lens, at
+/// one of its own settings and on its sensor, which the Deblur view opens.
+#[test]
+fn the_demo_streams_its_shots_and_blurs_a_photo() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let spec = test_demo();
+    let t0 = Instant::now();
+    let mut seen = Vec::new();
+    let made = lensblur::session::make_demo_streaming(
+        dir.path(),
+        &spec,
+        &JobContext::silent(),
+        &mut |s| {
+            seen.push(s.shots.len());
+            if seen.len() == 1 {
+                eprintln!("first demo shot after {:.2} s", t0.elapsed().as_secs_f32());
+            }
+        },
+    )
+    .expect("demo");
+    eprintln!("whole demo after {:.2} s", t0.elapsed().as_secs_f32());
+    let n = spec.settings.len();
+    assert_eq!(seen, (1..=n).collect::<Vec<_>>());
+    let photo = made.demo_photo.as_ref().expect("a demo photo");
+    assert!(
+        spec.settings
+            .iter()
+            .any(|s| s.focal_mm == photo.focal_mm && s.f_number == photo.f_number),
+        "the photo is at a setting the demo measures"
+    );
+    let img = image::open(dir.path().join(&photo.path)).expect("the photo decodes");
+    assert_eq!(
+        (img.width() as usize, img.height() as usize),
+        (spec.width, spec.height)
+    );
+    // Saved with the session, so a reopened demo still opens its photo.
+    let reopened = Session::open(dir.path()).expect("reopen");
+    assert_eq!(reopened.demo_photo.as_ref(), Some(photo));
+
+    // The studio on that demo opens the photo in the Deblur view, at its setting.
+    let mut h = new_harness(dir.path(), None);
+    step_until(
+        &mut h,
+        "the demo and its photo",
+        Duration::from_secs(60),
+        |a| demo_ready(a) && a.deblur.photo.is_some(),
+    );
+    let p = h.state().deblur.photo.as_ref().expect("photo");
+    assert_eq!(
+        (p.focal_mm, p.f_number),
+        (Some(photo.focal_mm), Some(photo.f_number))
+    );
+    h.state_mut()
+        .commands
+        .push(Command::SelectView(View::Deblur));
+    h.run_steps(1);
+    step_until(&mut h, "the photo's preview", Duration::from_secs(60), idle);
+    snapshot(&mut h, "studio_deblur_demo_photo");
+}
+
+/// Messages of this run in the log panel, the question asked before removing a shot,
+/// the About window, and the session opened listed under File ▸ Recent sessions.
+#[test]
+fn log_panel_confirmation_about_and_recent_sessions() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let folder = dir.path().join("session");
+    make_demo(&folder, &test_demo(), &JobContext::silent())
+        .expect("session")
+        .save()
+        .expect("save");
+    let demo_dir = dir.path().join("demo");
+    let mut h = new_harness(&demo_dir, Some(&folder));
+    step_until(&mut h, "the session", Duration::from_secs(60), demo_ready);
+    let n = h.state().session.as_ref().map_or(0, |s| s.shots.len());
+    let first = h.state().session.as_ref().expect("session").shots[0].id;
+
+    // Removing a shot asks first; Cancel keeps it, Remove removes it.
+    h.state_mut()
+        .commands
+        .push(Command::AskConfirm(lensblur::app::Confirm::RemoveShot(
+            first,
+        )));
+    h.run_steps(3);
+    snapshot(&mut h, "studio_confirm_remove");
+    h.get_by_label("Cancel").click();
+    h.run_steps(2);
+    assert!(h.state().confirm.is_none());
+    assert_eq!(h.state().session.as_ref().map(|s| s.shots.len()), Some(n));
+    h.state_mut()
+        .commands
+        .push(Command::AskConfirm(lensblur::app::Confirm::RemoveShot(
+            first,
+        )));
+    h.run_steps(3);
+    h.get_by_label("Remove").click();
+    h.run_steps(2);
+    assert_eq!(
+        h.state().session.as_ref().map(|s| s.shots.len()),
+        Some(n - 1)
+    );
+
+    // Detect on the rest: its end is said in words, with the count.
+    h.state_mut().commands.push(Command::RunDetect(None));
+    h.run_steps(1);
+    step_until(&mut h, "detection", Duration::from_secs(120), idle);
+    let said = h.state().log.iter().any(|m| {
+        m.text
+            .starts_with(&format!("Detected the chart in {} shots", n - 1))
+    });
+    assert!(said, "{:?}", h.state().log);
+    assert!(
+        h.state()
+            .log
+            .iter()
+            .all(|m| !m.text.contains("{") && !m.text.contains("Some(")),
+        "no debug dumps: {:?}",
+        h.state().log
+    );
+
+    // The log: every message with its time (fixed here, so the snapshot is stable).
+    h.state_mut().messages.clear();
+    for m in &mut h.state_mut().log {
+        m.time = "12:00:00".into();
+    }
+    h.state_mut().commands.push(Command::SetLogOpen(true));
+    h.run_steps(3);
+    snapshot(&mut h, "studio_log");
+    h.state_mut().commands.push(Command::SetLogOpen(false));
+
+    h.state_mut().commands.push(Command::ShowAbout(true));
+    h.run_steps(3);
+    snapshot(&mut h, "studio_about");
+    h.state_mut().commands.push(Command::ShowAbout(false));
+    h.run_steps(2);
+
+    // The session is remembered, and listed under File ▸ Recent sessions.
+    let recent = lensblur::session::read_recent(&demo_dir.join("recent.json"));
+    assert_eq!(recent.len(), 1, "{recent:?}");
+    assert!(recent[0].ends_with("session"));
+    h.get_by_label("File").click();
+    h.run_steps(2);
+    h.get_by_label("Recent sessions").hover();
+    h.run_steps(3);
+    h.snapshot("studio_menu_recent");
 }

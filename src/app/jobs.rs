@@ -148,6 +148,19 @@ pub struct Jobs<T> {
     wake: Arc<dyn Fn() + Send + Sync>,
     /// Where jobs compute; `None` if it could not be built (rayon's global pool then).
     pool: Option<Arc<rayon::ThreadPool>>,
+    /// How many workers a pool of jobs has.
+    threads: usize,
+}
+
+/// A pool for jobs: `threads` workers at a lower priority than the window.
+fn job_pool(threads: usize, name: &'static str) -> Option<Arc<rayon::ThreadPool>> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .thread_name(move |i| format!("{name}-{i}"))
+        .start_handler(|_| lower_priority())
+        .build()
+        .ok()
+        .map(Arc::new)
 }
 
 impl<T: Send + 'static> Jobs<T> {
@@ -164,21 +177,31 @@ impl<T: Send + 'static> Jobs<T> {
         } else {
             threads
         };
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .thread_name(|i| format!("job-worker-{i}"))
-            .start_handler(|_| lower_priority())
-            .build()
-            .ok()
-            .map(Arc::new);
         Self {
             next_id: 1,
             running: Vec::new(),
             tx,
             rx,
             wake: Arc::new(wake),
-            pool,
+            pool: job_pool(threads, "job-worker"),
+            threads,
         }
+    }
+
+    /// Starts `work` on a pool of its own, so that it holds back no other job: a job
+    /// runs whole on one of its pool's workers, so on a two-core machine (one worker) the
+    /// demo's minute of simulation would keep the shots it has made from being loaded
+    /// and shown until the last was made. Its workers too run at a lower priority.
+    ///
+    /// # Errors
+    /// The thread could not be spawned.
+    pub fn spawn_apart(
+        &mut self,
+        name: &str,
+        work: impl FnOnce(&JobContext, &Emitter<T>) -> Result<(), String> + Send + 'static,
+    ) -> Result<u64, String> {
+        let pool = job_pool(self.threads, "apart-worker");
+        self.spawn_on(name, JobScope::default(), pool, work)
     }
 
     /// Starts `work` on its own named thread.
@@ -201,6 +224,17 @@ impl<T: Send + 'static> Jobs<T> {
         &mut self,
         name: &str,
         scope: JobScope,
+        work: impl FnOnce(&JobContext, &Emitter<T>) -> Result<(), String> + Send + 'static,
+    ) -> Result<u64, String> {
+        let pool = self.pool.clone();
+        self.spawn_on(name, scope, pool, work)
+    }
+
+    fn spawn_on(
+        &mut self,
+        name: &str,
+        scope: JobScope,
+        pool: Option<Arc<rayon::ThreadPool>>,
         work: impl FnOnce(&JobContext, &Emitter<T>) -> Result<(), String> + Send + 'static,
     ) -> Result<u64, String> {
         let shots: ShotFlags = Arc::new(
@@ -229,7 +263,6 @@ impl<T: Send + 'static> Jobs<T> {
             shots: Arc::clone(&shots),
         };
         let worker_ctx = ctx.clone();
-        let pool = self.pool.clone();
         let job_name = name.to_owned();
         std::thread::Builder::new()
             .name(format!("job-{id}-{name}"))

@@ -6,8 +6,8 @@
 use super::jobs::{Emitter, JobEvent, JobScope};
 use super::view_data;
 use super::{
-    Command, ComparisonView, DeblurResult, DeblurZoom, JobOutput, PendingPlotPng, Photo, PlotId,
-    ShotPreview, StudioApp,
+    Command, ComparisonView, Confirm, DeblurResult, DeblurZoom, JobOutput, PendingPlotPng, Photo,
+    PlotId, ShotPreview, StudioApp,
 };
 use crate::deblur::{DeblurOptions, KernelSource, Method};
 use crate::detect::Detection;
@@ -21,39 +21,86 @@ use crate::session::{Session, ShotId, StageStatus};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+/// Commands made by the answers of file dialogs that have closed.
+pub(super) fn drain_dialogs(app: &mut StudioApp) {
+    while let Ok(commands) = app.dialog_rx.try_recv() {
+        app.dialog_open = false;
+        app.commands.extend(commands);
+    }
+}
+
+/// Runs a file dialog on its own thread: `dialog` makes the dialog's future there (a
+/// portal dialog is a D-Bus conversation that would otherwise hold the window's
+/// frames), and the commands its answer makes come back through the app's channel.
+fn spawn_dialog<F>(app: &mut StudioApp, dialog: impl FnOnce() -> F + Send + 'static)
+where
+    F: std::future::Future<Output = Vec<Command>>,
+{
+    if app.dialog_open {
+        app.info("a file dialog is already open: answer it first");
+        return;
+    }
+    let tx = app.dialog_tx.clone();
+    let ctx = app.ctx.clone();
+    let started = std::thread::Builder::new()
+        .name("file dialog".into())
+        .spawn(move || {
+            let commands = pollster::block_on(dialog());
+            // The app may have closed meanwhile; then nobody needs the answer.
+            let _ = tx.send(commands);
+            ctx.request_repaint();
+        });
+    match started {
+        Ok(_) => app.dialog_open = true,
+        Err(e) => app.error(format!("cannot open the file dialog: {e}")),
+    }
+}
+
+/// The path a dialog answered, or no command when it was cancelled.
+fn answer(
+    handle: Option<rfd::FileHandle>,
+    command: impl FnOnce(PathBuf) -> Command,
+) -> Vec<Command> {
+    handle
+        .map(|h| command(h.path().to_path_buf()))
+        .into_iter()
+        .collect()
+}
+
 pub(super) fn drain_jobs(app: &mut StudioApp) {
     for event in app.jobs.drain() {
         match event {
             JobEvent::Output {
-                session, output, ..
+                job,
+                session,
+                output,
             } => {
                 // A result for a session that has since been closed is not this one's.
                 if session.is_none_or(|g| g == app.session_generation) {
+                    tally(app, job, &output);
                     apply_output(app, output);
                 }
             }
-            JobEvent::Finished {
-                name,
-                result: Err(e),
-                ..
-            } => {
-                // A preview cancelled by a newer one (a control being dragged) is not
-                // news: the newer one's result follows.
-                if e == "cancelled" && name == "deblur preview" {
-                } else if e == "cancelled" {
-                    app.info(format!("{name}: cancelled"));
-                } else {
-                    app.error(e);
+            JobEvent::Finished { job, name, result } => {
+                let tally = app.tallies.remove(&job);
+                match result {
+                    // A preview cancelled by a newer one (a control being dragged) is
+                    // not news: the newer one's result follows.
+                    Err(e) if e == "cancelled" && name == "deblur preview" => {}
+                    Err(e) if e == "cancelled" => {
+                        let done = tally.map_or(String::new(), |t| match t.ok + t.failed.len() {
+                            1 => " after 1 shot".to_owned(),
+                            n => format!(" after {n} shots"),
+                        });
+                        app.info(format!("{name}: cancelled{done}"));
+                    }
+                    Err(e) => app.error(e),
+                    Ok(()) => {
+                        if let Some(t) = tally {
+                            finished_message(app, &name, &t);
+                        }
+                    }
                 }
-                if name == "kernels" {
-                    spawn_dataset(app);
-                }
-            }
-            JobEvent::Finished {
-                name,
-                result: Ok(()),
-                ..
-            } => {
                 if name == "kernels" {
                     spawn_dataset(app);
                 }
@@ -62,15 +109,85 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
     }
 }
 
+/// Counts a detect or kernels job's shots as they come back.
+fn tally(app: &mut StudioApp, job: u64, output: &JobOutput) {
+    let (id, failure) = match output {
+        JobOutput::Detected { shot, result } => (*shot, result.as_ref().err()),
+        JobOutput::KernelsMeasured { shot, result } => (*shot, result.as_ref().err()),
+        _ => return,
+    };
+    let name = app
+        .session
+        .as_ref()
+        .and_then(|s| s.shot(id))
+        .map_or_else(|| format!("shot {}", id.0), crate::session::Shot::name);
+    let reason = failure.map(|e| {
+        let e = app.shorten_paths(e.clone());
+        // The core names the file first; the message names it once.
+        e.strip_prefix(&format!("{name}: "))
+            .map_or_else(|| e.clone(), str::to_owned)
+    });
+    let t = app.tallies.entry(job).or_default();
+    match reason {
+        Some(r) => t.failed.push((name, r)),
+        None => t.ok += 1,
+    }
+}
+
+/// "Measured kernels for 9 shots (1 failed: IMG_3.png — no chart found)".
+fn finished_message(app: &mut StudioApp, job: &str, t: &super::Tally) {
+    let n = t.ok + t.failed.len();
+    let shots = if n == 1 {
+        "1 shot".to_owned()
+    } else {
+        format!("{n} shots")
+    };
+    let what = match job {
+        "detect" => format!("Detected the chart in {shots}"),
+        "kernels" => format!("Measured kernels for {shots}"),
+        _ => return,
+    };
+    if t.failed.is_empty() {
+        app.info(what);
+    } else {
+        let failed: Vec<String> = t
+            .failed
+            .iter()
+            .map(|(name, reason)| format!("{name} — {reason}"))
+            .collect();
+        app.error(format!(
+            "{what} ({} failed: {})",
+            t.failed.len(),
+            failed.join("; ")
+        ));
+    }
+}
+
 fn apply_output(app: &mut StudioApp, output: JobOutput) {
     match output {
+        JobOutput::DemoShot(s) => {
+            if app.session.is_none() {
+                if app.set_session(*s) {
+                    app.info("demo session: showing each simulated shot as soon as it is made");
+                }
+            } else {
+                merge_demo(app, &s);
+            }
+        }
         JobOutput::DemoReady(s) => {
             let n = s.shots.len();
-            if !app.set_session(*s) {
+            if app.session.is_none() {
+                if !app.set_session(*s) {
+                    return;
+                }
+            } else if !merge_demo(app, &s) {
+                // The user opened another session meanwhile: the demo waits in its
+                // folder for the next launch.
                 return;
             }
+            save(app);
             app.info(format!(
-                "demo session ready: {n} simulated shots of the virtual lens"
+                "demo session ready: {n} simulated shots of the virtual lens, and a photo it blurred"
             ));
         }
         JobOutput::ShotLoaded {
@@ -111,7 +228,10 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
             cv,
             path,
         } => {
-            let kind = format!("{:?}", profile.preferred).to_lowercase();
+            let kind = match profile.preferred {
+                crate::model::ModelKind::Global => "global",
+                crate::model::ModelKind::Local => "local",
+            };
             app.info(format!(
                 "calibrated on {} samples from {} shots; {kind} model preferred; profile saved to {}",
                 dataset.samples.len(),
@@ -239,7 +359,14 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
                     .find(|shot| s.path_of(shot) == path)
                     .map(|shot| (shot.focal_mm, shot.f_number))
             });
-            let (rf, ra) = recorded.unwrap_or((None, None));
+            // The demo's photo is a PNG: its setting is in the session instead.
+            let demo = app.session.as_ref().and_then(|s| {
+                s.demo_photo
+                    .as_ref()
+                    .filter(|p| s.folder().join(&p.path) == path)
+                    .map(|p| (Some(p.focal_mm), Some(p.f_number)))
+            });
+            let (rf, ra) = recorded.or(demo).unwrap_or((None, None));
             let centre = [
                 (capture.width as f64 - 1.0) / 2.0,
                 (capture.height as f64 - 1.0) / 2.0,
@@ -317,6 +444,29 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
     }
 }
 
+/// Adds to the open demo session the shots the demo job has made since (and at the end
+/// its photo). False when the open session is another one.
+fn merge_demo(app: &mut StudioApp, made: &Session) -> bool {
+    let Some(s) = app
+        .session
+        .as_mut()
+        .filter(|s| s.is_demo && s.folder() == made.folder())
+    else {
+        return false;
+    };
+    // Each shot is added once, by id: one the user removed meanwhile stays removed.
+    let known = s.next_shot_id;
+    s.shots
+        .extend(made.shots.iter().filter(|shot| shot.id.0 >= known).cloned());
+    s.next_shot_id = s.next_shot_id.max(made.next_shot_id);
+    if s.demo_photo.is_none() && made.demo_photo.is_some() {
+        s.demo_photo.clone_from(&made.demo_photo);
+        let opened = s.clone();
+        app.open_demo_photo(&opened);
+    }
+    true
+}
+
 pub(super) fn save(app: &mut StudioApp) {
     if let Some(s) = &app.session
         && let Err(e) = s.save()
@@ -336,15 +486,18 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         Command::SelectChannel(c) => app.channel = c,
         Command::ClearSquare => app.selected_square = None,
         Command::SelectSquare(sq) => app.selected_square = Some(sq),
-        Command::AddShotsDialog => {
-            if let Some(files) = rfd::FileDialog::new()
+        Command::AddShotsDialog => spawn_dialog(app, || async {
+            rfd::AsyncFileDialog::new()
                 .set_title("Add calibration shots")
                 .add_filter("RAW, DNG, TIFF, PNG, JPEG", crate::session::SHOT_EXTENSIONS)
                 .pick_files()
-            {
-                apply(app, Command::AddShots(files));
-            }
-        }
+                .await
+                .map(|files| {
+                    Command::AddShots(files.iter().map(|f| f.path().to_path_buf()).collect())
+                })
+                .into_iter()
+                .collect()
+        }),
         Command::AddShots(files) => add_shots(app, &files),
         Command::RemoveShot(id) => remove_shot(app, id),
         Command::SetShotSetting {
@@ -359,31 +512,50 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
                 spawn_dataset(app);
             }
         }
-        Command::ApplySettings { chart, settings } => apply_settings(app, chart, settings),
-        Command::LoadChartDialog => {
-            if let Some(path) = rfd::FileDialog::new()
-                .set_title("Load a chart spec")
-                .add_filter("chart spec", &["json"])
-                .pick_file()
-            {
-                match crate::chart::ChartSpec::load(&path) {
-                    Ok(spec) => {
-                        let settings = app
-                            .settings_edit
-                            .as_ref()
-                            .map(|e| e.1.clone())
-                            .or_else(|| app.session.as_ref().map(|s| s.settings.clone()))
-                            .unwrap_or_default();
-                        app.settings_edit = Some((spec, settings));
-                        app.info(format!(
-                            "chart spec {} read: press Apply to use it",
-                            app.shown_path(&path)
-                        ));
-                    }
-                    Err(e) => app.error(e.to_string()),
-                }
+        Command::ApplySettings { chart, settings } => {
+            // A new chart discards what was measured with the old one: ask first.
+            let has_results = !app.detections.is_empty() || !app.measured.is_empty();
+            let chart_changed = app.session.as_ref().is_some_and(|s| s.chart != chart);
+            if chart_changed && has_results {
+                app.confirm = Some(Confirm::ReplaceChart { chart, settings });
+            } else {
+                apply_settings(app, chart, settings);
             }
         }
+        Command::AskConfirm(c) => app.confirm = Some(c),
+        Command::ConfirmAnswer(yes) => match app.confirm.take() {
+            Some(Confirm::RemoveShot(id)) if yes => remove_shot(app, id),
+            Some(Confirm::ReplaceChart { chart, settings }) if yes => {
+                apply_settings(app, chart, settings);
+            }
+            _ => {}
+        },
+        Command::LoadChartDialog => spawn_dialog(app, || async {
+            answer(
+                rfd::AsyncFileDialog::new()
+                    .set_title("Load a chart spec")
+                    .add_filter("chart spec", &["json"])
+                    .pick_file()
+                    .await,
+                Command::LoadChart,
+            )
+        }),
+        Command::LoadChart(path) => match crate::chart::ChartSpec::load(&path) {
+            Ok(spec) => {
+                let settings = app
+                    .settings_edit
+                    .as_ref()
+                    .map(|e| e.1.clone())
+                    .or_else(|| app.session.as_ref().map(|s| s.settings.clone()))
+                    .unwrap_or_default();
+                app.settings_edit = Some((spec, settings));
+                app.info(format!(
+                    "chart spec {} read: press Apply to use it",
+                    app.shown_path(&path)
+                ));
+            }
+            Err(e) => app.error(e.to_string()),
+        },
         Command::RunDetect(which) => run_detect(app, which),
         Command::RunKernels(which) => run_kernels(app, which),
         Command::RunCalibrate => run_calibrate(app),
@@ -396,15 +568,16 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         }
         Command::SetCompareUnits(on) => app.compare_units = on,
         Command::SetFieldOptions(o) => app.field_options = o,
-        Command::OpenPhotoDialog => {
-            if let Some(p) = rfd::FileDialog::new()
-                .set_title("Open a photo to deblur")
-                .add_filter("RAW, DNG, TIFF, PNG, JPEG", crate::session::SHOT_EXTENSIONS)
-                .pick_file()
-            {
-                apply(app, Command::OpenPhoto(p));
-            }
-        }
+        Command::OpenPhotoDialog => spawn_dialog(app, || async {
+            answer(
+                rfd::AsyncFileDialog::new()
+                    .set_title("Open a photo to deblur")
+                    .add_filter("RAW, DNG, TIFF, PNG, JPEG", crate::session::SHOT_EXTENSIONS)
+                    .pick_file()
+                    .await,
+                Command::OpenPhoto,
+            )
+        }),
         Command::OpenPhoto(path) => {
             let r = app.jobs.spawn("open photo", move |ctx, out| {
                 ctx.report("loading", 0, 1);
@@ -486,7 +659,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
             };
             // A RAW photo goes back to a RAW editor as a DNG; TIFF/PNG stay offered.
             let raw = photo.capture.raw.is_some();
-            let mut dialog = rfd::FileDialog::new().set_title(if raw {
+            let mut dialog = rfd::AsyncFileDialog::new().set_title(if raw {
                 "Export the deblurred photo (DNG for a RAW editor, or 16-bit linear)"
             } else {
                 "Export the deblurred photo (16-bit linear)"
@@ -503,13 +676,16 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
             if let Some(dir) = photo.path.parent() {
                 dialog = dialog.set_directory(dir);
             }
-            if let Some(path) = dialog.save_file() {
-                apply(app, Command::ExportDeblur { path, result });
-            }
+            spawn_dialog(app, move || async move {
+                answer(dialog.save_file().await, |path| Command::ExportDeblur {
+                    path,
+                    result,
+                })
+            });
         }
         Command::ExportDeblur { path, result } => run_export(app, path, result),
-        Command::ExportPhotosDialog { dng } => {
-            let Some(photos) = rfd::FileDialog::new()
+        Command::ExportPhotosDialog { dng } => spawn_dialog(app, move || async move {
+            let Some(photos) = rfd::AsyncFileDialog::new()
                 .set_title(if dng {
                     "RAW photos to deblur (written as DNGs)"
                 } else {
@@ -517,23 +693,23 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
                 })
                 .add_filter("RAW, DNG, TIFF, PNG, JPEG", crate::session::SHOT_EXTENSIONS)
                 .pick_files()
+                .await
             else {
-                return;
+                return Vec::new();
             };
-            if let Some(out_dir) = rfd::FileDialog::new()
-                .set_title("Folder for the deblurred photos")
-                .pick_folder()
-            {
-                apply(
-                    app,
-                    Command::ExportPhotos {
-                        photos,
-                        out_dir,
-                        dng,
-                    },
-                );
-            }
-        }
+            let photos: Vec<PathBuf> = photos.iter().map(|f| f.path().to_path_buf()).collect();
+            answer(
+                rfd::AsyncFileDialog::new()
+                    .set_title("Folder for the deblurred photos")
+                    .pick_folder()
+                    .await,
+                |out_dir| Command::ExportPhotos {
+                    photos,
+                    out_dir,
+                    dng,
+                },
+            )
+        }),
         Command::ExportPhotos {
             photos,
             out_dir,
@@ -541,17 +717,20 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         } => run_export_photos(app, photos, out_dir, dng),
         Command::LoadProfileDialog | Command::LoadCompareProfileDialog => {
             let compare = command == Command::LoadCompareProfileDialog;
-            if let Some(path) = rfd::FileDialog::new()
-                .set_title(if compare {
-                    "Load a second lens profile to compare"
-                } else {
-                    "Load a lens profile"
-                })
-                .add_filter("lens profile", &["json"])
-                .pick_file()
-            {
-                apply(app, Command::LoadProfile { path, compare });
-            }
+            spawn_dialog(app, move || async move {
+                answer(
+                    rfd::AsyncFileDialog::new()
+                        .set_title(if compare {
+                            "Load a second lens profile to compare"
+                        } else {
+                            "Load a lens profile"
+                        })
+                        .add_filter("lens profile", &["json"])
+                        .pick_file()
+                        .await,
+                    |path| Command::LoadProfile { path, compare },
+                )
+            });
         }
         Command::LoadProfile { path, compare } => {
             let r = app.jobs.spawn("load profile", move |_ctx, out| {
@@ -568,39 +747,52 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
             }
         }
         Command::SaveProfileDialog => {
+            if app.profile.is_none() {
+                app.error("no profile to save: calibrate first (Ctrl+M) or load one");
+                return;
+            }
+            spawn_dialog(app, || async {
+                answer(
+                    rfd::AsyncFileDialog::new()
+                        .set_title("Save the lens profile")
+                        .add_filter("lens profile", &["json"])
+                        .set_file_name("profile.json")
+                        .save_file()
+                        .await,
+                    Command::SaveProfile,
+                )
+            });
+        }
+        Command::SaveProfile(path) => {
             let Some((_, profile)) = app.profile.clone() else {
                 app.error("no profile to save: calibrate first (Ctrl+M) or load one");
                 return;
             };
-            if let Some(path) = rfd::FileDialog::new()
-                .set_title("Save the lens profile")
-                .add_filter("lens profile", &["json"])
-                .set_file_name("profile.json")
-                .save_file()
-            {
-                match profile.save(&path) {
-                    Ok(()) => app.info(format!("profile saved to {}", app.shown_path(&path))),
-                    Err(e) => app.error(e.to_string()),
-                }
+            match profile.save(&path) {
+                Ok(()) => app.info(format!("profile saved to {}", app.shown_path(&path))),
+                Err(e) => app.error(e.to_string()),
             }
         }
         Command::SavePlotDialog { plot, png } => {
             let (what, ext) = if png { ("PNG", "png") } else { ("CSV", "csv") };
-            if let Some(path) = rfd::FileDialog::new()
-                .set_title(format!("Save the plot as {what}"))
-                .add_filter(what, &[ext])
-                .set_file_name(format!("{}.{ext}", plot.file_stem(app.sweep_axis)))
-                .save_file()
-            {
-                apply(
-                    app,
-                    if png {
-                        Command::SavePlotPng { plot, path }
-                    } else {
-                        Command::SavePlotCsv { plot, path }
+            let name = format!("{}.{ext}", plot.file_stem(app.sweep_axis));
+            spawn_dialog(app, move || async move {
+                answer(
+                    rfd::AsyncFileDialog::new()
+                        .set_title(format!("Save the plot as {what}"))
+                        .add_filter(what, &[ext])
+                        .set_file_name(name)
+                        .save_file()
+                        .await,
+                    |path| {
+                        if png {
+                            Command::SavePlotPng { plot, path }
+                        } else {
+                            Command::SavePlotCsv { plot, path }
+                        }
                     },
-                );
-            }
+                )
+            });
         }
         Command::SavePlotCsv { plot, path } => {
             let written = plot_table(app, plot).and_then(|t| {
@@ -613,14 +805,15 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
             }
         }
         Command::SavePlotPng { plot, path } => request_plot_png(app, plot, path),
-        Command::OpenSessionDialog => {
-            if let Some(dir) = rfd::FileDialog::new()
-                .set_title("Open or create a session folder")
-                .pick_folder()
-            {
-                apply(app, Command::OpenSession(dir));
-            }
-        }
+        Command::OpenSessionDialog => spawn_dialog(app, || async {
+            answer(
+                rfd::AsyncFileDialog::new()
+                    .set_title("Open or create a session folder")
+                    .pick_folder()
+                    .await,
+                Command::OpenSession,
+            )
+        }),
         Command::SetViewer(v) => app.viewer = v,
         Command::SetSlider(t) => app.deblur.slider = t.clamp(0.0, 1.0),
         Command::EditSettings(edit) => app.settings_edit = edit,
@@ -651,6 +844,10 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
                 app.messages.remove(i);
             }
         }
+        Command::SetLogOpen(open) => app.log_open = open,
+        Command::ShowHelp(open) => app.show_help = open,
+        Command::ShowAbout(open) => app.show_about = open,
+        Command::Quit => app.ctx.send_viewport_cmd(egui::ViewportCommand::Close),
     }
 }
 
@@ -1012,7 +1209,9 @@ fn run_detect(app: &mut StudioApp, which: Option<ShotId>) {
         return;
     };
     if ids.is_empty() {
-        app.info("every shot is already detected (select one and press Detect to redo it)");
+        app.info(
+            "every shot is already detected (right-click a shot and choose Detect this shot again to redo it)",
+        );
         return;
     }
     let m = session.measurement();
@@ -1182,17 +1381,30 @@ fn run_kernels(app: &mut StudioApp, which: Option<ShotId>) {
         app.info("kernel estimation is already running");
         return;
     }
-    let Some(session) = app.session.as_ref() else {
-        return;
-    };
     let ids: Vec<ShotId> = targets(app, which, |id| app.measured.contains_key(&id))
         .into_iter()
         .filter(|id| app.detections.contains_key(id))
         .collect();
     if ids.is_empty() {
-        app.info("no detected shot without kernels: run Detect (Ctrl+D) first");
+        let msg = match which {
+            Some(id) => format!(
+                "{}: detect the chart in it first (right-click it, Detect this shot again)",
+                app.session
+                    .as_ref()
+                    .and_then(|s| s.shot(id))
+                    .map_or_else(|| "the shot".into(), crate::session::Shot::name)
+            ),
+            None if app.detections.is_empty() => {
+                "no shot is detected yet: run Detect (Ctrl+D) first".to_owned()
+            }
+            None => "every detected shot already has kernels (right-click a shot and choose Estimate its kernels again to redo it)".to_owned(),
+        };
+        app.info(msg);
         return;
     }
+    let Some(session) = app.session.as_ref() else {
+        return;
+    };
     let m = session.measurement();
     let cache = session.cache();
     let work: Vec<ShotWork<(Arc<Detection>, GivenSetting)>> = ids

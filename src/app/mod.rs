@@ -202,10 +202,39 @@ pub enum Command {
     CancelAll,
     SetDark(bool),
     DismissMessage(usize),
+    /// Reads a chart spec file into the settings being edited (the dialog's answer).
+    LoadChart(PathBuf),
+    /// Saves the profile in use to a file (the dialog's answer).
+    SaveProfile(PathBuf),
+    /// Asks the user before doing something that loses work.
+    AskConfirm(Confirm),
+    /// The answer to the question asked: do it, or not.
+    ConfirmAnswer(bool),
+    /// Shows or hides the log panel (every message of this run, timestamped).
+    SetLogOpen(bool),
+    ShowHelp(bool),
+    ShowAbout(bool),
+    /// Closes the window (the session is saved on the way out).
+    Quit,
+}
+
+/// What the studio asks before doing it, because it cannot be undone from the window.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Confirm {
+    /// Remove a shot from the session (its file and cached results stay on disk).
+    RemoveShot(ShotId),
+    /// Apply a new chart: every detection and kernel measured with the old one is
+    /// discarded from the session's view and must be measured again.
+    ReplaceChart {
+        chart: ChartSpec,
+        settings: StageSettings,
+    },
 }
 
 /// What jobs hand back.
 pub enum JobOutput {
+    /// The demo session so far, each time another of its shots is on disk.
+    DemoShot(Box<Session>),
     DemoReady(Box<Session>),
     ShotLoaded {
         shot: ShotId,
@@ -290,6 +319,8 @@ pub struct AppOptions {
     pub job_threads: usize,
     /// When the process started, for the first-frame time.
     pub started: Instant,
+    /// The list of recently opened sessions (File ▸ Recent sessions); `None` keeps none.
+    pub recent_file: Option<PathBuf>,
 }
 
 impl Default for AppOptions {
@@ -309,6 +340,7 @@ impl Default for AppOptions {
                 .unwrap_or_default(),
             job_threads: 0,
             started: Instant::now(),
+            recent_file: Some(crate::session::default_recent_file()),
         }
     }
 }
@@ -318,6 +350,42 @@ impl Default for AppOptions {
 pub struct Message {
     pub is_error: bool,
     pub text: String,
+    /// The local time it was said, `HH:MM:SS`, as the log panel shows it.
+    pub time: String,
+}
+
+/// The wall clock as `HH:MM:SS`, local time where the system says which zone it is in.
+#[must_use]
+pub fn clock_now() -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    #[cfg(unix)]
+    {
+        if let Ok(t) = libc::time_t::try_from(secs) {
+            // SAFETY: localtime_r reads `t` and writes only into `tm`, which it owns.
+            let mut tm: libc::tm = unsafe { std::mem::zeroed() };
+            if !unsafe { libc::localtime_r(&t, &mut tm) }.is_null() {
+                return format!("{:02}:{:02}:{:02}", tm.tm_hour, tm.tm_min, tm.tm_sec);
+            }
+        }
+    }
+    let day = secs % 86_400;
+    format!(
+        "{:02}:{:02}:{:02} UTC",
+        day / 3600,
+        day % 3600 / 60,
+        day % 60
+    )
+}
+
+/// What a shot-by-shot job (detect, kernels) has handed back so far, for the message
+/// that says how it went once it ends.
+#[derive(Default)]
+pub(crate) struct Tally {
+    pub ok: usize,
+    /// Each failed shot's name and the reason.
+    pub failed: Vec<(String, String)>,
 }
 
 /// Where the Kernel field view's samples come from.
@@ -582,7 +650,17 @@ pub struct StudioApp {
     pub previews: BTreeMap<ShotId, ShotPreview>,
     /// Shots that could not be read, with the reason.
     pub unreadable: BTreeMap<ShotId, String>,
+    /// The status line's messages (dismissable), newest last.
     pub messages: Vec<Message>,
+    /// Every message of this run, newest last: the log panel.
+    pub log: Vec<Message>,
+    pub log_open: bool,
+    /// The question being asked, in a modal dialog.
+    pub confirm: Option<Confirm>,
+    pub show_help: bool,
+    pub show_about: bool,
+    /// Recently opened session folders, most recent first.
+    pub recent: Vec<PathBuf>,
     pub commands: Vec<Command>,
     pub viewer: ViewerState,
     /// Setting for the predicted / ground-truth field and the sweeps.
@@ -626,7 +704,16 @@ pub struct StudioApp {
     first_frame_logged: bool,
     /// Frames left of the autorun's strength drag.
     drag_frames: usize,
+    first_shot_logged: bool,
     ready_logged: bool,
+    /// File dialogs run on their own threads (a portal dialog's future, blocked on
+    /// there) and send back the commands their answer makes; the window never waits.
+    dialog_tx: std::sync::mpsc::Sender<Vec<Command>>,
+    dialog_rx: std::sync::mpsc::Receiver<Vec<Command>>,
+    /// One file dialog at a time: a second would stack on the first.
+    dialog_open: bool,
+    /// Per running detect or kernels job (by id): how its shots went so far.
+    tallies: BTreeMap<u64, Tally>,
 }
 
 impl StudioApp {
@@ -635,6 +722,12 @@ impl StudioApp {
     #[must_use]
     pub fn new(ctx: &egui::Context, options: AppOptions) -> Self {
         let wake_ctx = ctx.clone();
+        let (dialog_tx, dialog_rx) = std::sync::mpsc::channel();
+        let recent = options
+            .recent_file
+            .as_deref()
+            .map(crate::session::read_recent)
+            .unwrap_or_default();
         let mut app = Self {
             session: None,
             jobs: Jobs::new(options.job_threads, move || wake_ctx.request_repaint()),
@@ -644,6 +737,12 @@ impl StudioApp {
             previews: BTreeMap::new(),
             unreadable: BTreeMap::new(),
             messages: Vec::new(),
+            log: Vec::new(),
+            log_open: false,
+            confirm: None,
+            show_help: false,
+            show_about: false,
+            recent,
             commands: Vec::new(),
             viewer: ViewerState {
                 sensor_px_per_point: None,
@@ -693,7 +792,12 @@ impl StudioApp {
             session_lock: None,
             first_frame_logged: false,
             drag_frames: 0,
+            first_shot_logged: false,
             ready_logged: false,
+            dialog_tx,
+            dialog_rx,
+            dialog_open: false,
+            tallies: BTreeMap::new(),
         };
         ctx.set_theme(egui::Theme::Dark);
         match &options.session {
@@ -719,18 +823,23 @@ impl StudioApp {
 
     pub fn error(&mut self, text: impl Into<String>) {
         let text = self.shorten_paths(text.into());
-        self.messages.push(Message {
-            is_error: true,
-            text,
-        });
+        self.say(true, text);
     }
 
     pub fn info(&mut self, text: impl Into<String>) {
         let text = self.shorten_paths(text.into());
-        self.messages.push(Message {
-            is_error: false,
+        self.say(false, text);
+    }
+
+    /// The status line shows the latest messages until dismissed; the log keeps them all.
+    fn say(&mut self, is_error: bool, text: String) {
+        let m = Message {
+            is_error,
             text,
-        });
+            time: clock_now(),
+        };
+        self.log.push(m.clone());
+        self.messages.push(m);
     }
 
     /// A path as the UI shows it: relative to the session folder when it lies inside,
@@ -769,7 +878,14 @@ impl StudioApp {
         let dir = self.options.demo_dir.clone();
         if dir.join(crate::session::SESSION_FILE).is_file() {
             match Session::open(&dir) {
-                Ok(s) if s.is_demo && s.demo_key == Some(self.options.demo_spec.key()) => {
+                // A demo left half made (the window closed while it streamed in) is
+                // finished by make_demo, which keeps the shots already on disk.
+                Ok(s)
+                    if s.is_demo
+                        && s.demo_key == Some(self.options.demo_spec.key())
+                        && s.shots.len() == self.options.demo_spec.settings.len()
+                        && s.demo_photo.is_some() =>
+                {
                     self.set_session(s);
                     return;
                 }
@@ -780,8 +896,13 @@ impl StudioApp {
         let spec = self.options.demo_spec.clone();
         let started = self
             .jobs
-            .spawn("demo session", move |ctx: &JobContext, out| {
-                let s = crate::session::make_demo(&dir, &spec, ctx).map_err(|e| e.to_string())?;
+            .spawn_apart("demo session", move |ctx: &JobContext, out| {
+                // Each shot is shown as soon as it is on disk: a newcomer sees a
+                // session within seconds instead of waiting for all of them.
+                let s = crate::session::make_demo_streaming(&dir, &spec, ctx, &mut |s| {
+                    out.emit(JobOutput::DemoShot(Box::new(s.clone())));
+                })
+                .map_err(|e| e.to_string())?;
                 out.emit(JobOutput::DemoReady(Box::new(s)));
                 Ok(())
             });
@@ -859,12 +980,38 @@ impl StudioApp {
             self.field_f_number = a;
         }
         logic::read_results(self, &s);
+        if s.is_demo {
+            self.open_demo_photo(&s);
+        }
+        // Every session the user opens is remembered, but not the built-in demo: it is
+        // what the studio opens by itself.
+        if s.folder() != self.options.demo_dir
+            && let Some(file) = self.options.recent_file.clone()
+        {
+            match crate::session::remember_recent(&file, s.folder()) {
+                Ok(list) => self.recent = list,
+                Err(e) => self.error(format!("cannot remember the session as recent: {e}")),
+            }
+        }
         self.session = Some(s);
         true
     }
 
+    /// Opens the demo's photo in the Deblur view, unless a photo is open already.
+    pub(crate) fn open_demo_photo(&mut self, s: &Session) {
+        if let Some(p) = &s.demo_photo
+            && self.deblur.photo.is_none()
+        {
+            let path = s.folder().join(&p.path);
+            if path.is_file() {
+                self.commands.push(Command::OpenPhoto(path));
+            }
+        }
+    }
+
     /// Runs one frame's logic without drawing (also what tests call between steps).
     pub fn logic_step(&mut self) {
+        logic::drain_dialogs(self);
         logic::drain_jobs(self);
         logic::finish_plot_png(self);
         let commands = std::mem::take(&mut self.commands);
@@ -873,10 +1020,19 @@ impl StudioApp {
         }
         logic::ensure_preview(self);
         view_data::refresh(self);
-        let ready = self
-            .session
-            .as_ref()
-            .is_some_and(|s| self.previews.len() + self.unreadable.len() == s.shots.len());
+        let ready = !self.jobs.is_running("demo session")
+            && self.session.as_ref().is_some_and(|s| {
+                !s.shots.is_empty() && self.previews.len() + self.unreadable.len() == s.shots.len()
+            });
+        if !self.first_shot_logged && !self.previews.is_empty() {
+            self.first_shot_logged = true;
+            if self.options.log_frame_times {
+                eprintln!(
+                    "studio: first shot shown after {:.2} s",
+                    self.options.started.elapsed().as_secs_f32()
+                );
+            }
+        }
         if ready && !self.ready_logged {
             self.ready_logged = true;
             if self.options.log_frame_times {

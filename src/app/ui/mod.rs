@@ -41,14 +41,23 @@ const SHORTCUTS: &[(&str, &str)] = &[
     ("Page Up / Page Down", "previous / next shot"),
     ("Alt+R, Alt+G, Alt+B", "red, green, blue channel"),
     ("Ctrl+T", "light or dark theme"),
+    ("Ctrl+L", "show or hide the log"),
+    ("Ctrl+Q", "quit"),
     ("Esc", "cancel every running job"),
 ];
 
 pub(super) fn root_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     shortcuts(app, ui.ctx());
     dropped_files(app, ui.ctx());
+    egui::Panel::top("menu").show(ui, |ui| menu_bar_ui(app, ui));
     egui::Panel::top("top").show(ui, |ui| top_bar_ui(app, ui));
     egui::Panel::bottom("status").show(ui, |ui| status_ui(app, ui));
+    if app.log_open {
+        egui::Panel::bottom("log")
+            .resizable(true)
+            .default_size(180.0)
+            .show(ui, |ui| log_ui(app, ui));
+    }
     egui::Panel::left("session")
         .default_size(300.0)
         .resizable(true)
@@ -62,6 +71,340 @@ pub(super) fn root_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         View::Models => models::models_ui(app, ui),
         View::Deblur => deblur::deblur_ui(app, ui),
     });
+    let ctx = ui.ctx().clone();
+    confirm_ui(app, &ctx);
+    help_ui(app, &ctx);
+    about_ui(app, &ctx);
+}
+
+/// The menus: what a photographer looks for first (open, recent, export, quit), the
+/// views and panels, and help.
+fn menu_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    let out = &mut app.commands;
+    egui::MenuBar::new().ui(ui, |ui| {
+        ui.menu_button("File", |ui| {
+            if ui
+                .add(egui::Button::new("Open session…").shortcut_text("Ctrl+O"))
+                .on_hover_text("Open or create a session folder")
+                .clicked()
+            {
+                out.push(Command::OpenSessionDialog);
+            }
+            ui.add_enabled_ui(!app.recent.is_empty(), |ui| {
+                ui.menu_button("Recent sessions", |ui| {
+                    for path in &app.recent {
+                        let name = path.file_name().map_or_else(
+                            || path.display().to_string(),
+                            |n| n.to_string_lossy().into_owned(),
+                        );
+                        if ui
+                            .button(name)
+                            .on_hover_text(path.display().to_string())
+                            .clicked()
+                        {
+                            out.push(Command::OpenSession(path.clone()));
+                        }
+                    }
+                });
+            })
+            .response
+            .on_disabled_hover_text("Sessions you open are listed here");
+            if ui
+                .add(egui::Button::new("Add shots…").shortcut_text("Ctrl+Shift+A"))
+                .clicked()
+            {
+                out.push(Command::AddShotsDialog);
+            }
+            ui.separator();
+            if ui
+                .add(egui::Button::new("Open photo…").shortcut_text("Ctrl+P"))
+                .on_hover_text("Open a photo to deblur in the Deblur view")
+                .clicked()
+            {
+                out.push(Command::SelectView(View::Deblur));
+                out.push(Command::OpenPhotoDialog);
+            }
+            ui.menu_button("Export", |ui| {
+                let photo = app.deblur.photo.is_some();
+                if ui
+                    .add_enabled(
+                        photo,
+                        egui::Button::new("Photo deblurred (predicted)…").shortcut_text("Ctrl+E"),
+                    )
+                    .on_disabled_hover_text("Open a photo first (Ctrl+P)")
+                    .clicked()
+                {
+                    out.push(Command::ExportDeblurDialog(DeblurResult::Predicted));
+                }
+                if ui
+                    .add_enabled(
+                        photo,
+                        egui::Button::new("Photo deblurred (measured kernels)…"),
+                    )
+                    .on_disabled_hover_text("Open a photo first (Ctrl+P)")
+                    .clicked()
+                {
+                    out.push(Command::ExportDeblurDialog(DeblurResult::Measured));
+                }
+                let profile = app.profile.is_some();
+                if ui
+                    .add_enabled(profile, egui::Button::new("Photos as TIFF…"))
+                    .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
+                    .clicked()
+                {
+                    out.push(Command::ExportPhotosDialog { dng: false });
+                }
+                if ui
+                    .add_enabled(profile, egui::Button::new("RAW photos as DNG…"))
+                    .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
+                    .clicked()
+                {
+                    out.push(Command::ExportPhotosDialog { dng: true });
+                }
+                if ui
+                    .add_enabled(profile, egui::Button::new("Lens profile…"))
+                    .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
+                    .clicked()
+                {
+                    out.push(Command::SaveProfileDialog);
+                }
+            });
+            if ui.button("Load lens profile…").clicked() {
+                out.push(Command::LoadProfileDialog);
+            }
+            ui.separator();
+            if ui
+                .add(egui::Button::new("Quit").shortcut_text("Ctrl+Q"))
+                .clicked()
+            {
+                out.push(Command::Quit);
+            }
+        });
+        ui.menu_button("View", |ui| {
+            for (k, v) in View::ALL.into_iter().enumerate() {
+                if ui
+                    .add(
+                        egui::Button::selectable(app.view == v, v.label())
+                            .shortcut_text(format!("Alt+{}", k + 1)),
+                    )
+                    .clicked()
+                {
+                    out.push(Command::SelectView(v));
+                }
+            }
+            ui.separator();
+            if ui
+                .add(egui::Button::selectable(app.log_open, "Log").shortcut_text("Ctrl+L"))
+                .on_hover_text("Every message of this run, with its time")
+                .clicked()
+            {
+                out.push(Command::SetLogOpen(!app.log_open));
+            }
+            ui.separator();
+            for (dark, label) in [(true, "Dark theme"), (false, "Light theme")] {
+                if ui
+                    .add(egui::Button::selectable(app.dark == dark, label).shortcut_text("Ctrl+T"))
+                    .clicked()
+                {
+                    out.push(Command::SetDark(dark));
+                }
+            }
+        });
+        ui.menu_button("Help", |ui| {
+            if ui.button("How it works…").clicked() {
+                out.push(Command::ShowHelp(true));
+            }
+            ui.menu_button("Shortcuts", |ui| {
+                egui::Grid::new("shortcuts").striped(true).show(ui, |ui| {
+                    for (keys, what) in SHORTCUTS {
+                        ui.monospace(*keys);
+                        ui.label(*what);
+                        ui.end_row();
+                    }
+                });
+            });
+            if ui.button("About lensblur…").clicked() {
+                out.push(Command::ShowAbout(true));
+            }
+        });
+    });
+}
+
+/// The question asked before losing work, over a dimmed window.
+fn confirm_ui(app: &mut StudioApp, ctx: &egui::Context) {
+    let Some(confirm) = &app.confirm else {
+        return;
+    };
+    let (title, text, yes) = match confirm {
+        super::Confirm::RemoveShot(id) => {
+            let name = app
+                .session
+                .as_ref()
+                .and_then(|s| s.shot(*id))
+                .map_or_else(|| "this shot".into(), crate::session::Shot::name);
+            (
+                "Remove the shot?".to_owned(),
+                format!(
+                    "{name} leaves the session, with its detection and kernels. The file and its cached results stay on disk: adding the file again brings them back."
+                ),
+                "Remove",
+            )
+        }
+        super::Confirm::ReplaceChart { chart, .. } => (
+            "Replace the chart?".to_owned(),
+            format!(
+                "A chart of {} × {} squares replaces the session's. Every shot's detection and kernels, measured with the old chart, are set aside and must be measured again (Detect, then Kernels).",
+                chart.cols, chart.rows
+            ),
+            "Replace the chart",
+        ),
+    };
+    let mut answer = None;
+    let modal = egui::Modal::new(egui::Id::unique("confirm")).show(ctx, |ui| {
+        ui.set_max_width(380.0);
+        ui.heading(title);
+        ui.add_space(6.0);
+        ui.label(text);
+        ui.add_space(10.0);
+        ui.horizontal(|ui| {
+            if ui.button(yes).clicked() {
+                answer = Some(true);
+            }
+            if ui.button("Cancel").clicked() {
+                answer = Some(false);
+            }
+        });
+    });
+    if answer.is_none() && modal.should_close() {
+        answer = Some(false);
+    }
+    if let Some(yes) = answer {
+        app.commands.push(Command::ConfirmAnswer(yes));
+    }
+}
+
+/// The workflow in a few lines, for someone who has never calibrated a lens.
+const HELP: &[(&str, &str)] = &[
+    (
+        "1. Shoot the chart",
+        "Print the chart (assets/chart_24x16_20mm.pdf, at 100 %), fix it flat, and photograph it filling most of the frame at each focal length and aperture you use, focused on the chart, at base ISO, RAW if you can.",
+    ),
+    (
+        "2. Make a session",
+        "File ▸ Open session… on an empty folder, then Add shots… or drop the files on the window. Focal length and aperture come from EXIF; type them where missing.",
+    ),
+    (
+        "3. Measure",
+        "Detect (Ctrl+D) finds the chart's squares in every shot, Kernels (Ctrl+K) measures the blur at each square. The Shot and Kernel field views show what was found; right-click a shot to redo one.",
+    ),
+    (
+        "4. Calibrate",
+        "Calibrate (Ctrl+M) fits a model of the blur over the frame, focal length and aperture, and writes the lens profile. Sweeps and Models show how well it fits.",
+    ),
+    (
+        "5. Deblur",
+        "Open a photo (Ctrl+P) in the Deblur view, click where to look, compare, and export it (Ctrl+E): a RAW photo as a DNG for your RAW editor.",
+    ),
+];
+
+fn help_ui(app: &mut StudioApp, ctx: &egui::Context) {
+    let mut open = app.show_help;
+    egui::Window::new("How the studio works")
+        .open(&mut open)
+        .collapsible(false)
+        .pivot(egui::Align2::CENTER_CENTER)
+        .default_pos(ctx.content_rect().center())
+        .default_width(460.0)
+        .show(ctx, |ui| {
+            for (step, what) in HELP {
+                ui.strong(*step);
+                ui.label(*what);
+                ui.add_space(4.0);
+            }
+            ui.label(
+                egui::RichText::new(
+                    "The demo session is made from a virtual lens whose true blur is known: every view can compare what was measured with the truth.",
+                )
+                .weak(),
+            );
+        });
+    if !open {
+        app.commands.push(Command::ShowHelp(false));
+    }
+}
+
+/// The crates the studio is built on, as the About window credits them.
+const CRATES: &[&str] = &[
+    "egui, eframe, egui_plot, egui_extras, wgpu (the window)",
+    "rfd (file dialogs)",
+    "rawloader, imagepipe, ljpeg, kamadak-exif (RAW files and EXIF)",
+    "image, tiff, imageproc (images)",
+    "nalgebra, levenberg-marquardt, rustfft, realfft, rayon (the numerics)",
+    "serde, serde_json, clap, thiserror, anyhow (files, command line, errors)",
+    "pdf-writer, svg, flate2 (the chart)",
+];
+
+fn about_ui(app: &mut StudioApp, ctx: &egui::Context) {
+    let mut open = app.show_about;
+    egui::Window::new("About lensblur")
+        .open(&mut open)
+        .collapsible(false)
+        .resizable(false)
+        .anchor(egui::Align2::CENTER_CENTER, [0.0, 0.0])
+        .show(ctx, |ui| {
+            ui.heading(format!("lensblur {}", env!("CARGO_PKG_VERSION")));
+            ui.label(env!("CARGO_PKG_DESCRIPTION"));
+            ui.add_space(6.0);
+            ui.label(format!(
+                "Licence: {} (GNU General Public License, version 3 or later).",
+                env!("CARGO_PKG_LICENSE")
+            ));
+            ui.label("The demo photo: NASA, public domain (assets/README.md).");
+            ui.add_space(6.0);
+            ui.strong("Built with");
+            for c in CRATES {
+                ui.label(format!("• {c}"));
+            }
+        });
+    if !open {
+        app.commands.push(Command::ShowAbout(false));
+    }
+}
+
+/// Every message of this run with its time, newest at the bottom; errors in red.
+fn log_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    ui.horizontal(|ui| {
+        ui.strong("Log");
+        ui.label(match app.log.len() {
+            1 => "1 message".to_owned(),
+            n => format!("{n} messages"),
+        });
+        ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
+            if ui.small_button("Close").on_hover_text("Ctrl+L").clicked() {
+                app.commands.push(Command::SetLogOpen(false));
+            }
+        });
+    });
+    ui.separator();
+    egui::ScrollArea::vertical()
+        .auto_shrink([false, false])
+        .stick_to_bottom(true)
+        .show(ui, |ui| {
+            if app.log.is_empty() {
+                ui.label(egui::RichText::new("Nothing yet.").weak());
+            }
+            for m in &app.log {
+                ui.horizontal_wrapped(|ui| {
+                    ui.monospace(&m.time);
+                    let text = egui::RichText::new(&m.text);
+                    ui.label(if m.is_error {
+                        text.color(ui.visuals().error_fg_color)
+                    } else {
+                        text
+                    });
+                });
+            }
+        });
 }
 
 fn shortcuts(app: &mut StudioApp, ctx: &egui::Context) {
@@ -97,6 +440,12 @@ fn shortcuts(app: &mut StudioApp, ctx: &egui::Context) {
         }
         if i.consume_shortcut(&cmd(Key::T)) {
             out.push(Command::SetDark(!app.dark));
+        }
+        if i.consume_shortcut(&cmd(Key::L)) {
+            out.push(Command::SetLogOpen(!app.log_open));
+        }
+        if i.consume_shortcut(&cmd(Key::Q)) {
+            out.push(Command::Quit);
         }
         if i.consume_key(Modifiers::NONE, Key::Escape) {
             out.push(Command::CancelAll);
@@ -178,32 +527,6 @@ fn top_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 app.commands.push(Command::SelectChannel(c));
             }
         }
-        ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
-            let label = if app.dark {
-                "Light theme"
-            } else {
-                "Dark theme"
-            };
-            if ui.button(label).on_hover_text("Ctrl+T").clicked() {
-                app.commands.push(Command::SetDark(!app.dark));
-            }
-            ui.menu_button("Shortcuts", |ui| {
-                egui::Grid::new("shortcuts").striped(true).show(ui, |ui| {
-                    for (keys, what) in SHORTCUTS {
-                        ui.monospace(*keys);
-                        ui.label(*what);
-                        ui.end_row();
-                    }
-                });
-            });
-            if ui
-                .button("Open session…")
-                .on_hover_text("Open or create a session folder (Ctrl+O)")
-                .clicked()
-            {
-                app.commands.push(Command::OpenSessionDialog);
-            }
-        });
     });
 }
 
@@ -258,9 +581,26 @@ fn status_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     if let Some(i) = dismiss {
         app.commands.push(Command::DismissMessage(i));
     }
-    if app.jobs.running.is_empty() && app.messages.is_empty() {
-        ui.label("Ready.");
-    }
+    ui.horizontal(|ui| {
+        if app.jobs.running.is_empty() && app.messages.is_empty() {
+            ui.label("Ready.");
+        }
+        ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
+            let errors = app.log.iter().filter(|m| m.is_error).count();
+            let label = match errors {
+                0 => format!("Log ({})", app.log.len()),
+                1 => format!("Log ({}, 1 error)", app.log.len()),
+                e => format!("Log ({}, {e} errors)", app.log.len()),
+            };
+            if ui
+                .selectable_label(app.log_open, label)
+                .on_hover_text("Every message of this run, with its time (Ctrl+L)")
+                .clicked()
+            {
+                app.commands.push(Command::SetLogOpen(!app.log_open));
+            }
+        });
+    });
 }
 
 /// An x axis whose tick labels may stand 28 points apart: egui_plot's default wants 60,

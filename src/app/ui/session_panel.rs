@@ -27,6 +27,14 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         .on_hover_text(format!("Session folder: {}", session.folder().display()));
     if session.is_demo {
         ui.label("Demo: shots simulated from the virtual lens, whose true blur is known.");
+        if app.jobs.is_running("demo session") {
+            ui.label(
+                egui::RichText::new(
+                    "More shots arrive as they are simulated (first launch only; progress below).",
+                )
+                .weak(),
+            );
+        }
     }
     ui.horizontal_wrapped(|ui| {
         if ui
@@ -177,26 +185,46 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         if response.clicked() {
             out.push(Command::SelectShot(id));
         }
+        // Each entry says what it will do for this shot: run a stage for the first
+        // time or again, or why it cannot yet.
+        let detected = app.detections.contains_key(&id);
+        let measured = app.measured.contains_key(&id);
         response.context_menu(|ui| {
-            if ui.button("Detect this shot again").clicked() {
+            let detect = if detected {
+                "Detect this shot again"
+            } else {
+                "Detect this shot"
+            };
+            if ui.button(detect).clicked() {
                 out.push(Command::RunDetect(Some(id)));
                 ui.close();
             }
-            if ui.button("Estimate its kernels again").clicked() {
+            let kernels = if measured {
+                "Estimate its kernels again"
+            } else {
+                "Estimate its kernels"
+            };
+            if ui
+                .add_enabled(detected, egui::Button::new(kernels))
+                .on_disabled_hover_text("Detect the chart in this shot first")
+                .clicked()
+            {
                 out.push(Command::RunKernels(Some(id)));
                 ui.close();
             }
-            if ui.button("Remove from the session").clicked() {
-                out.push(Command::RemoveShot(id));
+            if ui.button("Remove from the session…").clicked() {
+                out.push(Command::AskConfirm(super::super::Confirm::RemoveShot(id)));
                 ui.close();
             }
         });
     }
     if n > 0 {
         ui.label(
-            egui::RichText::new("Right-click a shot to redo its stages or remove it.")
-                .small()
-                .weak(),
+            egui::RichText::new(
+                "Right-click a shot to detect it or estimate its kernels again (only that shot), or to remove it.",
+            )
+            .small()
+            .weak(),
         );
     }
     app.commands.extend(out);
