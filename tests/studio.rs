@@ -25,14 +25,29 @@ fn test_demo() -> DemoSpec {
     DemoSpec::grid(400, 280, &[24.0, 105.0], &[4.0, 10.0]).with_chart(8, 6)
 }
 
+/// The demo the README's and screenshots/' pictures come from: the studio's own
+/// 3 × 3 grid of settings (so sweeps are curves and β has more than two points) on the
+/// tests' small shots.
+fn nine_shot_demo() -> DemoSpec {
+    DemoSpec::grid(400, 280, &[24.0, 50.0, 105.0], &[4.0, 5.6, 10.0]).with_chart(8, 6)
+}
+
 fn new_harness(demo_dir: &Path, session: Option<&Path>) -> Harness<'static, StudioApp> {
+    new_harness_with(demo_dir, session, test_demo())
+}
+
+fn new_harness_with(
+    demo_dir: &Path,
+    session: Option<&Path>,
+    demo_spec: DemoSpec,
+) -> Harness<'static, StudioApp> {
     // Pin the software Vulkan renderer (lavapipe) so snapshots match across machines.
     // SAFETY: set before any renderer or thread reads it; tests in this file set the same value.
     unsafe { std::env::set_var("WGPU_BACKEND", "vulkan") };
     let options = AppOptions {
         session: session.map(Path::to_path_buf),
         demo_dir: demo_dir.to_path_buf(),
-        demo_spec: test_demo(),
+        demo_spec,
         log_frame_times: false,
         autorun: Vec::new(),
         // The test's UI thread mostly sleeps between steps: jobs may have every core.
@@ -188,10 +203,10 @@ fn demo_ready(app: &StudioApp) -> bool {
 fn every_view_on_the_demo_session() {
     let dir = tempfile::tempdir().expect("temp dir");
     let demo_dir = dir.path().join("demo");
-    let spec = test_demo();
+    let spec = nine_shot_demo();
     let n_shots = spec.settings.len();
     let n_squares = spec.chart.cols * spec.chart.rows;
-    let mut h = new_harness(&demo_dir, None);
+    let mut h = new_harness_with(&demo_dir, None, spec.clone());
     // The first frame comes before the demo exists: the panel says what is happening
     // and the status bar shows the job's progress.
     h.run_steps(1);

@@ -319,7 +319,7 @@ fn overview_ui(app: &mut StudioApp, ui: &mut egui::Ui, width: f32) {
             );
         }
         None => {
-            painter.rect_filled(rect, 0.0, Color32::from_gray(40));
+            painter.rect_filled(rect, 0.0, super::image_backdrop(ui));
         }
     }
     if let Some(c) = &app.deblur.comparison {

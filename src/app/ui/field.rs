@@ -460,7 +460,7 @@ fn field_panel_ui(
     response
         .widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, "kernel field panel"));
     let painter = ui.painter_at(rect);
-    painter.rect_filled(rect, 2.0, Color32::from_gray(18));
+    painter.rect_filled(rect, 2.0, super::image_backdrop(ui));
     painter.rect_stroke(
         rect,
         2.0,

@@ -781,3 +781,13 @@ fn slider_ticks(
         ));
     }
 }
+
+/// Behind an image or a map: near black in the dark theme, near white in the light
+/// one, so the frame reads as the window's own backdrop in either.
+pub(super) fn image_backdrop(ui: &egui::Ui) -> egui::Color32 {
+    if ui.visuals().dark_mode {
+        egui::Color32::from_gray(20)
+    } else {
+        egui::Color32::from_gray(228)
+    }
+}

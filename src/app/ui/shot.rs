@@ -231,14 +231,7 @@ fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState
     viewer.centre_sensor = view.centre;
 
     let painter = ui.painter_at(rect);
-    // Behind the image: near black in the dark theme, near white in the light one, so
-    // the frame reads as the window's own backdrop in either.
-    let backdrop = if ui.visuals().dark_mode {
-        Color32::from_gray(20)
-    } else {
-        Color32::from_gray(228)
-    };
-    painter.rect_filled(rect, 0.0, backdrop);
+    painter.rect_filled(rect, 0.0, super::image_backdrop(ui));
     let tex_size = texture.size_vec2();
     // Plane pixel (i, j) covers sensor [step·i + ox ± step/2]: the texture's outer edges.
     let min = view.to_screen(ox - step / 2.0, oy - step / 2.0);
