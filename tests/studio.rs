@@ -569,10 +569,21 @@ fn every_view_on_the_demo_session() {
     h.run_steps(2);
     // The preview on the GPU path (the software Vulkan here: asked for explicitly, as
     // Auto keeps to the CPU on a software adapter), then back to Auto.
+    // A small region: the software Vulkan takes about a minute for the default one.
+    h.state_mut().commands.push(Command::SetDeblurCrop(64));
+    h.run_steps(2);
+    step_until(&mut h, "the small region", Duration::from_secs(120), |a| {
+        idle(a) && a.deblur.comparison.is_some()
+    });
     let before = deblurred_region(h.state());
     h.state_mut()
         .commands
         .push(Command::SetDeblurDevice(lensblur::deblur::Device::Gpu));
+    h.run_steps(2);
+    assert!(
+        h.state().jobs.is_running("deblur preview"),
+        "a new device deblurs the region again"
+    );
     step_until(&mut h, "the GPU preview", Duration::from_secs(300), |a| {
         idle(a) && a.deblur.comparison.is_some()
     });
@@ -595,6 +606,7 @@ fn every_view_on_the_demo_session() {
     h.state_mut()
         .commands
         .push(Command::SetDeblurDevice(lensblur::deblur::Device::Auto));
+    h.state_mut().commands.push(Command::SetDeblurCrop(160));
     // 100 %: the region is what the panes hold, one photo pixel per screen pixel, the
     // three panes showing the same region (synced).
     h.get_by_label("100 %").click();
@@ -612,6 +624,14 @@ fn every_view_on_the_demo_session() {
     step_until(&mut h, "the 100 % preview", Duration::from_secs(120), |a| {
         idle(a) && region_fills_viewport(a)
     });
+    // Settled: a few more frames change nothing.
+    h.run_steps(3);
+    step_until(
+        &mut h,
+        "the 100 % preview, settled",
+        Duration::from_secs(120),
+        |a| idle(a) && region_fills_viewport(a),
+    );
     assert!(
         h.state()
             .deblur
@@ -631,6 +651,11 @@ fn every_view_on_the_demo_session() {
                 ..Default::default()
             },
         )));
+    h.run_steps(2);
+    assert!(
+        h.state().jobs.is_running("deblur preview"),
+        "a new strength deblurs the region again"
+    );
     step_until(
         &mut h,
         "the stronger preview",
@@ -641,16 +666,37 @@ fn every_view_on_the_demo_session() {
     assert_eq!(soft.len(), sharp.len(), "the region stays where it was");
     assert!(soft != sharp, "a new strength must change the preview");
     h.get_by_label("200 %").click();
+    h.run_steps(2);
     step_until(&mut h, "the 200 % preview", Duration::from_secs(120), |a| {
-        idle(a) && a.deblur.comparison.is_some()
+        idle(a) && a.deblur.zoom == lensblur::app::DeblurZoom::Times(2) && region_fills_viewport(a)
     });
+    {
+        // Half the 100 % region's width: the same panes hold half as many pixels.
+        let r = h
+            .state()
+            .deblur
+            .comparison
+            .as_ref()
+            .expect("comparison")
+            .comparison
+            .region;
+        let [vw, _] = h.state().deblur.viewport.expect("viewport");
+        assert!(r.width <= vw && r.width < 200, "{r:?}");
+    }
     snapshot(&mut h, "studio_deblur_200_strength");
     h.get_by_label("Fit").click();
+    h.run_steps(2);
     step_until(
         &mut h,
         "the fitted preview",
         Duration::from_secs(120),
-        |a| idle(a) && a.deblur.comparison.is_some(),
+        |a| {
+            idle(a)
+                && a.deblur
+                    .comparison
+                    .as_ref()
+                    .is_some_and(|c| c.comparison.region.width == 160)
+        },
     );
     // Export the whole photo deblurred with the predicted Gaussians.
     let out = dir.path().join("deblurred.tiff");
@@ -732,7 +778,7 @@ fn every_view_on_the_demo_session() {
 
     // The cached demo opens at once on the next launch, with its results.
     drop(h);
-    let mut again = new_harness(&demo_dir, None);
+    let mut again = new_harness_with(&demo_dir, None, spec);
     again.run_steps(1);
     assert!(
         again.state().session.is_some(),

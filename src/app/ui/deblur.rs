@@ -257,9 +257,12 @@ fn controls_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
         }
     });
-    if let Some(note) = &app.deblur.device_note {
-        ui.label(egui::RichText::new(format!("The preview runs on the {note}.")).weak());
-    }
+    // Always one line, so the panes below keep their size when the note arrives.
+    let note = app.deblur.device_note.as_ref().map_or_else(
+        || " ".to_owned(),
+        |n| format!("The preview runs on the {n}."),
+    );
+    ui.label(egui::RichText::new(note).weak());
 }
 
 /// The regularisation strength of the method: the data weight λ of HQS and IRLS (more:
@@ -380,12 +383,16 @@ fn points_per_pixel(app: &StudioApp, ui: &egui::Ui) -> Option<f32> {
     }
 }
 
-/// At a zoom, the region the panes hold: asked for when the layout changes it.
-fn request_viewport(app: &mut StudioApp, pane: Vec2, per_px: Option<f32>) {
+/// At a zoom, the region the panes hold: asked for when the layout changes it. Its
+/// height comes from the window, not from the room left this frame: the status area
+/// grows and shrinks as previews start and end, and a region that followed it would
+/// start a new preview each time one started.
+fn request_viewport(app: &mut StudioApp, ui: &egui::Ui, pane: Vec2, per_px: Option<f32>) {
     if let Some(pp) = per_px {
+        let tall = ui.ctx().content_rect().height() * 0.6;
         let v = [
             ((pane.x / pp) as usize).max(16),
-            ((pane.y / pp) as usize).max(16),
+            ((tall / pp) as usize).max(16),
         ];
         if app.deblur.viewport != Some(v) {
             app.commands.push(Command::SetDeblurViewport(v));
@@ -446,7 +453,7 @@ fn side_by_side_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             (avail.y - 40.0).max(64.0),
         ),
     };
-    request_viewport(app, pane, per_px);
+    request_viewport(app, ui, pane, per_px);
     ui.horizontal_top(|ui| {
         for k in 0..3 {
             ui.vertical(|ui| {
@@ -529,7 +536,7 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         Some(pp) => ((avail - Vec2::splat(8.0)).max(Vec2::splat(64.0)), pp),
     };
     let (original, result) = (original.clone(), result.clone());
-    request_viewport(app, pane, per_px);
+    request_viewport(app, ui, pane, per_px);
     let (rect, response) = ui.allocate_exact_size(pane, Sense::click_and_drag());
     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Slider, true, "divider"));
     let mut t = app.deblur.slider;
