@@ -198,7 +198,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
 /// updates the region live.
 fn controls_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     let method = super::super::logic::deblur_method(app);
-    ui.horizontal(|ui| {
+    ui.horizontal_wrapped(|ui| {
         ui.label("zoom");
         for z in DeblurZoom::ALL {
             if ui
