@@ -1071,14 +1071,27 @@ impl StudioApp {
                 // The strength slider dragged for 300 frames, as a hand would: frame
                 // times are then those of a live control.
                 "drag-strength" => {
-                    self.frames = FrameLog::default();
-                    self.drag_frames = 300;
-                    if let Some(c) = &self.deblur.comparison {
-                        let r = c.comparison.region;
-                        eprintln!(
-                            "studio: dragging the strength on a {} × {} region",
-                            r.width, r.height
-                        );
+                    // Once the region fills the panes at 100 % (else next frame).
+                    let filled = match (&self.deblur.comparison, &self.deblur.photo) {
+                        (Some(c), Some(p)) => self.deblur.viewport.is_some_and(|[w, h]| {
+                            let r = c.comparison.region;
+                            r.width == w.min(p.capture.width) & !1
+                                && r.height == h.min(p.capture.height) & !1
+                        }),
+                        _ => false,
+                    };
+                    if filled {
+                        self.frames = FrameLog::default();
+                        self.drag_frames = 300;
+                        if let Some(c) = &self.deblur.comparison {
+                            let r = c.comparison.region;
+                            eprintln!(
+                                "studio: dragging the strength on a {} × {} region",
+                                r.width, r.height
+                            );
+                        }
+                    } else {
+                        self.options.autorun.insert(0, stage);
                     }
                 }
                 other => self.error(format!("LENSBLUR_AUTORUN: unknown stage '{other}'")),

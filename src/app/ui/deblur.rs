@@ -490,6 +490,11 @@ fn side_by_side_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
 /// move the divider.
 fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     let titles = titles(app);
+    // The region follows the pane even while a result is missing, so a result that
+    // arrives later is already the pane's size.
+    let per_px = points_per_pixel(app, ui);
+    let early = (visible_size(ui) - Vec2::new(8.0, 40.0)).max(Vec2::splat(64.0));
+    request_viewport(app, ui, early, per_px);
     let Some(view) = &app.deblur.comparison else {
         return;
     };
@@ -525,7 +530,6 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     };
     let avail = visible_size(ui);
     let size = original.size_vec2();
-    let per_px = points_per_pixel(app, ui);
     let (pane, scale) = match per_px {
         None => {
             let fit = ((avail.x - 8.0) / size.x)
@@ -536,7 +540,6 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         Some(pp) => ((avail - Vec2::splat(8.0)).max(Vec2::splat(64.0)), pp),
     };
     let (original, result) = (original.clone(), result.clone());
-    request_viewport(app, ui, pane, per_px);
     let (rect, response) = ui.allocate_exact_size(pane, Sense::click_and_drag());
     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Slider, true, "divider"));
     let mut t = app.deblur.slider;
