@@ -104,6 +104,11 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                 if name == "kernels" {
                     spawn_dataset(app);
                 }
+                if name == "deblur preview"
+                    && let Some(centre) = app.deblur.pending.take()
+                {
+                    run_deblur_preview(app, centre);
+                }
             }
         }
     }
@@ -1511,11 +1516,19 @@ fn run_deblur_preview(app: &mut StudioApp, centre: [f64; 2]) {
     let Some(photo) = &app.deblur.photo else {
         return;
     };
-    // A newer preview replaces one still running.
+    // A newer preview replaces one still running: that one is cancelled and this one
+    // waits for it to stop. One preview at a time, the latest request kept, so a
+    // control dragged over many frames never queues a preview per frame.
+    let mut busy = false;
     for h in &app.jobs.running {
         if h.name == "deblur preview" {
             h.cancel();
+            busy = true;
         }
+    }
+    if busy {
+        app.deblur.pending = Some(centre);
+        return;
     }
     let cap = Arc::clone(&photo.capture);
     let region = match (app.deblur.zoom, app.deblur.viewport) {

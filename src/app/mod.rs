@@ -588,6 +588,8 @@ pub struct DeblurState {
     pub device_note: Option<String>,
     /// The panes' drag in progress, sensor px.
     pub drag: [f32; 2],
+    /// A preview asked for while one was still stopping: started when it has.
+    pub pending: Option<[f64; 2]>,
     pub comparison: Option<ComparisonView>,
     pub layout: DeblurLayout,
     /// Divider position in the slider layout, 0 (all result) to 1 (all original).
@@ -777,6 +779,7 @@ impl StudioApp {
                 device: crate::deblur::Device::Auto,
                 device_note: None,
                 drag: [0.0; 2],
+                pending: None,
                 comparison: None,
                 layout: DeblurLayout::SideBySide,
                 slider: 0.5,

@@ -49,10 +49,11 @@ pub struct Args {
     /// hqs (fast, hyper-Laplacian prior), irls (Levin et al.), or wiener (preview).
     #[arg(long, default_value = "hqs")]
     pub method: String,
-    /// Where to deblur: gpu (any adapter, a software one included; an error without
-    /// one), cpu (the reference), or auto (a hardware GPU when there is one, else the
-    /// CPU). HQS and Wiener run on the GPU; IRLS on the CPU only.
-    #[arg(long, default_value = "auto")]
+    /// Where to deblur: cpu (the reference), auto (a hardware GPU that can run the
+    /// shaders when there is one, else the CPU), or gpu (any adapter, a software one
+    /// included; an error without one). HQS and Wiener run on the GPU; IRLS on the CPU
+    /// only.
+    #[arg(long, default_value = "cpu")]
     pub device: String,
     /// From a kernels file holding both: use the non-parametric kernels or the Gaussians.
     #[arg(long, value_enum, default_value = "kernels")]
@@ -104,11 +105,6 @@ pub fn run(args: Args) -> Result<()> {
     let Some(device) = Device::from_name(&args.device) else {
         bail!("--device must be auto, gpu or cpu (got '{}')", args.device);
     };
-    // Said once, before the work: where it runs and, when not where asked, why.
-    let on = lensblur::deblur::gpu::describe(device, &method);
-    if device != Device::Cpu {
-        eprintln!("lensblur: deblurring on the {on}");
-    }
     let opts = DeblurOptions {
         method,
         device,
@@ -246,6 +242,12 @@ pub fn run(args: Args) -> Result<()> {
         }
         (None, None) => bail!("give --profile or --kernels"),
     };
+    // Said once, when the inputs are known good and the work starts (an adapter is
+    // only looked for then): where it runs and, when not where asked, why.
+    if device != Device::Cpu {
+        let on = lensblur::deblur::gpu::describe(device, &method);
+        eprintln!("lensblur: deblurring on the {on}");
+    }
     let job = progress_job();
     if let Some(preview) = deblur_one(
         photo,
