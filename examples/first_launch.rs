@@ -5,7 +5,7 @@
 //! `cargo run --release --example first_launch`
 
 use lensblur::job::JobContext;
-use lensblur::session::{DemoSpec, make_demo_streaming};
+use lensblur::simulate::demo::{DemoSpec, make_demo_streaming};
 use std::time::Instant;
 
 fn main() -> anyhow::Result<()> {

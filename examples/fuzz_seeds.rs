@@ -7,7 +7,7 @@ use lensblur::dng::{DngCompression, DngInfo, DngLayout, dng_bytes};
 use lensblur::fuzz::Target;
 use lensblur::job::JobContext;
 use lensblur::pipeline::{self, GivenSetting, MeasuredShot, ShotFile};
-use lensblur::session::{DemoSpec, make_demo};
+use lensblur::simulate::demo::{DemoSpec, make_demo};
 use std::path::{Path, PathBuf};
 
 fn main() -> anyhow::Result<()> {

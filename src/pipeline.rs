@@ -16,8 +16,8 @@ use crate::job::JobContext;
 use crate::kernel::KernelParams;
 use crate::kernel::file::KernelsFile;
 use crate::plane::{Capture, LensSetting};
-use serde::{Deserialize, Serialize};
-use std::io::Read;
+pub use crate::shot_file::{Fingerprint, ShotFile, ShotRecord};
+use crate::shot_file::Fnv;
 use std::path::{Path, PathBuf};
 
 /// The folder, inside a session folder, that holds every shot's stage results.
@@ -29,11 +29,8 @@ pub const MEASURE_VERSION: u32 = 1;
 
 #[derive(Debug, thiserror::Error)]
 pub enum PipelineError {
-    #[error("{}: cannot read: {source}", path.display())]
-    Read {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    Read(#[from] crate::shot_file::ShotReadError),
     #[error(transparent)]
     Load(#[from] crate::raw::LoadError),
     /// A stage failed on a shot: the shot's file and the stage's reason.
@@ -60,117 +57,6 @@ impl PipelineError {
     #[must_use]
     pub fn is_cancelled(&self) -> bool {
         matches!(self, PipelineError::Cancelled(_))
-    }
-}
-
-/// A 64-bit FNV-1a hash of a shot file's bytes: what identifies a shot's content.
-/// FNV is stable across runs, platforms and versions (std's hasher is seeded per
-/// process), and reading the file costs far less than any stage.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(transparent)]
-pub struct Fingerprint(#[serde(with = "hex_u64")] pub u64);
-
-impl Fingerprint {
-    /// Hashes a file's content.
-    ///
-    /// # Errors
-    /// The file cannot be read.
-    pub fn of_file(path: &Path) -> Result<Self, PipelineError> {
-        let err = |source| PipelineError::Read {
-            path: path.to_path_buf(),
-            source,
-        };
-        let mut f = std::fs::File::open(path).map_err(err)?;
-        let mut h = Fnv::new();
-        let mut buf = vec![0u8; 1 << 20];
-        loop {
-            let n = f.read(&mut buf).map_err(err)?;
-            if n == 0 {
-                break;
-            }
-            h.eat(&buf[..n]);
-        }
-        Ok(Fingerprint(h.0))
-    }
-}
-
-impl std::fmt::Display for Fingerprint {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{:016x}", self.0)
-    }
-}
-
-mod hex_u64 {
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    pub fn serialize<S: Serializer>(v: &u64, s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_str(&format!("{v:016x}"))
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
-        let text = String::deserialize(d)?;
-        u64::from_str_radix(&text, 16).map_err(serde::de::Error::custom)
-    }
-}
-
-struct Fnv(u64);
-
-impl Fnv {
-    fn new() -> Self {
-        Fnv(0xcbf2_9ce4_8422_2325)
-    }
-
-    fn eat(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.0 ^= u64::from(b);
-            self.0 = self.0.wrapping_mul(0x0100_0000_01b3);
-        }
-    }
-}
-
-/// Which shot a result was measured on: written into every result file, so a result
-/// can always be traced to (and checked against) its photo.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct ShotRecord {
-    /// The shot's file name (no folder: the session may move).
-    pub file: String,
-    pub fingerprint: Fingerprint,
-}
-
-/// A shot file as the pipeline knows it: where it is and what it holds.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct ShotFile {
-    pub path: PathBuf,
-    pub fingerprint: Fingerprint,
-}
-
-impl ShotFile {
-    /// Reads the file once to fingerprint it.
-    ///
-    /// # Errors
-    /// The file cannot be read.
-    pub fn read(path: &Path) -> Result<Self, PipelineError> {
-        Ok(Self {
-            path: path.to_path_buf(),
-            fingerprint: Fingerprint::of_file(path)?,
-        })
-    }
-
-    #[must_use]
-    pub fn record(&self) -> ShotRecord {
-        ShotRecord {
-            file: self
-                .path
-                .file_name()
-                .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
-            fingerprint: self.fingerprint,
-        }
-    }
-
-    fn stem(&self) -> String {
-        self.path
-            .file_stem()
-            .map_or_else(|| "shot".into(), |s| s.to_string_lossy().into_owned())
     }
 }
 

@@ -9,7 +9,9 @@
 #![cfg(unix)]
 
 use lensblur::job::JobContext;
-use lensblur::session::{DemoSpec, Session, make_demo};
+use lensblur::project::Project;
+use lensblur::session::Session;
+use lensblur::simulate::demo::{DemoSpec, make_demo};
 use rand::{Rng, SeedableRng};
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -131,16 +133,14 @@ fn killed_at_random_moments_no_file_is_ever_torn() {
         torn_total += torn.len();
         // And the folder reopens: locked (the dead holder's lock went with it), swept of
         // temporaries, every result readable.
-        let s = Session::open(dir.path()).unwrap();
-        let (lock, swept) = s.lock("the test").unwrap();
-        assert_eq!(swept, temporaries);
-        let survey = s.survey(&JobContext::silent()).unwrap();
+        let (mut project, opened) = Project::open(dir.path(), "the test").unwrap();
+        assert_eq!(opened.swept, temporaries);
+        let dropped = project.survey(&JobContext::silent()).unwrap();
         assert!(
-            survey.dropped.iter().all(|d| d.contains("pending again")),
-            "{:?}",
-            survey.dropped
+            dropped.iter().all(|d| d.contains("pending again")),
+            "{dropped:?}"
         );
-        drop(lock);
+        drop(project);
     }
     eprintln!(
         "{rounds} kills ({interrupted} while measuring), {temporaries_seen} temporary files swept, {torn_total} torn files"
@@ -225,11 +225,12 @@ fn a_folder_edited_by_hand_reopens_with_what_is_valid_and_names_what_it_dropped(
     let renamed = s.path_of(other);
     std::fs::rename(&renamed, renamed.with_extension("moved")).unwrap();
 
-    let s = Session::open(dir.path()).unwrap();
-    let survey = s.survey(&JobContext::silent()).unwrap();
-    assert_eq!(survey.kernels.len(), 1, "{:?}", survey.dropped);
-    let text = survey.dropped.join("\n");
-    assert_eq!(survey.dropped.len(), 3, "{text}");
+    let (mut project, _) = Project::open(dir.path(), "the test").unwrap();
+    let dropped = project.survey(&JobContext::silent()).unwrap();
+    assert_eq!(with_kernels(&project), 1, "{dropped:?}");
+    drop(project);
+    let text = dropped.join("\n");
+    assert_eq!(dropped.len(), 3, "{text}");
     assert!(text.contains("recorded kernels are gone"), "{text}");
     assert!(text.contains("measured again when needed"), "{text}");
     assert!(text.contains("not found (renamed or removed?)"), "{text}");
@@ -246,8 +247,15 @@ fn a_folder_edited_by_hand_reopens_with_what_is_valid_and_names_what_it_dropped(
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let s = Session::open(dir.path()).unwrap();
-    let survey = s.survey(&JobContext::silent()).unwrap();
-    assert!(survey.dropped.is_empty(), "{:?}", survey.dropped);
-    assert_eq!(survey.kernels.len(), 4);
+    let (mut project, _) = Project::open(dir.path(), "the test").unwrap();
+    let dropped = project.survey(&JobContext::silent()).unwrap();
+    assert!(dropped.is_empty(), "{dropped:?}");
+    assert_eq!(with_kernels(&project), 4);
+}
+
+fn with_kernels(project: &Project) -> usize {
+    project
+        .shots()
+        .filter(|s| s.state.kernels.is_some())
+        .count()
 }

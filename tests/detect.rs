@@ -550,7 +550,7 @@ fn lattice_ignores_junctions_beyond_the_board() {
 /// board's outer edge had replaced the blurriest true line of corners.
 #[test]
 fn the_studio_demo_is_detected_whole() {
-    use lensblur::session::{DemoSpec, make_demo};
+    use lensblur::simulate::demo::{DemoSpec, make_demo};
     let dir = tempfile::tempdir().expect("temp dir");
     let spec = DemoSpec::studio();
     let job = JobContext::silent();

@@ -8,7 +8,7 @@
 use lensblur::job::JobContext;
 use lensblur::kernel::file::KernelsFile;
 use lensblur::plane::{Channel, LensSetting};
-use lensblur::session::{DemoSpec, make_demo};
+use lensblur::simulate::demo::{DemoSpec, make_demo};
 use lensblur::simulate::{ShotTruth, VirtualLens};
 use std::path::Path;
 use std::process::Command;

@@ -14,7 +14,8 @@ use lensblur::app::{
 };
 use lensblur::job::JobContext;
 use lensblur::pipeline::ShotFile;
-use lensblur::session::{DemoSpec, Session, ShotId, StageStatus, make_demo};
+use lensblur::session::{Session, ShotId, StageStatus};
+use lensblur::simulate::demo::{DemoSpec, make_demo};
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -1034,7 +1035,7 @@ fn light_theme_and_user_session() {
     let made = tempfile::tempdir().expect("temp dir");
     let shot_spec = DemoSpec::grid(320, 240, &[35.0], &[8.0]).with_chart(6, 4);
     let spec = shot_spec.chart();
-    let made_session = lensblur::session::make_demo(
+    let made_session = lensblur::simulate::demo::make_demo(
         made.path(),
         &shot_spec,
         &lensblur::job::JobContext::silent(),
@@ -1516,7 +1517,7 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
     let spec = test_demo();
     let t0 = Instant::now();
     let mut seen = Vec::new();
-    let made = lensblur::session::make_demo_streaming(
+    let made = lensblur::simulate::demo::make_demo_streaming(
         dir.path(),
         &spec,
         &JobContext::silent(),
@@ -1644,7 +1645,7 @@ fn log_panel_confirmation_about_and_recent_sessions() {
     h.run_steps(2);
 
     // The session is remembered, and listed under File ▸ Recent sessions.
-    let recent = lensblur::session::read_recent(&demo_dir.join("recent.json"));
+    let recent = lensblur::recent::read_recent(&demo_dir.join("recent.json"));
     assert_eq!(recent.len(), 1, "{recent:?}");
     assert!(recent[0].ends_with("session"));
     h.get_by_label("File").click();

@@ -11,10 +11,8 @@ use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
 use lensblur::chart::ChartSpec;
 use lensblur::crossval::{CvOptions, HoldOut, ShapeCvOptions};
 use lensblur::job::JobContext;
-use lensblur::kernel::file::KernelsFile;
 use lensblur::model::{Dataset, LocalOptions};
-use lensblur::pipeline::{self, MeasuredShot, Provenance, ShotFile};
-use lensblur::session::{SESSION_FILE, Session};
+use lensblur::project::{MeasurePlan, Project, ShotEvent, Stages};
 use std::path::{Path, PathBuf};
 
 /// Where a session's measurements come from (shared by calibrate, crossval, sweeps).
@@ -36,34 +34,17 @@ pub struct SessionArgs {
     pub no_cache: bool,
 }
 
-fn is_kernels_file(path: &Path) -> bool {
-    path.to_string_lossy().ends_with(".kernels.json")
-        || lensblur::io::read_json_text(path)
-            .ok()
-            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-            .and_then(|v| {
-                v.get("schema")
-                    .and_then(|s| s.as_str())
-                    .map(|s| s.starts_with("lensblur.kernels/"))
-            })
-            .unwrap_or(false)
-}
-
 /// Loads a session's measured Gaussians, measuring (or taking from the cache) every
 /// shot of a manifest.
 pub fn load_session(args: &SessionArgs) -> Result<(Dataset, Option<ChartSpec>)> {
     load_session_locked(args).map(|(ds, chart, _)| (ds, chart))
 }
 
-/// [`load_session`], returning the session folder's lock (held while shots are
-/// measured into it) for a caller that goes on writing there.
+/// [`load_session`], returning the project (which holds the session folder's lock)
+/// for a caller that goes on writing there.
 pub fn load_session_locked(
     args: &SessionArgs,
-) -> Result<(
-    Dataset,
-    Option<ChartSpec>,
-    Option<lensblur::lock::FolderLock>,
-)> {
+) -> Result<(Dataset, Option<ChartSpec>, Option<Project>)> {
     let Some(manifest_path) = &args.manifest else {
         let mut chart = None;
         if args.chart.is_some() {
@@ -72,87 +53,124 @@ pub fn load_session_locked(
         let paths: Vec<&Path> = args.kernels.iter().map(PathBuf::as_path).collect();
         return Ok((Dataset::from_kernels_files(&paths, &[])?, chart, None));
     };
-    let mut session = Session::open(manifest_path)?;
-    // A session (not a bare manifest) gets each shot's status saved as it is measured,
-    // so the studio opens it with the work done.
-    let is_session = session.folder().join(SESSION_FILE).is_file()
-        && (manifest_path.is_dir() || manifest_path.file_name().is_some_and(|n| n == SESSION_FILE));
-    let (lock, swept) = session.lock("lensblur calibrate")?;
-    if swept > 0 {
+    let chart = match &args.chart {
+        Some(_) => Some(load_chart(args.chart.as_deref())?),
+        None => None,
+    };
+    let plan = MeasurePlan {
+        require_setting: true,
+        ..MeasurePlan::missing(Stages::All)
+    };
+    let project = measure_project(manifest_path, "lensblur calibrate", chart, args.no_cache, plan)?;
+    let ds = lensblur::pipeline::dataset(&project.measured_shots())?;
+    let chart = project.session().chart.clone();
+    Ok((ds, Some(chart), Some(project)))
+}
+
+/// Opens the session or manifest at `path` as a project, surveys it, and measures what
+/// `plan` asks (every shot again with `again`), printing each shot's events; fails
+/// naming the first shot that failed once every shot has been tried.
+pub fn measure_project(
+    path: &Path,
+    who: &str,
+    chart: Option<ChartSpec>,
+    again: bool,
+    plan: MeasurePlan,
+) -> Result<Project> {
+    let (mut project, opened) = Project::open(path, who)?;
+    if opened.swept > 0 {
         eprintln!(
-            "{}: removed {swept} unfinished temporary files left by an interrupted write",
-            session.folder().display()
+            "{}: removed {} unfinished temporary files left by an interrupted write",
+            project.folder().display(),
+            opened.swept
         );
     }
-    if args.chart.is_some() {
-        session.chart = load_chart(args.chart.as_deref())?;
+    if let Some(chart) = chart {
+        project.session_mut().chart = chart;
     }
-    if session.shots.is_empty() {
-        anyhow::bail!("{}: the manifest lists no shots", manifest_path.display());
+    if project.session().shots.is_empty() {
+        anyhow::bail!("{}: the manifest lists no shots", path.display());
     }
-    let measurement = session.measurement();
-    let cache = session.cache();
-    let job = progress_job();
-    let mut survey = session
-        .survey(&JobContext::silent())
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    for line in &survey.dropped {
+    for line in project.survey(&JobContext::silent())? {
         eprintln!("note: {line}");
     }
-    let total = session.shots.len();
-    let (mut measured, mut cached) = (0, 0);
-    let mut shots = Vec::with_capacity(total);
-    for i in 0..total {
-        let shot = &session.shots[i];
-        let id = shot.id;
-        job.report("measuring", i, total);
-        let path = session.path_of(shot);
-        let kernels = if is_kernels_file(&path) {
-            KernelsFile::load(&path)?
-        } else if let Some(k) = survey.kernels.remove(&id).filter(|_| !args.no_cache) {
-            cached += 1;
-            k
-        } else {
-            let file = ShotFile::read(&path)?;
-            if args.no_cache {
-                for stale in [
-                    cache.detect_path(&file, &measurement),
-                    cache.kernels_path(&file, &measurement),
-                ] {
-                    let _ = std::fs::remove_file(stale);
-                }
-            }
-            let (k, how) = pipeline::measure_shot(
-                &file,
-                shot.given_setting(),
-                true,
-                &measurement,
-                &cache,
-                &job.prefixed(&format!("shot {} of {total}: ", i + 1)),
-            )?;
-            match how {
-                Provenance::Cached => cached += 1,
-                Provenance::Measured => measured += 1,
-            }
-            k
-        };
-        let shot = &session.shots[i];
-        shots.push(MeasuredShot {
-            name: shot.name(),
-            kernels,
-            given: shot.given_setting(),
-        });
-        if is_session && let Some(shot) = session.shot_mut(id) {
-            shot.kernels = lensblur::session::StageStatus::Done {
-                summary: lensblur::session::kernels_summary(&shots[i].kernels),
-            };
-            session.save()?;
+    let plan = if again {
+        let ids = project.shots().map(|s| s.shot.id).collect();
+        MeasurePlan {
+            only: Some(ids),
+            ..plan
+        }
+    } else {
+        plan
+    };
+    let job = project.measure_job(&plan);
+    let cached = if again {
+        0
+    } else {
+        project
+            .shots()
+            .filter(|s| s.state.kernels.is_some())
+            .count()
+    };
+    // A shot that cannot be read fails the run as any other failure would, after the
+    // others are measured.
+    let mut failures: Vec<String> = project
+        .shots()
+        .filter_map(|s| s.state.unreadable.clone())
+        .collect();
+    let mut measured = 0;
+    let mut save_failed = None;
+    let ctx = progress_job();
+    job.run(&ctx, &|_| Some(ctx.clone()), &mut |event| {
+        project.record(&event);
+        if let Some(line) = describe_event(&project, &event) {
+            eprintln!("{line}");
+        }
+        match &event {
+            ShotEvent::Measured { .. } => measured += 1,
+            ShotEvent::Failed { reason, .. } => failures.push(reason.clone()),
+            _ => {}
+        }
+        // Each shot's status is saved as it is measured, so the studio opens the
+        // session with the work done even if this run is stopped.
+        if let Err(e) = project.save() {
+            save_failed.get_or_insert(e);
+        }
+    })
+    .map_err(|e| anyhow::anyhow!("{e}"))?;
+    project.flush()?;
+    if let Some(e) = save_failed {
+        return Err(e.into());
+    }
+    eprintln!("{measured} shots measured, {cached} from the cache");
+    if let Some(first) = failures.first() {
+        match failures.len() {
+            1 => anyhow::bail!("{first}"),
+            n => anyhow::bail!("{first} (and {} more shots failed)", n - 1),
         }
     }
-    job.report("measuring", total, total);
-    eprintln!("{measured} shots measured, {cached} from the cache");
-    let ds = pipeline::dataset(&shots)?;
-    Ok((ds, Some(session.chart), Some(lock)))
+    Ok(project)
+}
+
+/// One line for a shot's event, as the command line prints it; `None` for events it
+/// leaves to the progress bar.
+fn describe_event(project: &Project, event: &ShotEvent) -> Option<String> {
+    let name = project
+        .session()
+        .shot(event.shot())
+        .map_or_else(|| event.shot().to_string(), lensblur::session::Shot::name);
+    match event {
+        ShotEvent::Detected { detection, .. } => Some(format!(
+            "{name}: {}",
+            lensblur::project::detect_summary(detection)
+        )),
+        ShotEvent::Measured { kernels, .. } => Some(format!(
+            "{name}: {}",
+            lensblur::project::kernels_summary(kernels)
+        )),
+        ShotEvent::Cancelled { .. } => Some(format!("{name}: cancelled")),
+        ShotEvent::Started { .. } | ShotEvent::Failed { .. } => None,
+    }
 }
 
 #[derive(clap::Args, Default)]
@@ -229,7 +247,7 @@ impl From<ModelArg> for Families {
 pub fn run(args: Args) -> Result<()> {
     let t0 = std::time::Instant::now();
     // The folder stays locked until the profile is written (it may be written there).
-    let (ds, chart, _lock) = load_session_locked(&args.session)?;
+    let (ds, chart, _project) = load_session_locked(&args.session)?;
     let opts = CalibrateOptions {
         families: args.model.into(),
         alpha: args.alpha,

@@ -1,19 +1,31 @@
 //! `lensblur kernels SHOT --out kernels.json [--with-kernels] [--focal F --aperture A]`:
-//! the 3× kernel and its Gaussian fits at every square and channel of a shot.
+//! the 3× kernel and its Gaussian fits at every square and channel of a shot; and
+//! `lensblur kernels --session DIR`: every shot of a session measured into its result
+//! cache (what the studio's Kernels does), through the same project as `calibrate`.
 
 use super::common::{load_chart, progress_job, write_json};
 use anyhow::{Result, bail};
 use lensblur::kernel::{KernelParams, Operator, Weighting};
 use lensblur::pipeline::{self, GivenSetting, Measurement};
+use lensblur::project::{MeasurePlan, Stages};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Default)]
 pub struct Args {
     /// The shot: a RAW file, or a PNG/TIFF/JPEG image of the chart.
-    pub shot: PathBuf,
+    #[arg(required_unless_present = "session", conflicts_with = "session")]
+    pub shot: Option<PathBuf>,
     /// Where to write kernels.json.
-    #[arg(long)]
-    pub out: PathBuf,
+    #[arg(long, required_unless_present = "session")]
+    pub out: Option<PathBuf>,
+    /// A session folder (or its session.json, or a manifest): detect and measure every
+    /// shot that has no kernels yet, caching the results in its results/ folder and
+    /// recording each shot's status, as the studio does.
+    #[arg(long, conflicts_with_all = ["focal", "aperture", "oversample", "uniform_weights", "fft"])]
+    pub session: Option<PathBuf>,
+    /// With --session: measure every shot again, replacing its cached results.
+    #[arg(long, requires = "session")]
+    pub again: bool,
     /// Also write every kernel array (at the oversampling), not only its Gaussians.
     #[arg(long)]
     pub with_kernels: bool,
@@ -39,6 +51,32 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> Result<()> {
+    if let Some(session) = &args.session {
+        let chart = match &args.chart {
+            Some(p) => Some(load_chart(Some(p))?),
+            None => None,
+        };
+        let project = super::calibrate::measure_project(
+            session,
+            "lensblur kernels",
+            chart,
+            args.again,
+            MeasurePlan::missing(Stages::All),
+        )?;
+        let with = project
+            .shots()
+            .filter(|s| s.state.kernels.is_some())
+            .count();
+        eprintln!(
+            "{}: {with} of {} shots have kernels",
+            project.folder().display(),
+            project.session().shots.len()
+        );
+        return Ok(());
+    }
+    let (Some(shot), Some(out)) = (&args.shot, &args.out) else {
+        bail!("give a shot and --out, or --session");
+    };
     for (name, v) in [("--focal", args.focal), ("--aperture", args.aperture)] {
         if let Some(v) = v
             && !(v.is_finite() && v > 0.0)
@@ -47,7 +85,7 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     let spec = load_chart(args.chart.as_deref())?;
-    let capture = pipeline::load(&args.shot)?;
+    let capture = pipeline::load(shot)?;
     let m = Measurement::new(
         spec,
         KernelParams {
@@ -66,7 +104,7 @@ pub fn run(args: Args) -> Result<()> {
         },
     );
     let job = progress_job();
-    let det = pipeline::detect(&capture, &args.shot, &m, &job)?;
+    let det = pipeline::detect(&capture, shot, &m, &job)?;
     let given = GivenSetting {
         focal_mm: args.focal,
         f_number: args.aperture,
@@ -74,7 +112,7 @@ pub fn run(args: Args) -> Result<()> {
     let file = pipeline::estimate(
         &capture,
         &det,
-        &args.shot,
+        shot,
         given,
         &m,
         args.with_kernels,
@@ -94,7 +132,7 @@ pub fn run(args: Args) -> Result<()> {
     );
     eprintln!(
         "{}: {} kernels over {} squares, {} failed; median σ {sigma:.3} px, median MTF50 {mtf50:.3} cycles/px ({:.0} lp/ph) in the worst direction",
-        args.shot.display(),
+        shot.display(),
         file.samples.len(),
         det.ok_squares().count(),
         file.failed.len(),
@@ -103,8 +141,8 @@ pub fn run(args: Args) -> Result<()> {
     if file.focal_mm.is_none() || file.f_number.is_none() {
         eprintln!(
             "{}: warning: focal length or aperture unknown (no EXIF); give --focal and --aperture for calibration",
-            args.shot.display()
+            shot.display()
         );
     }
-    write_json(&args.out, &file)
+    write_json(out, &file)
 }

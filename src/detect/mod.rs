@@ -313,7 +313,7 @@ pub struct DetectFile {
     pub height: usize,
     /// The shot it was detected on, where the pipeline wrote it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub source: Option<crate::pipeline::ShotRecord>,
+    pub source: Option<crate::shot_file::ShotRecord>,
     pub squares: Vec<SquareRecord>,
 }
 

@@ -87,7 +87,7 @@ pub struct KernelsFile {
     pub identity: Option<CameraIdentity>,
     /// The shot it was measured on, where the pipeline wrote it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub source: Option<crate::pipeline::ShotRecord>,
+    pub source: Option<crate::shot_file::ShotRecord>,
     pub samples: Vec<KernelSample>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub failed: Vec<FailedSample>,
@@ -107,7 +107,7 @@ struct FileOut<'a> {
     #[serde(skip_serializing_if = "Option::is_none")]
     identity: Option<&'a CameraIdentity>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    source: Option<&'a crate::pipeline::ShotRecord>,
+    source: Option<&'a crate::shot_file::ShotRecord>,
     samples: Vec<SampleOut<'a>>,
     #[serde(skip_serializing_if = "<[_]>::is_empty")]
     failed: &'a [FailedSample],

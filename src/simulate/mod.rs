@@ -3,6 +3,7 @@
 
 pub mod aberration;
 pub mod capture;
+pub mod demo;
 pub mod distortion;
 pub mod files;
 pub mod lens;

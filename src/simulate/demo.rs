@@ -1,0 +1,433 @@
+//! The demo session the studio makes on first launch: simulated calibration shots of
+//! the virtual lens at a grid of settings, written as a session with its manifest and
+//! exact ground truth, handed over shot by shot as each is on disk
+//! ([`make_demo_streaming`]), and a natural photo (`assets/astronaut.png`, compiled in)
+//! blurred through the virtual lens's true kernels at one of its settings. Its spec's
+//! key is recorded, so a stale demo is made again.
+//!
+//! It sits above the session and the simulator (it writes a session of simulated
+//! shots); nothing in the core below it depends on it.
+
+use crate::chart::ChartSpec;
+use crate::manifest::MANIFEST_FILE;
+use crate::plane::LensSetting;
+use crate::project::{CV_FILE, PROFILE_FILE};
+use crate::session::{DemoPhoto, SESSION_FILE, Session, SessionError, Shot};
+use std::path::{Path, PathBuf};
+
+/// The size and settings of a demo session.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DemoSpec {
+    pub width: usize,
+    pub height: usize,
+    pub settings: Vec<LensSetting>,
+    pub seed: u64,
+    /// The chart printed in the demo's shots.
+    pub chart: ChartSpec,
+}
+
+impl DemoSpec {
+    /// What the studio makes on first launch: modest shots of a 16 × 10 chart at a
+    /// 3 × 3 grid of settings (enough for a β = 2 model), small enough that every stage
+    /// runs in minutes on a laptop.
+    #[must_use]
+    pub fn studio() -> Self {
+        Self::grid(960, 640, &[24.0, 50.0, 105.0], &[4.0, 5.6, 10.0]).with_chart(16, 10)
+    }
+
+    /// A small demo for tests: 600 × 400 shots at a 2 × 2 grid of settings.
+    #[must_use]
+    pub fn small() -> Self {
+        Self::grid(600, 400, &[24.0, 105.0], &[4.0, 10.0])
+    }
+
+    #[must_use]
+    pub fn grid(width: usize, height: usize, focal_mm: &[f64], f_number: &[f64]) -> Self {
+        let settings = focal_mm
+            .iter()
+            .flat_map(|&f| {
+                f_number.iter().map(move |&a| LensSetting {
+                    focal_mm: f,
+                    f_number: a,
+                })
+            })
+            .collect();
+        // Fewer squares on small shots so each square still spans enough pixels to
+        // measure a kernel.
+        let mut chart = ChartSpec::default();
+        if width < 1000 {
+            chart.cols = 12;
+            chart.rows = 8;
+        }
+        Self {
+            width,
+            height,
+            settings,
+            seed: 7,
+            chart,
+        }
+    }
+
+    /// The same demo with a chart of `cols` × `rows` squares.
+    #[must_use]
+    pub fn with_chart(mut self, cols: usize, rows: usize) -> Self {
+        self.chart.cols = cols;
+        self.chart.rows = rows;
+        self
+    }
+
+    /// The chart printed in the demo's shots.
+    #[must_use]
+    pub fn chart(&self) -> ChartSpec {
+        self.chart.clone()
+    }
+
+    /// Everything that decides the demo's files, and the version of the code that
+    /// simulates them: a cached demo with another key is stale.
+    #[must_use]
+    pub fn key(&self) -> String {
+        let settings: Vec<String> = self
+            .settings
+            .iter()
+            .map(|s| format!("{}@{}", s.focal_mm, s.f_number))
+            .collect();
+        format!(
+            "lensblur {} demo {}x{} chart {}x{} seed {} settings {}",
+            env!("CARGO_PKG_VERSION"),
+            self.width,
+            self.height,
+            self.chart.cols,
+            self.chart.rows,
+            self.seed,
+            settings.join(",")
+        )
+    }
+
+    /// File name of the demo shot for a setting.
+    #[must_use]
+    pub fn shot_name(s: LensSetting) -> String {
+        format!("demo_f{:03.0}_a{:04.1}.png", s.focal_mm, s.f_number)
+    }
+}
+
+/// Makes (or remakes) the demo session in `dir`: simulated calibration shots of the
+/// virtual lens at `spec`'s settings, their manifest and ground truth.
+///
+/// # Errors
+/// The simulator failed, the folder cannot be written, or the job was cancelled.
+pub fn make_demo(
+    dir: &Path,
+    spec: &DemoSpec,
+    job: &crate::job::JobContext,
+) -> Result<Session, SessionError> {
+    make_demo_streaming(dir, spec, job, &mut |_| {})
+}
+
+/// [`make_demo`], handing the session to `on_shot` each time a shot is on disk, so a
+/// window can show the first shot within seconds rather than after the whole demo.
+/// The session passed is not saved yet; the one returned is, with the demo's photo.
+///
+/// # Errors
+/// As [`make_demo`].
+pub fn make_demo_streaming(
+    dir: &Path,
+    spec: &DemoSpec,
+    job: &crate::job::JobContext,
+    on_shot: &mut dyn FnMut(&Session),
+) -> Result<Session, SessionError> {
+    use crate::simulate::{CaptureParams, Pose, VirtualLens, simulate_shot};
+    let chart = spec.chart();
+    let lens = VirtualLens::demo();
+    std::fs::create_dir_all(dir).map_err(|source| SessionError::Write {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    // Shots left by an interrupted first launch are reused (see below), but only when
+    // they were made for this very spec by this version.
+    let key = spec.key();
+    let key_path = dir.join(DEMO_KEY_FILE);
+    if std::fs::read_to_string(&key_path).ok().as_deref() != Some(key.as_str()) {
+        clear_demo_files(dir)?;
+        write_atomic(&key_path, key.as_bytes())?;
+    }
+    let mut session = Session::new(dir);
+    session.name = "demo".into();
+    session.chart = chart.clone();
+    session.is_demo = true;
+    session.demo_key = Some(key);
+    let total = spec.settings.len();
+    job.report("simulating demo shots", 0, total);
+    for (k, &setting) in spec.settings.iter().enumerate() {
+        let name = DemoSpec::shot_name(setting);
+        let path = dir.join(&name);
+        let truth_path = dir.join(format!("{name}.truth.json"));
+        // A session folder that already holds a shot is reused: only missing shots
+        // are simulated, so an interrupted first launch resumes where it stopped.
+        if !(path.is_file() && truth_path.is_file()) {
+            let mut params = CaptureParams::new(spec.width, spec.height, setting);
+            // Each shot a slightly different pose, as a hand-held series would be.
+            let t = k as f64;
+            params.pose = Pose {
+                rotation_deg: 1.5 * (0.9 * t + 0.3).sin(),
+                tilt_x: 0.02 * (1.3 * t).cos(),
+                tilt_y: 0.015 * (0.7 * t + 1.0).sin(),
+                // The board spans 86 % of the frame's width, or of its height when
+                // the chart is taller than the frame's aspect.
+                fill: 0.86_f64.min(
+                    0.86 * (spec.height as f64 / spec.width as f64)
+                        * (chart.cols as f64 / chart.rows as f64),
+                ),
+                shift_px: [4.0 * (t * 0.5).sin(), 3.0 * (t * 0.8).cos()],
+            };
+            params.bayer = false;
+            params.seed = spec.seed.wrapping_add(k as u64);
+            let shot = simulate_shot(
+                &chart,
+                &lens,
+                &params,
+                &job.prefixed(&format!("shot {} of {total}: ", k + 1)),
+            )
+            .map_err(|e| SessionError::Parse {
+                path: path.clone(),
+                reason: e.to_string(),
+            })?;
+            write_rgb16_png(&path, &shot.capture)?;
+            let truth = serde_json::to_vec(&crate::format::Versioned::new(
+                &crate::format::TRUTH,
+                &shot.truth,
+            ))
+            .map_err(|e| SessionError::Write {
+                path: truth_path.clone(),
+                source: std::io::Error::other(e),
+            })?;
+            write_atomic(&truth_path, &truth)?;
+        }
+        let id = session.new_shot_id();
+        session.shots.push(Shot {
+            id,
+            path: PathBuf::from(&name),
+            focal_mm: Some(setting.focal_mm),
+            f_number: Some(setting.f_number),
+            ..Shot::blank()
+        });
+        job.report("simulating demo shots", k + 1, total);
+        on_shot(&session);
+    }
+    session.demo_photo = Some(make_demo_photo(dir, spec, &lens, job)?);
+    session.write_manifest()?;
+    session.save()?;
+    Ok(session)
+}
+
+/// The demo photo's file name.
+pub const DEMO_PHOTO_FILE: &str = "demo_photo.png";
+
+/// The public-domain photo the demo blurs (assets/README.md says where it comes from).
+const DEMO_PHOTO_SOURCE: &[u8] = include_bytes!("../../assets/astronaut.png");
+
+/// The demo's photo: a natural image seen through the virtual lens at the demo's middle
+/// setting (one it measures, so both the profile's and the measured kernels apply),
+/// on the shots' sensor, with the lens's true, spatially varying kernels. Kept when it
+/// is already there (the folder's key says it was made by this spec).
+fn make_demo_photo(
+    dir: &Path,
+    spec: &DemoSpec,
+    lens: &crate::simulate::VirtualLens,
+    job: &crate::job::JobContext,
+) -> Result<DemoPhoto, SessionError> {
+    use crate::plane::{Capture, Channel, ChannelPlane, Plane};
+    let path = dir.join(DEMO_PHOTO_FILE);
+    let setting = spec
+        .settings
+        .get(spec.settings.len() / 2)
+        .copied()
+        .unwrap_or(LensSetting {
+            focal_mm: 50.0,
+            f_number: 5.6,
+        });
+    let photo = DemoPhoto {
+        path: PathBuf::from(DEMO_PHOTO_FILE),
+        focal_mm: setting.focal_mm,
+        f_number: setting.f_number,
+    };
+    if path.is_file() {
+        return Ok(photo);
+    }
+    job.report("blurring the demo photo", 0, 1);
+    let (w, h) = (spec.width, spec.height);
+    let parse = |reason: String| SessionError::Parse {
+        path: path.clone(),
+        reason,
+    };
+    let true_kernel = |channel: Channel, x: f64, y: f64| {
+        let (u, v) = crate::simulate::VirtualLens::normalised(x, y, w, h);
+        crate::deblur::plane_kernel(
+            &lens
+                .optical_kernel_uv(channel, u, v, setting, 3)
+                .pixel_integrated(),
+            1,
+        )
+    };
+    // The widest kernel is in a corner; the sharp image extends past the frame by that
+    // much so the frame's edges are blurred from real content, not from a border.
+    let pad = [Channel::R, Channel::G, Channel::B]
+        .iter()
+        .flat_map(|&c| {
+            [
+                (0.0, 0.0),
+                ((w - 1) as f64, 0.0),
+                (0.0, (h - 1) as f64),
+                ((w - 1) as f64, (h - 1) as f64),
+            ]
+            .map(|(x, y)| true_kernel(c, x, y).size / 2)
+        })
+        .max()
+        .unwrap_or(0)
+        + 2;
+    let (pw, ph) = (w + 2 * pad, h + 2 * pad);
+    let source = image::load_from_memory(DEMO_PHOTO_SOURCE)
+        .map_err(|e| parse(format!("the built-in photo: {e}")))?
+        .into_rgb8();
+    // Cover the padded frame (scale to fill, centre crop), as a print fills a frame.
+    let scale = (pw as f64 / f64::from(source.width())).max(ph as f64 / f64::from(source.height()));
+    let (sw, sh) = (
+        ((f64::from(source.width()) * scale).ceil() as u32).max(pw as u32),
+        ((f64::from(source.height()) * scale).ceil() as u32).max(ph as u32),
+    );
+    let scaled = image::imageops::resize(&source, sw, sh, image::imageops::FilterType::Lanczos3);
+    let (x0, y0) = ((sw as usize - pw) / 2, (sh as usize - ph) / 2);
+    // The shots are linear; the photo is sRGB-encoded: blur what the sensor sees.
+    let linear = |v: u8| {
+        let c = f32::from(v) / 255.0;
+        if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    let mut planes = Vec::with_capacity(3);
+    for (i, channel) in [Channel::R, Channel::G, Channel::B].into_iter().enumerate() {
+        job.check().map_err(|e| parse(e.to_string()))?;
+        let mut sharp = Plane::new(pw, ph);
+        for y in 0..ph {
+            for x in 0..pw {
+                sharp.data[y * pw + x] =
+                    linear(scaled.get_pixel((x0 + x) as u32, (y0 + y) as u32)[i]);
+            }
+        }
+        let blurred = crate::experiment::blur_varying(&sharp, pad, w, h, 16, &|x, y| {
+            true_kernel(channel, x, y)
+        });
+        planes.push(ChannelPlane {
+            channel,
+            plane: blurred,
+            step: 1,
+            offset_x: 0,
+            offset_y: 0,
+        });
+    }
+    let capture = Capture {
+        width: w,
+        height: h,
+        planes,
+        setting_focal_mm: None,
+        setting_f_number: None,
+        identity: crate::plane::CameraIdentity::default(),
+        is_raw: false,
+        raw: None,
+    };
+    write_rgb16_png(&path, &capture)?;
+    job.report("blurring the demo photo", 1, 1);
+    Ok(photo)
+}
+
+/// Which spec the demo files in a folder were made for.
+const DEMO_KEY_FILE: &str = "demo.key";
+
+/// Removes what a demo folder holds (and only that): its shots and their truth, the
+/// session, manifest, profile, cross-validation and results.
+fn clear_demo_files(dir: &Path) -> Result<(), SessionError> {
+    let entries = match std::fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(source) => {
+            return Err(SessionError::Read {
+                path: dir.to_path_buf(),
+                source,
+            });
+        }
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let ours = (name.starts_with("demo_")
+            && (name.ends_with(".png") || name.ends_with(".truth.json")))
+            || [
+                SESSION_FILE,
+                MANIFEST_FILE,
+                PROFILE_FILE,
+                CV_FILE,
+                DEMO_KEY_FILE,
+            ]
+            .contains(&name.as_str());
+        let path = entry.path();
+        let removed = if ours {
+            std::fs::remove_file(&path)
+        } else if name == "results" && path.is_dir() {
+            std::fs::remove_dir_all(&path)
+        } else {
+            Ok(())
+        };
+        removed.map_err(|source| SessionError::Write {
+            path: path.clone(),
+            source,
+        })?;
+    }
+    Ok(())
+}
+
+/// A linear 16-bit RGB PNG of a capture's R, G, B planes (black 0, white 65535), as the
+/// simulator writes its PNG shots.
+fn write_rgb16_png(path: &Path, capture: &crate::plane::Capture) -> Result<(), SessionError> {
+    let bytes = crate::simulate::files::rgb16_bytes(capture, crate::simulate::ShotFormat::Png)
+        .map_err(|reason| SessionError::Parse {
+            path: path.to_path_buf(),
+            reason,
+        })?;
+    write_atomic(path, &bytes)
+}
+
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), SessionError> {
+    crate::io::write_atomic(path, bytes).map_err(SessionError::from)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_stale_demo_is_made_again() {
+        let dir = tempfile::tempdir().unwrap();
+        let job = crate::job::JobContext::silent();
+        let spec = DemoSpec::grid(160, 112, &[24.0], &[4.0]).with_chart(4, 3);
+        let s = make_demo(dir.path(), &spec, &job).unwrap();
+        assert_eq!(s.demo_key.as_deref(), Some(spec.key().as_str()));
+        let shot = s.shot_path(0);
+        let made = std::fs::metadata(&shot).unwrap().modified().unwrap();
+        // Same spec: the shot is reused.
+        make_demo(dir.path(), &spec, &job).unwrap();
+        assert_eq!(std::fs::metadata(&shot).unwrap().modified().unwrap(), made);
+        // Another spec (same file names): everything is made again, and a file that
+        // is not the demo's stays.
+        std::fs::write(dir.path().join("mine.txt"), b"keep").unwrap();
+        std::fs::create_dir_all(dir.path().join("results")).unwrap();
+        let other = DemoSpec::grid(200, 140, &[24.0], &[4.0]).with_chart(4, 3);
+        let s2 = make_demo(dir.path(), &other, &job).unwrap();
+        let cap = crate::raw::load_capture(&s2.shot_path(0), &Default::default()).unwrap();
+        assert_eq!((cap.width, cap.height), (200, 140));
+        assert!(!dir.path().join("results").exists());
+        assert!(dir.path().join("mine.txt").is_file());
+        let reopened = Session::open(dir.path()).unwrap();
+        assert_eq!(reopened.demo_key.as_deref(), Some(other.key().as_str()));
+    }
+}
