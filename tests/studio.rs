@@ -196,7 +196,7 @@ fn deblurred_region(app: &StudioApp) -> Vec<f32> {
 fn demo_ready(app: &StudioApp) -> bool {
     app.session
         .as_ref()
-        .is_some_and(|s| !s.shots.is_empty() && app.previews.len() == s.shots.len())
+        .is_some_and(|s| !s.shots.is_empty() && app.previews().count() == s.shots.len())
         && idle(app)
 }
 
@@ -927,11 +927,11 @@ fn raw_shots_and_photos_are_developed_and_export_as_dng() {
         .push(Command::ApplySettings { chart, settings });
     h.input_mut().dropped_files.push(dropped(&raw));
     step_until(&mut h, "the RAW shot", Duration::from_secs(60), |a| {
-        a.previews.len() == 1 && idle(a)
+        a.previews().count() == 1 && idle(a)
     });
     {
         let app = h.state();
-        let preview = app.previews.values().next().expect("the shot");
+        let preview = app.previews().next().map(|(_, p)| p).expect("the shot");
         assert!(preview.capture.is_raw);
         assert!(
             matches!(preview.developed, Some(Ok(_))),
@@ -1065,7 +1065,7 @@ fn light_theme_and_user_session() {
     // Drag and drop a file onto the window.
     h.input_mut().dropped_files.push(dropped(&shot));
     step_until(&mut h, "the dropped shot", Duration::from_secs(30), |a| {
-        a.previews.len() == 1
+        a.previews().count() == 1
     });
     let saved = lensblur::session::Session::open(&folder).expect("session saved as it changes");
     assert_eq!(saved.shots.len(), 1);
@@ -1110,7 +1110,7 @@ fn light_theme_and_user_session() {
         &mut h,
         "the unreadable shot",
         Duration::from_secs(30),
-        |a| a.unreadable.len() == 1 && !a.unreadable.contains_key(&first) && idle(a),
+        |a| a.unreadable_shots().count() == 1 && a.unreadable(first).is_none() && idle(a),
     );
     assert!(
         h.state()
@@ -1471,7 +1471,7 @@ fn models_warn_what_to_shoot_when_the_settings_cannot_determine_the_model() {
     h.run_steps(2);
     h.state_mut().commands.push(Command::AddShots(shots));
     step_until(&mut h, "the shots", Duration::from_secs(30), |a| {
-        a.previews.len() == 2 && idle(a)
+        a.previews().count() == 2 && idle(a)
     });
     let session = h.state().session.clone().expect("session");
     for (shot, f_number) in session.shots.iter().zip([4.0, 8.0]) {

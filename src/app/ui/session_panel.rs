@@ -87,8 +87,8 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         let r = frame.show(ui, |ui| {
             ui.horizontal(|ui| {
                 match (
-                    app.previews.get(&id).and_then(|p| p.thumbnail.as_ref()),
-                    app.unreadable.get(&id),
+                    app.preview(id).and_then(|p| p.thumbnail.as_ref()),
+                    app.unreadable(id),
                 ) {
                     (Some(t), _) => {
                         let size = t.size_vec2() * (72.0 / t.size_vec2().x.max(1.0));

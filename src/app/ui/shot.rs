@@ -6,7 +6,7 @@
 //! nothing.
 
 use super::super::view_data::Inspecting;
-use super::super::{Command, StudioApp, ViewerState};
+use super::super::{Command, ShotView, StudioApp, ViewerState};
 use super::{caption, ellipse_points};
 use crate::detect::{Detection, SquareStatus};
 use crate::session::StageStatus;
@@ -92,7 +92,7 @@ fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState
                 ui.colored_label(ui.visuals().warn_fg_color, format!("skipped: {text}"));
             }
         }
-        if app.previews.get(&index).is_some_and(|p| p.developed.is_some()) {
+        if app.preview(index).is_some_and(|p| p.developed.is_some()) {
             ui.separator();
             ui.checkbox(&mut viewer.developed, "developed")
                 .on_hover_text("The RAW as a RAW editor shows it (imagepipe: demosaic, white balance, colour, tone); off: the selected channel's linear CFA plane, which is what is measured");
@@ -108,8 +108,9 @@ fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState
             residual_legend_ui(ui);
         }
     });
-    let Some(preview) = app.previews.get(&index) else {
-        match app.unreadable.get(&index) {
+    // The field alone is borrowed: the view pushes commands while it holds the preview.
+    let Some(preview) = app.shots.get(&index).and_then(ShotView::preview) else {
+        match app.unreadable(index) {
             Some(reason) => {
                 ui.colored_label(ui.visuals().error_fg_color, reason);
             }

@@ -1,0 +1,246 @@
+//! File dialogs, each on its own thread so the window never waits, and the questions
+//! asked before doing something that loses work.
+
+use super::session::{apply_settings, remove_shot};
+use crate::app::{Command, Confirm, DeblurResult, PlotId, StudioApp};
+use std::path::PathBuf;
+
+/// File dialogs (each on its own thread) and the questions asked before losing work.
+pub(super) fn apply_dialog(app: &mut StudioApp, command: Command) {
+    match command {
+        Command::AddShotsDialog => spawn_dialog(app, || async {
+            rfd::AsyncFileDialog::new()
+                .set_title("Add calibration shots")
+                .add_filter("RAW, DNG, TIFF, PNG, JPEG", crate::session::SHOT_EXTENSIONS)
+                .pick_files()
+                .await
+                .map(|files| {
+                    Command::AddShots(files.iter().map(|f| f.path().to_path_buf()).collect())
+                })
+                .into_iter()
+                .collect()
+        }),
+        Command::LoadChartDialog => spawn_dialog(app, || async {
+            answer(
+                rfd::AsyncFileDialog::new()
+                    .set_title("Load a chart spec")
+                    .add_filter("chart spec", &["json"])
+                    .pick_file()
+                    .await,
+                Command::LoadChart,
+            )
+        }),
+        Command::OpenPhotoDialog => spawn_dialog(app, || async {
+            answer(
+                rfd::AsyncFileDialog::new()
+                    .set_title("Open a photo to deblur")
+                    .add_filter("RAW, DNG, TIFF, PNG, JPEG", crate::session::SHOT_EXTENSIONS)
+                    .pick_file()
+                    .await,
+                Command::OpenPhoto,
+            )
+        }),
+        Command::ExportDeblurDialog(result) => export_deblur_dialog(app, result),
+        Command::ExportPhotosDialog { dng } => export_photos_dialog(app, dng),
+        Command::LoadProfileDialog => load_profile_dialog(app, false),
+        Command::LoadCompareProfileDialog => load_profile_dialog(app, true),
+        Command::SaveProfileDialog => save_profile_dialog(app),
+        Command::SavePlotDialog { plot, png } => save_plot_dialog(app, plot, png),
+        Command::OpenSessionDialog => spawn_dialog(app, || async {
+            answer(
+                rfd::AsyncFileDialog::new()
+                    .set_title("Open or create a session folder")
+                    .pick_folder()
+                    .await,
+                Command::OpenSession,
+            )
+        }),
+        Command::AskConfirm(c) => app.confirm = Some(c),
+        Command::ConfirmAnswer(yes) => match app.confirm.take() {
+            Some(Confirm::RemoveShot(id)) if yes => remove_shot(app, id),
+            Some(Confirm::ReplaceChart { chart, settings }) if yes => {
+                apply_settings(app, chart, settings);
+            }
+            _ => {}
+        },
+        // `apply` routes only this group's commands here.
+        other => unreachable!("not routed to apply_dialog: {other:?}"),
+    }
+}
+
+/// Where to write the open photo deblurred: a DNG for a RAW photo, TIFF or PNG.
+fn export_deblur_dialog(app: &mut StudioApp, result: DeblurResult) {
+    let Some(photo) = &app.deblur.photo else {
+        app.error("open a photo first");
+        return;
+    };
+    let stem = photo
+        .path
+        .file_stem()
+        .map_or_else(|| "photo".into(), |s| s.to_string_lossy().into_owned());
+    let which = match result {
+        DeblurResult::Predicted => "predicted",
+        DeblurResult::Measured => "measured",
+    };
+    // A RAW photo goes back to a RAW editor as a DNG; TIFF/PNG stay offered.
+    let raw = photo.capture.raw.is_some();
+    let mut dialog = rfd::AsyncFileDialog::new().set_title(if raw {
+        "Export the deblurred photo (DNG for a RAW editor, or 16-bit linear)"
+    } else {
+        "Export the deblurred photo (16-bit linear)"
+    });
+    if raw {
+        dialog = dialog.add_filter("DNG", &["dng"]);
+    }
+    dialog = dialog
+        .add_filter("TIFF or PNG", &["tiff", "tif", "png"])
+        .set_file_name(format!(
+            "{stem}.deblurred-{which}.{}",
+            if raw { "dng" } else { "tiff" }
+        ));
+    if let Some(dir) = photo.path.parent() {
+        dialog = dialog.set_directory(dir);
+    }
+    spawn_dialog(app, move || async move {
+        answer(dialog.save_file().await, |path| Command::ExportDeblur {
+            path,
+            result,
+        })
+    });
+}
+
+/// The photos to export, then the folder they go to.
+fn export_photos_dialog(app: &mut StudioApp, dng: bool) {
+    spawn_dialog(app, move || async move {
+        let Some(photos) = rfd::AsyncFileDialog::new()
+            .set_title(if dng {
+                "RAW photos to deblur (written as DNGs)"
+            } else {
+                "Photos to deblur (written as 16-bit TIFFs)"
+            })
+            .add_filter("RAW, DNG, TIFF, PNG, JPEG", crate::session::SHOT_EXTENSIONS)
+            .pick_files()
+            .await
+        else {
+            return Vec::new();
+        };
+        let photos: Vec<PathBuf> = photos.iter().map(|f| f.path().to_path_buf()).collect();
+        answer(
+            rfd::AsyncFileDialog::new()
+                .set_title("Folder for the deblurred photos")
+                .pick_folder()
+                .await,
+            |out_dir| Command::ExportPhotos {
+                photos,
+                out_dir,
+                dng,
+            },
+        )
+    });
+}
+
+/// A profile to load, as the one in use or as a second one to compare.
+fn load_profile_dialog(app: &mut StudioApp, compare: bool) {
+    spawn_dialog(app, move || async move {
+        answer(
+            rfd::AsyncFileDialog::new()
+                .set_title(if compare {
+                    "Load a second lens profile to compare"
+                } else {
+                    "Load a lens profile"
+                })
+                .add_filter("lens profile", &["json"])
+                .pick_file()
+                .await,
+            |path| Command::LoadProfile { path, compare },
+        )
+    });
+}
+
+/// Where to save the profile in use.
+fn save_profile_dialog(app: &mut StudioApp) {
+    if app.profile.is_none() {
+        app.error("no profile to save: calibrate first (Ctrl+M) or load one");
+        return;
+    }
+    spawn_dialog(app, || async {
+        answer(
+            rfd::AsyncFileDialog::new()
+                .set_title("Save the lens profile")
+                .add_filter("lens profile", &["json"])
+                .set_file_name("profile.json")
+                .save_file()
+                .await,
+            Command::SaveProfile,
+        )
+    });
+}
+
+/// Where to save a plot, as a PNG of it on screen or as CSV of its data.
+fn save_plot_dialog(app: &mut StudioApp, plot: PlotId, png: bool) {
+    let (what, ext) = if png { ("PNG", "png") } else { ("CSV", "csv") };
+    let name = format!("{}.{ext}", plot.file_stem(app.sweep_axis));
+    spawn_dialog(app, move || async move {
+        answer(
+            rfd::AsyncFileDialog::new()
+                .set_title(format!("Save the plot as {what}"))
+                .add_filter(what, &[ext])
+                .set_file_name(name)
+                .save_file()
+                .await,
+            |path| {
+                if png {
+                    Command::SavePlotPng { plot, path }
+                } else {
+                    Command::SavePlotCsv { plot, path }
+                }
+            },
+        )
+    });
+}
+
+/// Commands made by the answers of file dialogs that have closed.
+pub(in crate::app) fn drain_dialogs(app: &mut StudioApp) {
+    while let Ok(commands) = app.dialog_rx.try_recv() {
+        app.dialog_open = false;
+        app.commands.extend(commands);
+    }
+}
+
+/// Runs a file dialog on its own thread: `dialog` makes the dialog's future there (a
+/// portal dialog is a D-Bus conversation that would otherwise hold the window's
+/// frames), and the commands its answer makes come back through the app's channel.
+fn spawn_dialog<F>(app: &mut StudioApp, dialog: impl FnOnce() -> F + Send + 'static)
+where
+    F: std::future::Future<Output = Vec<Command>>,
+{
+    if app.dialog_open {
+        app.info("a file dialog is already open: answer it first");
+        return;
+    }
+    let tx = app.dialog_tx.clone();
+    let ctx = app.ctx.clone();
+    let started = std::thread::Builder::new()
+        .name("file dialog".into())
+        .spawn(move || {
+            let commands = pollster::block_on(dialog());
+            // The app may have closed meanwhile; then nobody needs the answer.
+            let _ = tx.send(commands);
+            ctx.request_repaint();
+        });
+    match started {
+        Ok(_) => app.dialog_open = true,
+        Err(e) => app.error(format!("cannot open the file dialog: {e}")),
+    }
+}
+
+/// The path a dialog answered, or no command when it was cancelled.
+fn answer(
+    handle: Option<rfd::FileHandle>,
+    command: impl FnOnce(PathBuf) -> Command,
+) -> Vec<Command> {
+    handle
+        .map(|h| command(h.path().to_path_buf()))
+        .into_iter()
+        .collect()
+}

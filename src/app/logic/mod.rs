@@ -1,0 +1,234 @@
+//! Applies commands, drains finished jobs and keeps the session saved: owns every
+//! change to the app's state, and makes the textures of results when they arrive
+//! (shot previews, the photo, deblurred crops). What the views derive from that state
+//! is `view_data`'s. Never draws.
+//!
+//! [`apply`] routes each command to the function of its concern, as [`drain_jobs`] does
+//! each job's output: `view` (selections, the window), `session` (shots, settings,
+//! opening), `shots` (loading them for display), `stages` (detect, kernels, calibrate),
+//! `deblur` (the Deblur view and exports), `plots` (saving plots) and `dialogs` (file
+//! dialogs and confirmations).
+
+mod autorun;
+mod deblur;
+mod dialogs;
+mod plots;
+mod session;
+mod shots;
+mod stages;
+mod view;
+
+use super::jobs::JobEvent;
+use super::view_data;
+use super::{Command, JobOutput, StudioApp};
+use deblur::run_deblur_preview;
+use stages::spawn_dataset;
+
+pub(super) use autorun::autorun_step;
+pub(crate) use deblur::deblur_method;
+pub(super) use dialogs::drain_dialogs;
+pub(super) use plots::finish_plot_png;
+pub(super) use shots::ensure_preview;
+
+/// The cross-validation report beside the profile, so a reopened session shows its
+/// curves without calibrating again.
+const CV_FILE: &str = "crossval.json";
+
+/// Applies one command, in the function of its concern.
+pub(super) fn apply(app: &mut StudioApp, command: Command) {
+    match command {
+        Command::SelectView(_)
+        | Command::SelectShot(_)
+        | Command::SelectChannel(_)
+        | Command::ClearSquare
+        | Command::SelectSquare(_)
+        | Command::SetFieldSource(_)
+        | Command::SetFieldShow(_)
+        | Command::SetSweepAxis(_)
+        | Command::SetFieldSetting { .. }
+        | Command::SetCompareUnits(_)
+        | Command::SetFieldOptions(_)
+        | Command::SetViewer(_) => view::apply_view(app, command),
+        Command::Cancel(_)
+        | Command::CancelAll
+        | Command::SetDark(_)
+        | Command::DismissMessage(_)
+        | Command::SetLogOpen(_)
+        | Command::ShowHelp(_)
+        | Command::ShowAbout(_)
+        | Command::Quit => view::apply_window(app, command),
+        Command::AddShots(_)
+        | Command::RemoveShot(_)
+        | Command::SetShotSetting { .. }
+        | Command::ApplySettings { .. }
+        | Command::LoadChart(_)
+        | Command::EditSettings(_)
+        | Command::OpenSession(_) => session::apply_session(app, command),
+        Command::RunDetect(_)
+        | Command::RunKernels(_)
+        | Command::RunCalibrate
+        | Command::LoadProfile { .. }
+        | Command::SaveProfile(_) => stages::apply_stage(app, command),
+        Command::OpenPhoto(_)
+        | Command::SetPhotoSetting { .. }
+        | Command::DeblurAt(_)
+        | Command::SetDeblurLayout(_)
+        | Command::SetDeblurZoom(_)
+        | Command::SetDeblurViewport(_)
+        | Command::SetDeblurCrop(_)
+        | Command::SetDeblurMethod(_)
+        | Command::SetDeblurDevice(_)
+        | Command::DragDeblur(_)
+        | Command::EndDragDeblur
+        | Command::SetSliderResult(_)
+        | Command::SetSlider(_)
+        | Command::ExportDeblur { .. }
+        | Command::ExportPhotos { .. } => deblur::apply_deblur(app, command),
+        Command::SavePlotCsv { .. } | Command::SavePlotPng { .. } => {
+            plots::apply_plot(app, command)
+        }
+        Command::AddShotsDialog
+        | Command::LoadChartDialog
+        | Command::OpenPhotoDialog
+        | Command::ExportDeblurDialog(_)
+        | Command::ExportPhotosDialog { .. }
+        | Command::LoadProfileDialog
+        | Command::SaveProfileDialog
+        | Command::SavePlotDialog { .. }
+        | Command::OpenSessionDialog
+        | Command::AskConfirm(_)
+        | Command::ConfirmAnswer(_)
+        | Command::LoadCompareProfileDialog => dialogs::apply_dialog(app, command),
+    }
+}
+
+/// Applies one job's output, in the function of its job's concern.
+fn apply_output(app: &mut StudioApp, output: JobOutput) {
+    match output {
+        JobOutput::DemoShot(_) | JobOutput::DemoReady(_) | JobOutput::ResultsRead { .. } => {
+            session::session_output(app, output)
+        }
+        JobOutput::ShotLoaded { .. } | JobOutput::ShotUnreadable { .. } => {
+            shots::shot_output(app, output)
+        }
+        JobOutput::Detected { .. }
+        | JobOutput::KernelsMeasured { .. }
+        | JobOutput::DatasetReady(_)
+        | JobOutput::Calibrated { .. }
+        | JobOutput::ProfileLoaded { .. } => stages::stage_output(app, output),
+        JobOutput::PhotoLoaded { .. }
+        | JobOutput::DeblurCompared { .. }
+        | JobOutput::DeblurExported(_)
+        | JobOutput::PhotosExported(_) => deblur::deblur_output(app, output),
+        JobOutput::SquareInspected { key, result } => view_data::inspected(app, key, result),
+    }
+}
+
+pub(super) fn drain_jobs(app: &mut StudioApp) {
+    for event in app.jobs.drain() {
+        match event {
+            JobEvent::Output {
+                job,
+                session,
+                output,
+            } => {
+                // A result for a session that has since been closed is not this one's.
+                if session.is_none_or(|g| g == app.session_generation) {
+                    tally(app, job, &output);
+                    apply_output(app, output);
+                }
+            }
+            JobEvent::Finished { job, name, result } => {
+                let tally = app.tallies.remove(&job);
+                match result {
+                    // A preview cancelled by a newer one (a control being dragged) is
+                    // not news: the newer one's result follows.
+                    Err(e) if e == "cancelled" && name == "deblur preview" => {}
+                    Err(e) if e == "cancelled" => {
+                        let done = tally.map_or(String::new(), |t| match t.ok + t.failed.len() {
+                            1 => " after 1 shot".to_owned(),
+                            n => format!(" after {n} shots"),
+                        });
+                        app.info(format!("{name}: cancelled{done}"));
+                    }
+                    Err(e) => app.error(e),
+                    Ok(()) => {
+                        if let Some(t) = tally {
+                            finished_message(app, &name, &t);
+                        }
+                    }
+                }
+                if name == "kernels" {
+                    spawn_dataset(app);
+                }
+                if name == "deblur preview"
+                    && let Some(centre) = app.deblur.pending.take()
+                {
+                    run_deblur_preview(app, centre);
+                }
+            }
+        }
+    }
+}
+
+/// Counts a detect or kernels job's shots as they come back.
+fn tally(app: &mut StudioApp, job: u64, output: &JobOutput) {
+    let (id, failure) = match output {
+        JobOutput::Detected { shot, result } => (*shot, result.as_ref().err()),
+        JobOutput::KernelsMeasured { shot, result } => (*shot, result.as_ref().err()),
+        _ => return,
+    };
+    let name = app
+        .session
+        .as_ref()
+        .and_then(|s| s.shot(id))
+        .map_or_else(|| format!("shot {}", id.0), crate::session::Shot::name);
+    let reason = failure.map(|e| {
+        let e = app.shorten_paths(e.clone());
+        // The core names the file first; the message names it once.
+        e.strip_prefix(&format!("{name}: "))
+            .map_or_else(|| e.clone(), str::to_owned)
+    });
+    let t = app.tallies.entry(job).or_default();
+    match reason {
+        Some(r) => t.failed.push((name, r)),
+        None => t.ok += 1,
+    }
+}
+
+/// "Measured kernels for 9 shots (1 failed: IMG_3.png — no chart found)".
+fn finished_message(app: &mut StudioApp, job: &str, t: &super::Tally) {
+    let n = t.ok + t.failed.len();
+    let shots = if n == 1 {
+        "1 shot".to_owned()
+    } else {
+        format!("{n} shots")
+    };
+    let what = match job {
+        "detect" => format!("Detected the chart in {shots}"),
+        "kernels" => format!("Measured kernels for {shots}"),
+        _ => return,
+    };
+    if t.failed.is_empty() {
+        app.info(what);
+    } else {
+        let failed: Vec<String> = t
+            .failed
+            .iter()
+            .map(|(name, reason)| format!("{name} — {reason}"))
+            .collect();
+        app.error(format!(
+            "{what} ({} failed: {})",
+            t.failed.len(),
+            failed.join("; ")
+        ));
+    }
+}
+
+pub(super) fn save(app: &mut StudioApp) {
+    if let Some(s) = &app.session
+        && let Err(e) = s.save()
+    {
+        app.error(e.to_string());
+    }
+}

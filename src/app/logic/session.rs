@@ -1,0 +1,422 @@
+//! The session: opening one (or the demo), adding and removing shots, the chart and
+//! stage settings, and the results a reopened session already has.
+
+use super::CV_FILE;
+use super::save;
+use super::stages::spawn_dataset;
+use crate::app::jobs::JobScope;
+use crate::app::view_data;
+use crate::app::{Command, Confirm, JobOutput, StudioApp};
+use crate::job::JobContext;
+use crate::session::{Session, ShotId, StageStatus};
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// The session: its shots, their settings, the chart and stage settings, opening one.
+pub(super) fn apply_session(app: &mut StudioApp, command: Command) {
+    match command {
+        Command::AddShots(files) => add_shots(app, &files),
+        Command::RemoveShot(id) => remove_shot(app, id),
+        Command::SetShotSetting {
+            shot,
+            focal_mm,
+            f_number,
+        } => {
+            if let Some(shot) = app.session.as_mut().and_then(|s| s.shot_mut(shot)) {
+                shot.focal_mm = focal_mm;
+                shot.f_number = f_number;
+                save(app);
+                spawn_dataset(app);
+            }
+        }
+        Command::ApplySettings { chart, settings } => {
+            // A new chart discards what was measured with the old one: ask first.
+            let has_results = !app.detections.is_empty() || !app.measured.is_empty();
+            let chart_changed = app.session.as_ref().is_some_and(|s| s.chart != chart);
+            if chart_changed && has_results {
+                app.confirm = Some(Confirm::ReplaceChart { chart, settings });
+            } else {
+                apply_settings(app, chart, settings);
+            }
+        }
+        Command::LoadChart(path) => match crate::chart::ChartSpec::load(&path) {
+            Ok(spec) => {
+                let settings = app
+                    .settings_edit
+                    .as_ref()
+                    .map(|e| e.1.clone())
+                    .or_else(|| app.session.as_ref().map(|s| s.settings.clone()))
+                    .unwrap_or_default();
+                app.settings_edit = Some((spec, settings));
+                app.info(format!(
+                    "chart spec {} read: press Apply to use it",
+                    app.shown_path(&path)
+                ));
+            }
+            Err(e) => app.error(e.to_string()),
+        },
+        Command::EditSettings(edit) => app.settings_edit = edit,
+        Command::OpenSession(path) => match crate::session::Session::open(&path) {
+            Ok(s) => {
+                if app.set_session(s) {
+                    save(app);
+                }
+            }
+            Err(e) => app.error(e.to_string()),
+        },
+        // `apply` routes only this group's commands here.
+        other => unreachable!("not routed to apply_session: {other:?}"),
+    }
+}
+
+/// The demo session as it is made, and results a reopened session already has.
+pub(super) fn session_output(app: &mut StudioApp, output: JobOutput) {
+    match output {
+        JobOutput::DemoShot(s) => {
+            if app.session.is_none() {
+                if app.set_session(*s) {
+                    app.info("demo session: showing each simulated shot as soon as it is made");
+                }
+            } else {
+                merge_demo(app, &s);
+            }
+        }
+        JobOutput::DemoReady(s) => {
+            let n = s.shots.len();
+            if app.session.is_none() {
+                if !app.set_session(*s) {
+                    return;
+                }
+            } else if !merge_demo(app, &s) {
+                // The user opened another session meanwhile: the demo waits in its
+                // folder for the next launch.
+                return;
+            }
+            save(app);
+            app.info(format!(
+                "demo session ready: {n} simulated shots of the virtual lens, and a photo it blurred"
+            ));
+        }
+        JobOutput::ResultsRead { survey, cv } => {
+            // The cache decides what is done: results measured elsewhere (another
+            // front end, an earlier version of the session) count, and a status whose
+            // result has gone is pending again.
+            if let Some(s) = app.session.as_mut() {
+                s.settle(&survey);
+            }
+            save(app);
+            for line in &survey.dropped {
+                app.info(line.clone());
+            }
+            app.detections = survey
+                .detections
+                .into_iter()
+                .map(|(id, d)| (id, Arc::new(d)))
+                .collect();
+            app.measured = survey
+                .kernels
+                .into_iter()
+                .map(|(id, k)| (id, Arc::new(k)))
+                .collect();
+            if app.cv.is_none() {
+                app.cv = cv;
+            }
+            spawn_dataset(app);
+        }
+        // `apply_output` routes only this group's outputs here.
+        _ => unreachable!("an output not routed to session_output"),
+    }
+}
+
+fn add_shots(app: &mut StudioApp, files: &[PathBuf]) {
+    if app.session.is_none() {
+        app.error("open or create a session folder before adding shots (Ctrl+O)");
+        return;
+    }
+    let mut errors = Vec::new();
+    let mut added = None;
+    if let Some(s) = app.session.as_mut() {
+        for f in files {
+            match s.add_shot(f) {
+                Ok(id) => added = Some(id),
+                Err(e) => errors.push(e.to_string()),
+            }
+        }
+    }
+    for e in errors {
+        app.error(e);
+    }
+    if let Some(id) = added {
+        app.selected_shot = Some(id);
+        app.viewer.sensor_px_per_point = None;
+        save(app);
+    }
+}
+
+/// Removes a shot from the session (its file and cached results stay on disk): work on
+/// it stops, and whatever it still sends is dropped since the shot is gone.
+pub(super) fn remove_shot(app: &mut StudioApp, id: ShotId) {
+    let Some(s) = app.session.as_mut() else {
+        return;
+    };
+    let Some(i) = s.index_of(id) else {
+        return;
+    };
+    s.remove_shot(id);
+    app.jobs.cancel_shot(id);
+    let next = s
+        .shots
+        .get(i)
+        .or_else(|| s.shots.last())
+        .map(|shot| shot.id);
+    app.shots.remove(&id);
+    app.detections.remove(&id);
+    app.measured.remove(&id);
+    if app.selected_shot == Some(id) {
+        app.selected_shot = next;
+        app.selected_square = None;
+    }
+    save(app);
+    spawn_dataset(app);
+}
+
+/// New chart or stage settings; results they make stale go back to pending (their
+/// files stay until the stage runs again).
+pub(super) fn apply_settings(
+    app: &mut StudioApp,
+    chart: crate::chart::ChartSpec,
+    settings: crate::session::StageSettings,
+) {
+    if let Err(e) = chart.validate() {
+        app.error(format!("chart spec: {e}"));
+        return;
+    }
+    let Some(s) = app.session.as_mut() else {
+        return;
+    };
+    let chart_changed = s.chart != chart;
+    let kernels_changed = chart_changed
+        || s.settings.oversample != settings.oversample
+        || s.settings.weight_all_subpixels != settings.weight_all_subpixels;
+    s.chart = chart;
+    s.settings = settings;
+    for shot in &mut s.shots {
+        if chart_changed {
+            shot.detect = StageStatus::Pending;
+        }
+        if kernels_changed {
+            shot.kernels = StageStatus::Pending;
+        }
+    }
+    if chart_changed {
+        app.detections.clear();
+        app.selected_square = None;
+    }
+    if kernels_changed {
+        app.measured.clear();
+        app.dataset = None;
+    }
+    app.settings_edit = None;
+    app.info(match (chart_changed, kernels_changed) {
+        (true, _) => "settings applied: detection and kernels run again with the new chart",
+        (false, true) => "settings applied: kernels run again with the new settings",
+        _ => "settings applied",
+    });
+    save(app);
+}
+
+/// Adds to the open demo session the shots the demo job has made since (and at the end
+/// its photo). False when the open session is another one.
+fn merge_demo(app: &mut StudioApp, made: &Session) -> bool {
+    let Some(s) = app
+        .session
+        .as_mut()
+        .filter(|s| s.is_demo && s.folder() == made.folder())
+    else {
+        return false;
+    };
+    // Each shot is added once, by id: one the user removed meanwhile stays removed.
+    let known = s.next_shot_id;
+    s.shots
+        .extend(made.shots.iter().filter(|shot| shot.id.0 >= known).cloned());
+    s.next_shot_id = s.next_shot_id.max(made.next_shot_id);
+    if s.demo_photo.is_none() && made.demo_photo.is_some() {
+        s.demo_photo.clone_from(&made.demo_photo);
+        let opened = s.clone();
+        app.open_demo_photo(&opened);
+    }
+    true
+}
+
+/// Finds the results a session already has in its cache (measured by the studio or by
+/// `lensblur calibrate`), off the UI thread: shots are fingerprinted, and kernels files
+/// with their arrays run to megabytes.
+pub(in crate::app) fn read_results(app: &mut StudioApp, session: &Session) {
+    let cv_path = session.folder().join(CV_FILE);
+    if session.shots.is_empty() && !cv_path.is_file() {
+        return;
+    }
+    let session = session.clone();
+    let scope = JobScope::session(app.session_generation);
+    let r = app
+        .jobs
+        .spawn_scoped("read results", scope, move |ctx, out| {
+            let survey = session.survey(ctx).map_err(|e| e.to_string())?;
+            let cv = crate::io::read_json_text(&cv_path)
+                .ok()
+                .and_then(|t| serde_json::from_str(&t).ok())
+                .map(Arc::new);
+            out.emit(JobOutput::ResultsRead { survey, cv });
+            Ok(())
+        });
+    if let Err(e) = r {
+        app.error(e);
+    }
+}
+
+impl StudioApp {
+    /// Opens the demo session, or makes it in the background (each shot shown as soon
+    /// as it is on disk).
+    pub(in crate::app) fn open_or_make_demo(&mut self) {
+        let dir = self.options.demo_dir.clone();
+        if dir.join(crate::session::SESSION_FILE).is_file() {
+            match Session::open(&dir) {
+                // A demo left half made (the window closed while it streamed in) is
+                // finished by make_demo, which keeps the shots already on disk.
+                Ok(s)
+                    if s.is_demo
+                        && s.demo_key == Some(self.options.demo_spec.key())
+                        && s.shots.len() == self.options.demo_spec.settings.len()
+                        && s.demo_photo.is_some() =>
+                {
+                    self.set_session(s);
+                    return;
+                }
+                Ok(_) => {}
+                Err(e) => self.error(format!("{e} (making the demo session again)")),
+            }
+        }
+        let spec = self.options.demo_spec.clone();
+        let started = self
+            .jobs
+            .spawn_apart("demo session", move |ctx: &JobContext, out| {
+                // Each shot is shown as soon as it is on disk: a newcomer sees a
+                // session within seconds instead of waiting for all of them.
+                let s = crate::session::make_demo_streaming(&dir, &spec, ctx, &mut |s| {
+                    out.emit(JobOutput::DemoShot(Box::new(s.clone())));
+                })
+                .map_err(|e| e.to_string())?;
+                out.emit(JobOutput::DemoReady(Box::new(s)));
+                Ok(())
+            });
+        if let Err(e) = started {
+            self.error(e);
+        }
+    }
+
+    /// Opens a session in the window, holding its folder's lock while it is open.
+    /// Returns false, keeping the session that was open, when another studio or
+    /// command is working in that folder.
+    pub(in crate::app) fn set_session(&mut self, s: Session) -> bool {
+        let same_folder = self
+            .session_lock
+            .as_ref()
+            .is_some_and(|l| l.dir() == s.folder());
+        if !same_folder {
+            // Let go of the old folder first: a lock is per open file, so reopening the
+            // same folder elsewhere would otherwise refuse itself.
+            let old = self.session_lock.take();
+            match s.lock("the lensblur studio") {
+                Ok((lock, swept)) => {
+                    drop(old);
+                    self.session_lock = Some(lock);
+                    if swept > 0 {
+                        self.info(format!(
+                            "{}: removed {swept} unfinished temporary files left by an interrupted write",
+                            s.folder().display()
+                        ));
+                    }
+                }
+                Err(e @ crate::lock::LockError::Held { .. }) => {
+                    self.session_lock = old;
+                    self.error(e.to_string());
+                    return false;
+                }
+                Err(e) => {
+                    // A read-only folder: it is shown, and saving it will say why not.
+                    self.info(format!("{e}: opened without a lock"));
+                }
+            }
+        }
+        // Work on the session being closed stops, and what it still sends is dropped.
+        self.jobs.cancel_session_jobs();
+        self.session_generation += 1;
+        self.shots.clear();
+        self.detections.clear();
+        self.measured.clear();
+        self.views = view_data::ViewData::default();
+        self.dataset = None;
+        self.cv = None;
+        self.profile = None;
+        self.settings_edit = None;
+        self.deblur.comparison = None;
+        if let Some(p) = &s.profile {
+            let path = if p.is_absolute() {
+                p.clone()
+            } else {
+                s.folder().join(p)
+            };
+            if path.is_file() {
+                self.commands.push(Command::LoadProfile {
+                    path,
+                    compare: false,
+                });
+            }
+        }
+        self.selected_square = None;
+        self.selected_shot = s.shots.first().map(|shot| shot.id);
+        self.viewer.sensor_px_per_point = None;
+        if let Some((f, a)) = middle_setting(&s) {
+            self.field_focal_mm = f;
+            self.field_f_number = a;
+        }
+        read_results(self, &s);
+        if s.is_demo {
+            self.open_demo_photo(&s);
+        }
+        // Every session the user opens is remembered, but not the built-in demo: it is
+        // what the studio opens by itself.
+        if s.folder() != self.options.demo_dir
+            && let Some(file) = self.options.recent_file.clone()
+        {
+            match crate::session::remember_recent(&file, s.folder()) {
+                Ok(list) => self.recent = list,
+                Err(e) => self.error(format!("cannot remember the session as recent: {e}")),
+            }
+        }
+        self.session = Some(s);
+        true
+    }
+
+    /// Opens the demo's photo in the Deblur view, unless a photo is open already.
+    pub(in crate::app) fn open_demo_photo(&mut self, s: &Session) {
+        if let Some(p) = &s.demo_photo
+            && self.deblur.photo.is_none()
+        {
+            let path = s.folder().join(&p.path);
+            if path.is_file() {
+                self.commands.push(Command::OpenPhoto(path));
+            }
+        }
+    }
+}
+
+/// The sliders' starting setting: the middle (lower middle) focal length and aperture
+/// shot, so predicted fields and sweeps open on settings that were measured.
+fn middle_setting(s: &Session) -> Option<(f64, f64)> {
+    let (f, a) = s.setting_grid();
+    Some((
+        *f.get(f.len().saturating_sub(1) / 2)?,
+        *a.get(a.len().saturating_sub(1) / 2)?,
+    ))
+}

@@ -1,0 +1,174 @@
+//! View data: everything a view shows that takes computing, made here (or on a job
+//! thread) when its inputs change and cached on the app keyed by exactly those inputs.
+//!
+//! Owns the shot viewer's plane choice, the Kernel field view's panels (measured
+//! ellipses, the kernel atlas texture, predicted and true fields), the Sweeps view's
+//! measured points and model and truth curves, and the square inspector (its crops come
+//! from a job; their textures, the kernel's texture and the truth beside it are made
+//! here when they arrive). [`refresh`] runs once per frame from the app's logic step and
+//! recomputes only what is stale; the draw code reads these caches and shows a
+//! placeholder where one is absent, never computing. The numbers come from the core
+//! (`crate::review`, `crate::detect::inspect`); this module only arranges them and
+//! makes textures.
+
+use super::{StudioApp, View};
+use crate::review::ShootingAdvice;
+use crate::simulate::VirtualLens;
+use atlas::refresh_kernel_atlas;
+use field::refresh_field;
+use inspector::refresh_inspection;
+use shot_plane::refresh_shot_plane;
+use std::sync::Arc;
+use sweeps::refresh_sweeps;
+
+mod atlas;
+mod field;
+mod inspector;
+mod shot_plane;
+mod sweeps;
+
+pub use atlas::{AtlasCell, KernelAtlas};
+pub use field::{
+    ColourRange, ColourScale, Difference, FieldData, FieldOptions, FieldPanel, FieldPoint,
+    PanelContent, PanelOf,
+};
+pub(super) use inspector::inspected;
+pub use inspector::{InspectKey, InspectedSquare, Inspecting, Inspection};
+pub use shot_plane::ShotPlane;
+pub use sweeps::{
+    CurvePoint, LocationSweep, SWEEP_LOCATIONS, SweepData, SweepKind, SweepParam, SweepSeries,
+    sweep_params, sweep_series, sweep_table, sweep_x_label, sweep_y_label,
+};
+
+/// Grid of the predicted and true fields.
+const FIELD_GRID: (usize, usize) = (12, 8);
+
+/// An `Arc`'s identity as part of a cache key. The key holds the `Arc`, so the value
+/// stays alive and an equal pointer always means the same value.
+pub struct Same<T>(Option<Arc<T>>);
+
+impl<T> Same<T> {
+    fn of(v: Option<&Arc<T>>) -> Self {
+        Self(v.cloned())
+    }
+}
+
+impl<T> Clone for Same<T> {
+    fn clone(&self) -> Self {
+        Self(self.0.clone())
+    }
+}
+
+impl<T> PartialEq for Same<T> {
+    fn eq(&self, other: &Self) -> bool {
+        match (&self.0, &other.0) {
+            (Some(a), Some(b)) => Arc::ptr_eq(a, b),
+            (None, None) => true,
+            _ => false,
+        }
+    }
+}
+
+impl<T> std::fmt::Debug for Same<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.0 {
+            Some(a) => write!(f, "Same({:p})", Arc::as_ptr(a)),
+            None => write!(f, "Same(none)"),
+        }
+    }
+}
+
+/// Every view's cached data.
+#[derive(Default)]
+pub struct ViewData {
+    pub shot_plane: Option<ShotPlane>,
+    pub kernel_atlas: Option<KernelAtlas>,
+    pub field: Option<FieldData>,
+    pub sweeps: Option<SweepData>,
+    pub inspection: Option<Inspecting>,
+    /// The session's settings with shots and what they allow the model.
+    pub calibrated: Option<Calibrated>,
+}
+
+/// The focal lengths and f-numbers the session has shots at (sorted, distinct), marked
+/// on the sliders and the sweeps, and what they allow the model (the Models and Sweeps
+/// views' warnings).
+pub struct Calibrated {
+    pub focal_mm: Vec<f64>,
+    pub f_number: Vec<f64>,
+    pub advice: Vec<ShootingAdvice>,
+}
+
+impl ViewData {
+    /// The inspector's square once its crops are ready.
+    #[must_use]
+    pub fn inspection(&self) -> Option<&Inspection> {
+        match &self.inspection {
+            Some(Inspecting::Ready(i)) => Some(i),
+            _ => None,
+        }
+    }
+}
+
+/// Recomputes what is stale; called once per frame after commands and job results.
+pub(super) fn refresh(app: &mut StudioApp) {
+    refresh_shot_plane(app);
+    refresh_calibrated(app);
+    refresh_inspection(app);
+    match app.view {
+        View::KernelField => {
+            refresh_kernel_atlas(app);
+            refresh_field(app);
+        }
+        View::Sweeps => refresh_sweeps(app),
+        View::Shot | View::Models | View::Deblur => {}
+    }
+}
+
+/// The sensor the views draw on: the selected shot's, else the measurements', else the
+/// demo's.
+pub(crate) fn sensor_size(app: &StudioApp) -> (usize, usize) {
+    if let Some(p) = app.selected_shot.and_then(|i| app.preview(i)) {
+        return (p.capture.width, p.capture.height);
+    }
+    if let Some(d) = app.dataset.as_ref() {
+        return (d.width, d.height);
+    }
+    (app.options.demo_spec.width, app.options.demo_spec.height)
+}
+
+/// Focal length and aperture ranges the sliders span: the profile's calibrated ones,
+/// else the session's, else the demo lens's.
+pub(crate) fn setting_ranges(app: &StudioApp, lens: &VirtualLens) -> ([f64; 2], [f64; 2]) {
+    if let Some((_, p)) = &app.profile {
+        return (p.norm.focal_range_mm, p.norm.f_number_range);
+    }
+    if let Some(s) = &app.session {
+        let (f, a) = s.setting_grid();
+        if let (Some(f0), Some(f1), Some(a0), Some(a1)) = (f.first(), f.last(), a.first(), a.last())
+            && f1 > f0
+            && a1 > a0
+        {
+            return ([*f0, *f1], [*a0, *a1]);
+        }
+    }
+    (lens.focal_range_mm, lens.f_number_range)
+}
+
+/// The settings with shots and the core's advice on them: a few dozen values, cheaper
+/// to remake each frame than to key.
+pub(super) fn refresh_calibrated(app: &mut StudioApp) {
+    app.views.calibrated = app.session.as_ref().map(|s| {
+        let (focal_mm, f_number) = s.setting_grid();
+        let advice = crate::review::shooting_advice(&focal_mm, &f_number, s.settings.beta);
+        Calibrated {
+            focal_mm,
+            f_number,
+            advice,
+        }
+    });
+}
+
+fn is_demo(app: &StudioApp) -> bool {
+    app.session.as_ref().is_some_and(|s| s.is_demo)
+}
