@@ -112,13 +112,7 @@ fn layers(architecture: &str) -> Vec<Vec<String>> {
             l.split_once(". ")
                 .is_some_and(|(n, _)| !n.is_empty() && n.chars().all(|c| c.is_ascii_digit()))
         })
-        .map(|l| {
-            l.split('`')
-                .skip(1)
-                .step_by(2)
-                .map(str::to_owned)
-                .collect()
-        })
+        .map(|l| l.split('`').skip(1).step_by(2).map(str::to_owned).collect())
         .collect()
 }
 
@@ -214,7 +208,10 @@ fn the_check_finds_what_it_looks_for() {
     let edges = imports(&m);
     assert_eq!(edges["low"], BTreeSet::from(["high".to_owned()]));
     assert_eq!(edges["high::part"], BTreeSet::from(["low".to_owned()]));
-    assert_eq!(cycles(&edges), vec![vec!["high".to_owned(), "low".to_owned()]]);
+    assert_eq!(
+        cycles(&edges),
+        vec![vec!["high".to_owned(), "low".to_owned()]]
+    );
     let l = layers("x\n## Layers\n\n1. `low`\n2. `high`, `high::part`\n\n## Next\n3. `no`");
     assert_eq!(l.len(), 2);
     assert_eq!(layer_of(&l, "high::part::deep"), Some(1));

@@ -16,8 +16,8 @@ use crate::job::JobContext;
 use crate::kernel::KernelParams;
 use crate::kernel::file::KernelsFile;
 use crate::plane::{Capture, LensSetting};
-pub use crate::shot_file::{Fingerprint, ShotFile, ShotRecord};
 use crate::shot_file::Fnv;
+pub use crate::shot_file::{Fingerprint, ShotFile, ShotRecord};
 use std::path::{Path, PathBuf};
 
 /// The folder, inside a session folder, that holds every shot's stage results.

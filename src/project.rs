@@ -52,7 +52,9 @@ pub enum ProjectError {
     Write(#[from] crate::io::WriteError),
     #[error("{}: the session lists no shots", .0.display())]
     NoShots(PathBuf),
-    #[error("calibration needs kernels on at least two shots ({0} have them): measure the shots first")]
+    #[error(
+        "calibration needs kernels on at least two shots ({0} have them): measure the shots first"
+    )]
     TooFewShots(usize),
     #[error("calibration: {0}")]
     Calibrate(String),
@@ -218,6 +220,13 @@ pub struct MeasureJob {
 }
 
 impl MeasureJob {
+    /// Keeps only the shots `keep` says (the studio leaves out shots it cannot show).
+    #[must_use]
+    pub fn retain(mut self, keep: impl Fn(ShotId) -> bool) -> Self {
+        self.work.retain(|w| keep(w.id));
+        self
+    }
+
     /// The shots the job will work on, in order.
     #[must_use]
     pub fn shots(&self) -> Vec<ShotId> {
@@ -301,7 +310,9 @@ impl MeasureJob {
             if self.stages.detects() {
                 let _ = std::fs::remove_file(self.cache.detect_path(&file, &self.measurement));
             }
-            let _ = std::fs::remove_file(self.cache.kernels_path(&file, &self.measurement));
+            if self.stages.measures_kernels() {
+                let _ = std::fs::remove_file(self.cache.kernels_path(&file, &self.measurement));
+            }
         }
         let capture = match &w.capture {
             Some(c) => Arc::clone(c),
@@ -385,8 +396,7 @@ impl SurveyJob {
         let (m, cache) = (&self.measurement, &self.cache);
         let mut survey = Survey::default();
         let total = self.shots.len();
-        for (k, (id, name, path, detect_done, kernels_done)) in self.shots.into_iter().enumerate()
-        {
+        for (k, (id, name, path, detect_done, kernels_done)) in self.shots.into_iter().enumerate() {
             job.check()?;
             job.report("reading results", k, total);
             let state = survey.shots.entry(id).or_default();
@@ -470,11 +480,12 @@ impl CalibrationJob {
         let dataset =
             pipeline::dataset(&self.shots).map_err(|e| ProjectError::Calibrate(e.to_string()))?;
         let (profile, cv) =
-            crate::calibrate::calibrate(&dataset, Some(self.chart), &self.options, ctx)
-                .map_err(|e| match e {
+            crate::calibrate::calibrate(&dataset, Some(self.chart), &self.options, ctx).map_err(
+                |e| match e {
                     crate::model::ModelError::Cancelled => ProjectError::Cancelled(Cancelled),
                     e => ProjectError::Calibrate(e.to_string()),
-                })?;
+                },
+            )?;
         Ok(Calibration {
             dataset,
             profile,
@@ -558,7 +569,13 @@ impl Saver {
 
     fn save(&self, session: &Session) -> Result<(), SessionError> {
         match &self.tx {
-            Some(tx) if tx.send(SaveRequest::Save(Box::new(session.clone()))).is_ok() => Ok(()),
+            Some(tx)
+                if tx
+                    .send(SaveRequest::Save(Box::new(session.clone())))
+                    .is_ok() =>
+            {
+                Ok(())
+            }
             // No writer thread could be started: write here.
             _ => session.save(),
         }
@@ -763,16 +780,25 @@ impl Project {
         self.session.remove_shot(id)
     }
 
-    /// Forgets every result of this run (the chart or the stage settings changed, so
-    /// what was measured no longer applies): each shot is pending again.
-    pub fn forget_results(&mut self) {
+    /// Forgets the detections and/or kernels of this run (the chart or the stage
+    /// settings changed, so what was measured no longer applies): those stages are
+    /// pending again on every shot. Their files stay until the stage runs again.
+    pub fn forget_results(&mut self, detections: bool, kernels: bool) {
         for state in self.states.values_mut() {
-            state.detection = None;
-            state.kernels = None;
+            if detections {
+                state.detection = None;
+            }
+            if kernels {
+                state.kernels = None;
+            }
         }
         for shot in &mut self.session.shots {
-            shot.detect = StageStatus::Pending;
-            shot.kernels = StageStatus::Pending;
+            if detections {
+                shot.detect = StageStatus::Pending;
+            }
+            if kernels {
+                shot.kernels = StageStatus::Pending;
+            }
         }
     }
 
@@ -817,10 +843,7 @@ impl Project {
             let Some(shot) = self.session.shot_mut(id) else {
                 continue;
             };
-            shot.detect = settle(
-                &shot.detect,
-                found.detection.as_deref().map(detect_summary),
-            );
+            shot.detect = settle(&shot.detect, found.detection.as_deref().map(detect_summary));
             shot.kernels = settle(&shot.kernels, found.kernels.as_deref().map(kernels_summary));
             self.states.insert(id, found);
         }

@@ -64,4 +64,3 @@ pub fn remember_recent(file: &Path, folder: &Path) -> Result<Vec<PathBuf>, Sessi
     crate::io::write_atomic(file, &text).map_err(SessionError::from)?;
     Ok(list)
 }
-

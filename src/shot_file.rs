@@ -151,4 +151,3 @@ impl ShotFile {
             .map_or_else(|| "shot".into(), |s| s.to_string_lossy().into_owned())
     }
 }
-

@@ -41,7 +41,11 @@ fn each_shot_is_read_once_per_run_and_its_events_tell_what_happened() {
 
     // Detection alone, then kernels: neither reads a shot file again.
     let events = run(&mut project, &MeasurePlan::missing(Stages::Detect));
-    assert_eq!(reads(), vec![1; 4], "detection reuses the survey's fingerprints");
+    assert_eq!(
+        reads(),
+        vec![1; 4],
+        "detection reuses the survey's fingerprints"
+    );
     let detected = events
         .iter()
         .filter(|e| matches!(e, ShotEvent::Detected { .. }))
@@ -132,17 +136,17 @@ fn a_removed_shot_is_skipped_and_its_late_events_dropped_and_failures_recorded()
     let ctx = JobContext::silent();
     let removed = ids[0];
     let mut events = Vec::new();
-    job.run(
-        &ctx,
-        &|id| (id != removed).then(|| ctx.clone()),
-        &mut |e| events.push(e),
-    )
+    job.run(&ctx, &|id| (id != removed).then(|| ctx.clone()), &mut |e| {
+        events.push(e)
+    })
     .unwrap();
     assert!(events.iter().all(|e| e.shot() == ids[1]), "{events:?}");
     assert!(!project.record(&ShotEvent::Cancelled { id: removed }));
 
     // A shot whose file went fails with a reason naming the file, recorded.
-    let gone = project.session().path_of(project.session().shot(ids[2]).unwrap());
+    let gone = project
+        .session()
+        .path_of(project.session().shot(ids[2]).unwrap());
     std::fs::remove_file(&gone).unwrap();
     let job = project.measure_job(&MeasurePlan::again(Stages::All, vec![ids[2]]));
     let mut events = Vec::new();
@@ -155,10 +159,7 @@ fn a_removed_shot_is_skipped_and_its_late_events_dropped_and_failures_recorded()
             _ => None,
         })
         .expect("a failure");
-    assert!(
-        failed.contains(&gone.display().to_string()),
-        "{failed}"
-    );
+    assert!(failed.contains(&gone.display().to_string()), "{failed}");
     for e in &events {
         project.record(e);
     }

@@ -14,6 +14,7 @@ use lensblur::app::{
 };
 use lensblur::job::JobContext;
 use lensblur::pipeline::ShotFile;
+use lensblur::project::ShotEvent;
 use lensblur::session::{Session, ShotId, StageStatus};
 use lensblur::simulate::demo::{DemoSpec, make_demo};
 use std::path::Path;
@@ -194,8 +195,7 @@ fn deblurred_region(app: &StudioApp) -> Vec<f32> {
 }
 
 fn demo_ready(app: &StudioApp) -> bool {
-    app.session
-        .as_ref()
+    app.session()
         .is_some_and(|s| !s.shots.is_empty() && app.previews().count() == s.shots.len())
         && idle(app)
 }
@@ -211,7 +211,7 @@ fn every_view_on_the_demo_session() {
     // The first frame comes before the demo exists: the panel says what is happening
     // and the status bar shows the job's progress.
     h.run_steps(1);
-    assert!(h.state().session.is_none());
+    assert!(h.state().session().is_none());
     h.get_by_label_contains("Making the demo session");
     assert!(h.state().jobs.is_running("demo session"));
     step_until(
@@ -220,7 +220,7 @@ fn every_view_on_the_demo_session() {
         Duration::from_secs(120),
         demo_ready,
     );
-    let n = h.state().session.as_ref().map_or(0, |s| s.shots.len());
+    let n = h.state().session().map_or(0, |s| s.shots.len());
     assert_eq!(n, n_shots);
     assert!(
         demo_dir.join("session.json").is_file(),
@@ -234,7 +234,7 @@ fn every_view_on_the_demo_session() {
         &mut h,
         "the first detection",
         Duration::from_secs(120),
-        |a| !a.detections.is_empty(),
+        |a| !a.detections().next().is_none(),
     );
     let cancelled_at = Instant::now();
     h.get_by_label("Cancel").click();
@@ -243,7 +243,7 @@ fn every_view_on_the_demo_session() {
         cancelled_at.elapsed() < Duration::from_secs(10),
         "cancel stops the work within a square or two"
     );
-    let kept = h.state().detections.len();
+    let kept = h.state().detections().count();
     assert!(
         (1..n_shots).contains(&kept),
         "{kept} shots detected before the cancel"
@@ -257,9 +257,9 @@ fn every_view_on_the_demo_session() {
     // Detect again: only the shots without results run; every square is aligned.
     h.get_by_label("Detect").click();
     step_until(&mut h, "detection", Duration::from_secs(240), |a| {
-        a.detections.len() == n_shots && idle(a)
+        a.detections().count() == n_shots && idle(a)
     });
-    for (i, d) in &h.state().detections {
+    for (i, d) in h.state().detections() {
         let skipped: Vec<_> = d
             .squares
             .iter()
@@ -279,8 +279,8 @@ fn every_view_on_the_demo_session() {
     let viewer = h.get_by_label("shot viewer").rect();
     let (centre, (w, hgt)) = {
         let app = h.state();
-        let first = app.session.as_ref().expect("session").shots[0].id;
-        let det = &app.detections[&first];
+        let first = app.session().expect("session").shots[0].id;
+        let det = app.detection(first).expect("detected");
         let sq = det
             .squares
             .iter()
@@ -315,13 +315,13 @@ fn every_view_on_the_demo_session() {
     // Kernels on every detected shot by clicking.
     h.get_by_label("Kernels").click();
     step_until(&mut h, "kernels", Duration::from_secs(600), |a| {
-        a.measured.len() == n_shots && a.dataset.is_some() && idle(a)
+        a.measured().count() == n_shots && a.dataset.is_some() && idle(a)
     });
-    let session = h.state().session.clone().expect("session");
-    for (id, m) in &h.state().measured {
+    let session = h.state().session().cloned().expect("session");
+    for (id, m) in h.state().measured() {
         // Every square and channel is measured or reported with its reason, and
         // nearly all are measured on clean simulated shots.
-        let shot = session.shot(*id).expect("measured shot is in the session");
+        let shot = session.shot(id).expect("measured shot is in the session");
         let shot_file = ShotFile::read(&session.path_of(shot)).expect("shot readable");
         let file = session
             .cache()
@@ -782,7 +782,7 @@ fn every_view_on_the_demo_session() {
     let mut again = new_harness_with(&demo_dir, None, spec);
     again.run_steps(1);
     assert!(
-        again.state().session.is_some(),
+        again.state().session().is_some(),
         "cached demo session opens without remaking it"
     );
     step_until(
@@ -790,8 +790,8 @@ fn every_view_on_the_demo_session() {
         "the reopened session's results",
         Duration::from_secs(60),
         |a| {
-            a.measured.len() == n_shots
-                && a.detections.len() == n_shots
+            a.measured().count() == n_shots
+                && a.detections().count() == n_shots
                 && a.profile.is_some()
                 && a.cv.is_some()
                 && idle(a)
@@ -809,7 +809,7 @@ fn noisy_kernel_is_hatched_and_a_click_inspects_it(
 ) {
     let natural = h.state().views.field.as_ref().map_or(0, |f| f.noisy);
     let shot = h.state().selected_shot.expect("a selected shot");
-    let original = std::sync::Arc::clone(&h.state().measured[&shot]);
+    let original = std::sync::Arc::clone(h.state().kernels(shot).expect("kernels"));
     let total = original
         .samples
         .iter()
@@ -842,9 +842,16 @@ fn noisy_kernel_is_hatched_and_a_click_inspects_it(
             }
         }
     }
-    h.state_mut()
-        .measured
-        .insert(shot, std::sync::Arc::new(striped));
+    let file = h
+        .state()
+        .project()
+        .and_then(|p| p.state(shot)?.file.clone())
+        .expect("the shot's file");
+    h.state_mut().record_shot_event(ShotEvent::Measured {
+        id: shot,
+        file: file.clone(),
+        kernels: std::sync::Arc::new(striped),
+    });
     h.run_steps(3);
     let field = h.state().views.field.as_ref().expect("field");
     assert!(field.noisy > natural, "the striped kernel is flagged");
@@ -868,7 +875,11 @@ fn noisy_kernel_is_hatched_and_a_click_inspects_it(
     h.run_steps(2);
     assert_eq!(h.state().view, View::Shot);
     assert_eq!(h.state().selected_square, Some(square));
-    h.state_mut().measured.insert(shot, original);
+    h.state_mut().record_shot_event(ShotEvent::Measured {
+        id: shot,
+        file,
+        kernels: original,
+    });
     h.state_mut()
         .commands
         .push(Command::SelectView(View::KernelField));
@@ -951,11 +962,11 @@ fn raw_shots_and_photos_are_developed_and_export_as_dng() {
     // Its own kernels, so the photo's comparison has a measured result.
     h.get_by_label("Detect").click();
     step_until(&mut h, "detection", Duration::from_secs(120), |a| {
-        a.detections.len() == 1 && idle(a)
+        a.detections().count() == 1 && idle(a)
     });
     h.get_by_label("Kernels").click();
     step_until(&mut h, "kernels", Duration::from_secs(300), |a| {
-        a.measured.len() == 1 && idle(a)
+        a.measured().count() == 1 && idle(a)
     });
     h.get_by_label("Deblur").click();
     h.run_steps(2);
@@ -1046,12 +1057,7 @@ fn light_theme_and_user_session() {
 
     let mut h = new_harness(demo.path(), Some(&folder));
     h.run_steps(2);
-    assert!(
-        h.state()
-            .session
-            .as_ref()
-            .is_some_and(|s| s.shots.is_empty())
-    );
+    assert!(h.state().session().is_some_and(|s| s.shots.is_empty()));
     assert!(
         folder.join("session.json").is_file(),
         "a new session is saved at once"
@@ -1128,8 +1134,7 @@ fn light_theme_and_user_session() {
         Duration::from_secs(60),
         |a| {
             idle(a)
-                && a.session
-                    .as_ref()
+                && a.session()
                     .is_some_and(|s| s.shots[0].detect != StageStatus::Pending)
         },
     );
@@ -1214,7 +1219,7 @@ fn assert_results_belong_to_their_shots(folder: &Path) -> Session {
 }
 
 fn first_unmeasured(app: &StudioApp, measured: impl Fn(&StudioApp, ShotId) -> bool) -> ShotId {
-    let s = app.session.as_ref().expect("session");
+    let s = app.session().expect("session");
     s.shots
         .iter()
         .map(|shot| shot.id)
@@ -1237,23 +1242,23 @@ fn removing_shots_and_switching_sessions_while_jobs_run() {
     step_until(&mut h, "session A", Duration::from_secs(60), demo_ready);
     h.state_mut().commands.push(Command::RunDetect(None));
     step_until(&mut h, "a first detection", Duration::from_secs(120), |a| {
-        !a.detections.is_empty() || idle(a)
+        !a.detections().next().is_none() || idle(a)
     });
     // A shot the job has not finished: removed while it runs (or waits its turn).
-    let gone = first_unmeasured(h.state(), |a, id| a.detections.contains_key(&id));
+    let gone = first_unmeasured(h.state(), |a, id| a.detection(id).is_some());
     h.state_mut().commands.push(Command::RemoveShot(gone));
     step_until(&mut h, "detection", Duration::from_secs(240), idle);
-    assert!(!h.state().detections.contains_key(&gone));
+    assert!(!h.state().detection(gone).is_some());
 
     h.state_mut().commands.push(Command::RunKernels(None));
     h.run_steps(1);
-    let gone2 = first_unmeasured(h.state(), |a, id| a.measured.contains_key(&id));
+    let gone2 = first_unmeasured(h.state(), |a, id| a.kernels(id).is_some());
     h.state_mut().commands.push(Command::RemoveShot(gone2));
     step_until(
         &mut h,
         "a first kernels result",
         Duration::from_secs(600),
-        |a| !a.measured.is_empty() || idle(a),
+        |a| !a.measured().next().is_none() || idle(a),
     );
     // Another session while the kernels job may still run: its late results are
     // dropped, and session B's shots (with the same ids) get none of them.
@@ -1266,10 +1271,10 @@ fn removing_shots_and_switching_sessions_while_jobs_run() {
         &mut h,
         "session B detected",
         Duration::from_secs(240),
-        |a| idle(a) && a.detections.len() == n,
+        |a| idle(a) && a.detections().count() == n,
     );
     assert!(
-        h.state().measured.is_empty(),
+        h.state().measured().next().is_none(),
         "no kernels were measured in session B"
     );
     drop(h);
@@ -1300,12 +1305,11 @@ fn a_session_measured_on_the_command_line_calibrates_in_the_studio() {
     let mut h = new_harness(&dir.path().join("demo"), Some(&folder));
     let n = spec.settings.len();
     step_until(&mut h, "the cached results", Duration::from_secs(60), |a| {
-        a.measured.len() == n && a.detections.len() == n && idle(a)
+        a.measured().count() == n && a.detections().count() == n && idle(a)
     });
     assert!(
         h.state()
-            .session
-            .as_ref()
+            .session()
             .is_some_and(|s| s.shots.iter().all(|s| s.kernels.is_done())),
         "results measured elsewhere count as done"
     );
@@ -1326,12 +1330,12 @@ fn a_second_studio_on_an_open_session_is_refused_and_the_command_line_too() {
         .expect("save");
     let mut first = new_harness(&dir.path().join("demo"), Some(&folder));
     first.run_steps(2);
-    assert!(first.state().session.is_some());
+    assert!(first.state().session().is_some());
 
     // A second window on the same folder: refused with who holds it, nothing opened.
     let mut second = new_harness(&dir.path().join("demo"), Some(&folder));
     second.run_steps(2);
-    assert!(second.state().session.is_none());
+    assert!(second.state().session().is_none());
     let refusal = second
         .state()
         .messages
@@ -1365,7 +1369,7 @@ fn a_second_studio_on_an_open_session_is_refused_and_the_command_line_too() {
     let mut third = new_harness(&dir.path().join("demo"), Some(&folder));
     third.run_steps(2);
     assert!(
-        third.state().session.is_some(),
+        third.state().session().is_some(),
         "{:?}",
         third.state().messages
     );
@@ -1473,7 +1477,7 @@ fn models_warn_what_to_shoot_when_the_settings_cannot_determine_the_model() {
     step_until(&mut h, "the shots", Duration::from_secs(30), |a| {
         a.previews().count() == 2 && idle(a)
     });
-    let session = h.state().session.clone().expect("session");
+    let session = h.state().session().cloned().expect("session");
     for (shot, f_number) in session.shots.iter().zip([4.0, 8.0]) {
         h.state_mut().commands.push(Command::SetShotSetting {
             shot: shot.id,
@@ -1582,8 +1586,8 @@ fn log_panel_confirmation_about_and_recent_sessions() {
     let demo_dir = dir.path().join("demo");
     let mut h = new_harness(&demo_dir, Some(&folder));
     step_until(&mut h, "the session", Duration::from_secs(60), demo_ready);
-    let n = h.state().session.as_ref().map_or(0, |s| s.shots.len());
-    let first = h.state().session.as_ref().expect("session").shots[0].id;
+    let n = h.state().session().map_or(0, |s| s.shots.len());
+    let first = h.state().session().expect("session").shots[0].id;
 
     // Removing a shot asks first; Cancel keeps it, Remove removes it.
     h.state_mut()
@@ -1596,7 +1600,7 @@ fn log_panel_confirmation_about_and_recent_sessions() {
     h.get_by_label("Cancel").click();
     h.run_steps(2);
     assert!(h.state().confirm.is_none());
-    assert_eq!(h.state().session.as_ref().map(|s| s.shots.len()), Some(n));
+    assert_eq!(h.state().session().map(|s| s.shots.len()), Some(n));
     h.state_mut()
         .commands
         .push(Command::AskConfirm(lensblur::app::Confirm::RemoveShot(
@@ -1605,10 +1609,7 @@ fn log_panel_confirmation_about_and_recent_sessions() {
     h.run_steps(3);
     h.get_by_label("Remove").click();
     h.run_steps(2);
-    assert_eq!(
-        h.state().session.as_ref().map(|s| s.shots.len()),
-        Some(n - 1)
-    );
+    assert_eq!(h.state().session().map(|s| s.shots.len()), Some(n - 1));
 
     // Detect on the rest: its end is said in words, with the count.
     h.state_mut().commands.push(Command::RunDetect(None));

@@ -9,9 +9,7 @@ use super::{
 };
 use crate::chart::ChartSpec;
 use crate::crossval::CvReport;
-use crate::detect::Detection;
 use crate::develop::Developed;
-use crate::kernel::file::KernelsFile;
 use crate::model::Dataset;
 use crate::plane::{Capture, Channel};
 use crate::profile::Profile;
@@ -185,16 +183,13 @@ pub enum JobOutput {
         capture: Arc<Capture>,
         developed: Option<Result<Developed, String>>,
     },
-    /// A shot's kernels finished (or failed).
-    KernelsMeasured {
-        shot: ShotId,
-        result: Result<Arc<KernelsFile>, String>,
-    },
+    /// A step of a detect or kernels job on one shot.
+    Shot(crate::project::ShotEvent),
     /// The session's measured Gaussians, gathered from its kernels files.
     DatasetReady(Option<Arc<Dataset>>),
     /// Results a reopened session already has in its cache.
     ResultsRead {
-        survey: crate::session::Survey,
+        survey: Box<crate::project::Survey>,
         cv: Option<Arc<CvReport>>,
     },
     /// Calibration finished: the measurements it used, the profile and the
@@ -209,11 +204,6 @@ pub enum JobOutput {
         profile: Arc<Profile>,
         path: PathBuf,
         compare: bool,
-    },
-    /// A shot's detection finished (or failed: `Err` carries the one-line reason).
-    Detected {
-        shot: ShotId,
-        result: Result<Arc<Detection>, String>,
     },
     /// Deblurred crops of the open photo; `measured_from` names the shot whose kernels
     /// were used.

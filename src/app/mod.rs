@@ -32,6 +32,7 @@ use crate::kernel::file::KernelsFile;
 use crate::model::Dataset;
 use crate::plane::Channel;
 use crate::profile::Profile;
+use crate::project::Project;
 use crate::session::{Session, ShotId, StageSettings};
 use jobs::Jobs;
 use std::collections::BTreeMap;
@@ -41,7 +42,9 @@ use std::time::Instant;
 
 /// The studio app.
 pub struct StudioApp {
-    pub session: Option<Session>,
+    /// The open calibration project: the session, its folder's lock, and each shot's
+    /// record (file, settings, status, detection, kernels).
+    project: Option<Project>,
     pub jobs: Jobs<JobOutput>,
     pub view: View,
     pub selected_shot: Option<ShotId>,
@@ -66,14 +69,8 @@ pub struct StudioApp {
     field_focal_mm: f64,
     field_f_number: f64,
     pub compare_units: bool,
-    /// Detection per shot, this run's or read back from the session's results. With
-    /// `measured`, the per-shot results that are to move into the core's project type:
-    /// written only in `logic` (`stages`, `session`), read by `view_data` and `ui`.
-    pub detections: BTreeMap<ShotId, Arc<Detection>>,
     /// The square clicked in the Shot view: (row, col).
     pub selected_square: Option<(usize, usize)>,
-    /// Measured kernels and their Gaussians per shot (all channels).
-    pub measured: BTreeMap<ShotId, Arc<KernelsFile>>,
     /// The session's measured Gaussians over every shot with kernels.
     pub dataset: Option<Arc<Dataset>>,
     /// The lens profile in use (calibrated here or loaded) and a second one to compare.
@@ -98,8 +95,6 @@ pub struct StudioApp {
     /// Counts the sessions opened: results of jobs started for an earlier one are
     /// dropped when they arrive.
     session_generation: u64,
-    /// The open session folder's lock: one studio or command writes there at a time.
-    session_lock: Option<crate::lock::FolderLock>,
     first_frame_logged: bool,
     /// Frames left of the autorun's strength drag.
     drag_frames: usize,
@@ -125,10 +120,10 @@ impl StudioApp {
         let recent = options
             .recent_file
             .as_deref()
-            .map(crate::session::read_recent)
+            .map(crate::recent::read_recent)
             .unwrap_or_default();
         let mut app = Self {
-            session: None,
+            project: None,
             jobs: Jobs::new(options.job_threads, move || wake_ctx.request_repaint()),
             view: View::Shot,
             selected_shot: None,
@@ -146,9 +141,7 @@ impl StudioApp {
             field_focal_mm: 50.0,
             field_f_number: 5.6,
             compare_units: false,
-            detections: BTreeMap::new(),
             selected_square: None,
-            measured: BTreeMap::new(),
             dataset: None,
             profile: None,
             compare_profile: None,
@@ -166,7 +159,6 @@ impl StudioApp {
             options: options.clone(),
             ctx: ctx.clone(),
             session_generation: 0,
-            session_lock: None,
             first_frame_logged: false,
             drag_frames: 0,
             first_shot_logged: false,
@@ -191,11 +183,63 @@ impl StudioApp {
         app
     }
 
+    /// The open session.
+    #[must_use]
+    pub fn session(&self) -> Option<&Session> {
+        self.project.as_ref().map(Project::session)
+    }
+
+    /// The open calibration project.
+    #[must_use]
+    pub fn project(&self) -> Option<&Project> {
+        self.project.as_ref()
+    }
+
+    /// The open session, to change what the user changes (its shots go through the
+    /// project).
+    pub(crate) fn session_mut(&mut self) -> Option<&mut Session> {
+        self.project.as_mut().map(Project::session_mut)
+    }
+
+    /// The shot's detection, this run's or read back from the session's results.
+    #[must_use]
+    pub fn detection(&self, id: ShotId) -> Option<&Arc<Detection>> {
+        self.project.as_ref()?.detection(id)
+    }
+
+    /// The shot's measured kernels and their Gaussians (all channels).
+    #[must_use]
+    pub fn kernels(&self, id: ShotId) -> Option<&Arc<KernelsFile>> {
+        self.project.as_ref()?.kernels(id)
+    }
+
+    /// The shots with a detection, in session order.
+    pub fn detections(&self) -> impl Iterator<Item = (ShotId, &Arc<Detection>)> {
+        self.project.iter().flat_map(|p| {
+            p.shots()
+                .filter_map(|s| Some((s.shot.id, s.state.detection.as_ref()?)))
+        })
+    }
+
+    /// The shots with measured kernels, in session order.
+    pub fn measured(&self) -> impl Iterator<Item = (ShotId, &Arc<KernelsFile>)> {
+        self.project.iter().flat_map(|p| {
+            p.shots()
+                .filter_map(|s| Some((s.shot.id, s.state.kernels.as_ref()?)))
+        })
+    }
+
+    /// Takes one shot's step of a measurement as a job hands it back: recorded in the
+    /// project, the session saved (tests stand in for a measurement with it).
+    pub fn record_shot_event(&mut self, event: crate::project::ShotEvent) {
+        logic::shot_event(self, &event);
+    }
+
     /// Whether the open session still has this shot (a job's result may arrive after
     /// the shot was removed).
     #[must_use]
     pub fn has_shot(&self, id: ShotId) -> bool {
-        self.session.as_ref().is_some_and(|s| s.shot(id).is_some())
+        self.session().is_some_and(|s| s.shot(id).is_some())
     }
 
     /// The shot loaded for display, once it is.
@@ -260,7 +304,7 @@ impl StudioApp {
     /// the window and tie what it shows to where the folder happens to be.
     #[must_use]
     pub fn shown_path(&self, path: &Path) -> String {
-        if let Some(s) = &self.session
+        if let Some(s) = self.session()
             && let Ok(rel) = path.strip_prefix(s.folder())
             && !rel.as_os_str().is_empty()
         {
@@ -277,7 +321,7 @@ impl StudioApp {
     /// Messages from the core name files by their full paths; inside the session folder
     /// the relative name says the same in less space.
     pub(crate) fn shorten_paths(&self, text: String) -> String {
-        match &self.session {
+        match self.session() {
             Some(s) if !s.folder().as_os_str().is_empty() => {
                 let prefix = format!("{}{}", s.folder().display(), std::path::MAIN_SEPARATOR);
                 text.replace(&prefix, "")
@@ -385,7 +429,7 @@ impl eframe::App for StudioApp {
     }
 
     fn on_exit(&mut self) {
-        if let Some(s) = &self.session
+        if let Some(s) = self.session()
             && let Err(e) = s.save()
         {
             eprintln!("lensblur: {e}");

@@ -5,7 +5,7 @@
 use super::view_data;
 use crate::plane::{Capture, Channel};
 use crate::review::DeblurComparison;
-use crate::session::DemoSpec;
+use crate::simulate::demo::DemoSpec;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -98,7 +98,7 @@ impl Default for AppOptions {
     fn default() -> Self {
         Self {
             session: None,
-            demo_dir: crate::session::default_demo_dir(),
+            demo_dir: crate::recent::default_demo_dir(),
             demo_spec: DemoSpec::studio(),
             log_frame_times: std::env::var_os("LENSBLUR_FRAME_LOG").is_some(),
             autorun: std::env::var("LENSBLUR_AUTORUN")
@@ -111,7 +111,7 @@ impl Default for AppOptions {
                 .unwrap_or_default(),
             job_threads: 0,
             started: Instant::now(),
-            recent_file: Some(crate::session::default_recent_file()),
+            recent_file: Some(crate::recent::default_recent_file()),
         }
     }
 }

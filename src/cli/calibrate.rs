@@ -61,7 +61,13 @@ pub fn load_session_locked(
         require_setting: true,
         ..MeasurePlan::missing(Stages::All)
     };
-    let project = measure_project(manifest_path, "lensblur calibrate", chart, args.no_cache, plan)?;
+    let project = measure_project(
+        manifest_path,
+        "lensblur calibrate",
+        chart,
+        args.no_cache,
+        plan,
+    )?;
     let ds = lensblur::pipeline::dataset(&project.measured_shots())?;
     let chart = project.session().chart.clone();
     Ok((ds, Some(chart), Some(project)))

@@ -109,15 +109,7 @@ pub fn run(args: Args) -> Result<()> {
         focal_mm: args.focal,
         f_number: args.aperture,
     };
-    let file = pipeline::estimate(
-        &capture,
-        &det,
-        shot,
-        given,
-        &m,
-        args.with_kernels,
-        &job,
-    )?;
+    let file = pipeline::estimate(&capture, &det, shot, given, &m, args.with_kernels, &job)?;
     let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v.get(v.len() / 2).copied().unwrap_or(f64::NAN)

@@ -396,7 +396,6 @@ fn write_rgb16_png(path: &Path, capture: &crate::plane::Capture) -> Result<(), S
     write_atomic(path, &bytes)
 }
 
-
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), SessionError> {
     crate::io::write_atomic(path, bytes).map_err(SessionError::from)
 }

@@ -19,8 +19,7 @@ pub(in crate::app) fn autorun_step(app: &mut StudioApp) {
 fn log_readiness(app: &mut StudioApp) {
     let ready = !app.jobs.is_running("demo session")
         && app
-            .session
-            .as_ref()
+            .session()
             .is_some_and(|s| !s.shots.is_empty() && app.shots_shown() == s.shots.len());
     if !app.first_shot_logged && app.previews().next().is_some() {
         app.first_shot_logged = true;
@@ -34,7 +33,7 @@ fn log_readiness(app: &mut StudioApp) {
     if ready && !app.ready_logged {
         app.ready_logged = true;
         if app.options.log_frame_times {
-            let n = app.session.as_ref().map_or(0, |s| s.shots.len());
+            let n = app.session().map_or(0, |s| s.shots.len());
             eprintln!(
                 "studio: ready: {n} shots loaded after {:.2} s",
                 app.options.started.elapsed().as_secs_f32()
@@ -56,7 +55,7 @@ fn next_stage(app: &mut StudioApp) {
             let photo = std::env::var_os("LENSBLUR_PHOTO")
                 .map(PathBuf::from)
                 .or_else(|| {
-                    let s = app.session.as_ref()?;
+                    let s = app.session()?;
                     Some(s.path_of(s.shots.first()?))
                 });
             if let Some(p) = photo {

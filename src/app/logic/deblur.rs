@@ -184,14 +184,14 @@ fn photo_loaded(
         ));
     }
     // Settings: EXIF first, then the session's record of the same file.
-    let recorded = app.session.as_ref().and_then(|s| {
+    let recorded = app.session().and_then(|s| {
         s.shots
             .iter()
             .find(|shot| s.path_of(shot) == path)
             .map(|shot| (shot.focal_mm, shot.f_number))
     });
     // The demo's photo is a PNG: its setting is in the session instead.
-    let demo = app.session.as_ref().and_then(|s| {
+    let demo = app.session().and_then(|s| {
         s.demo_photo
             .as_ref()
             .filter(|p| s.folder().join(&p.path) == path)
@@ -217,8 +217,7 @@ fn photo_loaded(
 /// The method the Deblur view uses: its own once changed there, else the session's.
 pub(crate) fn deblur_method(app: &StudioApp) -> Method {
     app.deblur.method.unwrap_or_else(|| {
-        app.session
-            .as_ref()
+        app.session()
             .and_then(|s| Method::from_name(&s.settings.deblur_method))
             .unwrap_or_default()
     })
@@ -258,9 +257,9 @@ fn photo_sources(app: &StudioApp, photo: &Photo) -> Sources {
         Some((_, p)) => crate::review::profile_source(p, cap, setting),
         None => Err("no profile yet: Calibrate (Ctrl+M) or load one in Models".into()),
     };
-    let found = match (app.session.as_ref(), setting) {
+    let found = match (app.session(), setting) {
         (Some(s), Some(set)) => s.shots.iter().find_map(|shot| {
-            let file = app.measured.get(&shot.id)?;
+            let file = app.kernels(shot.id)?;
             crate::review::measured_at(shot.setting(), file, cap.width, cap.height, set)
                 .then(|| (shot.stem(), Arc::clone(file)))
         }),

@@ -29,10 +29,9 @@ pub(crate) use deblur::deblur_method;
 pub(super) use dialogs::drain_dialogs;
 pub(super) use plots::finish_plot_png;
 pub(super) use shots::ensure_preview;
+pub(super) use stages::shot_event;
 
-/// The cross-validation report beside the profile, so a reopened session shows its
-/// curves without calibrating again.
-const CV_FILE: &str = "crossval.json";
+use crate::project::{CV_FILE, ShotEvent};
 
 /// Applies one command, in the function of its concern.
 pub(super) fn apply(app: &mut StudioApp, command: Command) {
@@ -111,8 +110,7 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
         JobOutput::ShotLoaded { .. } | JobOutput::ShotUnreadable { .. } => {
             shots::shot_output(app, output)
         }
-        JobOutput::Detected { .. }
-        | JobOutput::KernelsMeasured { .. }
+        JobOutput::Shot(_)
         | JobOutput::DatasetReady(_)
         | JobOutput::Calibrated { .. }
         | JobOutput::ProfileLoaded { .. } => stages::stage_output(app, output),
@@ -174,13 +172,14 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
 /// Counts a detect or kernels job's shots as they come back.
 fn tally(app: &mut StudioApp, job: u64, output: &JobOutput) {
     let (id, failure) = match output {
-        JobOutput::Detected { shot, result } => (*shot, result.as_ref().err()),
-        JobOutput::KernelsMeasured { shot, result } => (*shot, result.as_ref().err()),
+        JobOutput::Shot(ShotEvent::Detected { id, .. } | ShotEvent::Measured { id, .. }) => {
+            (*id, None)
+        }
+        JobOutput::Shot(ShotEvent::Failed { id, reason, .. }) => (*id, Some(reason)),
         _ => return,
     };
     let name = app
-        .session
-        .as_ref()
+        .session()
         .and_then(|s| s.shot(id))
         .map_or_else(|| format!("shot {}", id.0), crate::session::Shot::name);
     let reason = failure.map(|e| {
@@ -225,9 +224,11 @@ fn finished_message(app: &mut StudioApp, job: &str, t: &super::Tally) {
     }
 }
 
+/// Hands the session to the project's writer (it is written off this thread); an
+/// earlier write that failed is said.
 pub(super) fn save(app: &mut StudioApp) {
-    if let Some(s) = &app.session
-        && let Err(e) = s.save()
+    if let Some(p) = &app.project
+        && let Err(e) = p.save()
     {
         app.error(e.to_string());
     }

@@ -8,7 +8,8 @@ use crate::app::jobs::JobScope;
 use crate::app::view_data;
 use crate::app::{Command, Confirm, JobOutput, StudioApp};
 use crate::job::JobContext;
-use crate::session::{Session, ShotId, StageStatus};
+use crate::project::Project;
+use crate::session::{Session, ShotId};
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -22,7 +23,7 @@ pub(super) fn apply_session(app: &mut StudioApp, command: Command) {
             focal_mm,
             f_number,
         } => {
-            if let Some(shot) = app.session.as_mut().and_then(|s| s.shot_mut(shot)) {
+            if let Some(shot) = app.session_mut().and_then(|s| s.shot_mut(shot)) {
                 shot.focal_mm = focal_mm;
                 shot.f_number = f_number;
                 save(app);
@@ -31,8 +32,8 @@ pub(super) fn apply_session(app: &mut StudioApp, command: Command) {
         }
         Command::ApplySettings { chart, settings } => {
             // A new chart discards what was measured with the old one: ask first.
-            let has_results = !app.detections.is_empty() || !app.measured.is_empty();
-            let chart_changed = app.session.as_ref().is_some_and(|s| s.chart != chart);
+            let has_results = app.detections().next().is_some() || app.measured().next().is_some();
+            let chart_changed = app.session().is_some_and(|s| s.chart != chart);
             if chart_changed && has_results {
                 app.confirm = Some(Confirm::ReplaceChart { chart, settings });
             } else {
@@ -45,7 +46,7 @@ pub(super) fn apply_session(app: &mut StudioApp, command: Command) {
                     .settings_edit
                     .as_ref()
                     .map(|e| e.1.clone())
-                    .or_else(|| app.session.as_ref().map(|s| s.settings.clone()))
+                    .or_else(|| app.session().map(|s| s.settings.clone()))
                     .unwrap_or_default();
                 app.settings_edit = Some((spec, settings));
                 app.info(format!(
@@ -73,7 +74,7 @@ pub(super) fn apply_session(app: &mut StudioApp, command: Command) {
 pub(super) fn session_output(app: &mut StudioApp, output: JobOutput) {
     match output {
         JobOutput::DemoShot(s) => {
-            if app.session.is_none() {
+            if app.session().is_none() {
                 if app.set_session(*s) {
                     app.info("demo session: showing each simulated shot as soon as it is made");
                 }
@@ -83,7 +84,7 @@ pub(super) fn session_output(app: &mut StudioApp, output: JobOutput) {
         }
         JobOutput::DemoReady(s) => {
             let n = s.shots.len();
-            if app.session.is_none() {
+            if app.session().is_none() {
                 if !app.set_session(*s) {
                     return;
                 }
@@ -101,23 +102,14 @@ pub(super) fn session_output(app: &mut StudioApp, output: JobOutput) {
             // The cache decides what is done: results measured elsewhere (another
             // front end, an earlier version of the session) count, and a status whose
             // result has gone is pending again.
-            if let Some(s) = app.session.as_mut() {
-                s.settle(&survey);
-            }
+            let dropped = match app.project.as_mut() {
+                Some(p) => p.apply_survey(*survey),
+                None => return,
+            };
             save(app);
-            for line in &survey.dropped {
-                app.info(line.clone());
+            for line in dropped {
+                app.info(line);
             }
-            app.detections = survey
-                .detections
-                .into_iter()
-                .map(|(id, d)| (id, Arc::new(d)))
-                .collect();
-            app.measured = survey
-                .kernels
-                .into_iter()
-                .map(|(id, k)| (id, Arc::new(k)))
-                .collect();
             if app.cv.is_none() {
                 app.cv = cv;
             }
@@ -129,15 +121,15 @@ pub(super) fn session_output(app: &mut StudioApp, output: JobOutput) {
 }
 
 fn add_shots(app: &mut StudioApp, files: &[PathBuf]) {
-    if app.session.is_none() {
+    if app.session().is_none() {
         app.error("open or create a session folder before adding shots (Ctrl+O)");
         return;
     }
     let mut errors = Vec::new();
     let mut added = None;
-    if let Some(s) = app.session.as_mut() {
+    if let Some(p) = app.project.as_mut() {
         for f in files {
-            match s.add_shot(f) {
+            match p.add_shot(f) {
                 Ok(id) => added = Some(id),
                 Err(e) => errors.push(e.to_string()),
             }
@@ -156,22 +148,17 @@ fn add_shots(app: &mut StudioApp, files: &[PathBuf]) {
 /// Removes a shot from the session (its file and cached results stay on disk): work on
 /// it stops, and whatever it still sends is dropped since the shot is gone.
 pub(super) fn remove_shot(app: &mut StudioApp, id: ShotId) {
-    let Some(s) = app.session.as_mut() else {
+    let Some(p) = app.project.as_mut() else {
         return;
     };
-    let Some(i) = s.index_of(id) else {
+    let Some(i) = p.session().index_of(id) else {
         return;
     };
-    s.remove_shot(id);
+    p.remove_shot(id);
     app.jobs.cancel_shot(id);
-    let next = s
-        .shots
-        .get(i)
-        .or_else(|| s.shots.last())
-        .map(|shot| shot.id);
+    let shots = &p.session().shots;
+    let next = shots.get(i).or_else(|| shots.last()).map(|shot| shot.id);
     app.shots.remove(&id);
-    app.detections.remove(&id);
-    app.measured.remove(&id);
     if app.selected_shot == Some(id) {
         app.selected_shot = next;
         app.selected_square = None;
@@ -191,29 +178,22 @@ pub(super) fn apply_settings(
         app.error(format!("chart spec: {e}"));
         return;
     }
-    let Some(s) = app.session.as_mut() else {
+    let Some(p) = app.project.as_mut() else {
         return;
     };
+    let s = p.session();
     let chart_changed = s.chart != chart;
     let kernels_changed = chart_changed
         || s.settings.oversample != settings.oversample
         || s.settings.weight_all_subpixels != settings.weight_all_subpixels;
+    let s = p.session_mut();
     s.chart = chart;
     s.settings = settings;
-    for shot in &mut s.shots {
-        if chart_changed {
-            shot.detect = StageStatus::Pending;
-        }
-        if kernels_changed {
-            shot.kernels = StageStatus::Pending;
-        }
-    }
+    p.forget_results(chart_changed, kernels_changed);
     if chart_changed {
-        app.detections.clear();
         app.selected_square = None;
     }
     if kernels_changed {
-        app.measured.clear();
         app.dataset = None;
     }
     app.settings_edit = None;
@@ -228,18 +208,15 @@ pub(super) fn apply_settings(
 /// Adds to the open demo session the shots the demo job has made since (and at the end
 /// its photo). False when the open session is another one.
 fn merge_demo(app: &mut StudioApp, made: &Session) -> bool {
-    let Some(s) = app
-        .session
+    let Some(p) = app
+        .project
         .as_mut()
-        .filter(|s| s.is_demo && s.folder() == made.folder())
+        .filter(|p| p.session().is_demo && p.folder() == made.folder())
     else {
         return false;
     };
-    // Each shot is added once, by id: one the user removed meanwhile stays removed.
-    let known = s.next_shot_id;
-    s.shots
-        .extend(made.shots.iter().filter(|shot| shot.id.0 >= known).cloned());
-    s.next_shot_id = s.next_shot_id.max(made.next_shot_id);
+    p.adopt_shots(made);
+    let s = p.session_mut();
     if s.demo_photo.is_none() && made.demo_photo.is_some() {
         s.demo_photo.clone_from(&made.demo_photo);
         let opened = s.clone();
@@ -251,17 +228,20 @@ fn merge_demo(app: &mut StudioApp, made: &Session) -> bool {
 /// Finds the results a session already has in its cache (measured by the studio or by
 /// `lensblur calibrate`), off the UI thread: shots are fingerprinted, and kernels files
 /// with their arrays run to megabytes.
-pub(in crate::app) fn read_results(app: &mut StudioApp, session: &Session) {
-    let cv_path = session.folder().join(CV_FILE);
-    if session.shots.is_empty() && !cv_path.is_file() {
+pub(in crate::app) fn read_results(app: &mut StudioApp) {
+    let Some(p) = app.project.as_ref() else {
+        return;
+    };
+    let cv_path = p.folder().join(CV_FILE);
+    if p.session().shots.is_empty() && !cv_path.is_file() {
         return;
     }
-    let session = session.clone();
+    let survey = p.survey_job();
     let scope = JobScope::session(app.session_generation);
     let r = app
         .jobs
         .spawn_scoped("read results", scope, move |ctx, out| {
-            let survey = session.survey(ctx).map_err(|e| e.to_string())?;
+            let survey = Box::new(survey.run(ctx).map_err(|e| e.to_string())?);
             let cv = crate::io::read_json_text(&cv_path)
                 .ok()
                 .and_then(|t| serde_json::from_str(&t).ok())
@@ -302,7 +282,7 @@ impl StudioApp {
             .spawn_apart("demo session", move |ctx: &JobContext, out| {
                 // Each shot is shown as soon as it is on disk: a newcomer sees a
                 // session within seconds instead of waiting for all of them.
-                let s = crate::session::make_demo_streaming(&dir, &spec, ctx, &mut |s| {
+                let s = crate::simulate::demo::make_demo_streaming(&dir, &spec, ctx, &mut |s| {
                     out.emit(JobOutput::DemoShot(Box::new(s.clone())));
                 })
                 .map_err(|e| e.to_string())?;
@@ -318,42 +298,43 @@ impl StudioApp {
     /// Returns false, keeping the session that was open, when another studio or
     /// command is working in that folder.
     pub(in crate::app) fn set_session(&mut self, s: Session) -> bool {
+        // Reopening the folder open now keeps its lock: a lock is per open file, so
+        // taking it again would refuse itself. Another folder is locked before the old
+        // one is let go, so a refusal keeps the session that was open.
         let same_folder = self
-            .session_lock
+            .project
             .as_ref()
-            .is_some_and(|l| l.dir() == s.folder());
-        if !same_folder {
-            // Let go of the old folder first: a lock is per open file, so reopening the
-            // same folder elsewhere would otherwise refuse itself.
-            let old = self.session_lock.take();
-            match s.lock("the lensblur studio") {
-                Ok((lock, swept)) => {
-                    drop(old);
-                    self.session_lock = Some(lock);
-                    if swept > 0 {
-                        self.info(format!(
-                            "{}: removed {swept} unfinished temporary files left by an interrupted write",
-                            s.folder().display()
-                        ));
-                    }
+            .is_some_and(|p| p.folder() == s.folder());
+        let lock = if same_folder {
+            self.project.take().and_then(Project::into_lock)
+        } else {
+            None
+        };
+        let project = match Project::with_session(s, lock, "the lensblur studio") {
+            Ok((project, opened)) => {
+                if opened.swept > 0 {
+                    self.info(format!(
+                        "{}: removed {} unfinished temporary files left by an interrupted write",
+                        project.folder().display(),
+                        opened.swept
+                    ));
                 }
-                Err(e @ crate::lock::LockError::Held { .. }) => {
-                    self.session_lock = old;
-                    self.error(e.to_string());
-                    return false;
-                }
-                Err(e) => {
+                if let Some(why) = opened.unlocked {
                     // A read-only folder: it is shown, and saving it will say why not.
-                    self.info(format!("{e}: opened without a lock"));
+                    self.info(format!("{why}: opened without a lock"));
                 }
+                project
             }
-        }
+            Err(e) => {
+                self.error(e.to_string());
+                return false;
+            }
+        };
+        let s = project.session().clone();
         // Work on the session being closed stops, and what it still sends is dropped.
         self.jobs.cancel_session_jobs();
         self.session_generation += 1;
         self.shots.clear();
-        self.detections.clear();
-        self.measured.clear();
         self.views = view_data::ViewData::default();
         self.dataset = None;
         self.cv = None;
@@ -380,7 +361,8 @@ impl StudioApp {
             self.field_focal_mm = f;
             self.field_f_number = a;
         }
-        read_results(self, &s);
+        self.project = Some(project);
+        read_results(self);
         if s.is_demo {
             self.open_demo_photo(&s);
         }
@@ -389,12 +371,11 @@ impl StudioApp {
         if s.folder() != self.options.demo_dir
             && let Some(file) = self.options.recent_file.clone()
         {
-            match crate::session::remember_recent(&file, s.folder()) {
+            match crate::recent::remember_recent(&file, s.folder()) {
                 Ok(list) => self.recent = list,
                 Err(e) => self.error(format!("cannot remember the session as recent: {e}")),
             }
         }
-        self.session = Some(s);
         true
     }
 

@@ -24,7 +24,7 @@ pub(super) fn shot_output(app: &mut StudioApp, output: JobOutput) {
                 return;
             }
             let preview = make_preview(&app.ctx, id, &capture, developed);
-            if let Some(shot) = app.session.as_mut().and_then(|s| s.shot_mut(id)) {
+            if let Some(shot) = app.session_mut().and_then(|s| s.shot_mut(id)) {
                 // EXIF fills what the user has not typed.
                 let mut changed = false;
                 if shot.focal_mm.is_none() && capture.setting_focal_mm.is_some() {
@@ -53,7 +53,7 @@ pub(super) fn shot_output(app: &mut StudioApp, output: JobOutput) {
 }
 
 pub(in crate::app) fn ensure_preview(app: &mut StudioApp) {
-    let Some(s) = &app.session else { return };
+    let Some(s) = app.session() else { return };
     if app.jobs.is_running("load shot") {
         return;
     }

@@ -1,17 +1,13 @@
 //! The stages run on job threads (detect, kernels, calibrate, the dataset the sweeps
 //! read) and what they hand back.
 
-use super::CV_FILE;
 use super::save;
-use crate::app::jobs::{Emitter, JobScope};
+use crate::app::jobs::JobScope;
 use crate::app::{Command, JobOutput, StudioApp};
-use crate::detect::Detection;
-use crate::job::JobContext;
-use crate::kernel::file::KernelsFile;
-use crate::pipeline::{self, GivenSetting, MeasuredShot, ShotFile};
-use crate::plane::Capture;
-use crate::session::{ShotId, StageStatus};
-use std::path::{Path, PathBuf};
+use crate::pipeline::{self, MeasuredShot};
+use crate::project::{CV_FILE, MeasurePlan, PROFILE_FILE, ShotEvent, Stages};
+use crate::session::ShotId;
+use std::path::PathBuf;
 use std::sync::Arc;
 
 /// The stages: detect, kernels, calibrate, and the profile they make.
@@ -52,54 +48,7 @@ pub(super) fn apply_stage(app: &mut StudioApp, command: Command) {
 /// Results of the stages, shot by shot, and of calibration.
 pub(super) fn stage_output(app: &mut StudioApp, output: JobOutput) {
     match output {
-        JobOutput::Detected { shot: id, result } => {
-            if !app.has_shot(id) {
-                return;
-            }
-            let result = result.map_err(|e| app.shorten_paths(e));
-            let status = match &result {
-                Ok(d) => StageStatus::Done {
-                    summary: crate::session::detect_summary(d),
-                },
-                Err(reason) => StageStatus::Failed {
-                    reason: reason.clone(),
-                },
-            };
-            if let Some(shot) = app.session.as_mut().and_then(|s| s.shot_mut(id)) {
-                shot.detect = status;
-            }
-            match result {
-                Ok(d) => {
-                    app.detections.insert(id, d);
-                }
-                Err(e) => app.error(e),
-            }
-            save(app);
-        }
-        JobOutput::KernelsMeasured { shot: id, result } => {
-            if !app.has_shot(id) {
-                return;
-            }
-            let result = result.map_err(|e| app.shorten_paths(e));
-            let status = match &result {
-                Ok(file) => StageStatus::Done {
-                    summary: crate::session::kernels_summary(file),
-                },
-                Err(reason) => StageStatus::Failed {
-                    reason: reason.clone(),
-                },
-            };
-            if let Some(shot) = app.session.as_mut().and_then(|s| s.shot_mut(id)) {
-                shot.kernels = status;
-            }
-            match result {
-                Ok(file) => {
-                    app.measured.insert(id, file);
-                }
-                Err(e) => app.error(e),
-            }
-            save(app);
-        }
+        JobOutput::Shot(event) => shot_event(app, &event),
         JobOutput::DatasetReady(ds) => app.dataset = ds,
         JobOutput::Calibrated {
             dataset,
@@ -143,11 +92,8 @@ fn calibrated(
         dataset.shots.len(),
         app.shown_path(&path)
     ));
-    if let Some(s) = app.session.as_mut() {
-        s.profile = Some(
-            path.strip_prefix(s.folder())
-                .map_or_else(|_| path.clone(), Path::to_path_buf),
-        );
+    if let Some(p) = app.project.as_mut() {
+        p.set_profile(&path);
     }
     app.dataset = Some(dataset);
     app.profile = Some((path, profile));
@@ -156,131 +102,79 @@ fn calibrated(
     save(app);
 }
 
-/// Shots a stage should run on: the one asked for, or every readable shot without a
-/// result.
-fn targets(app: &StudioApp, which: Option<ShotId>, done: impl Fn(ShotId) -> bool) -> Vec<ShotId> {
-    let Some(s) = app.session.as_ref() else {
-        return Vec::new();
+/// One shot's step in a detect or kernels job: recorded in the project (a removed
+/// shot's is dropped), its failure said, the session saved.
+pub(in crate::app) fn shot_event(app: &mut StudioApp, event: &ShotEvent) {
+    let Some(p) = app.project.as_mut() else {
+        return;
     };
-    match which {
-        Some(id) => s.shot(id).map(|shot| shot.id).into_iter().collect(),
-        None => s
-            .shots
-            .iter()
-            .map(|shot| shot.id)
-            .filter(|&id| !done(id) && app.unreadable(id).is_none())
-            .collect(),
+    if !p.record(event) {
+        return;
     }
-}
-
-/// One shot of a stage run over several: its id, its file, its capture where the
-/// preview already holds it, and what the stage needs besides.
-type ShotWork<W> = (ShotId, PathBuf, Option<Arc<Capture>>, W);
-
-/// Runs a stage on each shot in turn. Each shot has its own context, cancelled alone
-/// when the shot is removed (it is then skipped); its file is fingerprinted for the
-/// cache and loaded unless the preview holds it; `emit` makes each shot's result (a
-/// failure in words) the job's output for that shot.
-fn each_shot<W, T>(
-    work: Vec<ShotWork<W>>,
-    ctx: &JobContext,
-    out: &Emitter<JobOutput>,
-    stage: impl Fn(&Capture, &ShotFile, W, &JobContext) -> Result<T, pipeline::PipelineError>,
-    emit: impl Fn(ShotId, Result<T, String>) -> JobOutput,
-) -> Result<(), String> {
-    let n = work.len();
-    for (k, (id, path, capture, extra)) in work.into_iter().enumerate() {
-        ctx.check().map_err(|e| e.to_string())?;
-        let Some(shot_ctx) = out.shot_context(ctx, id) else {
-            continue;
-        };
-        let shot_ctx = shot_ctx.prefixed(&format!("shot {} of {n}: ", k + 1));
-        let result = ShotFile::read(&path).and_then(|file| {
-            let capture = match capture {
-                Some(c) => c,
-                None => Arc::new(pipeline::load(&path)?),
-            };
-            stage(&capture, &file, extra, &shot_ctx)
-        });
-        match result {
-            Ok(v) => out.emit(emit(id, Ok(v))),
-            // The shot was removed; if the whole job was cancelled, the next check ends it.
-            Err(e) if e.is_cancelled() => {}
-            Err(e) => out.emit(emit(id, Err(e.to_string()))),
+    match event {
+        ShotEvent::Failed { reason, .. } => {
+            let reason = app.shorten_paths(reason.clone());
+            app.error(reason);
         }
+        ShotEvent::Detected { .. } | ShotEvent::Measured { .. } => {}
+        ShotEvent::Started { .. } | ShotEvent::Cancelled { .. } => return,
     }
-    Ok(())
+    save(app);
 }
 
-/// Detection of the chosen shots on one job thread (each detection is itself parallel),
-/// results cached in the session and handed back shot by shot.
+/// Runs the stages of `plan` on a job thread, shot after shot (each shot's work is
+/// itself parallel), leaving out shots the window could not read; each shot's steps
+/// come back as they happen. `what` names the job ("detect", "kernels").
+fn run_measure(app: &mut StudioApp, what: &'static str, plan: &MeasurePlan) -> usize {
+    let Some(p) = app.project.as_ref() else {
+        return 0;
+    };
+    let job = p
+        .measure_job(plan)
+        .retain(|id| plan.only.is_some() || app.unreadable(id).is_none())
+        .with_captures(|id| app.preview(id).map(|v| Arc::clone(&v.capture)));
+    let ids = job.shots();
+    if ids.is_empty() {
+        return 0;
+    }
+    let scope = JobScope::shots(app.session_generation, ids.clone());
+    let r = app.jobs.spawn_scoped(what, scope, move |ctx, out| {
+        job.run(ctx, &|id| out.shot_context(ctx, id), &mut |e| {
+            out.emit(JobOutput::Shot(e));
+        })
+        .map_err(|e| e.to_string())
+    });
+    if let Err(e) = r {
+        app.error(e);
+    }
+    ids.len()
+}
+
+/// Detection of the chosen shot (again), or of every shot not yet detected.
 fn run_detect(app: &mut StudioApp, which: Option<ShotId>) {
     if app.jobs.is_running("detect") {
         app.info("detection is already running");
         return;
     }
-    let ids = targets(app, which, |id| app.detections.contains_key(&id));
-    let Some(session) = app.session.as_ref() else {
-        return;
+    let plan = match which {
+        Some(id) => MeasurePlan::again(Stages::Detect, vec![id]),
+        None => MeasurePlan::missing(Stages::Detect),
     };
-    if ids.is_empty() {
+    if run_measure(app, "detect", &plan) == 0 {
         app.info(
             "every shot is already detected (right-click a shot and choose Detect this shot again to redo it)",
         );
-        return;
     }
-    let m = session.measurement();
-    let cache = session.cache();
-    let work: Vec<ShotWork<()>> = ids
-        .iter()
-        .filter_map(|&id| {
-            Some((
-                id,
-                session.path_of(session.shot(id)?),
-                app.preview(id).map(|p| Arc::clone(&p.capture)),
-                (),
-            ))
-        })
-        .collect();
-    let scope = JobScope::shots(app.session_generation, ids);
-    let r = app.jobs.spawn_scoped("detect", scope, move |ctx, out| {
-        each_shot(
-            work,
-            ctx,
-            out,
-            |capture, file, (), shot_ctx| {
-                pipeline::detect_shot(capture, file, &m, &cache, shot_ctx).map(Arc::new)
-            },
-            |shot, result| JobOutput::Detected { shot, result },
-        )
-    });
-    if let Err(e) = r {
-        app.error(e);
-    }
-}
-
-/// The shots with measured kernels, in session order, as calibration takes them.
-fn measured_shots(app: &StudioApp) -> Vec<MeasuredShot> {
-    let Some(session) = app.session.as_ref() else {
-        return Vec::new();
-    };
-    session
-        .shots
-        .iter()
-        .filter_map(|shot| {
-            Some(MeasuredShot {
-                name: shot.name(),
-                kernels: KernelsFile::clone(app.measured.get(&shot.id)?),
-                given: shot.given_setting(),
-            })
-        })
-        .collect()
 }
 
 /// The session's measured Gaussians over every shot with kernels and known settings,
 /// for the sweeps (rebuilt when kernels or settings change).
 pub(super) fn spawn_dataset(app: &mut StudioApp) {
-    let shots: Vec<MeasuredShot> = measured_shots(app)
+    let Some(p) = app.project.as_ref() else {
+        return;
+    };
+    let shots: Vec<MeasuredShot> = p
+        .measured_shots()
         .into_iter()
         .filter(|s| {
             s.given.focal_mm.or(s.kernels.focal_mm).is_some()
@@ -316,40 +210,33 @@ fn run_calibrate(app: &mut StudioApp) {
         app.info("calibration is already running");
         return;
     }
-    let Some(session) = app.session.as_ref() else {
+    let Some(p) = app.project.as_ref() else {
         return;
     };
-    let shots = measured_shots(app);
-    if shots.len() < 2 {
-        app.error("calibration needs kernels on at least two shots: run Detect (Ctrl+D) and Kernels (Ctrl+K) first");
-        return;
-    }
-    let chart = session.chart.clone();
-    let out_path = session.folder().join("profile.json");
-    let cv_path = session.folder().join(CV_FILE);
     let opts = crate::calibrate::CalibrateOptions {
-        alpha: session.settings.alpha,
-        beta: session.settings.beta,
+        alpha: p.session().settings.alpha,
+        beta: p.session().settings.beta,
         ..Default::default()
     };
+    let job = match p.calibration_job(opts) {
+        Ok(job) => job,
+        Err(_) => {
+            app.error("calibration needs kernels on at least two shots: run Detect (Ctrl+D) and Kernels (Ctrl+K) first");
+            return;
+        }
+    };
+    let out_path = p.folder().join(PROFILE_FILE);
+    let cv_path = p.folder().join(CV_FILE);
     let scope = JobScope::session(app.session_generation);
     let r = app.jobs.spawn_scoped("calibrate", scope, move |ctx, out| {
-        // Every shot needs its setting: the error names the ones without.
-        let ds = pipeline::dataset(&shots).map_err(|e| format!("calibration: {e}"))?;
-        let (profile, cv) = crate::calibrate::calibrate(&ds, Some(chart), &opts, ctx)
-            .map_err(|e| format!("calibration: {e}"))?;
-        profile.save(&out_path).map_err(|e| e.to_string())?;
-        match &cv {
-            Some(report) => crate::io::write_json(&cv_path, report).map_err(|e| e.to_string())?,
-            None => {
-                // A fixed α, β has no curves: an old report would describe another fit.
-                let _ = std::fs::remove_file(&cv_path);
-            }
-        }
+        let cal = job.run(ctx).map_err(|e| e.to_string())?;
+        // A fixed α, β has no curves: an old report would describe another fit.
+        cal.write(&out_path, Some(&cv_path))
+            .map_err(|e| e.to_string())?;
         out.emit(JobOutput::Calibrated {
-            dataset: Arc::new(ds),
-            profile: Arc::new(profile),
-            cv: cv.map(Arc::new),
+            dataset: Arc::new(cal.dataset),
+            profile: Arc::new(cal.profile),
+            cv: cal.cv.map(Arc::new),
             path: out_path,
         });
         Ok(())
@@ -359,65 +246,31 @@ fn run_calibrate(app: &mut StudioApp) {
     }
 }
 
-/// Kernels of the chosen shots (those detected), one shot after another, each shot's
-/// squares in parallel; results cached in the session as kernels files.
+/// Kernels of the chosen shot (again), or of every detected shot without them.
 fn run_kernels(app: &mut StudioApp, which: Option<ShotId>) {
     if app.jobs.is_running("kernels") {
         app.info("kernel estimation is already running");
         return;
     }
-    let ids: Vec<ShotId> = targets(app, which, |id| app.measured.contains_key(&id))
-        .into_iter()
-        .filter(|id| app.detections.contains_key(id))
-        .collect();
-    if ids.is_empty() {
-        let msg = match which {
-            Some(id) => format!(
-                "{}: detect the chart in it first (right-click it, Detect this shot again)",
-                app.session
-                    .as_ref()
-                    .and_then(|s| s.shot(id))
-                    .map_or_else(|| "the shot".into(), crate::session::Shot::name)
-            ),
-            None if app.detections.is_empty() => {
-                "no shot is detected yet: run Detect (Ctrl+D) first".to_owned()
-            }
-            None => "every detected shot already has kernels (right-click a shot and choose Estimate its kernels again to redo it)".to_owned(),
-        };
-        app.info(msg);
-        return;
-    }
-    let Some(session) = app.session.as_ref() else {
-        return;
+    let plan = match which {
+        Some(id) if app.detection(id).is_some() => MeasurePlan::again(Stages::Kernels, vec![id]),
+        Some(id) => {
+            let name = app
+                .session()
+                .and_then(|s| s.shot(id))
+                .map_or_else(|| "the shot".into(), crate::session::Shot::name);
+            app.info(format!(
+                "{name}: detect the chart in it first (right-click it, Detect this shot again)"
+            ));
+            return;
+        }
+        None => MeasurePlan::missing(Stages::Kernels),
     };
-    let m = session.measurement();
-    let cache = session.cache();
-    let work: Vec<ShotWork<(Arc<Detection>, GivenSetting)>> = ids
-        .iter()
-        .filter_map(|&id| {
-            let shot = session.shot(id)?;
-            Some((
-                id,
-                session.path_of(shot),
-                app.preview(id).map(|p| Arc::clone(&p.capture)),
-                (Arc::clone(app.detections.get(&id)?), shot.given_setting()),
-            ))
-        })
-        .collect();
-    let scope = JobScope::shots(app.session_generation, ids);
-    let r = app.jobs.spawn_scoped("kernels", scope, move |ctx, out| {
-        each_shot(
-            work,
-            ctx,
-            out,
-            |capture, file, (det, given), shot_ctx| {
-                pipeline::kernels_of_shot(capture, &det, file, given, &m, &cache, shot_ctx)
-                    .map(Arc::new)
-            },
-            |shot, result| JobOutput::KernelsMeasured { shot, result },
-        )
-    });
-    if let Err(e) = r {
-        app.error(e);
+    if run_measure(app, "kernels", &plan) == 0 {
+        app.info(if app.detections().next().is_none() {
+            "no shot is detected yet: run Detect (Ctrl+D) first"
+        } else {
+            "every detected shot already has kernels (right-click a shot and choose Estimate its kernels again to redo it)"
+        });
     }
 }

@@ -19,7 +19,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         let shot = app
             .selected_shot
             .and_then(|id| {
-                let s = app.session.as_ref()?;
+                let s = app.session()?;
                 Some((id, s.path_of(s.shot(id)?)))
             });
         if let Some((_, path)) = shot

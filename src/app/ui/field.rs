@@ -23,7 +23,7 @@ use egui::{Color32, Rect, Sense, Stroke, Vec2};
 
 pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ui.heading("Kernel field");
-    let is_demo = app.session.as_ref().is_some_and(|s| s.is_demo);
+    let is_demo = app.session().is_some_and(|s| s.is_demo);
     let lens = VirtualLens::demo();
     ui.horizontal(|ui| {
         for (src, label, tip) in [
@@ -133,7 +133,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         PanelOf::Measured => {
             let name = app
                 .selected_shot
-                .and_then(|id| app.session.as_ref()?.shot(id))
+                .and_then(|id| app.session()?.shot(id))
                 .map_or_else(String::new, |s| {
                     let setting = s.setting().map_or_else(String::new, |v| {
                         format!(" ({:.0} mm f/{:.1})", v.focal_mm, v.f_number)

@@ -238,8 +238,7 @@ fn confirm_ui(app: &mut StudioApp, ctx: &egui::Context) {
     let (title, text, yes) = match confirm {
         super::Confirm::RemoveShot(id) => {
             let name = app
-                .session
-                .as_ref()
+                .session()
                 .and_then(|s| s.shot(*id))
                 .map_or_else(|| "this shot".into(), crate::session::Shot::name);
             (
@@ -410,7 +409,7 @@ fn log_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
 fn shortcuts(app: &mut StudioApp, ctx: &egui::Context) {
     let cmd = |k| KeyboardShortcut::new(Modifiers::COMMAND, k);
     let alt = |k| KeyboardShortcut::new(Modifiers::ALT, k);
-    let n_shots = app.session.as_ref().map_or(0, |s| s.shots.len());
+    let n_shots = app.session().map_or(0, |s| s.shots.len());
     let mut out = Vec::new();
     ctx.input_mut(|i| {
         if i.consume_shortcut(&cmd(Key::O)) {
@@ -467,7 +466,7 @@ fn shortcuts(app: &mut StudioApp, ctx: &egui::Context) {
                 out.push(Command::SelectChannel(c));
             }
         }
-        if let Some(s) = app.session.as_ref().filter(|_| n_shots > 0) {
+        if let Some(s) = app.session().filter(|_| n_shots > 0) {
             let current = app.selected_shot.and_then(|id| s.index_of(id)).unwrap_or(0);
             let at = |i: usize| s.shots[i.min(n_shots - 1)].id;
             if i.consume_key(Modifiers::NONE, Key::PageDown) {

@@ -14,7 +14,7 @@ fn status_text(s: &StageStatus) -> String {
 }
 
 pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
-    let Some(session) = &app.session else {
+    let Some(session) = app.project.as_ref().map(crate::project::Project::session) else {
         ui.heading("Session");
         if app.jobs.is_running("demo session") {
             ui.label("Making the demo session: simulated calibration shots of the virtual lens (first launch only; progress below)…");
@@ -187,8 +187,8 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         }
         // Each entry says what it will do for this shot: run a stage for the first
         // time or again, or why it cannot yet.
-        let detected = app.detections.contains_key(&id);
-        let measured = app.measured.contains_key(&id);
+        let detected = app.detection(id).is_some();
+        let measured = app.kernels(id).is_some();
         response.context_menu(|ui| {
             let detect = if detected {
                 "Detect this shot again"
@@ -235,7 +235,9 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
 /// The chart and the stage settings, edited on a copy and applied by one button (a
 /// change of chart or kernel settings makes earlier results stale).
 fn settings_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
-    let Some(session) = &app.session else { return };
+    let Some(session) = app.project.as_ref().map(crate::project::Project::session) else {
+        return;
+    };
     let current = (session.chart.clone(), session.settings.clone());
     egui::CollapsingHeader::new("Settings")
         .default_open(false)

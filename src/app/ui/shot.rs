@@ -46,7 +46,7 @@ pub(super) fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
 }
 
 fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState) {
-    let Some(session) = &app.session else {
+    let Some(session) = app.project.as_ref().map(crate::project::Project::session) else {
         ui.label("No session yet.");
         return;
     };
@@ -65,7 +65,7 @@ fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState
             ),
         };
     });
-    let detected = app.detections.get(&index).cloned();
+    let detected = app.detection(index).cloned();
     ui.horizontal_wrapped(|ui| {
         match &shot.detect {
             StageStatus::Pending => {
@@ -511,13 +511,13 @@ fn inspector_ui(app: &StudioApp, ui: &mut egui::Ui) -> Option<Command> {
     });
     ui.label(egui::RichText::new("residual: grey = 0, ±25 % of the square's contrast").small());
     ui.separator();
-    let sample = app.measured.get(&ins.shot).and_then(|file| {
+    let sample = app.kernels(ins.shot).and_then(|file| {
         file.samples
             .iter()
             .find(|s| s.channel == ins.channel && s.row == Some(row) && s.col == Some(col))
             .map(|s| (s, file.oversample))
     });
-    let failed = app.measured.get(&ins.shot).and_then(|file| {
+    let failed = app.kernels(ins.shot).and_then(|file| {
         file.failed
             .iter()
             .find(|s| s.channel == ins.channel && (s.row, s.col) == (row, col))

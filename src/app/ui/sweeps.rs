@@ -29,7 +29,7 @@ const LOCATION_COLORS: [Color32; 5] = [
 pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     use egui_plot::{Line, LineStyle, MarkerShape, Plot, PlotPoints, Points, VLine};
     ui.heading("Sweeps");
-    let is_demo = app.session.as_ref().is_some_and(|s| s.is_demo);
+    let is_demo = app.session().is_some_and(|s| s.is_demo);
     let lens = VirtualLens::demo();
     if app.dataset.is_none() && app.profile.is_none() && !is_demo {
         ui.label("Measured points appear here after Kernels (Ctrl+K); model curves after Calibrate (Ctrl+M).");

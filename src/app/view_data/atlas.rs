@@ -68,7 +68,9 @@ pub(super) fn refresh_kernel_atlas(app: &mut StudioApp) {
         return;
     }
     let channel = app.channel;
-    let file = app.selected_shot.and_then(|i| app.measured.get(&i));
+    let file = app
+        .selected_shot
+        .and_then(|i| app.project.as_ref()?.kernels(i));
     let key = match app.field_source {
         FieldSource::Predicted => {
             let Some((_, profile)) = &app.profile else {

@@ -222,11 +222,11 @@ fn field_key(app: &StudioApp) -> FieldKey {
     match app.field_source {
         FieldSource::Measured => FieldKey::Measured {
             shot: app.selected_shot,
-            file: Same::of(app.selected_shot.and_then(|i| app.measured.get(&i))),
+            file: Same::of(app.selected_shot.and_then(|i| app.kernels(i))),
             channel,
             show: app.field_show,
             size,
-            chart_cols: app.session.as_ref().map_or(10, |s| s.chart.cols),
+            chart_cols: app.session().map_or(10, |s| s.chart.cols),
             atlas: app.views.kernel_atlas.is_some(),
             profile: Same::of(app.profile.as_ref().map(|p| &p.1)),
         },
@@ -237,8 +237,8 @@ fn field_key(app: &StudioApp) -> FieldKey {
             setting,
             size,
             show: app.field_show,
-            file: Same::of(app.selected_shot.and_then(|i| app.measured.get(&i))),
-            chart_cols: app.session.as_ref().map_or(10, |s| s.chart.cols),
+            file: Same::of(app.selected_shot.and_then(|i| app.kernels(i))),
+            chart_cols: app.session().map_or(10, |s| s.chart.cols),
             atlas: app.views.kernel_atlas.is_some(),
         },
         FieldSource::Truth => FieldKey::Truth {
@@ -266,9 +266,9 @@ pub(super) fn refresh_field(app: &mut StudioApp) {
         return;
     }
     let size = sensor_size(app);
-    let file = app.selected_shot.and_then(|i| app.measured.get(&i));
+    let file = app.selected_shot.and_then(|i| app.kernels(i));
     // Squares of the chart are about this far apart on the sensor.
-    let pitch_px = size.0 as f64 / app.session.as_ref().map_or(12, |s| s.chart.cols + 2) as f64;
+    let pitch_px = size.0 as f64 / app.session().map_or(12, |s| s.chart.cols + 2) as f64;
     let mut panels = match app.field_options.difference {
         Some(d) => vec![difference_panel(app, d, file, size, pitch_px)],
         None => value_panels(app, file, size, pitch_px),

@@ -80,8 +80,8 @@ pub struct Inspection {
 fn wanted_inspection(app: &StudioApp) -> Option<InspectKey> {
     let (shot, square) = (app.selected_shot?, app.selected_square?);
     let preview = app.preview(shot)?;
-    let det = app.detections.get(&shot)?;
-    app.session.as_ref()?;
+    let det = app.detection(shot)?;
+    app.session()?;
     if !det.squares.iter().any(|s| (s.row, s.col) == square) {
         return None;
     }
@@ -114,8 +114,8 @@ pub(super) fn refresh_inspection(app: &mut StudioApp) {
 fn spawn_inspection(app: &mut StudioApp, key: InspectKey) -> Inspecting {
     let (Some(preview), Some(det), Some(session)) = (
         app.preview(key.shot),
-        app.detections.get(&key.shot),
-        app.session.as_ref(),
+        app.detection(key.shot),
+        app.session(),
     ) else {
         return Inspecting::Empty(key);
     };
@@ -243,8 +243,8 @@ pub(super) fn refresh_inspection_details(app: &mut StudioApp) {
     let Some(Inspecting::Ready(ins)) = &app.views.inspection else {
         return;
     };
-    let shot = app.session.as_ref().and_then(|s| s.shot(ins.shot));
-    let file = app.measured.get(&ins.shot);
+    let shot = app.session().and_then(|s| s.shot(ins.shot));
+    let file = app.kernels(ins.shot);
     let key = DetailsKey {
         file: Same::of(file),
         setting: shot.and_then(crate::session::Shot::setting),

@@ -143,7 +143,7 @@ pub(crate) fn setting_ranges(app: &StudioApp, lens: &VirtualLens) -> ([f64; 2], 
     if let Some((_, p)) = &app.profile {
         return (p.norm.focal_range_mm, p.norm.f_number_range);
     }
-    if let Some(s) = &app.session {
+    if let Some(s) = app.session() {
         let (f, a) = s.setting_grid();
         if let (Some(f0), Some(f1), Some(a0), Some(a1)) = (f.first(), f.last(), a.first(), a.last())
             && f1 > f0
@@ -158,7 +158,7 @@ pub(crate) fn setting_ranges(app: &StudioApp, lens: &VirtualLens) -> ([f64; 2], 
 /// The settings with shots and the core's advice on them: a few dozen values, cheaper
 /// to remake each frame than to key.
 pub(super) fn refresh_calibrated(app: &mut StudioApp) {
-    app.views.calibrated = app.session.as_ref().map(|s| {
+    app.views.calibrated = app.session().map(|s| {
         let (focal_mm, f_number) = s.setting_grid();
         let advice = crate::review::shooting_advice(&focal_mm, &f_number, s.settings.beta);
         Calibrated {
@@ -170,5 +170,5 @@ pub(super) fn refresh_calibrated(app: &mut StudioApp) {
 }
 
 fn is_demo(app: &StudioApp) -> bool {
-    app.session.as_ref().is_some_and(|s| s.is_demo)
+    app.session().is_some_and(|s| s.is_demo)
 }
