@@ -140,18 +140,7 @@ impl Kernel {
     pub fn sample_px(&self, dx: f64, dy: f64) -> f64 {
         let c = (self.size / 2) as f64;
         let s = self.oversample as f64;
-        let (u, v) = (dx * s + c, dy * s + c);
-        let (u0, v0) = (u.floor(), v.floor());
-        let (fu, fv) = (u - u0, v - v0);
-        let get = |i: f64, j: f64| -> f64 {
-            if i < 0.0 || j < 0.0 || i >= self.size as f64 || j >= self.size as f64 {
-                0.0
-            } else {
-                self.at(i as usize, j as usize)
-            }
-        };
-        (get(u0, v0) * (1.0 - fu) + get(u0 + 1.0, v0) * fu) * (1.0 - fv)
-            + (get(u0, v0 + 1.0) * (1.0 - fu) + get(u0 + 1.0, v0 + 1.0) * fu) * fv
+        crate::plane::bilinear_zero_outside(&self.data, self.size, dx * s + c, dy * s + c)
     }
 
     /// |K(ν u)|: the modulus of the kernel's Fourier transform at `nu` cycles per px

@@ -6,7 +6,7 @@
 //! 8-bit images are sRGB-decoded unless the caller says they are linear.
 
 use crate::limits;
-use crate::plane::{Capture, Channel, ChannelPlane, Plane, RawMeta};
+use crate::plane::{Capture, Channel, ChannelPlane, Plane, RawMeta, srgb_decode, srgb_encode};
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
@@ -831,14 +831,6 @@ fn check_size(path: &Path, width: usize, height: usize) -> Result<(), LoadError>
     })
 }
 
-fn srgb_decode(v: f32) -> f32 {
-    if v <= 0.04045 {
-        v / 12.92
-    } else {
-        ((v + 0.055) / 1.055).powf(2.4)
-    }
-}
-
 /// image-rs's reader of a PNG/TIFF/JPEG, held to our limits (its own default would
 /// refuse a 100 MP 16-bit TIFF).
 fn image_reader<'a>(
@@ -1072,13 +1064,7 @@ pub fn save_planes(path: &Path, planes: &[(Channel, Plane)], srgb: bool) -> Resu
     };
     let encode = |v: f32| -> f32 {
         let v = v.clamp(0.0, 1.0);
-        if !srgb {
-            v
-        } else if v <= 0.003_130_8 {
-            12.92 * v
-        } else {
-            1.055 * v.powf(1.0 / 2.4) - 0.055
-        }
+        if srgb { srgb_encode(v) } else { v }
     };
     let (w32, h32) = (
         u32::try_from(w).map_err(|_| err("too wide".into()))?,

@@ -191,19 +191,7 @@ fn grid_sample(space: ShapeSpace, grid: &[f64], w: [f64; 2]) -> f64 {
     let side = space.side();
     let h = (side / 2) as f64;
     let s = space.per_unit() as f64;
-    let (u, v) = (w[0] * s + h, w[1] * s + h);
-    let (u0, v0) = (u.floor(), v.floor());
-    let (fu, fv) = (u - u0, v - v0);
-    let last = (side - 1) as f64;
-    let get = |i: f64, j: f64| {
-        if i < 0.0 || j < 0.0 || i > last || j > last {
-            0.0
-        } else {
-            grid[j as usize * side + i as usize]
-        }
-    };
-    (get(u0, v0) * (1.0 - fu) + get(u0 + 1.0, v0) * fu) * (1.0 - fv)
-        + (get(u0, v0 + 1.0) * (1.0 - fu) + get(u0 + 1.0, v0 + 1.0) * fu) * fv
+    crate::plane::bilinear_zero_outside(grid, side, w[0] * s + h, w[1] * s + h)
 }
 
 /// A measured kernel's shape beyond its Gaussian, on a space's grid (row-major):
