@@ -248,6 +248,22 @@ pub fn fit_gaussian(kernel: &Kernel, params: &FitParams) -> Result<GaussianFit, 
     })
 }
 
+/// (robust, ML) Gaussians of a kernel by the pipeline's own fit ([`fit_gaussian`]) with
+/// its default parameters, as calibration fits them (the Gaussian-approximation
+/// experiment judges these; the simulated session's measured stand-in uses them). A
+/// kernel the fit rejects falls back to its moments for both.
+#[must_use]
+pub fn fit_gaussians(k: &Kernel) -> (Gaussian2, Gaussian2) {
+    match fit_gaussian(k, &FitParams::default()) {
+        Ok(f) => (f.robust, f.ml),
+        Err(_) => {
+            let m = k.moments();
+            let g = Gaussian2::from_covariance(m.var_x, m.var_y, m.cov_xy);
+            (g, g)
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

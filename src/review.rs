@@ -1498,7 +1498,7 @@ mod tests {
                         MEASURED_SIZE,
                     );
                     let peak = k.data.iter().copied().fold(0.0, f64::max);
-                    let fit = crate::experiment::fit_gaussians(&k).0;
+                    let fit = crate::gaussian::fit_gaussians(&k).0;
                     let c = (k.size / 2) as f64;
                     for j in 0..k.size {
                         for i in 0..k.size {
@@ -1528,7 +1528,7 @@ mod tests {
                         }
                     }
                     k.normalise();
-                    let tails = kernel_tails(&k, &crate::experiment::fit_gaussians(&k).0)
+                    let tails = kernel_tails(&k, &crate::gaussian::fit_gaussians(&k).0)
                         .expect("a fraction");
                     let t = tails.rising;
                     lo = lo.min(t);
