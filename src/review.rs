@@ -733,7 +733,7 @@ pub fn measured_source(file: &KernelsFile) -> Result<ScatteredKernels, String> {
 
 /// Deblurs a whole capture and writes it as `out` says: 16-bit linear PNG or TIFF (full
 /// resolution, RAW mosaics interpolated), or DNG for a RAW photo
-/// ([`crate::deblur::output::write_deblurred`]).
+/// ([`crate::deblur::output::deblur_and_write`]).
 ///
 /// # Errors
 /// The source failed, the file cannot be written, or the job was cancelled.
@@ -746,10 +746,11 @@ pub fn export_deblurred(
     note: &str,
     job: &JobContext,
 ) -> Result<crate::deblur::output::Written, String> {
-    let done = crate::deblur::deblur_capture(cap, source, opts, job)
-        .map_err(|e| format!("{}: {e}", out.display()))?;
-    crate::deblur::output::write_deblurred(out, original_file_name, &done, note)
-        .map_err(|e| e.to_string())
+    use crate::deblur::output::{DeblurWriteError, deblur_and_write};
+    deblur_and_write(cap, source, opts, out, original_file_name, note, job).map_err(|e| match e {
+        DeblurWriteError::Deblur(e) => format!("{}: {e}", out.display()),
+        DeblurWriteError::Output(e) => e.to_string(),
+    })
 }
 
 /// A plot's data as the studio draws it, for saving beside its picture: the axes'
