@@ -1,4 +1,4 @@
-//! Calibration (DESIGN.md §1.7–1.8): from a session's measured samples to a lens
+//! Calibration: from a session's measured samples to a lens
 //! profile. Chooses the model orders by cross-validation (unless given), fits the
 //! requested families, reports how well fixed orders cross-validate, and prefers the
 //! family with the lower error.

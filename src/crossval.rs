@@ -1,4 +1,4 @@
-//! Cross-validation and model selection (DESIGN.md §1.7).
+//! Cross-validation and model selection.
 //!
 //! Whole shots are held out (the paper's holdout-10: each fold holds about 10 % of the
 //! shots, assigned by a fixed seeded shuffle so runs are repeatable); optionally every

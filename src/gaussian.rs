@@ -1,4 +1,4 @@
-//! Robust 2-D Gaussian fits to non-parametric kernels (DESIGN.md §1.5, paper §2.3).
+//! Robust 2-D Gaussian fits to non-parametric kernels (paper §2.3).
 //!
 //! The kernel is thresholded, its 8-connected regions labelled and the central one kept,
 //! so isolated noise blobs far from the PSF cannot drag the fit. Maximum-likelihood

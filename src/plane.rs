@@ -1,6 +1,6 @@
 //! Single-channel images of linear values, and the channel layout of a capture.
 //!
-//! Coordinates follow DESIGN.md §2: x right, y down, pixel centres at integers, (0, 0) the
+//! Coordinates follow docs/formats.md: x right, y down, pixel centres at integers, (0, 0) the
 //! centre of the top-left pixel. A [`ChannelPlane`] records where its pixels sit on the
 //! full-resolution sensor, so every stage can report in sensor pixels.
 

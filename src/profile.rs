@@ -1,4 +1,4 @@
-//! Lens profiles (DESIGN.md §1.8): the fitted models of one camera + lens unit in a
+//! Lens profiles (docs/formats.md, "Lens profile"): the fitted models of one camera + lens unit in a
 //! versioned JSON file, `lensblur.profile/2` (version 1 read too).
 //!
 //! Coefficients are stored as base64 of little-endian `f32` (7 significant digits, far

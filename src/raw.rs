@@ -1,4 +1,5 @@
-//! Loading shots and photos into linear channel planes (DESIGN.md §1.2).
+//! Loading shots and photos into linear channel planes (docs/formats.md, "Images and
+//! RAW files lensblur reads").
 //!
 //! RAW files keep their CFA: each colour site becomes its own plane at half resolution
 //! (black subtracted, divided by white − black), so blur is measured before any

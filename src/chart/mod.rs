@@ -1,5 +1,5 @@
 //! The calibration chart: a checkerboard whose squares each hold five circles of the
-//! opposite colour, as the five on a die (DESIGN.md §1.1), and its exact rasterisation.
+//! opposite colour, as the five on a die (its spec: docs/formats.md, "Chart spec"), and its exact rasterisation.
 //!
 //! Chart units: one square = 1.0, origin at the checkerboard's top-left corner, x right,
 //! y down. The white margin extends `margin` squares beyond the checkerboard.

@@ -1,5 +1,5 @@
 //! Deblurring: non-blind deconvolution of each channel plane with the lens's spatially
-//! varying kernels (DESIGN.md §1.9).
+//! varying kernels.
 //!
 //! A plane is cut into tiles sized from its kernels and its own size; each tile is
 //! deconvolved inside an FFT block (the tile plus a margin, read with reflection past

@@ -1,4 +1,4 @@
-//! Blur variation models (DESIGN.md §1.6): per channel, three polynomials predicting
+//! Blur variation models: per channel, three polynomials predicting
 //! C_xx, C_yy and C_or from sensor position (x, y), focal length f and aperture a.
 //!
 //! Global G_{α,β}: every monomial x^i y^j f^k a^l with i+j ≤ α, k+l ≤ β and
