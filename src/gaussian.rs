@@ -284,11 +284,7 @@ mod tests {
 
     #[test]
     fn recovers_a_sampled_gaussian() {
-        let g = Gaussian2 {
-            sigma_x: 1.7,
-            sigma_y: 1.1,
-            rho: -0.45,
-        };
+        let g = Gaussian2::new(1.7, 1.1, -0.45);
         let k = g.kernel(3);
         let fit = fit_gaussian(
             &k,
@@ -306,11 +302,7 @@ mod tests {
 
     #[test]
     fn robust_fit_ignores_an_isolated_blob_that_biases_ml() {
-        let g = Gaussian2 {
-            sigma_x: 1.2,
-            sigma_y: 1.0,
-            rho: 0.2,
-        };
+        let g = Gaussian2::new(1.2, 1.0, 0.2);
         let mut k = g.kernel(3);
         // A noise blob in the corner, separate from the PSF after thresholding.
         let n = k.size;
@@ -328,11 +320,7 @@ mod tests {
 
     #[test]
     fn adds_the_requested_variance() {
-        let g = Gaussian2 {
-            sigma_x: 0.8,
-            sigma_y: 0.9,
-            rho: 0.0,
-        };
+        let g = Gaussian2::new(0.8, 0.9, 0.0);
         let k = g.kernel(5);
         let add = 1.0 / 108.0;
         let fit = fit_gaussian(

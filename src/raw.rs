@@ -482,16 +482,7 @@ fn cfa_capture(
             offset_y: oy,
         });
     }
-    Ok(Capture {
-        width: w,
-        height: h,
-        planes,
-        setting_focal_mm: None,
-        setting_f_number: None,
-        identity: Default::default(),
-        is_raw: true,
-        raw: None,
-    })
+    Ok(decoded_capture(w, h, planes, true))
 }
 
 fn from_rawloader(
@@ -832,6 +823,26 @@ fn check_size(path: &Path, width: usize, height: usize) -> Result<(), LoadError>
     })
 }
 
+/// A capture as decoding leaves it: its planes, and nothing yet of its settings, its
+/// camera or (for a RAW file) its metadata, which the loader fills in from the file.
+fn decoded_capture(
+    width: usize,
+    height: usize,
+    planes: Vec<ChannelPlane>,
+    is_raw: bool,
+) -> Capture {
+    Capture {
+        width,
+        height,
+        planes,
+        setting_focal_mm: None,
+        setting_f_number: None,
+        identity: Default::default(),
+        is_raw,
+        raw: None,
+    }
+}
+
 /// image-rs's reader of a PNG/TIFF/JPEG, held to our limits (its own default would
 /// refuse a 100 MP 16-bit TIFF).
 fn image_reader<'a>(
@@ -947,16 +958,7 @@ fn load_image(path: &Path, bytes: &[u8], options: &LoadOptions) -> Result<Captur
             offset_y: 0,
         })
         .collect();
-    Ok(Capture {
-        width: w,
-        height: h,
-        planes,
-        setting_focal_mm: None,
-        setting_f_number: None,
-        identity: Default::default(),
-        is_raw: false,
-        raw: None,
-    })
+    Ok(decoded_capture(w, h, planes, false))
 }
 
 /// Full-resolution linear R, G, B (or one Y) planes of a capture: a CFA capture is

@@ -480,7 +480,7 @@ pub fn deblur_capture(
     let mut out = cap.clone();
     for cp in &mut out.planes {
         cp.plane = match &gpu {
-            Some(g) => g.deblur_channel_plane(cp, cap.width, cap.height, source, opts, job)?,
+            Some(g) => g.deblur_channel_plane(cp, (cap.width, cap.height), source, opts, job)?,
             None => deblur_channel_plane(cp, cap.width, cap.height, source, opts, job)?,
         };
     }

@@ -629,11 +629,7 @@ mod tests {
 
     #[test]
     fn a_gaussian_kernel_has_no_residual_and_comes_back_as_itself() {
-        let g = Gaussian2 {
-            sigma_x: 1.4,
-            sigma_y: 0.9,
-            rho: 0.35,
-        };
+        let g = Gaussian2::new(1.4, 0.9, 0.35);
         let k = g.kernel(3);
         let r = whitened_residual(&k, &g).expect("whitens");
         let peak = unit_normal([0.0, 0.0]);
@@ -649,11 +645,7 @@ mod tests {
 
     #[test]
     fn the_residual_carries_a_tail_back_into_the_kernel() {
-        let g = Gaussian2 {
-            sigma_x: 1.1,
-            sigma_y: 1.0,
-            rho: -0.2,
-        };
+        let g = Gaussian2::new(1.1, 1.0, -0.2);
         // A core with a tail to the right.
         let tail = Gaussian2::isotropic(0.8);
         let k = Kernel::from_fn(31, 3, |dx, dy| {
@@ -670,11 +662,7 @@ mod tests {
 
     #[test]
     fn whitening_is_the_symmetric_square_root() {
-        let g = Gaussian2 {
-            sigma_x: 2.0,
-            sigma_y: 0.7,
-            rho: 0.6,
-        };
+        let g = Gaussian2::new(2.0, 0.7, 0.6);
         let wh = Whitening::of(&g).expect("positive definite");
         let a = wh.a;
         // A A = Σ.
