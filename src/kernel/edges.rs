@@ -770,24 +770,22 @@ mod tests {
             let offsets = &offsets[..obs.len()];
             let g: Vec<f64> = (0..len).map(|_| rng.random::<f64>() - 0.5).collect();
             let w: Vec<f64> = (0..obs_count).map(|_| rng.random::<f64>() - 0.5).collect();
+            let agree = |what: &str, fast: &[f64], slow: &[f64]| {
+                for (a, b) in fast.iter().zip(slow) {
+                    assert!(
+                        (a - b).abs() <= 1e-12 * (1.0 + b.abs()),
+                        "{what} {a} vs {b}"
+                    );
+                }
+            };
             let (mut fast, mut slow) = (vec![0.5; obs_count], vec![0.5; obs_count]);
             predict_segments(&data, offsets, obs, &g, &mut fast);
             predict_segments_portable(&data, offsets, obs, &g, &mut slow);
-            for (a, b) in fast.iter().zip(&slow) {
-                assert!(
-                    (a - b).abs() <= 1e-12 * (1.0 + b.abs()),
-                    "predict {a} vs {b}"
-                );
-            }
+            agree("predict", &fast, &slow);
             let (mut fast, mut slow) = (vec![0.25; len], vec![0.25; len]);
             correlate_segments(&data, offsets, obs, &w, &mut fast);
             correlate_segments_portable(&data, offsets, obs, &w, &mut slow);
-            for (a, b) in fast.iter().zip(&slow) {
-                assert!(
-                    (a - b).abs() <= 1e-12 * (1.0 + b.abs()),
-                    "correlate {a} vs {b}"
-                );
-            }
+            agree("correlate", &fast, &slow);
         }
     }
 
