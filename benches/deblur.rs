@@ -12,10 +12,10 @@ use lensblur::deblur::solve::Deconvolver;
 use lensblur::deblur::{
     DeblurOptions, Device, KernelSource, Method, ProfileKernels, deblur_capture, plane_tile_grid,
 };
-use lensblur::experiment::dead_leaves;
 use lensblur::job::JobContext;
 use lensblur::model::spaced;
 use lensblur::plane::{Capture, Channel, ChannelPlane, LensSetting};
+use lensblur::simulate::dead_leaves;
 use lensblur::simulate::{SimulatedSession, VirtualLens};
 use std::hint::black_box;
 use std::time::Duration;

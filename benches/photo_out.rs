@@ -6,8 +6,8 @@
 use criterion::{Criterion, criterion_group, criterion_main};
 use lensblur::deblur::output::write_deblurred;
 use lensblur::develop::{Orient, develop};
-use lensblur::experiment::dead_leaves;
 use lensblur::plane::{CameraIdentity, Capture, Channel, ChannelPlane, RawMeta};
+use lensblur::simulate::dead_leaves;
 use std::hint::black_box;
 use std::time::Duration;
 

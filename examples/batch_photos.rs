@@ -9,10 +9,10 @@
 use anyhow::{Context, Result};
 use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
 use lensblur::dng::{DngInfo, DngLayout, write_dng};
-use lensblur::experiment::dead_leaves;
 use lensblur::job::JobContext;
 use lensblur::model::spaced;
 use lensblur::plane::{CameraIdentity, LensSetting, RawMeta};
+use lensblur::simulate::dead_leaves;
 use lensblur::simulate::{SimulatedSession, VirtualLens};
 use std::path::PathBuf;
 

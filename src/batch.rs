@@ -24,6 +24,7 @@
 //! 6. a best profile that does not cover the photo's setting skips it, unless
 //!    extrapolation is allowed.
 
+use crate::deblur::output::{deblur_and_write, deblurred_note};
 use crate::deblur::{DeblurOptions, KernelSource, ProfileKernels};
 use crate::job::JobContext;
 use crate::plane::{CameraIdentity, Capture, LensSetting};
@@ -584,40 +585,15 @@ impl BatchReport {
 }
 
 /// The one step a batch leaves to its caller: deblur this photo (already loaded) with
-/// this source and write `output` atomically. The command line writes its own formats;
-/// [`deblur_and_write`] is the core's.
+/// this source and write `output` atomically. The command line adds its own reporting;
+/// [`deblur_photos`] runs the core's [`crate::deblur::output::deblur_and_write`].
 pub type DeblurOne<'a> = dyn Fn(&Path, &Capture, &dyn KernelSource, &Path, &str, &JobContext) -> Result<(), String>
     + Sync
     + 'a;
 
-/// Deblurs a capture and writes it as [`crate::deblur::output::write_deblurred`] does
-/// (16-bit linear PNG or TIFF, or DNG, by `output`'s extension, and a RAW photo's
-/// preview), `described` naming the kernels in a DNG's note.
-///
-/// # Errors
-/// The deblurring failed or was cancelled, or the file cannot be written.
-pub fn deblur_and_write(
-    capture: &Capture,
-    source: &dyn KernelSource,
-    opts: &DeblurOptions,
-    output: &Path,
-    described: &str,
-    job: &JobContext,
-) -> Result<(), String> {
-    let out =
-        crate::deblur::deblur_capture(capture, source, opts, job).map_err(|e| e.to_string())?;
-    let note = format!(
-        "Deblurred by {} ({}) with {described}",
-        crate::dng::SOFTWARE,
-        opts.method.name()
-    );
-    crate::deblur::output::write_deblurred(output, None, &out, &note)
-        .map(|_| ())
-        .map_err(|e| e.to_string())
-}
-
-/// Plans and runs a batch with the core's own step ([`deblur_and_write`]): what the
-/// studio's export of a set of photos runs.
+/// Plans and runs a batch with the core's own step
+/// ([`crate::deblur::output::deblur_and_write`], its errors as text): what the studio's
+/// export of a set of photos runs.
 #[must_use]
 pub fn deblur_photos(
     photos: &[PathBuf],
@@ -633,7 +609,10 @@ pub fn deblur_photos(
         opts,
         job,
         &|_, capture, source, out, described, job| {
-            deblur_and_write(capture, source, &deblur, out, described, job)
+            let note = deblurred_note(deblur.method, described);
+            deblur_and_write(capture, source, &deblur, out, None, &note, job)
+                .map(|_| ())
+                .map_err(|e| e.to_string())
         },
     )
 }

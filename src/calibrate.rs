@@ -1,4 +1,4 @@
-//! Calibration (DESIGN.md §1.7–1.8): from a session's measured samples to a lens
+//! Calibration: from a session's measured samples to a lens
 //! profile. Chooses the model orders by cross-validation (unless given), fits the
 //! requested families, reports how well fixed orders cross-validate, and prefers the
 //! family with the lower error.
@@ -130,13 +130,7 @@ pub fn calibrate(
         }
         None => None,
     };
-    // The family that cross-validates better; without cross-validation, the local
-    // model where there is one (the smaller error in the paper's tests).
-    let preferred = match cv.as_ref().map(|c| (&c.global, &c.local)) {
-        Some((Some(g), Some(l))) if g.mean_pct < l.mean_pct => ModelKind::Global,
-        _ if want_local => ModelKind::Local,
-        _ => ModelKind::Global,
-    };
+    let preferred = Profile::preferred_family(cv.as_ref(), want_local);
     let mut profile = Profile::new(
         ds.identity.clone(),
         chart,

@@ -1,4 +1,4 @@
-//! Cross-validation and model selection (DESIGN.md §1.7).
+//! Cross-validation and model selection.
 //!
 //! Whole shots are held out (the paper's holdout-10: each fold holds about 10 % of the
 //! shots, assigned by a fixed seeded shuffle so runs are repeatable); optionally every
@@ -17,6 +17,7 @@
 //! prediction a profile makes.
 
 use crate::job::JobContext;
+use crate::model::design_system;
 use crate::model::{
     Basis, CentreGrid, ChannelCoeffs, Dataset, FittedModel, GlobalModel, LocalModel, LocalOptions,
     ModelError, ModelKind, Normalisation, fit_model, global_coords, local_coords, local_grid,
@@ -319,20 +320,9 @@ impl FoldedSystem {
         let n = basis.len();
         let mut gram_fold = Vec::with_capacity(folds);
         let mut rhs_fold = Vec::with_capacity(folds);
-        let mut row = vec![0.0; n];
         for k in 0..folds {
             let mine: Vec<&Row> = rows.iter().filter(|r| r.fold == k).collect();
-            let mut a = DMatrix::zeros(mine.len(), n);
-            let mut y = DMatrix::zeros(mine.len(), 3);
-            for (i, r) in mine.iter().enumerate() {
-                basis.row(r.coords, &mut row);
-                for (c, v) in row.iter().enumerate() {
-                    a[(i, c)] = *v;
-                }
-                for p in 0..3 {
-                    y[(i, p)] = r.params[p];
-                }
-            }
+            let (a, y) = design_system(basis, mine.iter().map(|r| (r.coords, r.params)));
             gram_fold.push(a.tr_mul(&a));
             rhs_fold.push(a.tr_mul(&y));
         }
@@ -423,16 +413,17 @@ fn score_held_out<M: FittedModel>(
     }
 }
 
-/// Cross-validation engine for the global family.
-struct GlobalCv {
+/// What both families' engines hold: the session's normalisation, the basis of the
+/// largest candidate (every smaller one's terms are a subset of it), the samples by
+/// channel and the number of folds.
+struct CvCommon {
     norm: Normalisation,
     union: Basis,
-    systems: Vec<FoldedSystem>,
     data: Vec<ChannelData>,
     folds: usize,
 }
 
-impl GlobalCv {
+impl CvCommon {
     fn new(
         ds: &Dataset,
         data: Vec<ChannelData>,
@@ -442,16 +433,86 @@ impl GlobalCv {
     ) -> Self {
         let norm = ds.normalisation();
         let union = model_basis(&norm, max_alpha, max_beta);
+        Self {
+            norm,
+            union,
+            data,
+            folds,
+        }
+    }
+
+    /// The held-out errors of candidate (α, β) and its number of terms:
+    /// `fold_models(c, basis, subset)` gives channel `c`'s models fitted without each
+    /// fold (`subset`: the candidate's terms among the union's).
+    fn errors<M: FittedModel>(
+        &self,
+        alpha: usize,
+        beta: usize,
+        ranges: &Ranges,
+        fold_models: impl Fn(usize, &Basis, &[usize]) -> Vec<M>,
+    ) -> ([Vec<f64>; 3], usize) {
+        let basis = model_basis(&self.norm, alpha, beta);
+        let subset = subset_of(&self.union, &basis);
+        let mut out: [Vec<f64>; 3] = Default::default();
+        for (c, cd) in self.data.iter().enumerate() {
+            let models = fold_models(c, &basis, &subset);
+            score_held_out(cd, &models, ranges.as_array(), &mut out);
+        }
+        (out, basis.len())
+    }
+}
+
+/// The cross-validation engine of one family.
+enum FamilyCv {
+    Global(GlobalCv),
+    Local(LocalCv),
+}
+
+impl FamilyCv {
+    fn new(
+        kind: ModelKind,
+        ds: &Dataset,
+        data: Vec<ChannelData>,
+        local: &LocalOptions,
+        (max_alpha, max_beta): (usize, usize),
+        folds: usize,
+    ) -> Self {
+        let common = CvCommon::new(ds, data, max_alpha, max_beta, folds);
+        match kind {
+            ModelKind::Global => Self::Global(GlobalCv::new(common)),
+            ModelKind::Local => Self::Local(LocalCv::new(ds, common, local)),
+        }
+    }
+
+    fn errors(&self, alpha: usize, beta: usize, ranges: &Ranges) -> ([Vec<f64>; 3], usize) {
+        match self {
+            Self::Global(cv) => cv.errors(alpha, beta, ranges),
+            Self::Local(cv) => cv.errors(alpha, beta, ranges),
+        }
+    }
+}
+
+/// Cross-validation engine for the global family.
+struct GlobalCv {
+    common: CvCommon,
+    systems: Vec<FoldedSystem>,
+}
+
+impl GlobalCv {
+    fn new(common: CvCommon) -> Self {
         let systems = {
             use rayon::prelude::*;
-            data.par_iter()
+            let (norm, union, folds) = (&common.norm, &common.union, common.folds);
+            common
+                .data
+                .par_iter()
                 .map(|cd| {
                     let rows: Vec<Row> = cd
                         .samples
                         .iter()
                         .map(|s| Row {
                             coords: global_coords(
-                                &norm,
+                                norm,
                                 s.x,
                                 s.y,
                                 s.setting.focal_mm,
@@ -461,41 +522,32 @@ impl GlobalCv {
                             fold: s.fold,
                         })
                         .collect();
-                    FoldedSystem::build(&union, &rows, folds)
+                    FoldedSystem::build(union, &rows, folds)
                 })
                 .collect()
         };
-        Self {
-            norm,
-            union,
-            systems,
-            data,
-            folds,
-        }
+        Self { common, systems }
     }
 
     fn errors(&self, alpha: usize, beta: usize, ranges: &Ranges) -> ([Vec<f64>; 3], usize) {
         use rayon::prelude::*;
-        let basis = model_basis(&self.norm, alpha, beta);
-        let subset = subset_of(&self.union, &basis);
-        let mut out: [Vec<f64>; 3] = Default::default();
-        for (cd, sys) in self.data.iter().zip(&self.systems) {
-            let fold_models: Vec<GlobalModel> = (0..self.folds)
+        let cv = &self.common;
+        cv.errors(alpha, beta, ranges, |c, basis, subset| {
+            let (cd, sys) = (&cv.data[c], &self.systems[c]);
+            (0..cv.folds)
                 .into_par_iter()
                 .map(|k| GlobalModel {
-                    norm: self.norm.clone(),
+                    norm: cv.norm.clone(),
                     alpha,
                     beta,
                     basis: basis.clone(),
                     channels: vec![ChannelCoeffs {
                         channel: cd.channel,
-                        coeffs: sys.solve(Some(k), &subset),
+                        coeffs: sys.solve(Some(k), subset),
                     }],
                 })
-                .collect();
-            score_held_out(cd, &fold_models, ranges.as_array(), &mut out);
-        }
-        (out, basis.len())
+                .collect()
+        })
     }
 }
 
@@ -504,14 +556,11 @@ impl GlobalCv {
 /// the same samples (the radius widens with the number of terms, as in
 /// [`LocalModel::fit`]) reuses their sub-block, one that takes fewer gets its own.
 struct LocalCv {
-    norm: Normalisation,
+    common: CvCommon,
     grid: CentreGrid,
-    union: Basis,
     /// Per channel: sample positions, and per centre the members and their system.
     pts: Vec<Vec<[f64; 2]>>,
     systems: Vec<Vec<(usize, FoldedSystem)>>,
-    data: Vec<ChannelData>,
-    folds: usize,
 }
 
 fn local_rows(
@@ -543,22 +592,16 @@ fn local_rows(
 }
 
 impl LocalCv {
-    fn new(
-        ds: &Dataset,
-        data: Vec<ChannelData>,
-        opts: &LocalOptions,
-        max_alpha: usize,
-        max_beta: usize,
-        folds: usize,
-    ) -> Self {
-        let norm = ds.normalisation();
-        let union = model_basis(&norm, max_alpha, max_beta);
+    fn new(ds: &Dataset, common: CvCommon, opts: &LocalOptions) -> Self {
+        let (norm, union, folds) = (&common.norm, &common.union, common.folds);
         let grid = local_grid(ds, opts);
-        let pts: Vec<Vec<[f64; 2]>> = data
+        let pts: Vec<Vec<[f64; 2]>> = common
+            .data
             .iter()
             .map(|cd| cd.samples.iter().map(|s| [s.x, s.y]).collect())
             .collect();
-        let systems = data
+        let systems = common
+            .data
             .iter()
             .zip(&pts)
             .map(|(cd, pts)| {
@@ -567,45 +610,41 @@ impl LocalCv {
                     .into_par_iter()
                     .map(|idx| {
                         let members = local_members(&grid, idx, pts, union.len());
-                        let rows = local_rows(cd, &grid, &norm, idx, &members);
-                        (members.len(), FoldedSystem::build(&union, &rows, folds))
+                        let rows = local_rows(cd, &grid, norm, idx, &members);
+                        (members.len(), FoldedSystem::build(union, &rows, folds))
                     })
                     .collect()
             })
             .collect();
         Self {
-            norm,
+            common,
             grid,
-            union,
             pts,
             systems,
-            data,
-            folds,
         }
     }
 
     fn errors(&self, alpha: usize, beta: usize, ranges: &Ranges) -> ([Vec<f64>; 3], usize) {
         use rayon::prelude::*;
-        let basis = model_basis(&self.norm, alpha, beta);
-        let subset = subset_of(&self.union, &basis);
-        let all: Vec<usize> = (0..basis.len()).collect();
-        let mut out: [Vec<f64>; 3] = Default::default();
-        for ((cd, centres), pts) in self.data.iter().zip(&self.systems).zip(&self.pts) {
+        let cv = &self.common;
+        cv.errors(alpha, beta, ranges, |c, basis, subset| {
+            let (cd, centres, pts) = (&cv.data[c], &self.systems[c], &self.pts[c]);
+            let all: Vec<usize> = (0..basis.len()).collect();
             // Centres whose members differ from the union's get their own system.
             let own: Vec<Option<FoldedSystem>> = (0..centres.len())
                 .into_par_iter()
                 .map(|idx| {
                     let members = local_members(&self.grid, idx, pts, basis.len());
                     (members.len() != centres[idx].0).then(|| {
-                        let rows = local_rows(cd, &self.grid, &self.norm, idx, &members);
-                        FoldedSystem::build(&basis, &rows, self.folds)
+                        let rows = local_rows(cd, &self.grid, &cv.norm, idx, &members);
+                        FoldedSystem::build(basis, &rows, cv.folds)
                     })
                 })
                 .collect();
-            let fold_models: Vec<LocalModel> = (0..self.folds)
+            (0..cv.folds)
                 .into_par_iter()
                 .map(|k| LocalModel {
-                    norm: self.norm.clone(),
+                    norm: cv.norm.clone(),
                     alpha,
                     beta,
                     grid: self.grid.clone(),
@@ -617,15 +656,13 @@ impl LocalCv {
                             .zip(&own)
                             .map(|((_, sys), own)| match own {
                                 Some(o) => o.solve(Some(k), &all),
-                                None => sys.solve(Some(k), &subset),
+                                None => sys.solve(Some(k), subset),
                             })
                             .collect(),
                     )],
                 })
-                .collect();
-            score_held_out(cd, &fold_models, ranges.as_array(), &mut out);
-        }
-        (out, basis.len())
+                .collect()
+        })
     }
 }
 
@@ -717,43 +754,20 @@ pub fn cross_validate(
     let total = usize::from(opts.run_global) * (opts.global_alphas.len() + n)
         + usize::from(opts.run_local) * (opts.local_alphas.len() + n);
     let mut done = 0;
-    let global = if opts.run_global && !opts.global_alphas.is_empty() {
-        let max_alpha = opts.global_alphas.iter().copied().max().unwrap_or(1);
-        let cv = GlobalCv::new(ds, channel_data(ds, &fold_of_shot), max_alpha, n - 1, folds);
-        Some(select(
-            ModelKind::Global,
-            &opts.global_alphas,
-            n,
-            job,
-            &mut done,
-            total,
-            |a, b| cv.errors(a, b, &ranges),
-        )?)
-    } else {
-        None
+    let mut run = |kind: ModelKind, wanted: bool, alphas: &[usize]| {
+        if !wanted || alphas.is_empty() {
+            return Ok(None);
+        }
+        let max_alpha = alphas.iter().copied().max().unwrap_or(1);
+        let data = channel_data(ds, &fold_of_shot);
+        let cv = FamilyCv::new(kind, ds, data, &opts.local, (max_alpha, n - 1), folds);
+        select(kind, alphas, n, job, &mut done, total, |a, b| {
+            cv.errors(a, b, &ranges)
+        })
+        .map(Some)
     };
-    let local = if opts.run_local && !opts.local_alphas.is_empty() {
-        let max_alpha = opts.local_alphas.iter().copied().max().unwrap_or(1);
-        let cv = LocalCv::new(
-            ds,
-            channel_data(ds, &fold_of_shot),
-            &opts.local,
-            max_alpha,
-            n - 1,
-            folds,
-        );
-        Some(select(
-            ModelKind::Local,
-            &opts.local_alphas,
-            n,
-            job,
-            &mut done,
-            total,
-            |a, b| cv.errors(a, b, &ranges),
-        )?)
-    } else {
-        None
-    };
+    let global = run(ModelKind::Global, opts.run_global, &opts.global_alphas)?;
+    let local = run(ModelKind::Local, opts.run_local, &opts.local_alphas)?;
     Ok(CvReport {
         schema: "lensblur.crossval/1".into(),
         folds,
@@ -790,19 +804,9 @@ pub fn cross_validate_fixed(
     }
     let (fold_of_shot, folds) = assign_folds(ds, opts.folds, opts.hold_out, opts.seed);
     let ranges = param_ranges(ds);
-    let (e, terms) = match kind {
-        ModelKind::Global => GlobalCv::new(ds, channel_data(ds, &fold_of_shot), alpha, beta, folds)
-            .errors(alpha, beta, &ranges),
-        ModelKind::Local => LocalCv::new(
-            ds,
-            channel_data(ds, &fold_of_shot),
-            &opts.local,
-            alpha,
-            beta,
-            folds,
-        )
-        .errors(alpha, beta, &ranges),
-    };
+    let data = channel_data(ds, &fold_of_shot);
+    let (e, terms) = FamilyCv::new(kind, ds, data, &opts.local, (alpha, beta), folds)
+        .errors(alpha, beta, &ranges);
     Ok((summarise(alpha, beta, terms, &e), e))
 }
 

@@ -109,6 +109,16 @@ mod sealed {
     }
 }
 
+/// A 1-D forward complex transform of length `n` from the process-wide cache, for a
+/// caller that transforms only some rows or columns of a block itself (the simulator's
+/// pupil-to-PSF step keeps a window of the columns).
+#[must_use]
+pub fn complex_forward_plan<T: Precision>(n: usize) -> Arc<dyn Fft<T>> {
+    // As in `Fft2::new`: a poisoned lock still holds good planners.
+    let mut p = T::planners().lock().unwrap_or_else(PoisonError::into_inner);
+    p.complex.plan_fft_forward(n)
+}
+
 /// Rows moved between the row pass and the column-major spectrum at a time: a few rows
 /// together touch each cache line of the spectrum once, not once per row.
 const ROWS_PER_PASS: usize = 8;

@@ -122,27 +122,21 @@ impl<'a, T: serde::Serialize> Versioned<'a, T> {
     }
 }
 
+/// An output-only format at its first version: written with [`Versioned`], never read
+/// back by lensblur.
+const fn output_only(kind: &'static str) -> Schema {
+    Schema {
+        kind,
+        current: 1,
+        unversioned: None,
+    }
+}
+
 /// Output-only formats: written with [`Versioned`], never read back by lensblur.
-pub const PREDICTION: Schema = Schema {
-    kind: "prediction",
-    current: 1,
-    unversioned: None,
-};
-pub const EXPERIMENT: Schema = Schema {
-    kind: "experiment",
-    current: 1,
-    unversioned: None,
-};
-pub const LENS: Schema = Schema {
-    kind: "lens",
-    current: 1,
-    unversioned: None,
-};
-pub const TRUTH: Schema = Schema {
-    kind: "truth",
-    current: 1,
-    unversioned: None,
-};
+pub const PREDICTION: Schema = output_only("prediction");
+pub const EXPERIMENT: Schema = output_only("experiment");
+pub const LENS: Schema = output_only("lens");
+pub const TRUTH: Schema = output_only("truth");
 
 #[cfg(test)]
 mod tests {

@@ -1,4 +1,4 @@
-//! Robust 2-D Gaussian fits to non-parametric kernels (DESIGN.md §1.5, paper §2.3).
+//! Robust 2-D Gaussian fits to non-parametric kernels (paper §2.3).
 //!
 //! The kernel is thresholded, its 8-connected regions labelled and the central one kept,
 //! so isolated noise blobs far from the PSF cannot drag the fit. Maximum-likelihood
@@ -248,6 +248,22 @@ pub fn fit_gaussian(kernel: &Kernel, params: &FitParams) -> Result<GaussianFit, 
     })
 }
 
+/// (robust, ML) Gaussians of a kernel by the pipeline's own fit ([`fit_gaussian`]) with
+/// its default parameters, as calibration fits them (the Gaussian-approximation
+/// experiment judges these; the simulated session's measured stand-in uses them). A
+/// kernel the fit rejects falls back to its moments for both.
+#[must_use]
+pub fn fit_gaussians(k: &Kernel) -> (Gaussian2, Gaussian2) {
+    match fit_gaussian(k, &FitParams::default()) {
+        Ok(f) => (f.robust, f.ml),
+        Err(_) => {
+            let m = k.moments();
+            let g = Gaussian2::from_covariance(m.var_x, m.var_y, m.cov_xy);
+            (g, g)
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -268,11 +284,7 @@ mod tests {
 
     #[test]
     fn recovers_a_sampled_gaussian() {
-        let g = Gaussian2 {
-            sigma_x: 1.7,
-            sigma_y: 1.1,
-            rho: -0.45,
-        };
+        let g = Gaussian2::new(1.7, 1.1, -0.45);
         let k = g.kernel(3);
         let fit = fit_gaussian(
             &k,
@@ -290,11 +302,7 @@ mod tests {
 
     #[test]
     fn robust_fit_ignores_an_isolated_blob_that_biases_ml() {
-        let g = Gaussian2 {
-            sigma_x: 1.2,
-            sigma_y: 1.0,
-            rho: 0.2,
-        };
+        let g = Gaussian2::new(1.2, 1.0, 0.2);
         let mut k = g.kernel(3);
         // A noise blob in the corner, separate from the PSF after thresholding.
         let n = k.size;
@@ -312,11 +320,7 @@ mod tests {
 
     #[test]
     fn adds_the_requested_variance() {
-        let g = Gaussian2 {
-            sigma_x: 0.8,
-            sigma_y: 0.9,
-            rho: 0.0,
-        };
+        let g = Gaussian2::new(0.8, 0.9, 0.0);
         let k = g.kernel(5);
         let add = 1.0 / 108.0;
         let fit = fit_gaussian(

@@ -4,7 +4,7 @@
 //! `image_from_chart` maps chart units (one square = 1.0, origin at the checkerboard's
 //! top-left corner) to sensor pixels.
 
-use nalgebra::{DMatrix, Matrix3, Vector3};
+use nalgebra::{DMatrix, Matrix3};
 use serde::{Deserialize, Serialize};
 
 /// A 2-D projective transform, stored row-major and normalised so `h[8] = 1` where possible.
@@ -189,12 +189,6 @@ fn normalising_transform(pts: &[[f64; 2]]) -> Option<Homography> {
         0.0,
         1.0,
     )))
-}
-
-/// Solve the 3×3 system; a small helper for callers that need `Vector3`.
-#[must_use]
-pub fn solve3(m: &Matrix3<f64>, b: &Vector3<f64>) -> Option<Vector3<f64>> {
-    m.lu().solve(b)
 }
 
 #[cfg(test)]

@@ -65,12 +65,6 @@ impl JobContext {
         }
     }
 
-    /// The flag that cancels this job; setting it makes [`JobContext::check`] fail.
-    #[must_use]
-    pub fn cancel_flag(&self) -> Arc<AtomicBool> {
-        Arc::clone(&self.cancel)
-    }
-
     pub fn cancel(&self) {
         self.cancel.store(true, Ordering::Relaxed);
     }

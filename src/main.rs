@@ -1,5 +1,5 @@
 //! The `lensblur` command: the studio (default) and the headless pipeline's subcommands
-//! (DESIGN.md §3).
+//! (ARCHITECTURE.md).
 
 mod cli;
 

@@ -159,13 +159,3 @@ pub fn resolve(base: &Path, p: &Path) -> PathBuf {
         base.join(p)
     }
 }
-
-/// The folder a manifest's relative paths start from.
-#[must_use]
-pub fn base_of(manifest_path: &Path) -> PathBuf {
-    manifest_path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."))
-        .to_path_buf()
-}

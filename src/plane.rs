@@ -1,6 +1,6 @@
 //! Single-channel images of linear values, and the channel layout of a capture.
 //!
-//! Coordinates follow DESIGN.md §2: x right, y down, pixel centres at integers, (0, 0) the
+//! Coordinates follow docs/formats.md: x right, y down, pixel centres at integers, (0, 0) the
 //! centre of the top-left pixel. A [`ChannelPlane`] records where its pixels sit on the
 //! full-resolution sensor, so every stage can report in sensor pixels.
 
@@ -90,11 +90,16 @@ impl Plane {
         let fx = (x - x0) as f32;
         let fy = (y - y0) as f32;
         let (ix, iy) = (ix as usize, iy as usize);
-        let a = self.get(ix, iy);
-        let b = self.get(ix + 1, iy);
-        let c = self.get(ix, iy + 1);
-        let d = self.get(ix + 1, iy + 1);
-        Some((a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy)
+        Some(bilinear_blend(
+            [
+                self.get(ix, iy),
+                self.get(ix + 1, iy),
+                self.get(ix, iy + 1),
+                self.get(ix + 1, iy + 1),
+            ],
+            fx,
+            fy,
+        ))
     }
 
     /// A copy of the rectangle `[x0, x0 + w) × [y0, y0 + h)`, which must lie inside.
@@ -425,6 +430,69 @@ impl Capture {
             }
         }
         out
+    }
+}
+
+/// The bilinear blend of four neighbouring samples `[(0, 0), (1, 0), (0, 1), (1, 1)]` at
+/// fractions (`fx`, `fy`) between them: the one interpolation formula every bilinear
+/// sampler in the crate uses ([`Plane::bilinear`], [`bilinear_zero_outside`]).
+#[inline]
+#[must_use]
+pub fn bilinear_blend<T>(q: [T; 4], fx: T, fy: T) -> T
+where
+    T: Copy
+        + From<f32>
+        + std::ops::Add<Output = T>
+        + std::ops::Sub<Output = T>
+        + std::ops::Mul<Output = T>,
+{
+    let one = T::from(1.0);
+    let [a, b, c, d] = q;
+    (a * (one - fx) + b * fx) * (one - fy) + (c * (one - fx) + d * fx) * fy
+}
+
+/// An `n` × `n` row-major grid of samples between samples at (u, w) (in sample units),
+/// zero outside the grid: how a kernel or a shape grid is read between its samples.
+#[must_use]
+pub fn bilinear_zero_outside(data: &[f64], n: usize, u: f64, w: f64) -> f64 {
+    let (u0, w0) = (u.floor(), w.floor());
+    let get = |i: f64, j: f64| -> f64 {
+        if i < 0.0 || j < 0.0 || i >= n as f64 || j >= n as f64 {
+            0.0
+        } else {
+            data[j as usize * n + i as usize]
+        }
+    };
+    bilinear_blend(
+        [
+            get(u0, w0),
+            get(u0 + 1.0, w0),
+            get(u0, w0 + 1.0),
+            get(u0 + 1.0, w0 + 1.0),
+        ],
+        u - u0,
+        w - w0,
+    )
+}
+
+/// The sRGB transfer function's decoding: an encoded value in [0, 1] to linear light.
+#[must_use]
+pub fn srgb_decode(v: f32) -> f32 {
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// The sRGB transfer function's encoding: linear light in [0, 1] (callers clamp) to
+/// its encoded value.
+#[must_use]
+pub fn srgb_encode(v: f32) -> f32 {
+    if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
     }
 }
 

@@ -1,4 +1,4 @@
-//! Lens profiles (DESIGN.md §1.8): the fitted models of one camera + lens unit in a
+//! Lens profiles (docs/formats.md, "Lens profile"): the fitted models of one camera + lens unit in a
 //! versioned JSON file, `lensblur.profile/2` (version 1 read too).
 //!
 //! Coefficients are stored as base64 of little-endian `f32` (7 significant digits, far
@@ -1055,10 +1055,17 @@ impl Profile {
             .ok_or(ProfileError::NoChannel(channel))
     }
 
-    /// The family a cross-validation report prefers: the one with the lower error.
+    /// The family a profile prefers: the one that cross-validates better at its orders
+    /// (`cv`, the global model only when its error is strictly lower); without both
+    /// errors, the local model where there is one (`has_local`; the smaller error in the
+    /// paper's tests).
     #[must_use]
-    pub fn preferred_from(report: &CvReport) -> ModelKind {
-        report.best().map_or(ModelKind::Global, |b| b.0)
+    pub fn preferred_family(cv: Option<&CvSummary>, has_local: bool) -> ModelKind {
+        match cv.map(|c| (&c.global, &c.local)) {
+            Some((Some(g), Some(l))) if g.mean_pct < l.mean_pct => ModelKind::Global,
+            _ if has_local => ModelKind::Local,
+            _ => ModelKind::Global,
+        }
     }
 }
 

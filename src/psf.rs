@@ -140,18 +140,7 @@ impl Kernel {
     pub fn sample_px(&self, dx: f64, dy: f64) -> f64 {
         let c = (self.size / 2) as f64;
         let s = self.oversample as f64;
-        let (u, v) = (dx * s + c, dy * s + c);
-        let (u0, v0) = (u.floor(), v.floor());
-        let (fu, fv) = (u - u0, v - v0);
-        let get = |i: f64, j: f64| -> f64 {
-            if i < 0.0 || j < 0.0 || i >= self.size as f64 || j >= self.size as f64 {
-                0.0
-            } else {
-                self.at(i as usize, j as usize)
-            }
-        };
-        (get(u0, v0) * (1.0 - fu) + get(u0 + 1.0, v0) * fu) * (1.0 - fv)
-            + (get(u0, v0 + 1.0) * (1.0 - fu) + get(u0 + 1.0, v0 + 1.0) * fu) * fv
+        crate::plane::bilinear_zero_outside(&self.data, self.size, dx * s + c, dy * s + c)
     }
 
     /// |K(ν u)|: the modulus of the kernel's Fourier transform at `nu` cycles per px
@@ -263,6 +252,16 @@ pub struct Gaussian2 {
 }
 
 impl Gaussian2 {
+    /// σx, σy (px) and the correlation ρ.
+    #[must_use]
+    pub const fn new(sigma_x: f64, sigma_y: f64, rho: f64) -> Self {
+        Self {
+            sigma_x,
+            sigma_y,
+            rho,
+        }
+    }
+
     #[must_use]
     pub fn isotropic(sigma: f64) -> Self {
         Self {
@@ -441,11 +440,7 @@ mod tests {
 
     #[test]
     fn gaussian_kernel_has_its_moments() {
-        let g = Gaussian2 {
-            sigma_x: 1.6,
-            sigma_y: 0.9,
-            rho: 0.4,
-        };
+        let g = Gaussian2::new(1.6, 0.9, 0.4);
         let k = g.kernel(3);
         assert_eq!(k.size % 2, 1);
         let m = k.moments();
@@ -458,11 +453,7 @@ mod tests {
 
     #[test]
     fn resampling_keeps_the_moments() {
-        let g = Gaussian2 {
-            sigma_x: 2.0,
-            sigma_y: 1.5,
-            rho: -0.3,
-        };
+        let g = Gaussian2::new(2.0, 1.5, -0.3);
         let k3 = g.kernel(3);
         let k1 = k3.resampled(1);
         assert_eq!(k1.oversample, 1);
@@ -474,21 +465,12 @@ mod tests {
 
     #[test]
     fn box_convolution_adds_a_twelfth() {
-        let g = Gaussian2 {
-            sigma_x: 0.7,
-            sigma_y: 0.7,
-            rho: 0.0,
-        }
-        .convolved_variance(1.0 / 12.0, 1.0 / 12.0, 0.0);
+        let g = Gaussian2::new(0.7, 0.7, 0.0).convolved_variance(1.0 / 12.0, 1.0 / 12.0, 0.0);
         assert!((g.sigma_x - (0.49f64 + 1.0 / 12.0).sqrt()).abs() < 1e-12);
     }
     #[test]
     fn mtf50_of_a_gaussian_is_where_its_sampled_kernel_transform_crosses_one_half() {
-        let g = Gaussian2 {
-            sigma_x: 1.7,
-            sigma_y: 0.8,
-            rho: 0.45,
-        };
+        let g = Gaussian2::new(1.7, 0.8, 0.45);
         let m = g.mtf50().expect("positive definite");
         // The worst direction is the one of largest variance.
         let worst = m.worst_deg.to_radians();
@@ -523,11 +505,7 @@ mod tests {
         assert!((r.worst_lp_ph - 187.390).abs() < 1e-3);
         assert!(Gaussian2::isotropic(0.0).mtf50().is_none());
         assert!(Gaussian2::isotropic(f64::NAN).mtf50().is_none());
-        let line = Gaussian2 {
-            sigma_x: 1.0,
-            sigma_y: 1.0,
-            rho: 1.0,
-        };
+        let line = Gaussian2::new(1.0, 1.0, 1.0);
         assert!(line.mtf50().is_none(), "a line PSF has no best direction");
     }
 }

@@ -1,4 +1,5 @@
-//! Loading shots and photos into linear channel planes (DESIGN.md §1.2).
+//! Loading shots and photos into linear channel planes (docs/formats.md, "Images and
+//! RAW files lensblur reads").
 //!
 //! RAW files keep their CFA: each colour site becomes its own plane at half resolution
 //! (black subtracted, divided by white − black), so blur is measured before any
@@ -6,7 +7,7 @@
 //! 8-bit images are sRGB-decoded unless the caller says they are linear.
 
 use crate::limits;
-use crate::plane::{Capture, Channel, ChannelPlane, Plane, RawMeta};
+use crate::plane::{Capture, Channel, ChannelPlane, Plane, RawMeta, srgb_decode, srgb_encode};
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
@@ -481,16 +482,7 @@ fn cfa_capture(
             offset_y: oy,
         });
     }
-    Ok(Capture {
-        width: w,
-        height: h,
-        planes,
-        setting_focal_mm: None,
-        setting_f_number: None,
-        identity: Default::default(),
-        is_raw: true,
-        raw: None,
-    })
+    Ok(decoded_capture(w, h, planes, true))
 }
 
 fn from_rawloader(
@@ -831,11 +823,23 @@ fn check_size(path: &Path, width: usize, height: usize) -> Result<(), LoadError>
     })
 }
 
-fn srgb_decode(v: f32) -> f32 {
-    if v <= 0.04045 {
-        v / 12.92
-    } else {
-        ((v + 0.055) / 1.055).powf(2.4)
+/// A capture as decoding leaves it: its planes, and nothing yet of its settings, its
+/// camera or (for a RAW file) its metadata, which the loader fills in from the file.
+fn decoded_capture(
+    width: usize,
+    height: usize,
+    planes: Vec<ChannelPlane>,
+    is_raw: bool,
+) -> Capture {
+    Capture {
+        width,
+        height,
+        planes,
+        setting_focal_mm: None,
+        setting_f_number: None,
+        identity: Default::default(),
+        is_raw,
+        raw: None,
     }
 }
 
@@ -954,16 +958,7 @@ fn load_image(path: &Path, bytes: &[u8], options: &LoadOptions) -> Result<Captur
             offset_y: 0,
         })
         .collect();
-    Ok(Capture {
-        width: w,
-        height: h,
-        planes,
-        setting_focal_mm: None,
-        setting_f_number: None,
-        identity: Default::default(),
-        is_raw: false,
-        raw: None,
-    })
+    Ok(decoded_capture(w, h, planes, false))
 }
 
 /// Full-resolution linear R, G, B (or one Y) planes of a capture: a CFA capture is
@@ -1072,13 +1067,7 @@ pub fn save_planes(path: &Path, planes: &[(Channel, Plane)], srgb: bool) -> Resu
     };
     let encode = |v: f32| -> f32 {
         let v = v.clamp(0.0, 1.0);
-        if !srgb {
-            v
-        } else if v <= 0.003_130_8 {
-            12.92 * v
-        } else {
-            1.055 * v.powf(1.0 / 2.4) - 0.055
-        }
+        if srgb { srgb_encode(v) } else { v }
     };
     let (w32, h32) = (
         u32::try_from(w).map_err(|_| err("too wide".into()))?,

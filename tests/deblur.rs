@@ -13,8 +13,8 @@ use lensblur::deblur::{
 };
 use lensblur::dng::{DngInfo, write_dng};
 use lensblur::experiment::{
-    ExperimentOptions, MAX_FAILED_SHOTS_IN_A_ROW, MeasureError, MeasureOptions, dead_leaves,
-    gaussian_approx, measured_kernels,
+    ExperimentOptions, MAX_FAILED_SHOTS_IN_A_ROW, MeasureError, MeasureOptions, gaussian_approx,
+    measured_kernels,
 };
 use lensblur::fft::{Fft2, convolve_direct_circular};
 use lensblur::job::JobContext;
@@ -25,6 +25,7 @@ use lensblur::profile::Profile;
 use lensblur::psf::{Gaussian2, Kernel};
 use lensblur::raw::{LoadOptions, load_capture};
 use lensblur::simulate::capture::rggb_channel;
+use lensblur::simulate::dead_leaves;
 use lensblur::simulate::lens::VirtualLens;
 use lensblur::simulate::{PsfShape, SimulatedSession};
 use nalgebra::{DMatrix, DVector};
@@ -1392,7 +1393,7 @@ fn full_size_spatially_varying_figures() {
         let big = dead_leaves(w + 2 * pad, h + 2 * pad, seed);
         let sharp = big.crop(pad, pad, w, h);
         let mut blurry =
-            lensblur::experiment::blur_varying(&big, pad, w, h, 8, &|x, y| truth(x, y).kernel(1));
+            lensblur::simulate::blur_varying(&big, pad, w, h, 8, &|x, y| truth(x, y).kernel(1));
         drop(big);
         add_noise(&mut blurry, 0.005, seed);
         let cp = ChannelPlane {
@@ -1495,7 +1496,7 @@ fn predicted_kernel_shapes_deblur_an_aberrated_lens_better_than_its_gaussians() 
 /// A 3-colour capture of dead leaves blurred by a field of Gaussians that widen and
 /// turn toward the corners, with the field as its kernel source.
 fn gpu_test_photo(w: usize, h: usize) -> (lensblur::plane::Capture, impl KernelSource) {
-    use lensblur::experiment::{blur_varying, dead_leaves};
+    use lensblur::simulate::blur_varying;
     let field = move |x: f64, y: f64| {
         let (u, v) = (x / w as f64 - 0.5, y / h as f64 - 0.5);
         let r2 = u * u + v * v;

@@ -1,5 +1,5 @@
 //! The calibration chart: a checkerboard whose squares each hold five circles of the
-//! opposite colour, as the five on a die (DESIGN.md §1.1), and its exact rasterisation.
+//! opposite colour, as the five on a die (its spec: docs/formats.md, "Chart spec"), and its exact rasterisation.
 //!
 //! Chart units: one square = 1.0, origin at the checkerboard's top-left corner, x right,
 //! y down. The white margin extends `margin` squares beyond the checkerboard.
@@ -267,7 +267,7 @@ pub fn rasterize(
 ) -> Plane {
     const BAND_ROWS: usize = 128;
     if height <= BAND_ROWS || width * height < 1 << 18 {
-        return rasterize_serial(spec, image_from_chart, width, height, background);
+        return rasterize_serial(spec, image_from_chart, (width, height), background);
     }
     use rayon::prelude::*;
     let bands: Vec<Plane> = (0..height.div_ceil(BAND_ROWS))
@@ -277,7 +277,7 @@ pub fn rasterize(
             let rows = BAND_ROWS.min(height - y0);
             let band_from_chart =
                 Homography::translation(0.0, -(y0 as f64)).compose(image_from_chart);
-            rasterize_serial(spec, &band_from_chart, width, rows, background)
+            rasterize_serial(spec, &band_from_chart, (width, rows), background)
         })
         .collect();
     let mut data = Vec::with_capacity(width * height);
@@ -294,8 +294,7 @@ pub fn rasterize(
 fn rasterize_serial(
     spec: &ChartSpec,
     image_from_chart: &Homography,
-    width: usize,
-    height: usize,
+    (width, height): (usize, usize),
     background: f32,
 ) -> Plane {
     let mut acc = vec![0.0f64; width * height];
@@ -761,6 +760,15 @@ fn triangle_disc_area(a: [f64; 2], b: [f64; 2]) -> f64 {
 mod tests {
     use super::*;
 
+    /// The default chart cut to `cols` × `rows` squares.
+    fn spec_of(cols: usize, rows: usize) -> ChartSpec {
+        ChartSpec {
+            cols,
+            rows,
+            ..ChartSpec::default()
+        }
+    }
+
     fn pose() -> Homography {
         Homography::from_row_major([30.0, 1.2, 40.0, -0.8, 29.5, 35.0, 2e-4, -1e-4, 1.0])
     }
@@ -784,10 +792,8 @@ mod tests {
         // One black square with no circles on a white page, under a rotation with
         // perspective: black coverage must sum to the square's exact image area.
         let spec = ChartSpec {
-            cols: 2,
-            rows: 2,
             circle_centres: vec![],
-            ..ChartSpec::default()
+            ..spec_of(2, 2)
         };
         let h = pose();
         let (w, ht) = (150, 140);
@@ -805,11 +811,7 @@ mod tests {
     #[test]
     fn a_circle_covers_its_exact_area() {
         // An affine pose maps the circle to an ellipse of area πr²|det A|.
-        let spec = ChartSpec {
-            cols: 2,
-            rows: 2,
-            ..ChartSpec::default()
-        };
+        let spec = spec_of(2, 2);
         let h = Homography::from_row_major([40.0, 5.0, 30.0, -3.0, 38.0, 25.0, 0.0, 0.0, 1.0]);
         let det = 40.0 * 38.0 + 5.0 * 3.0;
         let img = rasterize(&spec, &h, 140, 130, 1.0);
@@ -930,11 +932,7 @@ mod tests {
 
     #[test]
     fn coverage_matches_point_sampling() {
-        let spec = ChartSpec {
-            cols: 3,
-            rows: 2,
-            ..ChartSpec::default()
-        };
+        let spec = spec_of(3, 2);
         let h = pose();
         let img = rasterize(&spec, &h, 140, 110, 0.3);
         let inv = h.inverse().unwrap();
@@ -977,7 +975,7 @@ mod tests {
         let h = Homography::from_row_major([25.0, 0.8, 20.0, -0.6, 24.5, 30.0, 1e-5, -2e-5, 1.0]);
         let (w, ht) = (640, 460);
         let par = rasterize(&spec, &h, w, ht, 0.4);
-        let ser = rasterize_serial(&spec, &h, w, ht, 0.4);
+        let ser = rasterize_serial(&spec, &h, (w, ht), 0.4);
         let worst = par
             .data
             .iter()
@@ -994,7 +992,7 @@ mod tests {
         let spec = ChartSpec::default();
         let h = Homography::from_row_major([25.0, 0.8, 20.0, -0.6, 24.5, 30.0, 1e-4, -2e-4, 1.0]);
         let (w, ht) = (700, 520);
-        let whole = rasterize_serial(&spec, &h, w, ht, 0.4);
+        let whole = rasterize_serial(&spec, &h, (w, ht), 0.4);
         for (x0, y0, cw, ch) in [
             (0, 0, 60, 50),
             (333, 217, 41, 37),
@@ -1002,7 +1000,7 @@ mod tests {
             (-20, 100, 50, 40),
         ] {
             let crop_from_image = Homography::translation(-(x0 as f64), -(y0 as f64));
-            let crop = rasterize_serial(&spec, &crop_from_image.compose(&h), cw, ch, 0.4);
+            let crop = rasterize_serial(&spec, &crop_from_image.compose(&h), (cw, ch), 0.4);
             for y in 0..ch {
                 for x in 0..cw {
                     let (gx, gy) = (x as i64 + x0, y as i64 + y0);

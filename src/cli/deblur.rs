@@ -5,15 +5,13 @@
 //! With `--out-dir` and `--profiles`, many photos at once (`deblur_batch`).
 
 use super::common::progress_job;
+use super::deblur_batch::{deblur_one, file_name};
 use anyhow::{Context, Result, bail};
-use lensblur::deblur::output::{profile_described, write_deblurred};
+use lensblur::deblur::output::{output_supported, profile_described};
 use lensblur::deblur::source::{Prefer, ScatteredKernels, load_kernels};
-use lensblur::deblur::{
-    DeblurOptions, Device, KernelSource, Method, ProfileKernels, deblur_capture,
-};
-use lensblur::job::JobContext;
+use lensblur::deblur::{DeblurOptions, Device, KernelSource, Method, ProfileKernels};
 use lensblur::model::KernelModel;
-use lensblur::plane::{Capture, LensSetting};
+use lensblur::plane::LensSetting;
 use lensblur::profile::Profile;
 use lensblur::raw::{LoadOptions, load_capture};
 use std::path::{Path, PathBuf};
@@ -111,7 +109,13 @@ pub fn run(args: Args) -> Result<()> {
         ..DeblurOptions::default()
     };
     if args.batch.out_dir.is_some() {
-        return super::deblur_batch::run(&args, &opts);
+        return super::deblur_batch::run(
+            &args.photos,
+            &args.batch,
+            args.allow_extrapolation,
+            args.kernel_model.map(Into::into),
+            &opts,
+        );
     }
     let (Some(out), [photo]) = (&args.out, args.photos.as_slice()) else {
         bail!("one photo and --out, or photos and folders with --out-dir and --profiles");
@@ -267,47 +271,6 @@ pub fn run(args: Args) -> Result<()> {
         out.display()
     );
     Ok(())
-}
-
-/// Deblurs one loaded photo with a chosen source and writes it: the step the single
-/// photo and every photo of a batch go through. `described` names the kernels (a
-/// DNG's note of what was done says it). Returns the preview written, if any.
-///
-/// # Errors
-/// The deblurring failed, or the output cannot be written.
-pub fn deblur_one(
-    photo: &Path,
-    capture: &Capture,
-    source: &dyn KernelSource,
-    opts: &DeblurOptions,
-    out: &Path,
-    described: &str,
-    job: &JobContext,
-) -> Result<Option<PathBuf>> {
-    let deblurred =
-        deblur_capture(capture, source, opts, job).with_context(|| photo.display().to_string())?;
-    let note = format!(
-        "Deblurred by {} ({}) with {described}",
-        lensblur::dng::SOFTWARE,
-        opts.method.name()
-    );
-    let written = write_deblurred(out, Some(file_name(photo)), &deblurred, &note)?;
-    if let Some(w) = &written.warning {
-        eprintln!("lensblur: warning: {}: {w}", photo.display());
-    }
-    Ok(written.preview)
-}
-
-/// Whether [`deblur_one`] writes a file of this extension (lower case).
-pub fn output_supported(ext: &str) -> bool {
-    matches!(ext, "png" | "tif" | "tiff" | "dng")
-}
-
-fn file_name(p: &Path) -> String {
-    p.file_name().map_or_else(
-        || p.display().to_string(),
-        |n| n.to_string_lossy().into_owned(),
-    )
 }
 
 /// Whether two paths name one existing file.

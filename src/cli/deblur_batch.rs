@@ -5,13 +5,18 @@
 //! non-zero only when a photo failed.
 
 use super::common::progress_job;
-use super::deblur::{Args, deblur_one, output_supported};
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use lensblur::batch::{
     BatchOptions, Outcome, OutputFormat, ProfileLibrary, collect_photos, plan, run as run_batch,
 };
-use lensblur::deblur::DeblurOptions;
-use std::path::PathBuf;
+use lensblur::deblur::output::{
+    DeblurWriteError, deblur_and_write, deblurred_note, output_supported,
+};
+use lensblur::deblur::{DeblurOptions, KernelSource};
+use lensblur::job::JobContext;
+use lensblur::model::KernelModel;
+use lensblur::plane::Capture;
+use std::path::{Path, PathBuf};
 
 #[derive(clap::Args, Default)]
 pub struct BatchArgs {
@@ -44,8 +49,59 @@ pub enum FormatArg {
     Dng,
 }
 
-pub fn run(args: &Args, deblur: &DeblurOptions) -> Result<()> {
-    let b = &args.batch;
+/// Deblurs one loaded photo with a chosen source and writes it: the step the single
+/// photo and every photo of a batch go through. `described` names the kernels (a
+/// DNG's note of what was done says it). Returns the preview written, if any.
+///
+/// # Errors
+/// The deblurring failed, or the output cannot be written.
+pub fn deblur_one(
+    photo: &Path,
+    capture: &Capture,
+    source: &dyn KernelSource,
+    opts: &DeblurOptions,
+    out: &Path,
+    described: &str,
+    job: &JobContext,
+) -> Result<Option<PathBuf>> {
+    let note = deblurred_note(opts.method, described);
+    let written = match deblur_and_write(
+        capture,
+        source,
+        opts,
+        out,
+        Some(file_name(photo)),
+        &note,
+        job,
+    ) {
+        Ok(w) => w,
+        Err(DeblurWriteError::Deblur(e)) => {
+            return Err(e).with_context(|| photo.display().to_string());
+        }
+        Err(DeblurWriteError::Output(e)) => return Err(e.into()),
+    };
+    if let Some(w) = &written.warning {
+        eprintln!("lensblur: warning: {}: {w}", photo.display());
+    }
+    Ok(written.preview)
+}
+
+/// A path's file name (the whole path where it has none).
+pub fn file_name(p: &Path) -> String {
+    p.file_name().map_or_else(
+        || p.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    )
+}
+
+/// Runs a batch: `photos` (files and folders) with the profiles `b` names.
+pub fn run(
+    photos: &[PathBuf],
+    b: &BatchArgs,
+    allow_extrapolation: bool,
+    kernel_model: Option<KernelModel>,
+    deblur: &DeblurOptions,
+) -> Result<()> {
     let (Some(out_dir), Some(profiles)) = (&b.out_dir, &b.profiles) else {
         bail!("a batch needs --out-dir and --profiles");
     };
@@ -63,18 +119,18 @@ pub fn run(args: &Args, deblur: &DeblurOptions) -> Result<()> {
     for w in &library.warnings {
         eprintln!("lensblur: warning: {w}");
     }
-    let photos = collect_photos(&args.photos, out_dir)?;
+    let photos = collect_photos(photos, out_dir)?;
     if photos.is_empty() {
         bail!("no photos among the paths given");
     }
     let opts = BatchOptions {
         out_dir: out_dir.clone(),
         format,
-        allow_extrapolation: args.allow_extrapolation,
+        allow_extrapolation,
         deblur: *deblur,
         memory_budget: None,
         max_parallel: b.jobs,
-        kernel_model: args.kernel_model.map(Into::into),
+        kernel_model,
     };
     let planned = plan(&photos, &library, &opts);
     let job = progress_job();

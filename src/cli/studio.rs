@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Default)]
 pub struct Args {
-    /// A session folder, its session.json, or a manifest (DESIGN.md §3). Without one the
+    /// A session folder, its session.json, or a manifest (docs/formats.md, "Manifest"). Without one the
     /// studio opens the built-in demo session (made on first launch, then cached).
     pub session: Option<PathBuf>,
 }

@@ -343,8 +343,7 @@ impl GpuDeblurrer {
     pub fn deblur_channel_plane(
         &self,
         cp: &ChannelPlane,
-        sensor_width: usize,
-        sensor_height: usize,
+        (sensor_width, sensor_height): (usize, usize),
         source: &dyn KernelSource,
         opts: &DeblurOptions,
         job: &JobContext,

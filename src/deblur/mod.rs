@@ -1,5 +1,5 @@
 //! Deblurring: non-blind deconvolution of each channel plane with the lens's spatially
-//! varying kernels (DESIGN.md §1.9).
+//! varying kernels.
 //!
 //! A plane is cut into tiles sized from its kernels and its own size; each tile is
 //! deconvolved inside an FFT block (the tile plus a margin, read with reflection past
@@ -480,7 +480,7 @@ pub fn deblur_capture(
     let mut out = cap.clone();
     for cp in &mut out.planes {
         cp.plane = match &gpu {
-            Some(g) => g.deblur_channel_plane(cp, cap.width, cap.height, source, opts, job)?,
+            Some(g) => g.deblur_channel_plane(cp, (cap.width, cap.height), source, opts, job)?,
             None => deblur_channel_plane(cp, cap.width, cap.height, source, opts, job)?,
         };
     }

@@ -1,7 +1,10 @@
 //! Writing a deblurred photo: the one place that picks the file format from the output
-//! name, for the command line (one photo or a batch) and the studio's export.
+//! name, and the one "deblur, then write" step ([`deblur_and_write`]), for the command
+//! line (one photo or a batch), the core's batch and the studio's export.
 
+use super::{DeblurError, DeblurOptions, KernelSource, Method};
 use crate::develop::{Orient, develop, save_png};
+use crate::job::JobContext;
 use crate::plane::Capture;
 use std::path::{Path, PathBuf};
 
@@ -20,6 +23,50 @@ pub enum OutputError {
     Dng(#[from] crate::dng::DngError),
     #[error(transparent)]
     Save(#[from] crate::raw::SaveError),
+}
+
+/// Why [`deblur_and_write`] failed: the deblurring (or its cancellation), or the writing.
+#[derive(Debug, thiserror::Error)]
+pub enum DeblurWriteError {
+    #[error(transparent)]
+    Deblur(#[from] DeblurError),
+    #[error(transparent)]
+    Output(#[from] OutputError),
+}
+
+/// Deblurs a capture with `source` and writes the result as [`write_deblurred`] does
+/// (`note` in a DNG says what was done; [`deblurred_note`] is the usual one).
+///
+/// # Errors
+/// The deblurring failed or was cancelled, or the output cannot be written.
+pub fn deblur_and_write(
+    capture: &Capture,
+    source: &dyn KernelSource,
+    opts: &DeblurOptions,
+    out: &Path,
+    original_file_name: Option<String>,
+    note: &str,
+    job: &JobContext,
+) -> Result<Written, DeblurWriteError> {
+    let deblurred = super::deblur_capture(capture, source, opts, job)?;
+    Ok(write_deblurred(out, original_file_name, &deblurred, note)?)
+}
+
+/// A deblurred photo's note of what was done: the software, the method and what it was
+/// deblurred with (`described`, e.g. [`profile_described`]).
+#[must_use]
+pub fn deblurred_note(method: Method, described: &str) -> String {
+    format!(
+        "Deblurred by {} ({}) with {described}",
+        crate::dng::SOFTWARE,
+        method.name()
+    )
+}
+
+/// Whether [`write_deblurred`] writes a file of this extension (lower case).
+#[must_use]
+pub fn output_supported(ext: &str) -> bool {
+    matches!(ext, "png" | "tif" | "tiff" | "dng")
 }
 
 /// Whether `out` names a DNG.

@@ -160,11 +160,6 @@ impl Deconvolver {
         self.fft.height()
     }
 
-    /// The FFT this deconvolver works with (for convolving blocks of the same size).
-    pub fn fft_mut(&mut self) -> &mut Fft2 {
-        &mut self.fft
-    }
-
     fn set_kernel(&mut self, k: &Kernel) {
         let k1;
         let k = if k.oversample == 1 {

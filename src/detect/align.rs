@@ -1,4 +1,4 @@
-//! Sub-pixel alignment of one square (DESIGN.md §1.3, the paper's §2.2.1): the sharp
+//! Sub-pixel alignment of one square (the paper's §2.2.1): the sharp
 //! chart rasterised exactly through H, blurred by a Gaussian whose variance is
 //! estimated jointly (registering a sharp template to a blurred square is unbiased
 //! only when the template carries the blur), given each plane's black/white levels, and

@@ -530,30 +530,66 @@ fn check_segments(
     }
 }
 
-/// `out[obs[i]] += Σ_j data[offsets[i] + j] · g[j]` over the `g.len()` (a multiple of
-/// [`LANES`]) samples of each segment.
-fn predict_segments(data: &[f64], offsets: &[usize], obs: &[u32], g: &[f64], out: &mut [f64]) {
-    check_segments(data.len(), offsets, obs, g.len(), out.len());
+/// A segment product's form: the data, the segment offsets, the observation indices,
+/// the input and the output.
+#[cfg(target_arch = "x86_64")]
+type UncheckedSegments = unsafe fn(&[f64], &[usize], &[u32], &[f64], &mut [f64]);
+/// See [`UncheckedSegments`].
+type Segments = fn(&[f64], &[usize], &[u32], &[f64], &mut [f64]);
+
+/// One segment product in its two forms: with AVX2 and FMA (where the CPU has them),
+/// and portable.
+struct SegmentOp {
+    #[cfg(target_arch = "x86_64")]
+    avx2: UncheckedSegments,
+    portable: Segments,
+}
+
+/// Runs `op` once [`check_segments`] has checked the bounds both forms rely on (`len`
+/// samples a segment, `observations` observations).
+fn run_segments(
+    op: &SegmentOp,
+    (len, observations): (usize, usize),
+    (data, offsets, obs): (&[f64], &[usize], &[u32]),
+    input: &[f64],
+    output: &mut [f64],
+) {
+    check_segments(data.len(), offsets, obs, len, observations);
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
         // SAFETY: the CPU has AVX2 and FMA (checked just above), and every segment and
         // observation index is in bounds (asserted above).
-        unsafe { predict_segments_avx2(data, offsets, obs, g, out) };
+        unsafe { (op.avx2)(data, offsets, obs, input, output) };
         return;
     }
-    predict_segments_portable(data, offsets, obs, g, out);
+    (op.portable)(data, offsets, obs, input, output);
+}
+
+/// `out[obs[i]] += Σ_j data[offsets[i] + j] · g[j]` over the `g.len()` (a multiple of
+/// [`LANES`]) samples of each segment.
+fn predict_segments(data: &[f64], offsets: &[usize], obs: &[u32], g: &[f64], out: &mut [f64]) {
+    const PREDICT: SegmentOp = SegmentOp {
+        #[cfg(target_arch = "x86_64")]
+        avx2: predict_segments_avx2,
+        portable: predict_segments_portable,
+    };
+    run_segments(&PREDICT, (g.len(), out.len()), (data, offsets, obs), g, out);
 }
 
 /// `acc[j] += Σ_i w[obs[i]] · data[offsets[i] + j]`.
 fn correlate_segments(data: &[f64], offsets: &[usize], obs: &[u32], w: &[f64], acc: &mut [f64]) {
-    check_segments(data.len(), offsets, obs, acc.len(), w.len());
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-        // SAFETY: as in `predict_segments`.
-        unsafe { correlate_segments_avx2(data, offsets, obs, w, acc) };
-        return;
-    }
-    correlate_segments_portable(data, offsets, obs, w, acc);
+    const CORRELATE: SegmentOp = SegmentOp {
+        #[cfg(target_arch = "x86_64")]
+        avx2: correlate_segments_avx2,
+        portable: correlate_segments_portable,
+    };
+    run_segments(
+        &CORRELATE,
+        (acc.len(), w.len()),
+        (data, offsets, obs),
+        w,
+        acc,
+    );
 }
 
 fn predict_segments_portable(
@@ -734,24 +770,22 @@ mod tests {
             let offsets = &offsets[..obs.len()];
             let g: Vec<f64> = (0..len).map(|_| rng.random::<f64>() - 0.5).collect();
             let w: Vec<f64> = (0..obs_count).map(|_| rng.random::<f64>() - 0.5).collect();
+            let agree = |what: &str, fast: &[f64], slow: &[f64]| {
+                for (a, b) in fast.iter().zip(slow) {
+                    assert!(
+                        (a - b).abs() <= 1e-12 * (1.0 + b.abs()),
+                        "{what} {a} vs {b}"
+                    );
+                }
+            };
             let (mut fast, mut slow) = (vec![0.5; obs_count], vec![0.5; obs_count]);
             predict_segments(&data, offsets, obs, &g, &mut fast);
             predict_segments_portable(&data, offsets, obs, &g, &mut slow);
-            for (a, b) in fast.iter().zip(&slow) {
-                assert!(
-                    (a - b).abs() <= 1e-12 * (1.0 + b.abs()),
-                    "predict {a} vs {b}"
-                );
-            }
+            agree("predict", &fast, &slow);
             let (mut fast, mut slow) = (vec![0.25; len], vec![0.25; len]);
             correlate_segments(&data, offsets, obs, &w, &mut fast);
             correlate_segments_portable(&data, offsets, obs, &w, &mut slow);
-            for (a, b) in fast.iter().zip(&slow) {
-                assert!(
-                    (a - b).abs() <= 1e-12 * (1.0 + b.abs()),
-                    "correlate {a} vs {b}"
-                );
-            }
+            agree("correlate", &fast, &slow);
         }
     }
 

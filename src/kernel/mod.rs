@@ -1,5 +1,5 @@
-//! Super-resolved non-parametric kernels per chart square and channel (DESIGN.md §1.4,
-//! paper §2.2.2), and their Gaussian fits (§1.5, in [`crate::gaussian`]).
+//! Super-resolved non-parametric kernels per chart square and channel (paper §2.2.2),
+//! and their Gaussian fits (paper §2.3, in [`crate::gaussian`]).
 //!
 //! For one square and channel we solve min ‖W(A_r k − U b)‖² by conjugate gradients on
 //! the normal equations. A_r convolves with the sharp chart rasterised at `oversample`×

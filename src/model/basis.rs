@@ -349,6 +349,28 @@ pub fn model_basis(norm: &Normalisation, alpha: usize, beta: usize) -> Basis {
     Basis::new(terms(alpha, beta, norm.uses_focal(), norm.uses_aperture()))
 }
 
+/// One least-squares problem as matrices: a row of `basis` at each sample's normalised
+/// coordinates (the design), and each sample's measured C_xx, C_yy, C_or (the right-hand
+/// sides), in the order `rows` gives them.
+pub(crate) fn design_system(
+    basis: &Basis,
+    rows: impl ExactSizeIterator<Item = ([f64; 4], [f64; 3])>,
+) -> (DMatrix<f64>, DMatrix<f64>) {
+    let mut a = DMatrix::zeros(rows.len(), basis.len());
+    let mut y = DMatrix::zeros(rows.len(), 3);
+    let mut row = vec![0.0; basis.len()];
+    for (r, (coords, params)) in rows.enumerate() {
+        basis.row(coords, &mut row);
+        for (c, v) in row.iter().enumerate() {
+            a[(r, c)] = *v;
+        }
+        for (p, v) in params.iter().enumerate() {
+            y[(r, p)] = *v;
+        }
+    }
+    (a, y)
+}
+
 /// The columns of an `n × 3` solution as the coefficient vectors of C_xx, C_yy, C_or.
 pub(crate) fn split_coeffs(x: &DMatrix<f64>) -> [Vec<f64>; 3] {
     [

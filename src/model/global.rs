@@ -1,10 +1,12 @@
 //! The global model G_{α,β}: one polynomial per channel and parameter over the whole
 //! sensor and every calibrated setting.
 
-use super::basis::{Basis, Normalisation, SpatialPoly, check_order, model_basis, solve_lsq};
-use super::{Dataset, FieldAtSetting, FittedModel, ModelError, ModelKind, find_channel};
+use super::basis::{Basis, Normalisation, SpatialPoly, solve_lsq};
+use super::{
+    Dataset, FieldAtSetting, FittedModel, ModelError, ModelKind, design_system, find_channel,
+    fit_samples, fit_setup, fitted_model_fields,
+};
 use crate::plane::{Channel, LensSetting};
-use nalgebra::DMatrix;
 
 /// One channel's coefficients: `coeffs[p][n]` for parameter p (C_xx, C_yy, C_or) and
 /// basis term n.
@@ -30,36 +32,19 @@ impl GlobalModel {
     /// # Errors
     /// Unknown settings, β too large for the session, or fewer samples than terms.
     pub fn fit(ds: &Dataset, alpha: usize, beta: usize) -> Result<Self, ModelError> {
-        ds.validate()?;
-        check_order(alpha, beta)?;
-        ds.check_beta(beta)?;
-        let norm = ds.normalisation();
-        let basis = model_basis(&norm, alpha, beta);
+        let (norm, basis) = fit_setup(ds, alpha, beta)?;
         let mut channels = Vec::new();
         for ch in ds.channels() {
-            let samples = ds.samples_of(ch);
-            if samples.len() < basis.len() {
-                return Err(ModelError::TooFewSamples {
-                    model: format!("{} ({ch})", ModelKind::Global.model_name(alpha, beta)),
-                    samples: samples.len(),
-                    terms: basis.len(),
-                });
-            }
-            let mut a = DMatrix::zeros(samples.len(), basis.len());
-            let mut y = DMatrix::zeros(samples.len(), 3);
-            let mut row = vec![0.0; basis.len()];
-            for (r, s) in samples.iter().enumerate() {
-                basis.row(
-                    global_coords(&norm, s.x, s.y, s.focal_mm, s.f_number),
-                    &mut row,
-                );
-                for (c, v) in row.iter().enumerate() {
-                    a[(r, c)] = *v;
-                }
-                for (p, v) in s.params().iter().enumerate() {
-                    y[(r, p)] = *v;
-                }
-            }
+            let samples = fit_samples(ds, ModelKind::Global, (alpha, beta), ch, basis.len())?;
+            let (a, y) = design_system(
+                &basis,
+                samples.iter().map(|s| {
+                    (
+                        global_coords(&norm, s.x, s.y, s.focal_mm, s.f_number),
+                        s.params(),
+                    )
+                }),
+            );
             let x = solve_lsq(a, &y);
             channels.push(ChannelCoeffs {
                 channel: ch,
@@ -81,25 +66,7 @@ impl GlobalModel {
 }
 
 impl FittedModel for GlobalModel {
-    fn kind(&self) -> ModelKind {
-        ModelKind::Global
-    }
-
-    fn orders(&self) -> (usize, usize) {
-        (self.alpha, self.beta)
-    }
-
-    fn terms(&self) -> usize {
-        self.basis.len()
-    }
-
-    fn normalisation(&self) -> &Normalisation {
-        &self.norm
-    }
-
-    fn channels(&self) -> Vec<Channel> {
-        self.channels.iter().map(|c| c.channel).collect()
-    }
+    fitted_model_fields!(ModelKind::Global, |c| c.channel);
 
     fn predict(&self, channel: Channel, x: f64, y: f64, s: LensSetting) -> Option<[f64; 3]> {
         let cc = self.coeffs_of(channel)?;

@@ -3,10 +3,12 @@
 //! with C¹ weights that sum to one ([`CentreGrid::blended`], the one place the blend is
 //! computed), so the field has no seams.
 
-use super::basis::{Basis, Normalisation, SpatialPoly, check_order, model_basis, solve_lsq};
-use super::{Dataset, FieldAtSetting, FittedModel, ModelError, ModelKind, find_channel};
+use super::basis::{Basis, Normalisation, SpatialPoly, solve_lsq};
+use super::{
+    Dataset, FieldAtSetting, FittedModel, ModelError, ModelKind, design_system, find_channel,
+    fit_samples, fit_setup, fitted_model_fields,
+};
 use crate::plane::{Channel, LensSetting};
-use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 /// Options of the local model.
@@ -193,22 +195,11 @@ impl LocalModel {
         beta: usize,
         opts: &LocalOptions,
     ) -> Result<Self, ModelError> {
-        ds.validate()?;
-        check_order(alpha, beta)?;
-        ds.check_beta(beta)?;
-        let norm = ds.normalisation();
-        let basis = model_basis(&norm, alpha, beta);
+        let (norm, basis) = fit_setup(ds, alpha, beta)?;
         let grid = local_grid(ds, opts);
         let mut channels = Vec::new();
         for ch in ds.channels() {
-            let samples = ds.samples_of(ch);
-            if samples.len() < basis.len() {
-                return Err(ModelError::TooFewSamples {
-                    model: format!("{} ({ch})", ModelKind::Local.model_name(alpha, beta)),
-                    samples: samples.len(),
-                    terms: basis.len(),
-                });
-            }
+            let samples = fit_samples(ds, ModelKind::Local, (alpha, beta), ch, basis.len())?;
             let pts: Vec<[f64; 2]> = samples.iter().map(|s| [s.x, s.y]).collect();
             let fitted: Vec<[Vec<f64>; 3]> = {
                 use rayon::prelude::*;
@@ -216,22 +207,18 @@ impl LocalModel {
                     .into_par_iter()
                     .map(|idx| {
                         let members = local_members(&grid, idx, &pts, basis.len());
-                        let mut a = DMatrix::zeros(members.len(), basis.len());
-                        let mut y = DMatrix::zeros(members.len(), 3);
-                        let mut row = vec![0.0; basis.len()];
-                        for (r, &m) in members.iter().enumerate() {
-                            let s = samples[m];
-                            basis.row(
-                                local_coords(&grid, &norm, idx, s.x, s.y, s.focal_mm, s.f_number),
-                                &mut row,
-                            );
-                            for (c, v) in row.iter().enumerate() {
-                                a[(r, c)] = *v;
-                            }
-                            for (p, v) in s.params().iter().enumerate() {
-                                y[(r, p)] = *v;
-                            }
-                        }
+                        let (a, y) = design_system(
+                            &basis,
+                            members.iter().map(|&m| {
+                                let s = samples[m];
+                                (
+                                    local_coords(
+                                        &grid, &norm, idx, s.x, s.y, s.focal_mm, s.f_number,
+                                    ),
+                                    s.params(),
+                                )
+                            }),
+                        );
                         super::split_coeffs(&solve_lsq(a, &y))
                     })
                     .collect()
@@ -254,25 +241,7 @@ impl LocalModel {
 }
 
 impl FittedModel for LocalModel {
-    fn kind(&self) -> ModelKind {
-        ModelKind::Local
-    }
-
-    fn orders(&self) -> (usize, usize) {
-        (self.alpha, self.beta)
-    }
-
-    fn terms(&self) -> usize {
-        self.basis.len()
-    }
-
-    fn normalisation(&self) -> &Normalisation {
-        &self.norm
-    }
-
-    fn channels(&self) -> Vec<Channel> {
-        self.channels.iter().map(|c| c.0).collect()
-    }
+    fitted_model_fields!(ModelKind::Local, |c| c.0);
 
     /// Blended over the four neighbouring centres.
     fn predict(&self, channel: Channel, x: f64, y: f64, s: LensSetting) -> Option<[f64; 3]> {

@@ -1,4 +1,4 @@
-//! Blur variation models (DESIGN.md §1.6): per channel, three polynomials predicting
+//! Blur variation models: per channel, three polynomials predicting
 //! C_xx, C_yy and C_or from sensor position (x, y), focal length f and aperture a.
 //!
 //! Global G_{α,β}: every monomial x^i y^j f^k a^l with i+j ≤ α, k+l ≤ β and
@@ -25,11 +25,11 @@ mod global;
 mod local;
 mod shape;
 
-pub(crate) use basis::split_coeffs;
 pub use basis::{
     Basis, MAX_ORDER, Normalisation, SpatialPoly, check_order, model_basis, solve_lsq,
     solve_normal, terms,
 };
+pub(crate) use basis::{design_system, split_coeffs};
 pub use dataset::{BlurSample, Dataset, PARAM_NAMES, ShotInfo};
 pub use global::{ChannelCoeffs, GlobalModel, global_coords};
 pub use local::{CentreGrid, LocalModel, LocalOptions, local_coords, local_grid, local_members};
@@ -180,6 +180,68 @@ pub fn fit_model(
         ModelKind::Local => Box::new(LocalModel::fit(ds, alpha, beta, local)?),
     })
 }
+
+/// What fitting either family starts with: `ds` checked for the orders, its
+/// normalisation and the model's basis.
+pub(crate) fn fit_setup(
+    ds: &Dataset,
+    alpha: usize,
+    beta: usize,
+) -> Result<(Normalisation, Basis), ModelError> {
+    ds.validate()?;
+    check_order(alpha, beta)?;
+    ds.check_beta(beta)?;
+    let norm = ds.normalisation();
+    let basis = model_basis(&norm, alpha, beta);
+    Ok((norm, basis))
+}
+
+/// The samples of channel `ch` a model of `kind` is fitted to, at least one per basis
+/// term (`terms`).
+pub(crate) fn fit_samples(
+    ds: &Dataset,
+    kind: ModelKind,
+    (alpha, beta): (usize, usize),
+    ch: Channel,
+    terms: usize,
+) -> Result<Vec<&BlurSample>, ModelError> {
+    let samples = ds.samples_of(ch);
+    if samples.len() < terms {
+        return Err(ModelError::TooFewSamples {
+            model: format!("{} ({ch})", kind.model_name(alpha, beta)),
+            samples: samples.len(),
+            terms,
+        });
+    }
+    Ok(samples)
+}
+
+/// The [`FittedModel`] methods both families answer from the same fields (`norm`,
+/// `alpha`, `beta`, `basis` and a list of channels).
+macro_rules! fitted_model_fields {
+    ($kind:expr, $channel_of:expr) => {
+        fn kind(&self) -> ModelKind {
+            $kind
+        }
+
+        fn orders(&self) -> (usize, usize) {
+            (self.alpha, self.beta)
+        }
+
+        fn terms(&self) -> usize {
+            self.basis.len()
+        }
+
+        fn normalisation(&self) -> &Normalisation {
+            &self.norm
+        }
+
+        fn channels(&self) -> Vec<Channel> {
+            self.channels.iter().map($channel_of).collect()
+        }
+    };
+}
+pub(crate) use fitted_model_fields;
 
 /// The entry of `entries` for `channel`; a model fitted to monochrome (Y) samples
 /// answers for G and one fitted to colour answers for Y, so a profile made from RAW

@@ -191,19 +191,7 @@ fn grid_sample(space: ShapeSpace, grid: &[f64], w: [f64; 2]) -> f64 {
     let side = space.side();
     let h = (side / 2) as f64;
     let s = space.per_unit() as f64;
-    let (u, v) = (w[0] * s + h, w[1] * s + h);
-    let (u0, v0) = (u.floor(), v.floor());
-    let (fu, fv) = (u - u0, v - v0);
-    let last = (side - 1) as f64;
-    let get = |i: f64, j: f64| {
-        if i < 0.0 || j < 0.0 || i > last || j > last {
-            0.0
-        } else {
-            grid[j as usize * side + i as usize]
-        }
-    };
-    (get(u0, v0) * (1.0 - fu) + get(u0 + 1.0, v0) * fu) * (1.0 - fv)
-        + (get(u0, v0 + 1.0) * (1.0 - fu) + get(u0 + 1.0, v0 + 1.0) * fu) * fv
+    crate::plane::bilinear_zero_outside(grid, side, w[0] * s + h, w[1] * s + h)
 }
 
 /// A measured kernel's shape beyond its Gaussian, on a space's grid (row-major):
@@ -641,11 +629,7 @@ mod tests {
 
     #[test]
     fn a_gaussian_kernel_has_no_residual_and_comes_back_as_itself() {
-        let g = Gaussian2 {
-            sigma_x: 1.4,
-            sigma_y: 0.9,
-            rho: 0.35,
-        };
+        let g = Gaussian2::new(1.4, 0.9, 0.35);
         let k = g.kernel(3);
         let r = whitened_residual(&k, &g).expect("whitens");
         let peak = unit_normal([0.0, 0.0]);
@@ -661,11 +645,7 @@ mod tests {
 
     #[test]
     fn the_residual_carries_a_tail_back_into_the_kernel() {
-        let g = Gaussian2 {
-            sigma_x: 1.1,
-            sigma_y: 1.0,
-            rho: -0.2,
-        };
+        let g = Gaussian2::new(1.1, 1.0, -0.2);
         // A core with a tail to the right.
         let tail = Gaussian2::isotropic(0.8);
         let k = Kernel::from_fn(31, 3, |dx, dy| {
@@ -682,11 +662,7 @@ mod tests {
 
     #[test]
     fn whitening_is_the_symmetric_square_root() {
-        let g = Gaussian2 {
-            sigma_x: 2.0,
-            sigma_y: 0.7,
-            rho: 0.6,
-        };
+        let g = Gaussian2::new(2.0, 0.7, 0.6);
         let wh = Whitening::of(&g).expect("positive definite");
         let a = wh.a;
         // A A = Σ.

@@ -15,11 +15,7 @@
 
 use crate::psf::Kernel;
 use rustfft::num_complex::Complex64;
-use rustfft::{Fft, FftPlanner};
 use serde::{Deserialize, Serialize};
-use std::cell::RefCell;
-use std::collections::HashMap;
-use std::sync::Arc;
 
 /// Seidel wavefront coefficients in waves (see the module documentation).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -335,30 +331,11 @@ struct PupilField {
     data: Vec<Complex64>,
 }
 
-/// A planner and the plans it made, by length.
-type Plans = (FftPlanner<f64>, HashMap<usize, Arc<dyn Fft<f64>>>);
-
-thread_local! {
-    /// Plans by length, per thread: kernels are made by the hundred per shot.
-    static PLANS: RefCell<Plans> = RefCell::new((FftPlanner::new(), HashMap::new()));
-}
-
-fn plan(m: usize) -> Arc<dyn Fft<f64>> {
-    PLANS.with(|p| {
-        let (planner, plans) = &mut *p.borrow_mut();
-        Arc::clone(
-            plans
-                .entry(m)
-                .or_insert_with(|| planner.plan_fft_forward(m)),
-        )
-    })
-}
-
 /// |FT|² of the pupil field at image offsets −half…half samples on each axis
 /// (row-major, `(2 half + 1)²`). The pupil's position in the grid only multiplies the
 /// amplitude by a phase ramp, so it does not move the PSF.
 fn amplitude_to_intensity(mut field: PupilField, m: usize, half: usize) -> Vec<f64> {
-    let fft = plan(m);
+    let fft = crate::fft::complex_forward_plan::<f64>(m);
     let mut scratch = vec![Complex64::new(0.0, 0.0); fft.get_inplace_scratch_len()];
     for row in field.data.chunks_exact_mut(m) {
         fft.process_with_scratch(row, &mut scratch);

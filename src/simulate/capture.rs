@@ -213,11 +213,6 @@ pub struct ChannelPosition {
 
 impl SquareTruth {
     #[must_use]
-    pub fn optical_of(&self, ch: Channel) -> Option<Gaussian2> {
-        self.optical.iter().find(|(c, _)| *c == ch).map(|(_, g)| *g)
-    }
-
-    #[must_use]
     pub fn pixel_of(&self, ch: Channel) -> Option<Gaussian2> {
         self.pixel.iter().find(|(c, _)| *c == ch).map(|(_, g)| *g)
     }
@@ -286,13 +281,6 @@ impl PsfField {
             }
         }
         Some(Gaussian2::from_covariance(acc[0], acc[1], acc[2]))
-    }
-
-    /// The pixel-level PSF's second moments at (x, y): optical plus the pixel box.
-    #[must_use]
-    pub fn pixel_at(&self, ch: Channel, x: f64, y: f64) -> Option<Gaussian2> {
-        self.optical_at(ch, x, y)
-            .map(|g| g.convolved_variance(1.0 / 12.0, 1.0 / 12.0, 0.0))
     }
 }
 

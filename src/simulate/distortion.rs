@@ -231,12 +231,6 @@ impl SensorMapping {
             * (6.0 * self.k[0].abs() * rho / (big_r * big_r)
                 + 20.0 * self.k[1].abs() * rho.powi(3) / big_r.powi(4))
     }
-
-    /// Whether the mapping is the identity (no distortion, no magnification).
-    #[must_use]
-    pub fn is_identity(&self) -> bool {
-        self.k == [0.0; 2] && self.magnification == 1.0
-    }
 }
 
 #[cfg(test)]

@@ -244,7 +244,7 @@ impl VirtualLens {
     #[must_use]
     pub fn gaussian_uv(&self, channel: Channel, u: f64, v: f64, s: LensSetting) -> Gaussian2 {
         if self.shape == PsfShape::Aberrated {
-            let m = self.aberrated_kernel_uv(channel, u, v, s, 4).moments();
+            let m = self.aberrated_kernel_uv(channel, (u, v), s, 4).moments();
             return Gaussian2::from_covariance(m.var_x, m.var_y, m.cov_xy);
         }
         self.field_gaussian(channel, u, v, s)
@@ -315,7 +315,7 @@ impl VirtualLens {
     ) -> Kernel {
         let g = self.field_gaussian(channel, u, v, s);
         match self.shape {
-            PsfShape::Aberrated => self.aberrated_kernel_uv(channel, u, v, s, oversample),
+            PsfShape::Aberrated => self.aberrated_kernel_uv(channel, (u, v), s, oversample),
             PsfShape::Gaussian => g.kernel(oversample),
             PsfShape::Disc => {
                 // A uniform ellipse with covariance Σ has Σ = R Rᵀ / 4 for the ellipse
@@ -378,8 +378,7 @@ impl VirtualLens {
     pub fn aberrated_kernel_uv(
         &self,
         channel: Channel,
-        u: f64,
-        v: f64,
+        (u, v): (f64, f64),
         s: LensSetting,
         oversample: usize,
     ) -> Kernel {

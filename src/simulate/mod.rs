@@ -7,6 +7,7 @@ pub mod demo;
 pub mod distortion;
 pub mod files;
 pub mod lens;
+pub mod scene;
 pub mod session;
 
 pub use crate::dng::{DngCompression, DngLayout};
@@ -17,4 +18,5 @@ pub use capture::{
 pub use distortion::{LensGeometry, SensorMapping};
 pub use files::{ShotFormat, write_shot, write_shot_as};
 pub use lens::{Aberrations, PsfShape, Seidel, VirtualLens};
+pub use scene::{blur_varying, dead_leaves, hard_edges};
 pub use session::{SampleNoise, SimulatedSession};

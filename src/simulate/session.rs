@@ -257,7 +257,7 @@ impl SimulatedSession {
                 }
                 k.normalise();
             }
-            s.gaussian = crate::experiment::fit_gaussians(&k).0;
+            s.gaussian = crate::gaussian::fit_gaussians(&k).0;
             s.kernel = Some(std::sync::Arc::new(k));
         });
     }

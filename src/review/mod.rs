@@ -1,0 +1,47 @@
+//! What the studio asks of a session's results, answered by the core so that the app
+//! only shows: measured sweep points and the model and truth curves beside them (the
+//! paper's Fig. 4), predicted and true Gaussian fields, the numbers behind one square,
+//! the kernels a photo is deblurred with, and deblurred crops of a photo region side by
+//! side (the paper's Fig. 7–8 comparison of predicted Gaussians and measured kernels).
+//!
+//! This module is core: it never touches egui. Its parts, each re-exported here:
+//! - [`sweeps`]: settings along a sweep, measured sweep points, model and truth curves;
+//! - [`fields`]: predicted and true Gaussian fields on a grid, field differences,
+//!   colour ranges;
+//! - [`kernels`]: predicted kernels at points and their error against measured ones,
+//!   the noisy-kernel criterion, the facts of one aligned square;
+//! - [`crops`]: a photo region deblurred with a profile and with measured kernels;
+//! - [`export`]: a deblurred photo written whole, plot data as CSV, PNG cuts;
+//! - [`plot`]: cross-validation curves and tick placement;
+//! - [`advice`]: shooting advice.
+
+pub mod advice;
+pub mod crops;
+pub mod export;
+pub mod fields;
+pub mod kernels;
+pub mod plot;
+pub mod sweeps;
+
+pub use advice::{AdviceLevel, ShootingAdvice, shooting_advice};
+pub use crops::{
+    DeblurComparison, Region, compare_deblur, crop_capture, deblur_region, display_whites,
+    measured_at, measured_source, profile_source, region_planes,
+};
+pub use export::{PlotTable, export_deblurred, plot_csv, write_png_crop};
+pub use fields::{
+    FieldDifference, colour_range, field_difference, field_grid, predicted_at, predicted_field,
+    truth_field, truth_pixel_gaussian,
+};
+pub use kernels::{
+    KernelError, KernelTails, NOISY_TAIL_FRACTION, PredictedKernel, SquareFacts, kernel_errors,
+    kernel_tail_fraction, kernel_tails, no_shape_reason, noisy_kernel_reason, predicted_kernels,
+    skip_reasons, square_facts,
+};
+pub use plot::{cv_cdf_curves, cv_curve, nice_ticks};
+pub use sweeps::{
+    SweepPoint, model_curve, nearest_value, sweep_points, sweep_settings, truth_curve,
+};
+
+#[cfg(test)]
+mod tests;
