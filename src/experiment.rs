@@ -11,17 +11,13 @@ use crate::metrics::{SsimParams, ssim_f64};
 use crate::plane::{Channel, LensSetting, Plane};
 use crate::psf::{Gaussian2, Kernel};
 use crate::simulate::lens::{PsfShape, VirtualLens};
-use crate::simulate::scene::{dead_leaves, hard_edges};
+use crate::simulate::scene::{blur_varying, dead_leaves, hard_edges};
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal};
 use rand_pcg::Pcg64;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicUsize, Ordering};
-
-/// Moved to [`crate::simulate::scene`]; kept at this path for the callers that still
-/// name it here.
-pub use crate::simulate::scene::blur_varying;
 
 /// One kernel of the experiment with its two Gaussian approximations (pixel-level, in
 /// sensor pixels).

@@ -964,18 +964,23 @@ impl Project {
     /// # Errors
     /// Shots of different cameras or lenses.
     pub fn dataset(&self) -> Result<Option<Dataset>, crate::model::ModelError> {
-        let shots: Vec<MeasuredShot> = self
-            .measured_shots()
+        let shots = self.shots_with_settings();
+        if shots.is_empty() {
+            return Ok(None);
+        }
+        pipeline::dataset(&shots).map(Some)
+    }
+
+    /// The measured shots whose setting is known (recorded, or in the kernels file).
+    #[must_use]
+    pub fn shots_with_settings(&self) -> Vec<MeasuredShot> {
+        self.measured_shots()
             .into_iter()
             .filter(|s| {
                 s.given.focal_mm.or(s.kernels.focal_mm).is_some()
                     && s.given.f_number.or(s.kernels.f_number).is_some()
             })
-            .collect();
-        if shots.is_empty() {
-            return Ok(None);
-        }
-        pipeline::dataset(&shots).map(Some)
+            .collect()
     }
 
     /// Calibration of every shot with kernels, detached to run on any thread.

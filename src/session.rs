@@ -264,7 +264,7 @@ impl Session {
         &self.folder
     }
 
-    /// Opens a session folder, a `session.json`, or a manifest (DESIGN.md §3), which
+    /// Opens a session folder, a `session.json`, or a manifest (docs/formats.md), which
     /// becomes a session in the manifest's folder. A folder without `session.json` is a
     /// new, empty session there.
     ///

@@ -234,7 +234,7 @@ fn every_view_on_the_demo_session() {
         &mut h,
         "the first detection",
         Duration::from_secs(120),
-        |a| !a.detections().next().is_none(),
+        |a| a.detections().next().is_some(),
     );
     let cancelled_at = Instant::now();
     h.get_by_label("Cancel").click();
@@ -1242,13 +1242,13 @@ fn removing_shots_and_switching_sessions_while_jobs_run() {
     step_until(&mut h, "session A", Duration::from_secs(60), demo_ready);
     h.state_mut().commands.push(Command::RunDetect(None));
     step_until(&mut h, "a first detection", Duration::from_secs(120), |a| {
-        !a.detections().next().is_none() || idle(a)
+        a.detections().next().is_some() || idle(a)
     });
     // A shot the job has not finished: removed while it runs (or waits its turn).
     let gone = first_unmeasured(h.state(), |a, id| a.detection(id).is_some());
     h.state_mut().commands.push(Command::RemoveShot(gone));
     step_until(&mut h, "detection", Duration::from_secs(240), idle);
-    assert!(!h.state().detection(gone).is_some());
+    assert!(h.state().detection(gone).is_none());
 
     h.state_mut().commands.push(Command::RunKernels(None));
     h.run_steps(1);
@@ -1258,7 +1258,7 @@ fn removing_shots_and_switching_sessions_while_jobs_run() {
         &mut h,
         "a first kernels result",
         Duration::from_secs(600),
-        |a| !a.measured().next().is_none() || idle(a),
+        |a| a.measured().next().is_some() || idle(a),
     );
     // Another session while the kernels job may still run: its late results are
     // dropped, and session B's shots (with the same ids) get none of them.

@@ -6,13 +6,7 @@ use crate::plane::{Capture, Channel, ChannelPlane, Plane};
 
 /// Display value of a linear sample: sRGB-like encoding so mid-greys look right.
 pub(crate) fn encode(v: f32) -> u8 {
-    let v = v.clamp(0.0, 1.0);
-    let e = if v <= 0.003_130_8 {
-        12.92 * v
-    } else {
-        1.055 * v.powf(1.0 / 2.4) - 0.055
-    };
-    (e * 255.0 + 0.5) as u8
+    (crate::plane::srgb_encode(v.clamp(0.0, 1.0)) * 255.0 + 0.5) as u8
 }
 
 /// A grey texture of one channel (the pooled grey when `channel` is `None`) at its

@@ -144,17 +144,13 @@ pub fn write_csv(out: &Path, report: &CvReport) -> Result<()> {
             for p in curve {
                 let _ = writeln!(
                     curves,
-                    "{kind},{stage},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
-                    p.alpha,
-                    p.beta,
-                    p.terms,
-                    p.mean_pct,
-                    p.mean_error_pct[0],
-                    p.mean_error_pct[1],
-                    p.mean_error_pct[2],
-                    p.p95_error_pct[0],
-                    p.p95_error_pct[1],
-                    p.p95_error_pct[2]
+                    "{kind},{stage},{}",
+                    error_columns(
+                        (p.alpha, p.beta, p.terms),
+                        p.mean_pct,
+                        p.mean_error_pct,
+                        p.p95_error_pct
+                    )
                 );
             }
         }
@@ -178,18 +174,14 @@ pub fn write_csv(out: &Path, report: &CvReport) -> Result<()> {
             let kind = format!("{:?}", m.kind).to_lowercase();
             let _ = writeln!(
                 summary,
-                "{kind},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
+                "{kind},{},{}",
                 m.label,
-                m.alpha,
-                m.beta,
-                m.terms,
-                m.mean_pct,
-                m.mean_error_pct[0],
-                m.mean_error_pct[1],
-                m.mean_error_pct[2],
-                m.p95_error_pct[0],
-                m.p95_error_pct[1],
-                m.p95_error_pct[2]
+                error_columns(
+                    (m.alpha, m.beta, m.terms),
+                    m.mean_pct,
+                    m.mean_error_pct,
+                    m.p95_error_pct
+                )
             );
             let c = &m.error_cdf;
             for i in 0..c.percentiles.len() {
@@ -204,4 +196,18 @@ pub fn write_csv(out: &Path, report: &CvReport) -> Result<()> {
         write_atomic(&with_suffix(out, ".test_cdf.csv"), cdf.as_bytes())?;
     }
     Ok(())
+}
+
+/// A model's orders and its errors as CSV columns: α, β, terms, the mean, then the mean
+/// and the 95th percentile of C_xx, C_yy, C_or (% of range).
+fn error_columns(
+    (alpha, beta, terms): (usize, usize, usize),
+    mean_pct: f64,
+    mean: [f64; 3],
+    p95: [f64; 3],
+) -> String {
+    format!(
+        "{alpha},{beta},{terms},{mean_pct:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
+        mean[0], mean[1], mean[2], p95[0], p95[1], p95[2]
+    )
 }

@@ -1,5 +1,5 @@
 //! Stage 3: find the chart's squares in a shot and align each to sub-pixel accuracy
-//! (DESIGN.md §1.3).
+//! (Kee et al. 2011, §2.2; ARCHITECTURE.md, `detect`).
 //!
 //! Detection runs on the full-resolution grey image: X-junctions of the checkerboard
 //! (Hessian saddles that pass a four-sector ring test) are grown into a lattice whose
@@ -305,7 +305,7 @@ fn square(
     out
 }
 
-/// `detect.json` (DESIGN.md §3).
+/// `detect.json` (its format is in docs/formats.md).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct DetectFile {
     pub schema: String,

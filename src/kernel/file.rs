@@ -1,4 +1,4 @@
-//! The kernels file (`lensblur.kernels/1`, DESIGN.md §3): what `lensblur kernels`
+//! The kernels file (`lensblur.kernels/1`, docs/formats.md): what `lensblur kernels`
 //! writes, and what calibration and deblurring read. One type for both directions so
 //! the writer and its readers cannot drift apart.
 

@@ -297,14 +297,7 @@ fn make_demo_photo(
     let scaled = image::imageops::resize(&source, sw, sh, image::imageops::FilterType::Lanczos3);
     let (x0, y0) = ((sw as usize - pw) / 2, (sh as usize - ph) / 2);
     // The shots are linear; the photo is sRGB-encoded: blur what the sensor sees.
-    let linear = |v: u8| {
-        let c = f32::from(v) / 255.0;
-        if c <= 0.04045 {
-            c / 12.92
-        } else {
-            ((c + 0.055) / 1.055).powf(2.4)
-        }
-    };
+    let linear = |v: u8| crate::plane::srgb_decode(f32::from(v) / 255.0);
     let mut planes = Vec::with_capacity(3);
     for (i, channel) in [Channel::R, Channel::G, Channel::B].into_iter().enumerate() {
         job.check().map_err(|e| parse(e.to_string()))?;
@@ -315,7 +308,7 @@ fn make_demo_photo(
                     linear(scaled.get_pixel((x0 + x) as u32, (y0 + y) as u32)[i]);
             }
         }
-        let blurred = crate::experiment::blur_varying(&sharp, pad, w, h, 16, &|x, y| {
+        let blurred = crate::simulate::blur_varying(&sharp, pad, w, h, 16, &|x, y| {
             true_kernel(channel, x, y)
         });
         planes.push(ChannelPlane {

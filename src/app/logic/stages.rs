@@ -173,14 +173,7 @@ pub(super) fn spawn_dataset(app: &mut StudioApp) {
     let Some(p) = app.project.as_ref() else {
         return;
     };
-    let shots: Vec<MeasuredShot> = p
-        .measured_shots()
-        .into_iter()
-        .filter(|s| {
-            s.given.focal_mm.or(s.kernels.focal_mm).is_some()
-                && s.given.f_number.or(s.kernels.f_number).is_some()
-        })
-        .collect();
+    let shots: Vec<MeasuredShot> = p.shots_with_settings();
     if shots.is_empty() {
         app.dataset = None;
         return;

@@ -334,7 +334,7 @@ fn help_ui(app: &mut StudioApp, ctx: &egui::Context) {
 
 /// The crates the studio is built on, as the About window credits them.
 const CRATES: &[&str] = &[
-    "egui, eframe, egui_plot, egui_extras, wgpu (the window)",
+    "egui, eframe, egui_plot, wgpu (the window)",
     "rfd (file dialogs)",
     "rawloader, imagepipe, ljpeg, kamadak-exif (RAW files and EXIF)",
     "image, tiff, imageproc (images)",
