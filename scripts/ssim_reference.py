@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Reference SSIM/PSNR values for tests/deblur.rs, from scikit-image.
+"""Reference SSIM/PSNR values for tests/suite/deblur.rs, from scikit-image.
 
 The image pairs are the integer formulas of `lensblur::metrics::reference_pair`,
 evaluated identically here. Run once; the printed numbers are pasted into the test.

@@ -623,9 +623,9 @@ fn direct_and_fft_operators_give_the_same_kernels() {
 /// The full-size figures of the README: 10-megapixel shots of the 24 × 16 chart at the
 /// demo lens's two extreme settings, RAW through a DNG file and 16-bit RGB, every
 /// square. Minutes in a debug build; run in release:
-/// `cargo test --release --test kernels -- --ignored --nocapture`.
+/// `cargo test --release --test suite kernels:: -- --ignored --nocapture`.
 #[test]
-#[ignore = "10 MP figures: cargo test --release --test kernels -- --ignored --nocapture"]
+#[ignore = "10 MP figures: cargo test --release --test suite kernels:: -- --ignored --nocapture"]
 fn full_size_figures() {
     let spec = ChartSpec::default();
     let lens = VirtualLens::demo();

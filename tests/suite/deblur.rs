@@ -1372,7 +1372,7 @@ fn deblur_command_refuses_bad_input_with_one_line_naming_the_file() {
 }
 
 #[test]
-#[ignore = "10 MP figures, minutes: cargo test --test deblur -- --ignored --nocapture"]
+#[ignore = "10 MP figures, minutes: cargo test --test suite deblur:: -- --ignored --nocapture"]
 fn full_size_spatially_varying_figures() {
     let lens = VirtualLens::demo();
     let (w, h, pad) = (3872, 2592, 32);

@@ -1,0 +1,18 @@
+//! The integration tests, one binary: each module is what was a test file of its own.
+//! Linked once instead of once per file, which a cold build (CI) pays for in minutes.
+//! The studio's tests stay a binary of their own (`tests/studio.rs`): a process has one
+//! GPU deblurrer, and the studio lends it the window's device.
+
+mod assets;
+mod batch;
+mod crash_safety;
+mod deblur;
+mod detect;
+mod formats;
+mod fuzz_smoke;
+mod kernels;
+mod load;
+mod model;
+mod pipeline;
+mod project;
+mod simulate;
