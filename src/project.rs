@@ -645,10 +645,16 @@ impl Project {
     /// The session cannot be read, or the folder is locked or cannot be locked.
     pub fn open(path: &Path, who: &str) -> Result<(Self, Opened), ProjectError> {
         let session = Session::open(path)?;
-        let persistent = path.is_dir()
-            || path
-                .file_name()
-                .is_some_and(|n| n == crate::session::SESSION_FILE);
+        // A session file, named or in the folder given, is kept up to date; a manifest
+        // (or a folder holding only one) is read, never turned into a session.
+        let persistent = session
+            .folder()
+            .join(crate::session::SESSION_FILE)
+            .is_file()
+            && (path.is_dir()
+                || path
+                    .file_name()
+                    .is_some_and(|n| n == crate::session::SESSION_FILE));
         let (lock, swept) = session.lock(who)?;
         let mut p = Self::with_lock(session, Some(lock));
         p.persistent = persistent;

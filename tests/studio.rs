@@ -64,6 +64,14 @@ fn new_harness_with(
         .build_eframe(move |cc| StudioApp::new(&cc.egui_ctx, options))
 }
 
+/// Waits until the studio's saves so far are on disk: it writes `session.json` on a
+/// thread of its own, and a test reading the file must not race it.
+fn flush_saves(h: &Harness<'_, StudioApp>) {
+    if let Some(p) = h.state().project() {
+        p.flush().expect("the session is saved");
+    }
+}
+
 /// Steps the UI (in real time, so job threads progress) until `done` holds.
 fn step_until(
     h: &mut Harness<'_, StudioApp>,
@@ -222,6 +230,7 @@ fn every_view_on_the_demo_session() {
     );
     let n = h.state().session().map_or(0, |s| s.shots.len());
     assert_eq!(n, n_shots);
+    flush_saves(&h);
     assert!(
         demo_dir.join("session.json").is_file(),
         "the demo session is cached"
@@ -413,6 +422,7 @@ fn every_view_on_the_demo_session() {
         .expect("run lensblur calibrate");
     assert!(!refused.status.success() && !cli_profile.exists());
     let copy = dir.path().join("copy");
+    flush_saves(&h);
     copy_folder(&demo_dir, &copy);
     let cli = calibrate_on_the_command_line(&copy, &cli_profile);
     assert!(
@@ -930,6 +940,7 @@ fn raw_shots_and_photos_are_developed_and_export_as_dng() {
 
     let mut h = new_harness(demo.path(), Some(&folder));
     h.run_steps(2);
+    flush_saves(&h);
     let settings = lensblur::session::Session::open(&folder)
         .expect("session")
         .settings;
@@ -1058,6 +1069,7 @@ fn light_theme_and_user_session() {
     let mut h = new_harness(demo.path(), Some(&folder));
     h.run_steps(2);
     assert!(h.state().session().is_some_and(|s| s.shots.is_empty()));
+    flush_saves(&h);
     assert!(
         folder.join("session.json").is_file(),
         "a new session is saved at once"
@@ -1073,6 +1085,7 @@ fn light_theme_and_user_session() {
     step_until(&mut h, "the dropped shot", Duration::from_secs(30), |a| {
         a.previews().count() == 1
     });
+    flush_saves(&h);
     let saved = lensblur::session::Session::open(&folder).expect("session saved as it changes");
     assert_eq!(saved.shots.len(), 1);
     // Settings typed for the shot are saved too.
@@ -1083,6 +1096,7 @@ fn light_theme_and_user_session() {
         f_number: Some(8.0),
     });
     h.run_steps(2);
+    flush_saves(&h);
     let saved = lensblur::session::Session::open(&folder).expect("session");
     assert_eq!(saved.shots[0].setting().map(|s| s.focal_mm), Some(35.0));
     // The chart of this shot, set in the session's settings.
@@ -1091,6 +1105,7 @@ fn light_theme_and_user_session() {
         settings: saved.settings.clone(),
     });
     h.run_steps(2);
+    flush_saves(&h);
     assert_eq!(
         lensblur::session::Session::open(&folder)
             .expect("session")

@@ -148,13 +148,14 @@ pub fn measure_project(
     if let Some(e) = save_failed {
         return Err(e.into());
     }
-    eprintln!("{measured} shots measured, {cached} from the cache");
+    // A failure is the run's last line, on its own: it names the shot and the reason.
     if let Some(first) = failures.first() {
         match failures.len() {
             1 => anyhow::bail!("{first}"),
             n => anyhow::bail!("{first} (and {} more shots failed)", n - 1),
         }
     }
+    eprintln!("{measured} shots measured, {cached} from the cache");
     Ok(project)
 }
 

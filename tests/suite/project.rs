@@ -179,3 +179,31 @@ fn a_removed_shot_is_skipped_and_its_late_events_dropped_and_failures_recorded()
             .is_err()
     );
 }
+
+#[test]
+fn kernels_on_a_session_measures_what_is_missing_and_records_it() {
+    let dir = tempfile::tempdir().unwrap();
+    small_demo(dir.path());
+    let run = || {
+        std::process::Command::new(env!("CARGO_BIN_EXE_lensblur"))
+            .args(["kernels", "--session"])
+            .arg(dir.path())
+            .output()
+            .unwrap()
+    };
+    let out = run();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("4 shots measured, 0 from the cache"), "{err}");
+    assert!(err.contains("4 of 4 shots have kernels"), "{err}");
+    // Each shot's status is in the session file the studio opens.
+    let s = Session::open(dir.path()).unwrap();
+    assert!(
+        s.shots
+            .iter()
+            .all(|x| x.detect.is_done() && x.kernels.is_done())
+    );
+    let out = run();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("0 shots measured, 4 from the cache"), "{err}");
+}
