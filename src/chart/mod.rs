@@ -226,6 +226,18 @@ impl ChartSpec {
         )
     }
 
+    /// The largest square side, in whole half-millimetres, at which this chart's paper
+    /// (its squares and white border) fits on `paper` in landscape, inside the
+    /// [`PRINTER_MARGIN_MM`] most printers leave blank at each edge.
+    #[must_use]
+    pub fn square_to_fill(&self, paper: Paper) -> f64 {
+        let (w, h) = paper.landscape_mm();
+        let m = 2.0 * self.margin;
+        let across = (w - 2.0 * PRINTER_MARGIN_MM) / (self.cols as f64 + m);
+        let down = (h - 2.0 * PRINTER_MARGIN_MM) / (self.rows as f64 + m);
+        (across.min(down) * 2.0).floor() / 2.0
+    }
+
     /// Whether the chart point is white; `None` outside the paper. The reference
     /// against which the exact rasteriser is tested.
     #[must_use]
@@ -756,8 +768,86 @@ fn triangle_disc_area(a: [f64; 2], b: [f64; 2]) -> f64 {
     sector(a, p0) + tri(p0, p1) + sector(p1, b)
 }
 
+/// What printers leave blank at each edge of a sheet, at most.
+pub const PRINTER_MARGIN_MM: f64 = 10.0;
+
+/// Paper sizes a chart can be fitted to (`lensblur chart --paper`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Paper {
+    #[default]
+    A4,
+    A3,
+    A2,
+    Letter,
+    Tabloid,
+}
+
+impl Paper {
+    /// The names `lensblur chart --paper` takes, in the order of [`Paper::ALL`].
+    pub const NAMES: [&'static str; 5] = ["a4", "a3", "a2", "letter", "tabloid"];
+    pub const ALL: [Paper; 5] = [
+        Paper::A4,
+        Paper::A3,
+        Paper::A2,
+        Paper::Letter,
+        Paper::Tabloid,
+    ];
+
+    /// Width and height in millimetres, landscape.
+    #[must_use]
+    pub fn landscape_mm(self) -> (f64, f64) {
+        match self {
+            Paper::A4 => (297.0, 210.0),
+            Paper::A3 => (420.0, 297.0),
+            Paper::A2 => (594.0, 420.0),
+            Paper::Letter => (279.4, 215.9),
+            Paper::Tabloid => (431.8, 279.4),
+        }
+    }
+}
+
+impl std::str::FromStr for Paper {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let lower = s.to_ascii_lowercase();
+        Self::NAMES
+            .iter()
+            .position(|n| *n == lower)
+            .map(|i| Self::ALL[i])
+            .ok_or_else(|| format!("{s}: paper is one of {}", Self::NAMES.join(", ")))
+    }
+}
+
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_default_chart_fills_each_sheet_inside_its_margins() {
+        for (paper, want) in [
+            (Paper::A4, 10.5),
+            (Paper::A3, 15.0),
+            (Paper::A2, 22.0),
+            (Paper::Letter, 9.5),
+            (Paper::Tabloid, 14.0),
+        ] {
+            let chart = ChartSpec::default();
+            let s = chart.square_to_fill(paper);
+            assert_eq!(s, want, "{paper:?}");
+            let (w, h) = paper.landscape_mm();
+            let room = |side: f64| {
+                let (pw, ph) = ChartSpec {
+                    square_mm: side,
+                    ..ChartSpec::default()
+                }
+                .paper_mm();
+                pw <= w - 2.0 * PRINTER_MARGIN_MM && ph <= h - 2.0 * PRINTER_MARGIN_MM
+            };
+            assert!(room(s), "{paper:?}");
+            assert!(!room(s + 0.5), "{paper:?}: half a millimetre more fits");
+        }
+        assert_eq!("A3".parse::<Paper>(), Ok(Paper::A3));
+        assert!("b5".parse::<Paper>().is_err());
+    }
+
     use super::*;
 
     /// The default chart cut to `cols` × `rows` squares.

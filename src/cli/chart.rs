@@ -1,10 +1,11 @@
-//! `lensblur chart --out chart.{svg,pdf,png} [--cols C --rows R --square-mm S --dpi D]
-//! [--spec-out chart.json]`: the calibration chart for printing, and its spec.
+//! `lensblur chart --out chart.{svg,pdf,png} [--cols C --rows R --square-mm S | --paper
+//! a4|a3|a2|letter|tabloid] [--dpi D] [--spec-out chart.json]`: the calibration chart
+//! for printing, and its spec.
 
 use super::common::write_atomic;
 use anyhow::{Result, bail};
-use lensblur::chart::ChartSpec;
 use lensblur::chart::export::{to_pdf, to_plane, to_svg};
+use lensblur::chart::{ChartSpec, Paper};
 use lensblur::plane::Channel;
 use lensblur::raw::save_planes;
 use std::path::PathBuf;
@@ -23,8 +24,12 @@ pub struct Args {
     #[arg(long, default_value_t = 16)]
     pub rows: usize,
     /// Printed side of a square, millimetres.
-    #[arg(long, default_value_t = 20.0)]
+    #[arg(long, default_value_t = 20.0, conflicts_with = "paper")]
     pub square_mm: f64,
+    /// Size the squares to fill a sheet (landscape, inside a 10 mm printer margin),
+    /// in whole half-millimetres: a4, a3, a2, letter or tabloid.
+    #[arg(long, value_parser = |s: &str| s.parse::<Paper>())]
+    pub paper: Option<Paper>,
     /// White border around the checkerboard, in squares.
     #[arg(long, default_value_t = 1.0)]
     pub margin: f64,
@@ -38,10 +43,20 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> Result<()> {
+    let square_mm = match args.paper {
+        Some(p) => ChartSpec {
+            cols: args.cols,
+            rows: args.rows,
+            margin: args.margin,
+            ..ChartSpec::default()
+        }
+        .square_to_fill(p),
+        None => args.square_mm,
+    };
     let spec = ChartSpec {
         cols: args.cols,
         rows: args.rows,
-        square_mm: args.square_mm,
+        square_mm,
         margin: args.margin,
         ..ChartSpec::default()
     };

@@ -28,3 +28,24 @@ fn assets_are_the_default_chart() {
         "assets/chart_24x16_20mm.pdf is not what `lensblur chart` writes"
     );
 }
+
+/// The charts for A4, A3 and A2 are the default chart with its squares sized to each
+/// sheet (`lensblur chart --paper a4 --out assets/chart_a4.pdf --spec-out
+/// assets/chart_a4.json`, and so on).
+#[test]
+fn the_sheet_charts_are_the_default_chart_sized_to_their_paper() {
+    for paper in ["a4", "a3", "a2"] {
+        let want = ChartSpec::default();
+        let spec: ChartSpec =
+            serde_json::from_slice(&asset(&format!("chart_{paper}.json"))).expect("spec");
+        let sized = ChartSpec {
+            square_mm: want.square_to_fill(paper.parse().expect("a paper")),
+            ..want
+        };
+        assert_eq!(spec, sized, "{paper}");
+        assert!(
+            asset(&format!("chart_{paper}.pdf")) == to_pdf(&spec).expect("pdf"),
+            "assets/chart_{paper}.pdf is not what `lensblur chart --paper {paper}` writes"
+        );
+    }
+}
