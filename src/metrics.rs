@@ -162,6 +162,46 @@ pub fn reference_pair(index: usize, w: usize, h: usize) -> (Vec<f64>, Vec<f64>) 
     (a, b)
 }
 
+/// Colour error at edges: the RMS, over the strongest `fraction` of the truth's edges
+/// (by the gradient of its green plane), of how far an RGB image's colour differences
+/// (R − G, B − G) are from the truth's. A deblurred image that shifts or sharpens its
+/// channels differently shows fringes there before anywhere else; on a neutral target
+/// (the chart) the truth's differences are zero and this is the fringes themselves.
+///
+/// # Panics
+/// If the planes' sizes differ.
+#[must_use]
+pub fn edge_colour_error(image: [&Plane; 3], truth: [&Plane; 3], fraction: f64) -> f64 {
+    let g = truth[1];
+    let (w, h) = (g.width, g.height);
+    for p in image.iter().chain(truth.iter()) {
+        assert!(p.width == w && p.height == h, "image sizes differ");
+    }
+    if w < 3 || h < 3 {
+        return f64::NAN;
+    }
+    let mut grad: Vec<(f32, usize)> = Vec::with_capacity((w - 2) * (h - 2));
+    for y in 1..h - 1 {
+        for x in 1..w - 1 {
+            let i = y * w + x;
+            let gx = g.data[i + 1] - g.data[i - 1];
+            let gy = g.data[i + w] - g.data[i - w];
+            grad.push((gx * gx + gy * gy, i));
+        }
+    }
+    let keep = ((grad.len() as f64 * fraction.clamp(0.0, 1.0)).round() as usize).max(1);
+    grad.select_nth_unstable_by(keep - 1, |a, b| b.0.total_cmp(&a.0));
+    let mut sum = 0.0;
+    for &(_, i) in &grad[..keep] {
+        let diff = |c: usize| {
+            f64::from(image[c].data[i] - image[1].data[i])
+                - f64::from(truth[c].data[i] - truth[1].data[i])
+        };
+        sum += diff(0).powi(2) + diff(2).powi(2);
+    }
+    (sum / (2 * keep) as f64).sqrt()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -170,5 +210,37 @@ mod tests {
     fn identical_images_have_ssim_one() {
         let (a, _) = reference_pair(0, 40, 30);
         assert!((ssim_f64(&a, &a, 40, 30, &SsimParams::default()) - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn colour_error_at_edges_sees_a_shifted_channel_and_nothing_else() {
+        let (w, h) = (40, 30);
+        // A neutral step edge and a gentle ramp.
+        let grey = |x: usize, y: usize| if x < 20 { 0.2 } else { 0.8 } + 0.001 * y as f32;
+        let plane = |shift: usize| {
+            let mut p = Plane::new(w, h);
+            for y in 0..h {
+                for x in 0..w {
+                    p.data[y * w + x] = grey(x.saturating_sub(shift), y);
+                }
+            }
+            p
+        };
+        let truth = [plane(0), plane(0), plane(0)];
+        let t = [&truth[0], &truth[1], &truth[2]];
+        assert_eq!(edge_colour_error(t, t, 0.1), 0.0);
+        // The same colour change everywhere is not a fringe.
+        let mut tinted = truth.clone();
+        tinted[0].data.iter_mut().for_each(|v| *v += 0.05);
+        let tinted_err = edge_colour_error([&tinted[0], &tinted[1], &tinted[2]], t, 0.1);
+        assert!(
+            (tinted_err - 0.05 / 2f64.sqrt()).abs() < 1e-6,
+            "{tinted_err}"
+        );
+        // Red one pixel right of green and blue: a fringe along the edge.
+        let fringed = [plane(1), plane(0), plane(0)];
+        // (5 %: the edge's two columns, not the ramp.)
+        let e = edge_colour_error([&fringed[0], &fringed[1], &fringed[2]], t, 0.05);
+        assert!(e > 0.25, "{e}");
     }
 }

@@ -27,12 +27,13 @@ pub struct DemoSpec {
 }
 
 impl DemoSpec {
-    /// What the studio makes on first launch: modest shots of a 16 × 10 chart at a
-    /// 3 × 3 grid of settings (enough for a β = 2 model), small enough that every stage
-    /// runs in minutes on a laptop.
+    /// What the studio makes on first launch: 720 × 480 shots of a 12 × 8 chart (squares
+    /// of about 54 px, as many pixels as a kernel needs) at a 3 × 3 grid of settings
+    /// (enough for a β = 2 model): small enough that the first launch makes, measures
+    /// and calibrates it in about a minute on a 2-core laptop.
     #[must_use]
     pub fn studio() -> Self {
-        Self::grid(960, 640, &[24.0, 50.0, 105.0], &[4.0, 5.6, 10.0]).with_chart(16, 10)
+        Self::grid(720, 480, &[24.0, 50.0, 105.0], &[4.0, 5.6, 10.0]).with_chart(12, 8)
     }
 
     /// A small demo for tests: 600 × 400 shots at a 2 × 2 grid of settings.
@@ -235,16 +236,9 @@ fn make_demo_photo(
     lens: &crate::simulate::VirtualLens,
     job: &crate::job::JobContext,
 ) -> Result<DemoPhoto, SessionError> {
-    use crate::plane::{Capture, Channel, ChannelPlane, Plane};
+    use crate::plane::{Capture, Channel, ChannelPlane};
     let path = dir.join(DEMO_PHOTO_FILE);
-    let setting = spec
-        .settings
-        .get(spec.settings.len() / 2)
-        .copied()
-        .unwrap_or(LensSetting {
-            focal_mm: 50.0,
-            f_number: 5.6,
-        });
+    let setting = demo_photo_setting(spec);
     let photo = DemoPhoto {
         path: PathBuf::from(DEMO_PHOTO_FILE),
         focal_mm: setting.focal_mm,
@@ -259,57 +253,13 @@ fn make_demo_photo(
         path: path.clone(),
         reason,
     };
-    let true_kernel = |channel: Channel, x: f64, y: f64| {
-        let (u, v) = crate::simulate::VirtualLens::normalised(x, y, w, h);
-        crate::deblur::plane_kernel(
-            &lens
-                .optical_kernel_uv(channel, u, v, setting, 3)
-                .pixel_integrated(),
-            1,
-        )
-    };
-    // The widest kernel is in a corner; the sharp image extends past the frame by that
-    // much so the frame's edges are blurred from real content, not from a border.
-    let pad = [Channel::R, Channel::G, Channel::B]
-        .iter()
-        .flat_map(|&c| {
-            [
-                (0.0, 0.0),
-                ((w - 1) as f64, 0.0),
-                (0.0, (h - 1) as f64),
-                ((w - 1) as f64, (h - 1) as f64),
-            ]
-            .map(|(x, y)| true_kernel(c, x, y).size / 2)
-        })
-        .max()
-        .unwrap_or(0)
-        + 2;
-    let (pw, ph) = (w + 2 * pad, h + 2 * pad);
-    let source = image::load_from_memory(DEMO_PHOTO_SOURCE)
-        .map_err(|e| parse(format!("the built-in photo: {e}")))?
-        .into_rgb8();
-    // Cover the padded frame (scale to fill, centre crop), as a print fills a frame.
-    let scale = (pw as f64 / f64::from(source.width())).max(ph as f64 / f64::from(source.height()));
-    let (sw, sh) = (
-        ((f64::from(source.width()) * scale).ceil() as u32).max(pw as u32),
-        ((f64::from(source.height()) * scale).ceil() as u32).max(ph as u32),
-    );
-    let scaled = image::imageops::resize(&source, sw, sh, image::imageops::FilterType::Lanczos3);
-    let (x0, y0) = ((sw as usize - pw) / 2, (sh as usize - ph) / 2);
-    // The shots are linear; the photo is sRGB-encoded: blur what the sensor sees.
-    let linear = |v: u8| crate::plane::srgb_decode(f32::from(v) / 255.0);
+    let pad = photo_pad(spec, lens, setting);
+    let sharp = sharp_photo(w + 2 * pad, h + 2 * pad).map_err(parse)?;
     let mut planes = Vec::with_capacity(3);
-    for (i, channel) in [Channel::R, Channel::G, Channel::B].into_iter().enumerate() {
+    for (sharp, channel) in sharp.iter().zip([Channel::R, Channel::G, Channel::B]) {
         job.check().map_err(|e| parse(e.to_string()))?;
-        let mut sharp = Plane::new(pw, ph);
-        for y in 0..ph {
-            for x in 0..pw {
-                sharp.data[y * pw + x] =
-                    linear(scaled.get_pixel((x0 + x) as u32, (y0 + y) as u32)[i]);
-            }
-        }
-        let blurred = crate::simulate::blur_varying(&sharp, pad, w, h, 16, &|x, y| {
-            true_kernel(channel, x, y)
+        let blurred = crate::simulate::blur_varying(sharp, pad, w, h, 16, &|x, y| {
+            true_photo_kernel(lens, spec, setting, channel, x, y)
         });
         planes.push(ChannelPlane {
             channel,
@@ -332,6 +282,111 @@ fn make_demo_photo(
     write_rgb16_png(&path, &capture)?;
     job.report("blurring the demo photo", 1, 1);
     Ok(photo)
+}
+
+/// The demo photo's setting: the middle one of the spec's, which the demo measures.
+fn demo_photo_setting(spec: &DemoSpec) -> LensSetting {
+    spec.settings
+        .get(spec.settings.len() / 2)
+        .copied()
+        .unwrap_or(LensSetting {
+            focal_mm: 50.0,
+            f_number: 5.6,
+        })
+}
+
+/// The lens's true pixel-level kernel of `channel` at sensor point (x, y).
+fn true_photo_kernel(
+    lens: &crate::simulate::VirtualLens,
+    spec: &DemoSpec,
+    setting: LensSetting,
+    channel: crate::plane::Channel,
+    x: f64,
+    y: f64,
+) -> crate::psf::Kernel {
+    let (u, v) = crate::simulate::VirtualLens::normalised(x, y, spec.width, spec.height);
+    crate::deblur::plane_kernel(
+        &lens
+            .optical_kernel_uv(channel, u, v, setting, 3)
+            .pixel_integrated(),
+        1,
+    )
+}
+
+/// How far the sharp frame extends past the photo: the widest kernel is in a corner,
+/// and the frame's edges are blurred from real content, not from a border.
+fn photo_pad(spec: &DemoSpec, lens: &crate::simulate::VirtualLens, setting: LensSetting) -> usize {
+    use crate::plane::Channel;
+    let (w, h) = (spec.width as f64, spec.height as f64);
+    let corners = [
+        (0.0, 0.0),
+        (w - 1.0, 0.0),
+        (0.0, h - 1.0),
+        (w - 1.0, h - 1.0),
+    ];
+    [Channel::R, Channel::G, Channel::B]
+        .iter()
+        .flat_map(|&c| {
+            corners.map(|(x, y)| true_photo_kernel(lens, spec, setting, c, x, y).size / 2)
+        })
+        .max()
+        .unwrap_or(0)
+        + 2
+}
+
+/// The built-in photo covering a `pw × ph` frame (scaled to fill it, centred), as
+/// linear R, G and B planes: what the demo's photo is before the lens blurs it.
+fn sharp_photo(pw: usize, ph: usize) -> Result<[crate::plane::Plane; 3], String> {
+    let source = image::load_from_memory(DEMO_PHOTO_SOURCE)
+        .map_err(|e| format!("the built-in photo: {e}"))?
+        .into_rgb8();
+    // Cover the frame (scale to fill, centre crop), as a print fills a frame.
+    let scale = (pw as f64 / f64::from(source.width())).max(ph as f64 / f64::from(source.height()));
+    let (sw, sh) = (
+        ((f64::from(source.width()) * scale).ceil() as u32).max(pw as u32),
+        ((f64::from(source.height()) * scale).ceil() as u32).max(ph as u32),
+    );
+    let scaled = image::imageops::resize(&source, sw, sh, image::imageops::FilterType::Lanczos3);
+    let (x0, y0) = ((sw as usize - pw) / 2, (sh as usize - ph) / 2);
+    // The shots are linear; the photo is sRGB-encoded: blur what the sensor sees.
+    let linear = |v: u8| crate::plane::srgb_decode(f32::from(v) / 255.0);
+    Ok(std::array::from_fn(|i| {
+        let mut plane = crate::plane::Plane::new(pw, ph);
+        for y in 0..ph {
+            for x in 0..pw {
+                plane.data[y * pw + x] =
+                    linear(scaled.get_pixel((x0 + x) as u32, (y0 + y) as u32)[i]);
+            }
+        }
+        plane
+    }))
+}
+
+/// The demo photo as it was before the lens blurred it (linear R, G, B planes of the
+/// shots' size): the truth a deblurred demo photo is measured against. It is the centre
+/// of the sharp frame the blur was made from, which extends past the photo by `pad`
+/// pixels a side; `pad` is found as the blurred photo was made.
+///
+/// # Errors
+/// The built-in photo cannot be decoded.
+pub fn sharp_demo_photo(spec: &DemoSpec) -> Result<[crate::plane::Plane; 3], String> {
+    let (w, h) = (spec.width, spec.height);
+    // The sharp frame is scaled to cover the padded frame, so its centre crop depends
+    // on the pad: the same pad as the blurred photo's.
+    let pad = photo_pad(
+        spec,
+        &crate::simulate::VirtualLens::demo(),
+        demo_photo_setting(spec),
+    );
+    let padded = sharp_photo(w + 2 * pad, h + 2 * pad)?;
+    Ok(padded.map(|p| {
+        let mut out = crate::plane::Plane::new(w, h);
+        for y in 0..h {
+            let row = (y + pad) * p.width + pad;
+            out.data[y * w..(y + 1) * w].copy_from_slice(&p.data[row..row + w]);
+        }
+        out
+    }))
 }
 
 /// Which spec the demo files in a folder were made for.
