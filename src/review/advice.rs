@@ -1,5 +1,7 @@
-//! Shooting advice: what the settings a session shot allow the model, and what to shoot
-//! next.
+//! Shooting advice: what the settings a session shot allow the model, what to shoot
+//! next, and the whole shooting plan for a lens's range as a checklist.
+
+use crate::plane::LensSetting;
 
 /// How serious a piece of shooting advice is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -98,4 +100,85 @@ pub fn shooting_advice(
         }
     }
     out
+}
+
+/// A lens's range as the photographer states it: its focal lengths (equal for a prime)
+/// and the f-numbers worth calibrating (wide open to the smallest they use).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LensRange {
+    pub focal_mm: [f64; 2],
+    pub f_number: [f64; 2],
+}
+
+/// One setting of a shooting plan and how many shots the session has at it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlannedSetting {
+    pub setting: LensSetting,
+    pub wanted: usize,
+    pub shot: usize,
+}
+
+/// Shots wanted at each planned setting: two, so cross-validation can hold one out
+/// and still have the setting.
+pub const SHOTS_PER_SETTING: usize = 2;
+
+/// Whole stops from f/1 (√2 apart), as lenses mark them.
+const FULL_STOPS: [f64; 10] = [1.0, 1.4, 2.0, 2.8, 4.0, 5.6, 8.0, 11.0, 16.0, 22.0];
+
+/// Past f/11, diffraction blurs every lens alike and deblurring gains little.
+const SMALLEST_USEFUL_APERTURE: f64 = 11.0;
+
+/// The settings to shoot for a lens's `range`, each with the count of `shots` at it:
+/// focal lengths from end to end, evenly spaced in their logarithm (five on a zoom of
+/// 2× or more, three on a shorter one, one on a prime), rounded to whole millimetres;
+/// f-numbers wide open, then the whole stops more than half a stop above it up to f/11
+/// (or the range's end), five at most. A shot counts at a setting within 4 % of its focal length and a sixth
+/// of a stop of its f-number (cameras round both). Sorted by focal length, then
+/// f-number.
+#[must_use]
+pub fn shooting_plan(range: &LensRange, shots: &[LensSetting]) -> Vec<PlannedSetting> {
+    let [f0, f1] = sorted(range.focal_mm);
+    let focals: Vec<f64> = if f1 / f0 < 1.04 {
+        vec![f0.round()]
+    } else {
+        let n = if f1 / f0 >= 2.0 { 5 } else { 3 };
+        let mut v: Vec<f64> = (0..n)
+            .map(|i| {
+                (f0.ln() + (f1 / f0).ln() * i as f64 / (n - 1) as f64)
+                    .exp()
+                    .round()
+            })
+            .collect();
+        v.dedup();
+        v
+    };
+    let [a0, a1] = sorted(range.f_number);
+    let stop = a1.min(SMALLEST_USEFUL_APERTURE.max(a0));
+    let mut apertures = vec![a0];
+    apertures.extend(
+        FULL_STOPS
+            .iter()
+            .copied()
+            .filter(|&a| a > a0 * 2f64.powf(0.25) && a <= stop * 1.01),
+    );
+    apertures.truncate(5);
+    let near = |s: &LensSetting, f: f64, a: f64| {
+        (s.focal_mm / f - 1.0).abs() <= 0.04 && (s.f_number / a).log2().abs() * 2.0 <= 1.0 / 6.0
+    };
+    focals
+        .iter()
+        .flat_map(|&f| apertures.iter().map(move |&a| (f, a)))
+        .map(|(f, a)| PlannedSetting {
+            setting: LensSetting {
+                focal_mm: f,
+                f_number: a,
+            },
+            wanted: SHOTS_PER_SETTING,
+            shot: shots.iter().filter(|s| near(s, f, a)).count(),
+        })
+        .collect()
+}
+
+fn sorted([a, b]: [f64; 2]) -> [f64; 2] {
+    if a <= b { [a, b] } else { [b, a] }
 }

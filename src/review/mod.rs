@@ -23,7 +23,10 @@ pub mod kernels;
 pub mod plot;
 pub mod sweeps;
 
-pub use advice::{AdviceLevel, ShootingAdvice, shooting_advice};
+pub use advice::{
+    AdviceLevel, LensRange, PlannedSetting, SHOTS_PER_SETTING, ShootingAdvice, shooting_advice,
+    shooting_plan,
+};
 pub use crops::{
     DeblurComparison, Region, compare_deblur, crop_capture, deblur_region, display_whites,
     measured_at, measured_source, profile_source, region_planes,

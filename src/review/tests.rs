@@ -387,6 +387,70 @@ fn difference_maps_pair_points_and_ranges_are_symmetric() {
 }
 
 #[test]
+fn the_shooting_plan_spans_the_lens_and_ticks_what_was_shot() {
+    let zoom = LensRange {
+        focal_mm: [24.0, 105.0],
+        f_number: [4.0, 22.0],
+    };
+    let shots = [
+        LensSetting {
+            focal_mm: 24.0,
+            f_number: 4.0,
+        },
+        LensSetting {
+            focal_mm: 24.0,
+            f_number: 4.0,
+        },
+        // Cameras round: 49 mm and f/5.7 are the plan's 50 mm and f/5.6.
+        LensSetting {
+            focal_mm: 49.0,
+            f_number: 5.7,
+        },
+        // Not in the plan: f/16 is past f/11.
+        LensSetting {
+            focal_mm: 105.0,
+            f_number: 16.0,
+        },
+    ];
+    let plan = shooting_plan(&zoom, &shots);
+    let mut focals: Vec<f64> = plan.iter().map(|p| p.setting.focal_mm).collect();
+    focals.dedup();
+    assert_eq!(focals, vec![24.0, 35.0, 50.0, 73.0, 105.0]);
+    let apertures: Vec<f64> = plan
+        .iter()
+        .filter(|p| p.setting.focal_mm == 24.0)
+        .map(|p| p.setting.f_number)
+        .collect();
+    assert_eq!(apertures, vec![4.0, 5.6, 8.0, 11.0]);
+    assert_eq!(plan.len(), 20);
+    let at = |f: f64, a: f64| {
+        plan.iter()
+            .find(|p| p.setting.focal_mm == f && p.setting.f_number == a)
+            .map(|p| p.shot)
+    };
+    assert_eq!(at(24.0, 4.0), Some(2));
+    assert_eq!(at(50.0, 5.6), Some(1));
+    assert_eq!(plan.iter().map(|p| p.shot).sum::<usize>(), 3);
+    assert!(plan.iter().all(|p| p.wanted == SHOTS_PER_SETTING));
+    // A prime opening at f/1.8: its one focal length, wide open then whole stops.
+    let prime = shooting_plan(
+        &LensRange {
+            focal_mm: [50.0, 50.0],
+            f_number: [1.8, 16.0],
+        },
+        &[],
+    );
+    let a: Vec<f64> = prime.iter().map(|p| p.setting.f_number).collect();
+    // (f/2 is a third of a stop from f/1.8: too close to tell the model more.)
+    assert_eq!(a, vec![1.8, 2.8, 4.0, 5.6, 8.0]);
+    assert!(
+        prime
+            .iter()
+            .all(|p| p.setting.focal_mm == 50.0 && p.shot == 0)
+    );
+}
+
+#[test]
 fn shooting_advice_says_what_to_shoot_next() {
     // One focal length: the model cannot follow it.
     let a = shooting_advice(&[50.0], &[4.0, 8.0, 16.0], None);
