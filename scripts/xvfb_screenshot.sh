@@ -10,6 +10,9 @@
 #                      frame times are logged while they run
 #   BUSY_SECONDS       with LENSBLUR_AUTORUN: seconds to let the stages run before the
 #                      screenshot (default: until the last stage ends, at most 10 min)
+#   WAIT_FOR           a line of the log to wait for before the screenshot (default
+#                      "studio: ready"); "studio: before/after shown" waits for the
+#                      first launch's calibrated demo photo in the Deblur view
 # The log (first-frame time, readiness, frame times) is printed at the end.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -28,14 +31,14 @@ if [ -z "${KEEP_DEMO:-}" ]; then
   export XDG_DATA_HOME=$DATA
 fi
 export LENSBLUR_FRAME_LOG=1 WGPU_BACKEND=${WGPU_BACKEND:-vulkan}
-export BIN LOG OUT BUSY_SECONDS=${BUSY_SECONDS:-600}
+export BIN LOG OUT BUSY_SECONDS=${BUSY_SECONDS:-600} WAIT_FOR=${WAIT_FOR:-studio: ready}
 status=0
 xvfb-run -a -s "-screen 0 1400x900x24" bash -c '
   "$BIN" studio >"$LOG" 2>&1 &
   pid=$!
   ready=""
   for _ in $(seq 1 2400); do
-    if grep -q "studio: ready" "$LOG"; then ready=1; break; fi
+    if grep -q "$WAIT_FOR" "$LOG"; then ready=1; break; fi
     kill -0 $pid 2>/dev/null || break
     sleep 0.25
   done

@@ -494,6 +494,90 @@ impl CalibrationJob {
     }
 }
 
+/// Everything a project still lacks, as one job: the shots missing a result
+/// measured (detection where there is none, then kernels), then calibration over every
+/// shot with kernels — those measured before and those measured now, in session order.
+/// The studio's *Calibrate all*.
+pub struct CalibrateAllJob {
+    measure: MeasureJob,
+    /// Every shot in session order, with its kernels or what this job needs to take
+    /// them once measured.
+    order: Vec<(ShotId, Pending)>,
+    chart: crate::chart::ChartSpec,
+    options: CalibrateOptions,
+}
+
+/// A shot in a [`CalibrateAllJob`]: measured already, or its name and setting for
+/// when the job has measured it.
+enum Pending {
+    Measured(Box<MeasuredShot>),
+    ToMeasure { name: String, given: GivenSetting },
+}
+
+impl CalibrateAllJob {
+    /// Keeps only the shots `keep` says among those to measure.
+    #[must_use]
+    pub fn retain(mut self, keep: impl Fn(ShotId) -> bool) -> Self {
+        self.measure = self.measure.retain(keep);
+        self
+    }
+
+    /// Captures already in memory, as [`MeasureJob::with_captures`].
+    #[must_use]
+    pub fn with_captures(mut self, capture: impl Fn(ShotId) -> Option<Arc<Capture>>) -> Self {
+        self.measure = self.measure.with_captures(capture);
+        self
+    }
+
+    /// The shots this job measures (those it calibrates from the cache come on top).
+    #[must_use]
+    pub fn shots(&self) -> Vec<ShotId> {
+        self.measure.shots()
+    }
+
+    /// Measures, handing every step to `emit` as [`MeasureJob::run`] does, then
+    /// calibrates.
+    ///
+    /// # Errors
+    /// Cancellation, fewer than two shots with kernels once measuring ended, or what
+    /// [`CalibrationJob::run`] refuses.
+    pub fn run(
+        self,
+        ctx: &JobContext,
+        part: &dyn Fn(ShotId) -> Option<JobContext>,
+        emit: &mut dyn FnMut(ShotEvent),
+    ) -> Result<Calibration, ProjectError> {
+        let mut measured = BTreeMap::new();
+        self.measure.run(ctx, part, &mut |e| {
+            if let ShotEvent::Measured { id, kernels, .. } = &e {
+                measured.insert(*id, Arc::clone(kernels));
+            }
+            emit(e);
+        })?;
+        let shots: Vec<MeasuredShot> = self
+            .order
+            .into_iter()
+            .filter_map(|(id, shot)| match shot {
+                Pending::Measured(shot) => Some(*shot),
+                Pending::ToMeasure { name, given } => Some(MeasuredShot {
+                    name,
+                    kernels: KernelsFile::clone(measured.get(&id)?),
+                    given,
+                }),
+            })
+            .collect();
+        if shots.len() < 2 {
+            return Err(ProjectError::TooFewShots(shots.len()));
+        }
+        CalibrationJob {
+            shots,
+            chart: self.chart,
+            options: self.options,
+        }
+        .run(ctx)
+    }
+}
+
 impl Calibration {
     /// Writes the profile to `profile_path` and, with `cv_path`, the cross-validation
     /// report there (or removes an old one, which would describe another fit).
@@ -1006,6 +1090,36 @@ impl Project {
             chart: self.session.chart.clone(),
             options,
         })
+    }
+
+    /// Whatever is missing, measured, then calibration over every measured shot, as
+    /// one job (see [`CalibrateAllJob`]).
+    #[must_use]
+    pub fn calibrate_all_job(&self, options: CalibrateOptions) -> CalibrateAllJob {
+        let order = self
+            .shots()
+            .filter(|s| s.state.kernels.is_some() || !is_kernels_file(&s.shot.path))
+            .map(|s| {
+                let shot = match &s.state.kernels {
+                    Some(k) => Pending::Measured(Box::new(MeasuredShot {
+                        name: s.shot.name(),
+                        kernels: KernelsFile::clone(k),
+                        given: s.shot.given_setting(),
+                    })),
+                    None => Pending::ToMeasure {
+                        name: s.shot.name(),
+                        given: s.shot.given_setting(),
+                    },
+                };
+                (s.shot.id, shot)
+            })
+            .collect();
+        CalibrateAllJob {
+            measure: self.measure_job(&MeasurePlan::missing(Stages::All)),
+            order,
+            chart: self.session.chart.clone(),
+            options,
+        }
     }
 
     /// Records the profile the session now uses (relative to its folder where it lies

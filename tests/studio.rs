@@ -43,10 +43,14 @@ fn new_harness_with(
     session: Option<&Path>,
     demo_spec: DemoSpec,
 ) -> Harness<'static, StudioApp> {
+    harness(options(demo_dir, session, demo_spec))
+}
+
+fn options(demo_dir: &Path, session: Option<&Path>, demo_spec: DemoSpec) -> AppOptions {
     // Pin the software Vulkan renderer (lavapipe) so snapshots match across machines.
     // SAFETY: set before any renderer or thread reads it; tests in this file set the same value.
     unsafe { std::env::set_var("WGPU_BACKEND", "vulkan") };
-    let options = AppOptions {
+    AppOptions {
         session: session.map(Path::to_path_buf),
         demo_dir: demo_dir.to_path_buf(),
         demo_spec,
@@ -57,7 +61,15 @@ fn new_harness_with(
         started: Instant::now(),
         // In the test's own demo folder: no test sees another's list.
         recent_file: Some(demo_dir.join("recent.json")),
-    };
+        // The first-launch calibration is driven where a test asks for it.
+        calibrate_demo: false,
+        // Notices stay until dismissed, so what a snapshot shows never depends on how
+        // long a step took; their fading is tested on its own.
+        notice_lifetime: None,
+    }
+}
+
+fn harness(options: AppOptions) -> Harness<'static, StudioApp> {
     Harness::builder()
         .with_size(egui::Vec2::new(1280.0, 800.0))
         .wgpu()
@@ -1567,25 +1579,78 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
     let reopened = Session::open(dir.path()).expect("reopen");
     assert_eq!(reopened.demo_photo.as_ref(), Some(photo));
 
-    // The studio on that demo opens the photo in the Deblur view, at its setting.
-    let mut h = new_harness(dir.path(), None);
-    step_until(
-        &mut h,
-        "the demo and its photo",
-        Duration::from_secs(60),
-        |a| demo_ready(a) && a.deblur.photo.is_some(),
-    );
+    // The studio on that demo, as on a first launch: the photo opens at its setting,
+    // *Calibrate all* runs by itself (detect, kernels, calibrate: one job), and the
+    // Deblur view then shows the photo before and after with the profile it made.
+    let mut h = harness(AppOptions {
+        calibrate_demo: true,
+        ..options(dir.path(), None, spec.clone())
+    });
+    step_until(&mut h, "the demo's photo", Duration::from_secs(60), |a| {
+        a.deblur.photo.is_some()
+    });
     let p = h.state().deblur.photo.as_ref().expect("photo");
     assert_eq!(
         (p.focal_mm, p.f_number),
         (Some(photo.focal_mm), Some(photo.f_number))
     );
-    h.state_mut()
-        .commands
-        .push(Command::SelectView(View::Deblur));
-    h.run_steps(1);
-    step_until(&mut h, "the photo's preview", Duration::from_secs(60), idle);
+    step_until(&mut h, "calibrate all", Duration::from_secs(400), |a| {
+        a.jobs.is_running("calibrate all")
+            || a.profile.is_some()
+            || a.messages.iter().any(|m| m.is_error)
+    });
+    let job_ids: Vec<String> = h
+        .state()
+        .jobs
+        .running
+        .iter()
+        .map(|j| j.name.clone())
+        .collect();
+    assert!(
+        !job_ids
+            .iter()
+            .any(|j| ["detect", "kernels", "calibrate"].contains(&j.as_str())),
+        "one job, not a stage each: {job_ids:?}"
+    );
+    step_until(&mut h, "the profile", Duration::from_secs(400), |a| {
+        a.profile.is_some() && idle(a)
+    });
+    let app = h.state();
+    assert_eq!(app.measured().count(), n, "every shot measured");
+    assert!(
+        folder_has_profile(dir.path()),
+        "the profile is written into the demo's folder"
+    );
+    assert_eq!(app.view, View::Deblur, "the before/after opens by itself");
+    assert!(
+        app.messages.iter().any(|m| m
+            .text
+            .starts_with(&format!("Calibrate all: measured {n} shots"))),
+        "{:?}",
+        app.messages
+    );
+    assert!(
+        !app.messages.iter().any(|m| m.is_error),
+        "{:?}",
+        app.messages
+    );
+    step_until(
+        &mut h,
+        "the photo's preview",
+        Duration::from_secs(60),
+        |a| {
+            idle(a)
+                && a.deblur
+                    .comparison
+                    .as_ref()
+                    .is_some_and(|c| c.comparison.predicted.is_ok())
+        },
+    );
     snapshot(&mut h, "studio_deblur_demo_photo");
+}
+
+fn folder_has_profile(folder: &Path) -> bool {
+    lensblur::profile::Profile::load(&folder.join(lensblur::project::PROFILE_FILE)).is_ok()
 }
 
 /// Messages of this run in the log panel, the question asked before removing a shot,
@@ -1599,7 +1664,11 @@ fn log_panel_confirmation_about_and_recent_sessions() {
         .save()
         .expect("save");
     let demo_dir = dir.path().join("demo");
-    let mut h = new_harness(&demo_dir, Some(&folder));
+    // Notices that leave the status line at once: the log keeps them, errors stay.
+    let mut h = harness(AppOptions {
+        notice_lifetime: Some(Duration::ZERO),
+        ..options(&demo_dir, Some(&folder), test_demo())
+    });
     step_until(&mut h, "the session", Duration::from_secs(60), demo_ready);
     let n = h.state().session().map_or(0, |s| s.shots.len());
     let first = h.state().session().expect("session").shots[0].id;
@@ -1630,6 +1699,21 @@ fn log_panel_confirmation_about_and_recent_sessions() {
     h.state_mut().commands.push(Command::RunDetect(None));
     h.run_steps(1);
     step_until(&mut h, "detection", Duration::from_secs(120), idle);
+    let missing = dir.path().join("no such photo.png");
+    h.state_mut().commands.push(Command::OpenPhoto(missing));
+    step_until(&mut h, "the photo's error", Duration::from_secs(20), |a| {
+        idle(a) && a.messages.iter().any(|m| m.is_error)
+    });
+    h.run_steps(3);
+    assert!(
+        h.state().messages.iter().all(|m| m.is_error)
+            && h.state()
+                .messages
+                .iter()
+                .any(|m| m.text.contains("no such photo.png")),
+        "notices gone from the status line, the error stays: {:?}",
+        h.state().messages
+    );
     let said = h.state().log.iter().any(|m| {
         m.text
             .starts_with(&format!("Detected the chart in {} shots", n - 1))

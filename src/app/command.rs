@@ -47,6 +47,11 @@ pub enum Command {
     RunDetect(Option<ShotId>),
     RunKernels(Option<ShotId>),
     RunCalibrate,
+    /// Whatever is missing (detect, kernels) then calibration, as one job; with
+    /// `then_deblur`, the Deblur view opens on the before/after once the profile exists.
+    CalibrateAll {
+        then_deblur: bool,
+    },
     OpenPhotoDialog,
     OpenPhoto(PathBuf),
     SetPhotoSetting {
@@ -64,6 +69,10 @@ pub enum Command {
     SetDeblurCrop(usize),
     /// The view's own method and strength, applied live to the region.
     SetDeblurMethod(crate::deblur::Method),
+    /// The lens's range the shooting plan is made for.
+    SetPlanRange(crate::review::LensRange),
+    /// The amount, in percent of the method's result (0–200).
+    SetDeblurAmount(f64),
     SetDeblurDevice(crate::deblur::Device),
     /// Drag of the compared panes in progress (sensor px), drawn as a shift.
     DragDeblur([f32; 2]),
@@ -144,6 +153,8 @@ pub enum Command {
     /// Shows or hides the log panel (every message of this run, timestamped).
     SetLogOpen(bool),
     ShowHelp(bool),
+    /// The guide to calibrating your own lens.
+    ShowGuide(bool),
     ShowAbout(bool),
     /// Closes the window (the session is saved on the way out).
     Quit,

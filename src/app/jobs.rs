@@ -146,6 +146,8 @@ pub struct Jobs<T> {
     tx: SyncSender<JobEvent<T>>,
     rx: Receiver<JobEvent<T>>,
     wake: Arc<dyn Fn() + Send + Sync>,
+    /// Called when only a job's progress changed: the window may take its time.
+    progress_wake: Arc<dyn Fn() + Send + Sync>,
     /// Where jobs compute; `None` if it could not be built (rayon's global pool then).
     pool: Option<Arc<rayon::ThreadPool>>,
     /// How many workers a pool of jobs has.
@@ -165,27 +167,38 @@ fn job_pool(threads: usize, name: &'static str) -> Option<Arc<rayon::ThreadPool>
 
 impl<T: Send + 'static> Jobs<T> {
     /// `wake` is called from worker threads whenever there is something new to show.
-    /// Jobs compute on `threads` threads; 0 means one core fewer than the machine has
-    /// (at least one), so the UI thread (and, under a software renderer, the rasteriser)
-    /// always has a core and frames keep coming while kernels are estimated.
+    /// Jobs compute on `threads` threads; 0 means one per core. They run at a lower
+    /// priority than the window, so the UI thread (and, under a software renderer, the
+    /// rasteriser) takes a core whenever it draws; and the window draws a few times a
+    /// second while only progress changes, so between frames the jobs have every core.
     pub fn new(threads: usize, wake: impl Fn() + Send + Sync + 'static) -> Self {
         // Bounded: a fast producer waits for the UI rather than queueing without limit.
         let (tx, rx) = sync_channel(64);
         let threads = if threads == 0 {
-            let cores = std::thread::available_parallelism().map_or(2, std::num::NonZeroUsize::get);
-            cores.saturating_sub(1).max(1)
+            std::thread::available_parallelism().map_or(2, std::num::NonZeroUsize::get)
         } else {
             threads
         };
+        let wake: Arc<dyn Fn() + Send + Sync> = Arc::new(wake);
         Self {
             next_id: 1,
             running: Vec::new(),
             tx,
             rx,
-            wake: Arc::new(wake),
+            progress_wake: Arc::clone(&wake),
+            wake,
             pool: job_pool(threads, "job-worker"),
             threads,
         }
+    }
+
+    /// What to call when only a job's progress changed (by default the same as for a
+    /// result): the studio repaints a few times a second for it, not every frame, so
+    /// the jobs keep the cores.
+    #[must_use]
+    pub fn with_progress_wake(mut self, wake: impl Fn() + Send + Sync + 'static) -> Self {
+        self.progress_wake = Arc::new(wake);
+        self
     }
 
     /// Starts `work` on a pool of its own, so that it holds back no other job: a job
@@ -248,7 +261,7 @@ impl<T: Send + 'static> Jobs<T> {
         self.next_id += 1;
         let progress = Arc::new(Mutex::new(None));
         let p2 = Arc::clone(&progress);
-        let wake = Arc::clone(&self.wake);
+        let wake = Arc::clone(&self.progress_wake);
         let ctx = JobContext::with_sink(move |p| {
             if let Ok(mut slot) = p2.lock() {
                 *slot = Some(p.clone());

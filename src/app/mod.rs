@@ -40,6 +40,12 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
+/// How long a notice takes to fade out of the status line, at the end of its lifetime.
+const NOTICE_FADE: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// How often the window repaints while only a job's progress changes.
+const PROGRESS_REPAINT: std::time::Duration = std::time::Duration::from_millis(250);
+
 /// The studio app.
 pub struct StudioApp {
     /// The open calibration project: the session, its folder's lock, and each shot's
@@ -60,6 +66,7 @@ pub struct StudioApp {
     /// The question being asked, in a modal dialog.
     pub confirm: Option<Confirm>,
     show_help: bool,
+    show_guide: bool,
     show_about: bool,
     /// Recently opened session folders, most recent first.
     recent: Vec<PathBuf>,
@@ -99,6 +106,7 @@ pub struct StudioApp {
     /// Frames left of the autorun's strength drag.
     drag_frames: usize,
     first_shot_logged: bool,
+    before_after_logged: bool,
     ready_logged: bool,
     /// File dialogs run on their own threads (a portal dialog's future, blocked on
     /// there) and send back the commands their answer makes; the window never waits.
@@ -108,6 +116,11 @@ pub struct StudioApp {
     dialog_open: bool,
     /// Per running detect or kernels job (by id): how its shots went so far.
     tallies: BTreeMap<u64, Tally>,
+    /// The lens's range typed for the shooting plan; `None`: the session's.
+    plan_range: Option<crate::review::LensRange>,
+    /// A running *Calibrate all* opens the Deblur view on the photo once it ends (the
+    /// first launch's demo).
+    deblur_when_calibrated: bool,
 }
 
 impl StudioApp {
@@ -116,6 +129,7 @@ impl StudioApp {
     #[must_use]
     pub fn new(ctx: &egui::Context, options: AppOptions) -> Self {
         let wake_ctx = ctx.clone();
+        let progress_ctx = ctx.clone();
         let (dialog_tx, dialog_rx) = std::sync::mpsc::channel();
         let recent = options
             .recent_file
@@ -124,7 +138,8 @@ impl StudioApp {
             .unwrap_or_default();
         let mut app = Self {
             project: None,
-            jobs: Jobs::new(options.job_threads, move || wake_ctx.request_repaint()),
+            jobs: Jobs::new(options.job_threads, move || wake_ctx.request_repaint())
+                .with_progress_wake(move || progress_ctx.request_repaint_after(PROGRESS_REPAINT)),
             view: View::Shot,
             selected_shot: None,
             channel: Channel::G,
@@ -134,6 +149,7 @@ impl StudioApp {
             log_open: false,
             confirm: None,
             show_help: false,
+            show_guide: false,
             show_about: false,
             recent,
             commands: Vec::new(),
@@ -162,11 +178,14 @@ impl StudioApp {
             first_frame_logged: false,
             drag_frames: 0,
             first_shot_logged: false,
+            before_after_logged: false,
             ready_logged: false,
             dialog_tx,
             dialog_rx,
             dialog_open: false,
             tallies: BTreeMap::new(),
+            deblur_when_calibrated: false,
+            plan_range: None,
         };
         ctx.set_theme(egui::Theme::Dark);
         match &options.session {
@@ -293,6 +312,7 @@ impl StudioApp {
             is_error,
             text,
             time: clock_now(),
+            said: Instant::now(),
         };
         self.log.push(m.clone());
         self.messages.push(m);
@@ -342,6 +362,7 @@ impl StudioApp {
         logic::ensure_preview(self);
         view_data::refresh(self);
         logic::autorun_step(self);
+        logic::expire_notices(self);
     }
 }
 
@@ -350,6 +371,13 @@ impl eframe::App for StudioApp {
         self.logic_step();
         if self.drag_frames > 0 {
             ctx.request_repaint();
+        }
+        // A notice fades out over its last second: frames until it has gone.
+        if let Some(life) = self.options.notice_lifetime
+            && let Some(m) = self.messages.iter().find(|m| !m.is_error)
+        {
+            let left = life.saturating_sub(m.said.elapsed());
+            ctx.request_repaint_after(left.min(NOTICE_FADE / 10));
         }
     }
 
@@ -423,8 +451,10 @@ impl eframe::App for StudioApp {
         self.frames
             .record_app_time(busy, now.elapsed().as_secs_f32() * 1000.0);
         if !self.jobs.running.is_empty() {
-            // Keep the progress bar moving; also what the frame-time figure measures.
-            ui.ctx().request_repaint();
+            // The progress line moves a few times a second; results wake the window
+            // at once. Repainting every frame would take a core from the jobs (all of
+            // one under a software rasteriser).
+            ui.ctx().request_repaint_after(PROGRESS_REPAINT);
         }
     }
 

@@ -85,13 +85,18 @@ pub struct AppOptions {
     /// `deblur,drag-strength` opens LENSBLUR_PHOTO (else the first shot) in the Deblur
     /// view at 100 % and drags the strength control.
     pub autorun: Vec<String>,
-    /// Threads jobs compute on; 0: every core but one, so the UI thread (and a software
-    /// renderer) always has one.
+    /// Threads jobs compute on; 0: one per core, at a lower priority than the window.
     pub job_threads: usize,
     /// When the process started, for the first-frame time.
     pub started: Instant,
     /// The list of recently opened sessions (File ▸ Recent sessions); `None` keeps none.
     pub recent_file: Option<PathBuf>,
+    /// Run *Calibrate all* on the demo session while it has no profile, then open its
+    /// photo's before/after: what a first launch shows without a click.
+    pub calibrate_demo: bool,
+    /// How long a notice stays in the status line (errors stay until dismissed; the
+    /// log keeps everything); `None`: until dismissed, as errors.
+    pub notice_lifetime: Option<std::time::Duration>,
 }
 
 impl Default for AppOptions {
@@ -112,6 +117,8 @@ impl Default for AppOptions {
             job_threads: 0,
             started: Instant::now(),
             recent_file: Some(crate::recent::default_recent_file()),
+            calibrate_demo: true,
+            notice_lifetime: Some(std::time::Duration::from_secs(6)),
         }
     }
 }
@@ -123,6 +130,8 @@ pub struct Message {
     pub text: String,
     /// The local time it was said, `HH:MM:SS`, as the log panel shows it.
     pub time: String,
+    /// When it was said: a notice leaves the status line a few seconds later.
+    pub said: Instant,
 }
 
 /// The wall clock as `HH:MM:SS`, local time where the system says which zone it is in.
@@ -154,7 +163,9 @@ pub fn clock_now() -> String {
 /// that says how it went once it ends.
 #[derive(Default)]
 pub(crate) struct Tally {
-    pub ok: usize,
+    /// The shots whose every stage so far succeeded (a shot detected and then
+    /// measured counts once).
+    pub ok: std::collections::BTreeSet<crate::session::ShotId>,
     /// Each failed shot's name and the reason.
     pub failed: Vec<(String, String)>,
 }
@@ -397,6 +408,8 @@ pub struct DeblurState {
     /// The view's method and strength; `None` until changed here: the session's method.
     pub method: Option<crate::deblur::Method>,
     pub device: crate::deblur::Device,
+    /// How strongly to deblur (the photographer's control).
+    pub amount: crate::deblur::Amount,
     /// Where the preview runs and, when not where asked, why (said once per change).
     pub device_note: Option<String>,
     /// The panes' drag in progress, sensor px.
@@ -420,6 +433,7 @@ impl Default for DeblurState {
             viewport: None,
             method: None,
             device: crate::deblur::Device::Auto,
+            amount: crate::deblur::Amount::FULL,
             device_note: None,
             drag: [0.0; 2],
             pending: None,

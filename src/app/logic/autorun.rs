@@ -30,6 +30,23 @@ fn log_readiness(app: &mut StudioApp) {
             );
         }
     }
+    // The first launch's end: the demo calibrated and its photo before and after.
+    let shown = app.view == crate::app::View::Deblur
+        && app.profile.is_some()
+        && app
+            .deblur
+            .comparison
+            .as_ref()
+            .is_some_and(|c| c.comparison.predicted.is_ok());
+    if shown && !app.before_after_logged {
+        app.before_after_logged = true;
+        if app.options.log_frame_times {
+            eprintln!(
+                "studio: before/after shown after {:.2} s",
+                app.options.started.elapsed().as_secs_f32()
+            );
+        }
+    }
     if ready && !app.ready_logged {
         app.ready_logged = true;
         if app.options.log_frame_times {

@@ -63,6 +63,10 @@ pub(super) fn apply_deblur(app: &mut StudioApp, command: Command) {
             app.deblur.method = Some(m);
             redeblur(app);
         }
+        Command::SetDeblurAmount(percent) => {
+            app.deblur.amount = crate::deblur::Amount::percent(percent);
+            redeblur(app);
+        }
         Command::SetDeblurDevice(d) => {
             app.deblur.device = d;
             app.deblur.device_note = None;
@@ -227,12 +231,13 @@ fn deblur_options(app: &StudioApp) -> DeblurOptions {
     DeblurOptions {
         method: deblur_method(app),
         device: app.deblur.device,
+        amount: app.deblur.amount,
         ..DeblurOptions::default()
     }
 }
 
-/// Deblurs the region again where it is (after a control changed).
-fn redeblur(app: &mut StudioApp) {
+/// Deblurs the region again where it is (after a control or the profile changed).
+pub(super) fn redeblur(app: &mut StudioApp) {
     let centre = match (&app.deblur.comparison, &app.deblur.photo) {
         (Some(c), _) => c.comparison.region.centre(),
         (None, Some(p)) => [p.capture.width as f64 / 2.0, p.capture.height as f64 / 2.0],

@@ -30,6 +30,7 @@ pub(super) use dialogs::drain_dialogs;
 pub(super) use plots::finish_plot_png;
 pub(super) use shots::ensure_preview;
 pub(super) use stages::shot_event;
+pub(super) use view::expire_notices;
 
 use crate::project::{CV_FILE, ShotEvent};
 
@@ -47,13 +48,15 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         | Command::SetFieldSetting { .. }
         | Command::SetCompareUnits(_)
         | Command::SetFieldOptions(_)
-        | Command::SetViewer(_) => view::apply_view(app, command),
+        | Command::SetViewer(_)
+        | Command::SetPlanRange(_) => view::apply_view(app, command),
         Command::Cancel(_)
         | Command::CancelAll
         | Command::SetDark(_)
         | Command::DismissMessage(_)
         | Command::SetLogOpen(_)
         | Command::ShowHelp(_)
+        | Command::ShowGuide(_)
         | Command::ShowAbout(_)
         | Command::Quit => view::apply_window(app, command),
         Command::AddShots(_)
@@ -66,6 +69,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         Command::RunDetect(_)
         | Command::RunKernels(_)
         | Command::RunCalibrate
+        | Command::CalibrateAll { .. }
         | Command::LoadProfile { .. }
         | Command::SaveProfile(_) => stages::apply_stage(app, command),
         Command::OpenPhoto(_)
@@ -76,6 +80,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         | Command::SetDeblurViewport(_)
         | Command::SetDeblurCrop(_)
         | Command::SetDeblurMethod(_)
+        | Command::SetDeblurAmount(_)
         | Command::SetDeblurDevice(_)
         | Command::DragDeblur(_)
         | Command::EndDragDeblur
@@ -143,10 +148,11 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                     // not news: the newer one's result follows.
                     Err(e) if e == "cancelled" && name == "deblur preview" => {}
                     Err(e) if e == "cancelled" => {
-                        let done = tally.map_or(String::new(), |t| match t.ok + t.failed.len() {
-                            1 => " after 1 shot".to_owned(),
-                            n => format!(" after {n} shots"),
-                        });
+                        let done =
+                            tally.map_or(String::new(), |t| match t.ok.len() + t.failed.len() {
+                                1 => " after 1 shot".to_owned(),
+                                n => format!(" after {n} shots"),
+                            });
                         app.info(format!("{name}: cancelled{done}"));
                     }
                     Err(e) => app.error(e),
@@ -190,14 +196,19 @@ fn tally(app: &mut StudioApp, job: u64, output: &JobOutput) {
     });
     let t = app.tallies.entry(job).or_default();
     match reason {
-        Some(r) => t.failed.push((name, r)),
-        None => t.ok += 1,
+        Some(r) => {
+            t.ok.remove(&id);
+            t.failed.push((name, r));
+        }
+        None => {
+            t.ok.insert(id);
+        }
     }
 }
 
 /// "Measured kernels for 9 shots (1 failed: IMG_3.png — no chart found)".
 fn finished_message(app: &mut StudioApp, job: &str, t: &super::Tally) {
-    let n = t.ok + t.failed.len();
+    let n = t.ok.len() + t.failed.len();
     let shots = if n == 1 {
         "1 shot".to_owned()
     } else {
@@ -206,6 +217,8 @@ fn finished_message(app: &mut StudioApp, job: &str, t: &super::Tally) {
     let what = match job {
         "detect" => format!("Detected the chart in {shots}"),
         "kernels" => format!("Measured kernels for {shots}"),
+        "calibrate all" if n == 0 => return,
+        "calibrate all" => format!("Calibrate all: measured {shots}"),
         _ => return,
     };
     if t.failed.is_empty() {

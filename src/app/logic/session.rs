@@ -97,6 +97,7 @@ pub(super) fn session_output(app: &mut StudioApp, output: JobOutput) {
             app.info(format!(
                 "demo session ready: {n} simulated shots of the virtual lens, and a photo it blurred"
             ));
+            calibrate_demo(app);
         }
         JobOutput::ResultsRead { survey, cv } => {
             // The cache decides what is done: results measured elsewhere (another
@@ -114,9 +115,27 @@ pub(super) fn session_output(app: &mut StudioApp, output: JobOutput) {
                 app.cv = cv;
             }
             spawn_dataset(app);
+            calibrate_demo(app);
         }
         // `apply_output` routes only this group's outputs here.
         _ => unreachable!("an output not routed to session_output"),
+    }
+}
+
+/// The demo without a profile (a first launch, or one closed before its calibration
+/// ended) is calibrated by itself once all its shots exist, and then shows its photo
+/// before and after: a newcomer sees what lensblur does without a click.
+fn calibrate_demo(app: &mut StudioApp) {
+    let wanted = app.options.calibrate_demo
+        && app
+            .session()
+            .is_some_and(|s| s.is_demo && s.profile.is_none() && !s.shots.is_empty())
+        && !app.jobs.is_running("demo session")
+        && !app.jobs.is_running("calibrate all");
+    if wanted {
+        app.info("calibrating the demo lens: detect, kernels and calibrate, then its photo before and after");
+        app.commands
+            .push(Command::CalibrateAll { then_deblur: true });
     }
 }
 

@@ -16,6 +16,7 @@ pub(super) fn apply_stage(app: &mut StudioApp, command: Command) {
         Command::RunDetect(which) => run_detect(app, which),
         Command::RunKernels(which) => run_kernels(app, which),
         Command::RunCalibrate => run_calibrate(app),
+        Command::CalibrateAll { then_deblur } => calibrate_all(app, then_deblur),
         Command::LoadProfile { path, compare } => {
             let r = app.jobs.spawn("load profile", move |_ctx, out| {
                 let profile = crate::profile::Profile::load(&path).map_err(|e| e.to_string())?;
@@ -66,7 +67,7 @@ pub(super) fn stage_output(app: &mut StudioApp, output: JobOutput) {
                 app.compare_profile = Some((path, profile));
             } else {
                 app.profile = Some((path, profile));
-                app.deblur.comparison = None;
+                super::deblur::redeblur(app);
             }
         }
         // `apply_output` routes only this group's outputs here.
@@ -98,7 +99,16 @@ fn calibrated(
     app.dataset = Some(dataset);
     app.profile = Some((path, profile));
     app.cv = cv;
-    app.deblur.comparison = None;
+    // The open photo's region, deblurred with the new profile.
+    super::deblur::redeblur(app);
+    if std::mem::take(&mut app.deblur_when_calibrated) {
+        // The photo before and after at 100 %, one pane as large as the window allows.
+        app.commands.extend([
+            Command::SelectView(crate::app::View::Deblur),
+            Command::SetDeblurLayout(crate::app::DeblurLayout::Slider),
+            Command::SetDeblurZoom(crate::app::DeblurZoom::Times(1)),
+        ]);
+    }
     save(app);
 }
 
@@ -218,24 +228,78 @@ fn run_calibrate(app: &mut StudioApp) {
             return;
         }
     };
-    let out_path = p.folder().join(PROFILE_FILE);
-    let cv_path = p.folder().join(CV_FILE);
+    let folder = p.folder().to_path_buf();
     let scope = JobScope::session(app.session_generation);
     let r = app.jobs.spawn_scoped("calibrate", scope, move |ctx, out| {
         let cal = job.run(ctx).map_err(|e| e.to_string())?;
-        // A fixed α, β has no curves: an old report would describe another fit.
-        cal.write(&out_path, Some(&cv_path))
-            .map_err(|e| e.to_string())?;
-        out.emit(JobOutput::Calibrated {
-            dataset: Arc::new(cal.dataset),
-            profile: Arc::new(cal.profile),
-            cv: cal.cv.map(Arc::new),
-            path: out_path,
-        });
-        Ok(())
+        hand_over(cal, &folder, out)
     });
     if let Err(e) = r {
         app.error(e);
+    }
+}
+
+/// Writes what calibration made into the session folder and hands it to the window.
+fn hand_over(
+    cal: crate::project::Calibration,
+    folder: &std::path::Path,
+    out: &crate::app::jobs::Emitter<JobOutput>,
+) -> Result<(), String> {
+    let path = folder.join(PROFILE_FILE);
+    // A fixed α, β has no curves: an old report would describe another fit.
+    cal.write(&path, Some(&folder.join(CV_FILE)))
+        .map_err(|e| e.to_string())?;
+    out.emit(JobOutput::Calibrated {
+        dataset: Arc::new(cal.dataset),
+        profile: Arc::new(cal.profile),
+        cv: cal.cv.map(Arc::new),
+        path,
+    });
+    Ok(())
+}
+
+/// *Calibrate all*: every shot still missing a result detected and measured, then the
+/// models fitted over every shot with kernels, as one job with one progress line and
+/// one cancel; its end message says what it measured and what failed.
+fn calibrate_all(app: &mut StudioApp, then_deblur: bool) {
+    if ["calibrate all", "detect", "kernels", "calibrate"]
+        .iter()
+        .any(|j| app.jobs.is_running(j))
+    {
+        app.info("a stage is already running: wait for it or cancel it (Esc)");
+        return;
+    }
+    let Some(p) = app.project.as_ref() else {
+        return;
+    };
+    if p.session().shots.is_empty() {
+        app.info("no shots yet: add shots of the chart first (Ctrl+Shift+A)");
+        return;
+    }
+    let opts = crate::calibrate::CalibrateOptions {
+        alpha: p.session().settings.alpha,
+        beta: p.session().settings.beta,
+        ..Default::default()
+    };
+    let job = p
+        .calibrate_all_job(opts)
+        .retain(|id| app.unreadable(id).is_none())
+        .with_captures(|id| app.preview(id).map(|v| Arc::clone(&v.capture)));
+    let folder = p.folder().to_path_buf();
+    let scope = JobScope::shots(app.session_generation, job.shots());
+    let r = app
+        .jobs
+        .spawn_scoped("calibrate all", scope, move |ctx, out| {
+            let cal = job
+                .run(ctx, &|id| out.shot_context(ctx, id), &mut |e| {
+                    out.emit(JobOutput::Shot(e));
+                })
+                .map_err(|e| e.to_string())?;
+            hand_over(cal, &folder, out)
+        });
+    match r {
+        Ok(_) => app.deblur_when_calibrated = then_deblur,
+        Err(e) => app.error(e),
     }
 }
 

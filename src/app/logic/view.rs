@@ -17,6 +17,7 @@ pub(super) fn apply_view(app: &mut StudioApp, command: Command) {
         Command::SetFieldSource(f) => app.field_source = f,
         Command::SetFieldShow(f) => app.field_show = f,
         Command::SetSweepAxis(a) => app.sweep_axis = a,
+        Command::SetPlanRange(r) => app.plan_range = Some(r),
         Command::SetFieldSetting { focal_mm, f_number } => {
             app.field_focal_mm = focal_mm;
             app.field_f_number = f_number;
@@ -53,9 +54,19 @@ pub(super) fn apply_window(app: &mut StudioApp, command: Command) {
         }
         Command::SetLogOpen(open) => app.log_open = open,
         Command::ShowHelp(open) => app.show_help = open,
+        Command::ShowGuide(open) => app.show_guide = open,
         Command::ShowAbout(open) => app.show_about = open,
         Command::Quit => app.ctx.send_viewport_cmd(egui::ViewportCommand::Close),
         // `apply` routes only this group's commands here.
         other => unreachable!("not routed to apply_window: {other:?}"),
+    }
+}
+
+/// Notices leave the status line once their lifetime is over; errors stay until
+/// dismissed, and the log keeps both.
+pub(in crate::app) fn expire_notices(app: &mut StudioApp) {
+    if let Some(life) = app.options.notice_lifetime {
+        app.messages
+            .retain(|m| m.is_error || m.said.elapsed() < life);
     }
 }

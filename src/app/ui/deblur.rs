@@ -193,9 +193,9 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     }
 }
 
-/// Zoom, region size, method and strength, and the device: each change deblurs the
-/// region again (a newer preview replaces one still running), so dragging the strength
-/// updates the region live.
+/// Zoom, region size and the amount, with the method, its strength and the device
+/// under *Advanced*: each change deblurs the region again (a newer preview replaces one
+/// still running), so dragging a control updates the region live.
 fn controls_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     let method = super::super::logic::deblur_method(app);
     ui.horizontal_wrapped(|ui| {
@@ -224,6 +224,33 @@ fn controls_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
         }
         ui.separator();
+        let mut amount = app.deblur.amount.as_percent();
+        let r = ui
+            .add(
+                egui::Slider::new(&mut amount, 0.0..=crate::deblur::Amount::MAX_PERCENT)
+                    .step_by(5.0)
+                    .suffix(" %")
+                    .text("amount"),
+            )
+            .on_hover_text("How strongly to deblur: 0 % is the photo as it is, 100 % the method at its tuned strength, more carries it further (and sharpens noise)");
+        if r.changed() {
+            app.commands.push(Command::SetDeblurAmount(amount));
+        }
+    });
+    egui::CollapsingHeader::new("Advanced: method and device")
+        .id_salt("deblur advanced")
+        .show(ui, |ui| advanced_ui(app, ui, method));
+    // Always one line, so the panes below keep their size when the note arrives.
+    let note = app.deblur.device_note.as_ref().map_or_else(
+        || " ".to_owned(),
+        |n| format!("The preview runs on the {n}."),
+    );
+    ui.label(egui::RichText::new(note).weak());
+}
+
+/// The method, its regularisation and where it runs: for those who know them.
+fn advanced_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
+    ui.horizontal_wrapped(|ui| {
         ui.label("method");
         let choices = [
             ("HQS", matches!(method, Method::Hqs(_)), Method::Hqs(HqsParams::default())),
@@ -257,12 +284,6 @@ fn controls_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
         }
     });
-    // Always one line, so the panes below keep their size when the note arrives.
-    let note = app.deblur.device_note.as_ref().map_or_else(
-        || " ".to_owned(),
-        |n| format!("The preview runs on the {n}."),
-    );
-    ui.label(egui::RichText::new(note).weak());
 }
 
 /// The regularisation strength of the method: the data weight λ of HQS and IRLS (more:

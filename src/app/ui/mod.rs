@@ -4,6 +4,7 @@
 
 mod deblur;
 mod field;
+mod help;
 mod models;
 mod session_panel;
 mod shot;
@@ -29,6 +30,10 @@ const SHORTCUTS: &[(&str, &str)] = &[
     ("Ctrl+D", "detect the chart in every shot"),
     ("Ctrl+K", "estimate kernels on every detected shot"),
     ("Ctrl+M", "calibrate: cross-validate and fit the models"),
+    (
+        "Ctrl+Enter",
+        "calibrate all: detect, kernels and calibrate whatever is missing",
+    ),
     ("Ctrl+P", "open a photo to deblur"),
     (
         "Ctrl+E",
@@ -73,8 +78,9 @@ pub(super) fn root_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     });
     let ctx = ui.ctx().clone();
     confirm_ui(app, &ctx);
-    help_ui(app, &ctx);
-    about_ui(app, &ctx);
+    help::help_ui(app, &ctx);
+    help::about_ui(app, &ctx);
+    help::guide_ui(app, &ctx);
 }
 
 /// The menus: what a photographer looks for first (open, recent, export, quit), the
@@ -214,6 +220,9 @@ fn menu_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             if ui.button("How it works…").clicked() {
                 out.push(Command::ShowHelp(true));
             }
+            if ui.button("Calibrate your own lens (guide)…").clicked() {
+                out.push(Command::ShowGuide(true));
+            }
             ui.menu_button("Shortcuts", |ui| {
                 egui::Grid::new("shortcuts").striped(true).show(ui, |ui| {
                     for (keys, what) in SHORTCUTS {
@@ -282,94 +291,6 @@ fn confirm_ui(app: &mut StudioApp, ctx: &egui::Context) {
     }
 }
 
-/// The workflow in a few lines, for someone who has never calibrated a lens.
-const HELP: &[(&str, &str)] = &[
-    (
-        "1. Shoot the chart",
-        "Print the chart (assets/chart_24x16_20mm.pdf, at 100 %), fix it flat, and photograph it filling most of the frame at each focal length and aperture you use, focused on the chart, at base ISO, RAW if you can.",
-    ),
-    (
-        "2. Make a session",
-        "File ▸ Open session… on an empty folder, then Add shots… or drop the files on the window. Focal length and aperture come from EXIF; type them where missing.",
-    ),
-    (
-        "3. Measure",
-        "Detect (Ctrl+D) finds the chart's squares in every shot, Kernels (Ctrl+K) measures the blur at each square. The Shot and Kernel field views show what was found; right-click a shot to redo one.",
-    ),
-    (
-        "4. Calibrate",
-        "Calibrate (Ctrl+M) fits a model of the blur over the frame, focal length and aperture, and writes the lens profile. Sweeps and Models show how well it fits.",
-    ),
-    (
-        "5. Deblur",
-        "Open a photo (Ctrl+P) in the Deblur view, click where to look, compare, and export it (Ctrl+E): a RAW photo as a DNG for your RAW editor.",
-    ),
-];
-
-fn help_ui(app: &mut StudioApp, ctx: &egui::Context) {
-    let mut open = app.show_help;
-    egui::Window::new("How the studio works")
-        .open(&mut open)
-        .collapsible(false)
-        .pivot(egui::Align2::CENTER_CENTER)
-        .default_pos(ctx.content_rect().center())
-        .default_width(460.0)
-        .show(ctx, |ui| {
-            for (step, what) in HELP {
-                ui.strong(*step);
-                ui.label(*what);
-                ui.add_space(4.0);
-            }
-            ui.label(
-                egui::RichText::new(
-                    "The demo session is made from a virtual lens whose true blur is known: every view can compare what was measured with the truth.",
-                )
-                .weak(),
-            );
-        });
-    if !open {
-        app.commands.push(Command::ShowHelp(false));
-    }
-}
-
-/// The crates the studio is built on, as the About window credits them.
-const CRATES: &[&str] = &[
-    "egui, eframe, egui_plot, wgpu (the window)",
-    "rfd (file dialogs)",
-    "rawloader, imagepipe, ljpeg, kamadak-exif (RAW files and EXIF)",
-    "image, tiff, imageproc (images)",
-    "nalgebra, levenberg-marquardt, rustfft, realfft, rayon (the numerics)",
-    "serde, serde_json, clap, thiserror, anyhow (files, command line, errors)",
-    "pdf-writer, svg, flate2 (the chart)",
-];
-
-fn about_ui(app: &mut StudioApp, ctx: &egui::Context) {
-    let mut open = app.show_about;
-    egui::Window::new("About lensblur")
-        .open(&mut open)
-        .collapsible(false)
-        .resizable(false)
-        .anchor(egui::Align2::CENTER_CENTER, [0.0, 0.0])
-        .show(ctx, |ui| {
-            ui.heading(format!("lensblur {}", env!("CARGO_PKG_VERSION")));
-            ui.label(env!("CARGO_PKG_DESCRIPTION"));
-            ui.add_space(6.0);
-            ui.label(format!(
-                "Licence: {} (GNU General Public License, version 3 or later).",
-                env!("CARGO_PKG_LICENSE")
-            ));
-            ui.label("The demo photo: NASA, public domain (assets/README.md).");
-            ui.add_space(6.0);
-            ui.strong("Built with");
-            for c in CRATES {
-                ui.label(format!("• {c}"));
-            }
-        });
-    if !open {
-        app.commands.push(Command::ShowAbout(false));
-    }
-}
-
 /// Every message of this run with its time, newest at the bottom; errors in red.
 fn log_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
@@ -429,6 +350,9 @@ fn shortcuts(app: &mut StudioApp, ctx: &egui::Context) {
         }
         if i.consume_shortcut(&cmd(Key::M)) {
             out.push(Command::RunCalibrate);
+        }
+        if i.consume_shortcut(&cmd(Key::Enter)) {
+            out.push(Command::CalibrateAll { then_deblur: false });
         }
         if i.consume_shortcut(&cmd(Key::P)) {
             out.push(Command::SelectView(View::Deblur));
@@ -569,6 +493,16 @@ fn status_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 ui.visuals().error_fg_color
             } else {
                 ui.visuals().text_color()
+            };
+            // A notice fades over the last second of its lifetime.
+            let color = match app.options.notice_lifetime {
+                Some(life) if !m.is_error => {
+                    let left = life.saturating_sub(m.said.elapsed());
+                    color.gamma_multiply(
+                        (left.as_secs_f32() / super::NOTICE_FADE.as_secs_f32()).min(1.0),
+                    )
+                }
+                _ => color,
             };
             if ui.small_button("×").on_hover_text("Dismiss").clicked() {
                 dismiss = Some(i);

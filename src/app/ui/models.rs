@@ -43,6 +43,10 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         }
     });
     advice_ui(app, ui);
+    egui::CollapsingHeader::new("Shooting plan")
+        .id_salt("shooting plan")
+        .default_open(app.profile.is_none())
+        .show(ui, |ui| plan_ui(app, ui));
     if let Some((path, p)) = &app.profile {
         let kind = format!("{:?}", p.preferred).to_lowercase();
         let orders = |g: Option<(usize, usize)>| {
@@ -385,6 +389,78 @@ fn shape_cv_ui(ui: &mut egui::Ui, p: &crate::profile::Profile) {
                 ui.monospace(format!("{:.3}", b.mean_rel_l2));
                 for a in &cv.per_aperture {
                     ui.monospace(format!("{:.3}", a.shape_mean_rel_l2));
+                }
+                ui.end_row();
+            }
+        });
+}
+
+/// The shooting plan: the lens's range (typed, or the session's), and every setting to
+/// shoot as a checklist of the shots the session has and those still missing.
+fn plan_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    let Some(c) = app.views.calibrated.as_ref() else {
+        ui.label("Open a session to plan its shots.");
+        return;
+    };
+    let mut r = c.plan_range;
+    ui.horizontal_wrapped(|ui| {
+        ui.label("The lens: focal length");
+        let mut changed = false;
+        for (v, tip) in r.focal_mm.iter_mut().zip(["The widest focal length (a prime: its focal length here and in the next box)", "The longest focal length"]) {
+            changed |= ui
+                .add(egui::DragValue::new(v).range(1.0..=2000.0).suffix(" mm").speed(1.0))
+                .on_hover_text(tip)
+                .changed();
+        }
+        ui.label("apertures f/");
+        for (v, tip) in r.f_number.iter_mut().zip(["Wide open: the lens's largest aperture (smallest f-number)", "The smallest aperture you use (the plan stops at f/11: past it diffraction blurs every lens alike)"]) {
+            changed |= ui
+                .add(egui::DragValue::new(v).range(0.7..=64.0).speed(0.1).max_decimals(1))
+                .on_hover_text(tip)
+                .changed();
+        }
+        if changed {
+            app.commands.push(Command::SetPlanRange(r));
+        }
+    });
+    let done = c.plan.iter().filter(|p| p.shot >= p.wanted).count();
+    ui.label(format!(
+        "{done} of {} settings shot, {} shots each (on a tripod, RAW, base ISO, focused on the chart, the chart filling the frame):",
+        c.plan.len(),
+        crate::review::SHOTS_PER_SETTING
+    ));
+    let mut focals: Vec<f64> = c.plan.iter().map(|p| p.setting.focal_mm).collect();
+    focals.dedup();
+    let mut apertures: Vec<f64> = c.plan.iter().map(|p| p.setting.f_number).collect();
+    apertures.sort_by(f64::total_cmp);
+    apertures.dedup();
+    let (ok, missing) = (ui.visuals().text_color(), ui.visuals().warn_fg_color);
+    egui::Grid::new("shooting plan grid")
+        .striped(true)
+        .show(ui, |ui| {
+            ui.label("");
+            for a in &apertures {
+                ui.strong(format!("f/{a:.1}"));
+            }
+            ui.end_row();
+            for f in &focals {
+                ui.strong(format!("{f:.0} mm"));
+                for a in &apertures {
+                    match c
+                        .plan
+                        .iter()
+                        .find(|p| p.setting.focal_mm == *f && p.setting.f_number == *a)
+                    {
+                        Some(p) if p.shot >= p.wanted => {
+                            ui.colored_label(ok, format!("shot ({})", p.shot));
+                        }
+                        Some(p) => {
+                            ui.colored_label(missing, format!("{} of {}", p.shot, p.wanted));
+                        }
+                        None => {
+                            ui.label("");
+                        }
+                    }
                 }
                 ui.end_row();
             }

@@ -38,6 +38,15 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     }
     ui.horizontal_wrapped(|ui| {
         if ui
+            .button(egui::RichText::new("Calibrate all").strong())
+            .on_hover_text(
+                "Detect, estimate kernels and calibrate whatever is missing, as one job; the profile is then in use (Ctrl+Enter)",
+            )
+            .clicked()
+        {
+            app.commands.push(Command::CalibrateAll { then_deblur: false });
+        }
+        if ui
             .button("Add shots…")
             .on_hover_text(
                 "RAW, DNG, TIFF, PNG or JPEG; or drop files on the window (Ctrl+Shift+A)",

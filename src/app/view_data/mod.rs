@@ -12,7 +12,7 @@
 //! makes textures.
 
 use super::{StudioApp, View};
-use crate::review::ShootingAdvice;
+use crate::review::{LensRange, PlannedSetting, ShootingAdvice};
 use crate::simulate::VirtualLens;
 use atlas::refresh_kernel_atlas;
 use field::refresh_field;
@@ -97,6 +97,10 @@ pub struct Calibrated {
     pub focal_mm: Vec<f64>,
     pub f_number: Vec<f64>,
     pub advice: Vec<ShootingAdvice>,
+    /// The lens's range the shooting plan is for: the one typed, else the session's.
+    pub plan_range: LensRange,
+    /// Every setting to shoot for that range, with the shots the session has there.
+    pub plan: Vec<PlannedSetting>,
 }
 
 impl ViewData {
@@ -158,10 +162,41 @@ pub(crate) fn setting_ranges(app: &StudioApp, lens: &VirtualLens) -> ([f64; 2], 
 /// The settings with shots and the core's advice on them: a few dozen values, cheaper
 /// to remake each frame than to key.
 pub(super) fn refresh_calibrated(app: &mut StudioApp) {
+    let lens = VirtualLens::demo();
     app.views.calibrated = app.session().map(|s| {
         let (focal_mm, f_number) = s.setting_grid();
         let advice = crate::review::shooting_advice(&focal_mm, &f_number, s.settings.beta);
+        let plan_range = app.plan_range.unwrap_or_else(|| {
+            // The range the shots span, where they span one; else the demo lens's.
+            match (
+                focal_mm.first(),
+                focal_mm.last(),
+                f_number.first(),
+                f_number.last(),
+            ) {
+                (Some(&f0), Some(&f1), Some(&a0), Some(&a1)) => LensRange {
+                    focal_mm: [f0, f1],
+                    f_number: [a0, a1.max(a0)],
+                },
+                _ => LensRange {
+                    focal_mm: lens.focal_range_mm,
+                    f_number: lens.f_number_range,
+                },
+            }
+        });
+        let shot: Vec<crate::plane::LensSetting> = s
+            .shots
+            .iter()
+            .filter_map(|shot| {
+                Some(crate::plane::LensSetting {
+                    focal_mm: shot.focal_mm?,
+                    f_number: shot.f_number?,
+                })
+            })
+            .collect();
         Calibrated {
+            plan: crate::review::shooting_plan(&plan_range, &shot),
+            plan_range,
             focal_mm,
             f_number,
             advice,
