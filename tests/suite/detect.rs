@@ -503,7 +503,7 @@ fn simulated_full_chart_at_the_extreme_settings() {
 }
 
 /// A chart whose outer squares' junctions line up one step beyond the board (the
-/// studio's first-launch demo framing: 16 × 10 squares of about 54 and 67 px): every
+/// studio's first-launch demo's framing once: 16 × 10 squares of about 54 and 67 px): every
 /// square is still found, at the right place.
 #[test]
 fn lattice_ignores_junctions_beyond_the_board() {
@@ -544,7 +544,7 @@ fn lattice_ignores_junctions_beyond_the_board() {
     }
 }
 
-/// The studio's own first-launch demo (nine 960 × 640 shots of a 16 × 10 chart, each
+/// The studio's own first-launch demo (nine 720 × 480 shots of a 12 × 8 chart, each
 /// posed a little differently): every square found and aligned on every shot. Two of
 /// them once failed as "more squares than the chart": a line of saddles along the
 /// board's outer edge had replaced the blurriest true line of corners.

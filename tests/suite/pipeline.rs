@@ -255,11 +255,13 @@ fn predicted_grid_as_csv(dir: &Path, profile: &Path, spec: &DemoSpec, novel: Len
     assert!(e50 <= 0.03 && e95 <= 0.08, "median {e50}, p95 {e95}");
 }
 
-/// `scripts/slurm_kernels.sh` run as Slurm would run it: every array task in its own
-/// process (`lensblur kernels` on one shot), then the dependent job (`calibrate
-/// --kernels`). Its profile is the one `calibrate --manifest` made on the same shots,
-/// byte for byte. The submission itself runs against a stand-in `sbatch` that records
-/// what it was asked.
+/// `scripts/slurm_kernels.sh` run as Slurm would run it: array tasks in their own
+/// processes (`lensblur kernels` on one shot), then the dependent job (`calibrate
+/// --kernels`). Each task's kernels are those `calibrate --manifest` cached for the
+/// same shot, so three tasks (the first, middle and last shot) are run and the other
+/// shots' kernels are taken from that cache; the profile is then the one `calibrate
+/// --manifest` made, byte for byte. The submission itself runs against a stand-in
+/// `sbatch` that records what it was asked.
 fn fanned_out_like_a_batch_system(dir: &Path, manifest: &Path, profile: &Path) {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/slurm_kernels.sh");
     let m: serde_json::Value =
@@ -301,12 +303,44 @@ fn fanned_out_like_a_batch_system(dir: &Path, manifest: &Path, profile: &Path) {
         out
     };
     let task = Path::new("task");
-    for i in 0..shots.len() {
-        let id = i.to_string();
-        run(
-            &[task, &list_path, &out_dir],
-            &[("SLURM_ARRAY_TASK_ID", &id)],
-        );
+    let cache = dir.join(lensblur::pipeline::RESULTS_DIR);
+    let without_source = |path: &Path| {
+        let mut k = KernelsFile::load(path).expect("kernels file");
+        k.source = None;
+        k
+    };
+    let run_as_tasks = [0, shots.len() / 2, shots.len() - 1];
+    for (i, s) in shots.iter().enumerate() {
+        let (focal, aperture) = (s["focal_mm"].as_f64(), s["f_number"].as_f64());
+        let cached = std::fs::read_dir(&cache)
+            .expect("cache")
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .find(|p| {
+                KernelsFile::load(p).is_ok_and(|k| k.focal_mm == focal && k.f_number == aperture)
+            })
+            .expect("the shot's kernels cached by calibrate --manifest");
+        let name = Path::new(s["path"].as_str().expect("path"))
+            .file_stem()
+            .expect("a file name")
+            .to_string_lossy()
+            .into_owned();
+        let out = out_dir.join(format!("{name}.kernels.json"));
+        if run_as_tasks.contains(&i) {
+            let id = i.to_string();
+            run(
+                &[task, &list_path, &out_dir],
+                &[("SLURM_ARRAY_TASK_ID", &id)],
+            );
+            assert_eq!(
+                without_source(&out),
+                without_source(&cached),
+                "task {i}: its kernels are not those calibrate --manifest measured"
+            );
+        } else {
+            std::fs::create_dir_all(&out_dir).expect("out dir");
+            std::fs::copy(&cached, &out).expect("cached kernels");
+        }
     }
     run(
         &[Path::new("calibrate"), &list_path, &out_dir, &fanned],
