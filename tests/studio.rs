@@ -558,12 +558,23 @@ fn every_view_on_the_demo_session() {
     // predicted Gaussians and with the shot's own measured kernels.
     h.get_by_label("Deblur").click();
     h.run_steps(2);
+    let shot_path = {
+        let app = h.state();
+        let s = app.session().expect("session");
+        let id = app.selected_shot.expect("a selected shot");
+        s.path_of(s.shot(id).expect("the shot"))
+    };
     h.get_by_label("Deblur the selected shot").click();
+    // The demo's photo is open with its own preview: wait for the shot's.
     step_until(
         &mut h,
         "the deblur preview",
         Duration::from_secs(120),
-        |a| a.deblur.comparison.is_some() && idle(a),
+        |a| {
+            a.deblur.photo.as_ref().is_some_and(|p| p.path == shot_path)
+                && a.deblur.comparison.is_some()
+                && idle(a)
+        },
     );
     {
         let c = &h
@@ -1699,7 +1710,9 @@ fn log_panel_confirmation_about_and_recent_sessions() {
     h.state_mut().commands.push(Command::RunDetect(None));
     h.run_steps(1);
     step_until(&mut h, "detection", Duration::from_secs(120), idle);
-    let missing = dir.path().join("no such photo.png");
+    // Inside the session folder, so the message names it relative to it (the snapshot
+    // of the log must not hold the test's temporary folder).
+    let missing = folder.join("no such photo.png");
     h.state_mut().commands.push(Command::OpenPhoto(missing));
     step_until(&mut h, "the photo's error", Duration::from_secs(20), |a| {
         idle(a) && a.messages.iter().any(|m| m.is_error)
