@@ -71,6 +71,8 @@ pub enum Command {
     SetDeblurMethod(crate::deblur::Method),
     /// The lens's range the shooting plan is made for.
     SetPlanRange(crate::review::LensRange),
+    /// Shows or hides the whole photo above the compared panes.
+    SetDeblurOverview(bool),
     /// The amount, in percent of the method's result (0–200).
     SetDeblurAmount(f64),
     SetDeblurDevice(crate::deblur::Device),

@@ -410,6 +410,9 @@ pub struct DeblurState {
     pub device: crate::deblur::Device,
     /// How strongly to deblur (the photographer's control).
     pub amount: crate::deblur::Amount,
+    /// Whether the whole photo and the notes show above the compared panes; closed,
+    /// the before/after has the view to itself.
+    pub overview_open: bool,
     /// Where the preview runs and, when not where asked, why (said once per change).
     pub device_note: Option<String>,
     /// The panes' drag in progress, sensor px.
@@ -434,6 +437,7 @@ impl Default for DeblurState {
             method: None,
             device: crate::deblur::Device::Auto,
             amount: crate::deblur::Amount::FULL,
+            overview_open: true,
             device_note: None,
             drag: [0.0; 2],
             pending: None,

@@ -63,6 +63,11 @@ pub(super) fn apply_deblur(app: &mut StudioApp, command: Command) {
             app.deblur.method = Some(m);
             redeblur(app);
         }
+        Command::SetDeblurOverview(open) => {
+            app.deblur.overview_open = open;
+            // The panes' size changes: at 100 % and more, the region follows it.
+            app.deblur.viewport = None;
+        }
         Command::SetDeblurAmount(percent) => {
             app.deblur.amount = crate::deblur::Amount::percent(percent);
             redeblur(app);

@@ -81,6 +81,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         | Command::SetDeblurCrop(_)
         | Command::SetDeblurMethod(_)
         | Command::SetDeblurAmount(_)
+        | Command::SetDeblurOverview(_)
         | Command::SetDeblurDevice(_)
         | Command::DragDeblur(_)
         | Command::EndDragDeblur

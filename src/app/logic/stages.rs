@@ -107,6 +107,7 @@ fn calibrated(
             Command::SelectView(crate::app::View::Deblur),
             Command::SetDeblurLayout(crate::app::DeblurLayout::Slider),
             Command::SetDeblurZoom(crate::app::DeblurZoom::Times(1)),
+            Command::SetDeblurOverview(false),
         ]);
     }
     save(app);

@@ -158,6 +158,27 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             });
         }
     });
+    let overview_open = app.deblur.overview_open;
+    let header = egui::CollapsingHeader::new("The whole photo (click it to choose the region)")
+        .id_salt("deblur overview")
+        .open(Some(overview_open))
+        .show(ui, |ui| overview_and_notes_ui(app, ui));
+    if header.header_response.clicked() {
+        app.commands
+            .push(Command::SetDeblurOverview(!overview_open));
+    }
+    ui.separator();
+    match (&app.deblur.comparison, app.deblur.layout) {
+        (None, _) => {
+            ui.label("Click the photo to deblur a region.");
+        }
+        (Some(_), DeblurLayout::SideBySide) => side_by_side_ui(app, ui),
+        (Some(_), DeblurLayout::Slider) => slider_ui(app, ui),
+    }
+}
+
+/// The whole photo with the region outlined, and what the panes below compare.
+fn overview_and_notes_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ui.horizontal_top(|ui| {
         let overview_w = 280.0;
         ui.vertical(|ui| {
@@ -183,14 +204,6 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
         });
     });
-    ui.separator();
-    match (&app.deblur.comparison, app.deblur.layout) {
-        (None, _) => {
-            ui.label("Click the photo to deblur a region.");
-        }
-        (Some(_), DeblurLayout::SideBySide) => side_by_side_ui(app, ui),
-        (Some(_), DeblurLayout::Slider) => slider_ui(app, ui),
-    }
 }
 
 /// Zoom, region size and the amount, with the method, its strength and the device

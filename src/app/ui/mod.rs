@@ -563,11 +563,11 @@ fn plot_title_ui(
     tip: &str,
     width: f32,
 ) {
-    ui.horizontal(|ui| {
+    ui.horizontal_wrapped(|ui| {
         ui.set_max_width(width);
         plot_save_buttons(commands, ui, plot);
-        // Cut short, the title is whole in the hover, above what it means.
-        ui.add(egui::Label::new(title.clone()).truncate())
+        // Whole, on a second line where it must; the hover says what it means.
+        ui.add(egui::Label::new(title.clone()).wrap())
             .on_hover_text(format!("{title}\n\n{tip}"));
     });
 }
