@@ -162,7 +162,6 @@ pub(crate) fn setting_ranges(app: &StudioApp, lens: &VirtualLens) -> ([f64; 2], 
 /// The settings with shots and the core's advice on them: a few dozen values, cheaper
 /// to remake each frame than to key.
 pub(super) fn refresh_calibrated(app: &mut StudioApp) {
-    let lens = VirtualLens::demo();
     app.views.calibrated = app.session().map(|s| {
         let (focal_mm, f_number) = s.setting_grid();
         let advice = crate::review::shooting_advice(&focal_mm, &f_number, s.settings.beta);
@@ -178,10 +177,13 @@ pub(super) fn refresh_calibrated(app: &mut StudioApp) {
                     focal_mm: [f0, f1],
                     f_number: [a0, a1.max(a0)],
                 },
-                _ => LensRange {
-                    focal_mm: lens.focal_range_mm,
-                    f_number: lens.f_number_range,
-                },
+                _ => {
+                    let lens = VirtualLens::demo();
+                    LensRange {
+                        focal_mm: lens.focal_range_mm,
+                        f_number: lens.f_number_range,
+                    }
+                }
             }
         });
         let shot: Vec<crate::plane::LensSetting> = s
