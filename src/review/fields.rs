@@ -140,6 +140,38 @@ pub fn predicted_at(
         .collect()
 }
 
+/// The palette at `t` in 0–1: viridis for a quantity (σ, MTF50), blue–white–red for a
+/// difference, white at the middle (0 on a symmetric range). Every map the studio
+/// draws and every map picture written uses it.
+#[must_use]
+pub fn palette_rgb(t: f32, diverging: bool) -> [u8; 3] {
+    const VIRIDIS: [[u8; 3]; 5] = [
+        [68, 1, 84],
+        [59, 82, 139],
+        [33, 145, 140],
+        [94, 201, 98],
+        [253, 231, 37],
+    ];
+    const BWR: [[u8; 3]; 5] = [
+        [33, 102, 172],
+        [146, 197, 222],
+        [247, 247, 247],
+        [244, 165, 130],
+        [178, 24, 43],
+    ];
+    let stops = if diverging { &BWR } else { &VIRIDIS };
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    } * 4.0;
+    let k = (t.floor() as usize).min(3);
+    let f = t - k as f32;
+    let [a, b] = [stops[k], stops[k + 1]];
+    let mix = |i: usize| (f32::from(a[i]) * (1.0 - f) + f32::from(b[i]) * f) as u8;
+    [mix(0), mix(1), mix(2)]
+}
+
 /// The colour range of a map from its finite `values`: [min, max], or for a difference
 /// map (`symmetric`) [−m, m] with m the largest magnitude, so that white is exactly 0.
 /// Never empty: a constant field gets a small span around its value.

@@ -13,6 +13,7 @@
 //! - [`crops`]: a photo region deblurred with a profile and with measured kernels;
 //! - [`export`]: a deblurred photo written whole, plot data as CSV, PNG cuts;
 //! - [`plot`]: cross-validation curves and tick placement;
+//! - [`sharpness`]: the sharpness map (MTF50 over the frame), its CSV and picture;
 //! - [`advice`]: shooting advice.
 
 pub mod advice;
@@ -21,6 +22,7 @@ pub mod export;
 pub mod fields;
 pub mod kernels;
 pub mod plot;
+pub mod sharpness;
 pub mod sweeps;
 
 pub use advice::{
@@ -33,15 +35,18 @@ pub use crops::{
 };
 pub use export::{PlotTable, export_deblurred, plot_csv, write_png_crop};
 pub use fields::{
-    FieldDifference, colour_range, field_difference, field_grid, predicted_at, predicted_field,
-    truth_field, truth_pixel_gaussian,
+    FieldDifference, colour_range, field_difference, field_grid, palette_rgb, predicted_at,
+    predicted_field, truth_field, truth_pixel_gaussian,
 };
 pub use kernels::{
     KernelError, KernelTails, NOISY_TAIL_FRACTION, PredictedKernel, SquareFacts, kernel_errors,
     kernel_tail_fraction, kernel_tails, no_shape_reason, noisy_kernel_reason, predicted_kernels,
     skip_reasons, square_facts,
 };
-pub use plot::{cv_cdf_curves, cv_curve, nice_ticks};
+pub use plot::{
+    aperture_stops, cv_cdf_curves, cv_curve, f_number_at_stops, f_number_label, nice_ticks,
+};
+pub use sharpness::{MapSummary, Mtf50Direction, SharpnessMap, SharpnessUnit, map_grid};
 pub use sweeps::{
     SweepPoint, model_curve, nearest_value, sweep_points, sweep_settings, truth_curve,
 };

@@ -194,7 +194,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     };
     let panels = &field.panels;
     if let Some(colours) = &field.scale {
-        colour_bar_ui(ui, colours, field.noisy);
+        colour_bar_ui(ui, colours, field.noisy, &format!("{TIP_CXX}\n{TIP_CYY}"));
     }
     let avail = ui.available_size();
     let cols = panels.len().max(1) as f32;
@@ -330,30 +330,9 @@ fn options_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     });
 }
 
-/// The palette at `t` in 0–1: viridis for σ; blue–white–red for a difference, white at
-/// the middle (0 on a symmetric range).
 fn palette(t: f32, diverging: bool) -> Color32 {
-    const VIRIDIS: [[u8; 3]; 5] = [
-        [68, 1, 84],
-        [59, 82, 139],
-        [33, 145, 140],
-        [94, 201, 98],
-        [253, 231, 37],
-    ];
-    const BWR: [[u8; 3]; 5] = [
-        [33, 102, 172],
-        [146, 197, 222],
-        [247, 247, 247],
-        [244, 165, 130],
-        [178, 24, 43],
-    ];
-    let stops = if diverging { &BWR } else { &VIRIDIS };
-    let t = t.clamp(0.0, 1.0) * 4.0;
-    let k = (t.floor() as usize).min(3);
-    let f = t - k as f32;
-    let [a, b] = [stops[k], stops[k + 1]];
-    let mix = |i: usize| (f32::from(a[i]) * (1.0 - f) + f32::from(b[i]) * f) as u8;
-    Color32::from_rgb(mix(0), mix(1), mix(2))
+    let [r, g, b] = crate::review::palette_rgb(t, diverging);
+    Color32::from_rgb(r, g, b)
 }
 
 fn scale_color(colours: &ColourScale, v: f64) -> Color32 {
@@ -362,10 +341,9 @@ fn scale_color(colours: &ColourScale, v: f64) -> Color32 {
 
 /// The colour bar: its title with the unit, the palette, ticks and their values, and
 /// the hatching's meaning where kernels are flagged.
-fn colour_bar_ui(ui: &mut egui::Ui, colours: &ColourScale, noisy: usize) {
+pub(super) fn colour_bar_ui(ui: &mut egui::Ui, colours: &ColourScale, noisy: usize, tip: &str) {
     ui.horizontal(|ui| {
-        ui.label(&colours.title)
-            .on_hover_text(format!("{TIP_CXX}\n{TIP_CYY}"));
+        ui.label(&colours.title).on_hover_text(tip);
         let (rect, _) = ui.allocate_exact_size(Vec2::new(320.0, 30.0), Sense::hover());
         let p = ui.painter_at(rect.expand(2.0));
         let bar = Rect::from_min_size(rect.min, Vec2::new(rect.width(), 12.0));
