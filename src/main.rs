@@ -35,6 +35,8 @@ enum Command {
     Crossval(cli::crossval::Args),
     /// Predict the Gaussian blur at given sensor points from a profile.
     Predict(cli::predict::Args),
+    /// MTF50 over the whole frame as a map (PNG and CSV), predicted or measured.
+    Sharpness(cli::sharpness::Args),
     /// Measured C_xx, C_yy, C_or against aperture and focal length (the paper's Fig. 4 data).
     Sweeps(cli::sweeps::Args),
     /// Remove the lens blur from a photo with a profile's or a kernels file's kernels.
@@ -55,6 +57,7 @@ fn main() -> ExitCode {
         Some(Command::Calibrate(a)) => cli::calibrate::run(a),
         Some(Command::Crossval(a)) => cli::crossval::run(a),
         Some(Command::Predict(a)) => cli::predict::run(a),
+        Some(Command::Sharpness(a)) => cli::sharpness::run(a),
         Some(Command::Sweeps(a)) => cli::sweeps::run(a),
         Some(Command::Deblur(a)) => cli::deblur::run(a),
         Some(Command::Experiment(a)) => cli::experiment::run(a),

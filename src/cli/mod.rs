@@ -10,6 +10,7 @@ pub mod detect;
 pub mod experiment;
 pub mod kernels;
 pub mod predict;
+pub mod sharpness;
 pub mod simulate;
 pub mod studio;
 pub mod sweeps;

@@ -175,6 +175,7 @@ fn calibrate_on_simulated_shots_and_predict_a_novel_setting() {
     assert!(Path::new(&profile).is_file());
 
     predicted_grid_as_csv(dir.path(), &profile, &spec, novel);
+    sharpness_maps_against_the_truth(dir.path(), &profile, &spec, novel);
     fanned_out_like_a_batch_system(dir.path(), &manifest, &profile);
 }
 
@@ -253,6 +254,105 @@ fn predicted_grid_as_csv(dir: &Path, profile: &Path, spec: &DemoSpec, novel: Len
         100.0 * e95
     );
     assert!(e50 <= 0.03 && e95 <= 0.08, "median {e50}, p95 {e95}");
+}
+
+/// `lensblur sharpness`: the map a profile predicts at the novel setting and the map
+/// one shot's kernels measured, each against the lens's own MTF50 over the frame
+/// (median relative error over the cells), written as CSV and as a PNG.
+fn sharpness_maps_against_the_truth(
+    dir: &Path,
+    profile: &Path,
+    spec: &DemoSpec,
+    novel: LensSetting,
+) {
+    use lensblur::review::{Mtf50Direction, SharpnessMap};
+    let lens = VirtualLens::demo();
+    let sensor = (spec.width, spec.height);
+    // The CSV's MTF50 column in cycles/px, as a map on the truth's grid.
+    let map_of_csv = |csv: &str| -> Vec<f64> {
+        let mut lines = csv.lines();
+        assert_eq!(
+            lines.next(),
+            Some("x,y,channel,direction,mtf50_cycles_px,mtf50_lp_ph")
+        );
+        lines
+            .map(|l| {
+                let cells: Vec<&str> = l.split(',').collect();
+                assert_eq!(cells.len(), 6, "{l}");
+                cells[4].parse::<f64>().unwrap_or(f64::NAN)
+            })
+            .collect()
+    };
+    let run = |what: &[&str], stem: &str| -> Vec<f64> {
+        let (png, csv) = (
+            dir.join(format!("{stem}.png")),
+            dir.join(format!("{stem}.csv")),
+        );
+        let mut args = vec!["sharpness"];
+        args.extend_from_slice(what);
+        args.extend_from_slice(&[
+            "--png",
+            png.to_str().expect("utf-8"),
+            "--csv",
+            csv.to_str().expect("utf-8"),
+        ]);
+        let out = lensblur(&args);
+        assert!(
+            out.status.success(),
+            "sharpness failed: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let img = image::open(&png).expect("the map's PNG opens");
+        assert_eq!(img.width(), 960);
+        map_of_csv(&std::fs::read_to_string(&csv).expect("csv"))
+    };
+    let error = |values: Vec<f64>, setting: LensSetting| {
+        let truth = SharpnessMap::truth(&lens, Channel::G, sensor, setting, Mtf50Direction::Worst);
+        assert_eq!(values.len(), truth.cycles_per_px.len());
+        let got = SharpnessMap {
+            cycles_per_px: values,
+            ..truth.clone()
+        };
+        got.median_relative_error(&truth).expect("cells to compare")
+    };
+
+    let predicted = run(
+        &[
+            "--profile",
+            profile.to_str().expect("utf-8"),
+            "--focal",
+            "35",
+            "--aperture",
+            "4.8",
+        ],
+        "predicted-map",
+    );
+    let e_predicted = error(predicted, novel);
+
+    let measured_at = spec.settings[4];
+    let kernels = std::fs::read_dir(dir.join(lensblur::pipeline::RESULTS_DIR))
+        .expect("cache")
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .find(|p| {
+            KernelsFile::load(p).is_ok_and(|k| {
+                k.focal_mm == Some(measured_at.focal_mm) && k.f_number == Some(measured_at.f_number)
+            })
+        })
+        .expect("kernels of the shot cached");
+    let measured = run(
+        &["--kernels", kernels.to_str().expect("utf-8")],
+        "measured-map",
+    );
+    let covered = measured.iter().filter(|v| v.is_finite()).count();
+    let e_measured = error(measured, measured_at);
+    eprintln!(
+        "sharpness map (MTF50 worst, G) against the truth: predicted at the novel setting median {:.2} %, measured on one shot median {:.2} % ({covered} cells with a value)",
+        100.0 * e_predicted,
+        100.0 * e_measured,
+    );
+    assert!(e_predicted <= 0.03, "predicted map: median {e_predicted}");
+    assert!(e_measured <= 0.03, "measured map: median {e_measured}");
 }
 
 /// `scripts/slurm_kernels.sh` run as Slurm would run it: array tasks in their own
