@@ -54,3 +54,37 @@ pub fn nice_ticks(range: [f64; 2], n: usize) -> Vec<f64> {
         .map(|k| k as f64 * step)
         .collect()
 }
+
+/// Stops from f/1, 2·log₂ N: the unit an aperture is stepped in, so an aperture axis
+/// spaces f/4, f/5.6 and f/8 evenly as a lens's ring does.
+#[must_use]
+pub fn aperture_stops(f_number: f64) -> f64 {
+    2.0 * f_number.log2()
+}
+
+/// The f-number `stops` stops from f/1.
+#[must_use]
+pub fn f_number_at_stops(stops: f64) -> f64 {
+    2f64.powf(stops / 2.0)
+}
+
+/// The f-numbers lenses mark at every third of a stop from f/1 to f/32.
+const MARKED_F_NUMBERS: [f64; 31] = [
+    1.0, 1.1, 1.2, 1.4, 1.6, 1.8, 2.0, 2.2, 2.5, 2.8, 3.2, 3.5, 4.0, 4.5, 5.0, 5.6, 6.3, 7.1, 8.0,
+    9.0, 10.0, 11.0, 13.0, 14.0, 16.0, 18.0, 20.0, 22.0, 25.0, 29.0, 32.0,
+];
+
+/// An aperture axis's label at `stops` from f/1: the f-number a lens marks there where
+/// it is a third of a stop (f/5.6, not f/5.66), else the exact one.
+#[must_use]
+pub fn f_number_label(stops: f64) -> String {
+    let thirds = stops * 3.0;
+    let nearest = thirds.round();
+    let marked = usize::try_from(nearest as i64)
+        .ok()
+        .filter(|_| (thirds - nearest).abs() < 1e-6)
+        .and_then(|i| MARKED_F_NUMBERS.get(i));
+    let n = marked.copied().unwrap_or_else(|| f_number_at_stops(stops));
+    let text = format!("{n:.1}");
+    format!("f/{}", text.strip_suffix(".0").unwrap_or(&text))
+}

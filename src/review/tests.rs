@@ -496,3 +496,25 @@ fn plot_csv_quotes_axis_titles_and_leaves_out_undrawn_points() {
         "series,aperture (f-number),\"C_xx (σ, px)\"\nmodel centre,4,1.5\nmodel centre,8,2\n"
     );
 }
+
+#[test]
+fn an_aperture_axis_is_in_stops_and_labelled_as_lenses_mark_it() {
+    use super::{aperture_stops, f_number_at_stops, f_number_label};
+    assert!((aperture_stops(4.0) - 4.0).abs() < 1e-12);
+    // f/5.6 is 2^2.5 = 5.66 rounded: a stop from f/8 to within 3 %.
+    assert!(
+        (aperture_stops(8.0) - aperture_stops(5.6) - 1.0).abs() < 0.03,
+        "one stop"
+    );
+    assert!((f_number_at_stops(aperture_stops(7.1)) - 7.1).abs() < 1e-12);
+    let labels: Vec<String> = [4.0, 5.0, 16.0 / 3.0, 6.0, 7.0, 20.0 / 3.0]
+        .into_iter()
+        .map(f_number_label)
+        .collect();
+    assert_eq!(labels, ["f/4", "f/5.6", "f/6.3", "f/8", "f/11", "f/10"]);
+    assert_eq!(
+        f_number_label(4.5),
+        "f/4.8",
+        "between thirds: the exact value"
+    );
+}

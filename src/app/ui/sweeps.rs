@@ -124,11 +124,26 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                     let plot = Plot::new(format!("sweep-{name}-{vs_aperture}"))
                         .width(plot_w)
                         .height(plot_h)
-                        .custom_x_axes(vec![super::x_axis(sweep_x_label(vs_aperture))])
+                        .custom_x_axes(vec![if vs_aperture {
+                            super::aperture_axis(sweep_x_label(vs_aperture))
+                        } else {
+                            super::x_axis(sweep_x_label(vs_aperture))
+                        }])
                         .custom_y_axes(vec![super::y_axis(&sweep_y_label(p))])
                         .allow_scroll(false);
+                    let plot = if vs_aperture {
+                        plot.x_grid_spacer(super::stops_grid())
+                            .label_formatter(super::aperture_hover)
+                    } else {
+                        plot
+                    };
                     super::show_plot(ui, id, plot, move |plot| {
                         for v in shot_at {
+                            let v = if vs_aperture {
+                                crate::review::aperture_stops(v)
+                            } else {
+                                v
+                            };
                             // Unnamed: out of the legend and the CSV.
                             plot.vline(
                                 VLine::new("", v)

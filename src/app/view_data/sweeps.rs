@@ -136,7 +136,14 @@ pub fn sweep_y_label(param: &SweepParam) -> String {
 #[must_use]
 pub fn sweep_series(data: &SweepData, vs_aperture: bool, param: &SweepParam) -> Vec<SweepSeries> {
     let sweep = &data.sweeps[usize::from(!vs_aperture)];
-    let abscissa = |s: LensSetting| if vs_aperture { s.f_number } else { s.focal_mm };
+    // Apertures in stops, as the plot spaces them (its ticks name the f-numbers).
+    let abscissa = |s: LensSetting| {
+        if vs_aperture {
+            crate::review::aperture_stops(s.f_number)
+        } else {
+            s.focal_mm
+        }
+    };
     let get = param.get;
     let curve = |c: &[CurvePoint]| -> Vec<[f64; 2]> {
         c.iter()
@@ -190,9 +197,26 @@ pub fn sweep_table(
     Some(PlotTable {
         x_label: sweep_x_label(vs_aperture).to_owned(),
         y_label: sweep_y_label(&param),
+        // The CSV gives f-numbers, not the plot's stops.
         series: sweep_series(data, vs_aperture, &param)
             .into_iter()
-            .map(|s| (s.name, s.points))
+            .map(|s| {
+                let points = s
+                    .points
+                    .into_iter()
+                    .map(|[x, y]| {
+                        [
+                            if vs_aperture {
+                                crate::review::f_number_at_stops(x)
+                            } else {
+                                x
+                            },
+                            y,
+                        ]
+                    })
+                    .collect();
+                (s.name, points)
+            })
             .collect(),
     })
 }
