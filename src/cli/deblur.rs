@@ -57,6 +57,11 @@ pub struct Args {
     /// it is, 100 is the method at its tuned strength, up to 200 carries it further.
     #[arg(long, default_value_t = 100.0)]
     pub amount: f64,
+    /// Keep the colour the deconvolution adds at strong edges instead of holding each
+    /// pixel's colour inside the photo's own around it (RGB photos; RAW ones always
+    /// keep it).
+    #[arg(long)]
+    pub keep_fringes: bool,
     /// From a kernels file holding both: use the non-parametric kernels or the Gaussians.
     #[arg(long, value_enum, default_value = "kernels")]
     pub prefer: PreferArg,
@@ -118,6 +123,11 @@ pub fn run(args: Args) -> Result<()> {
         method,
         device,
         amount: Amount::percent(args.amount),
+        fringes: if args.keep_fringes {
+            lensblur::deblur::Fringes::Keep
+        } else {
+            lensblur::deblur::Fringes::Suppress
+        },
         ..DeblurOptions::default()
     };
     if args.batch.out_dir.is_some() {

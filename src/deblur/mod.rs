@@ -10,6 +10,7 @@
 //! buffers (the plans are shared by the whole process), and only that row's results
 //! are held before they are summed in.
 
+pub mod chroma;
 pub mod gpu;
 pub mod output;
 pub mod solve;
@@ -54,6 +55,20 @@ pub struct DeblurOptions {
     pub device: Device,
     /// How much of the deconvolution to keep: the photographer's control.
     pub amount: Amount,
+    /// Whether colour the deconvolution adds at edges is cut back ([`chroma`]).
+    pub fringes: Fringes,
+}
+
+/// What happens to colour the per-channel deconvolution adds at edges.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Fringes {
+    /// Each pixel's chroma held inside the photo's own around it ([`chroma::clamp_chroma`]),
+    /// for RGB photos (a RAW photo's Bayer planes sit a pixel apart, and the clamp
+    /// would mix positions).
+    #[default]
+    Suppress,
+    /// Every channel as its deconvolution left it.
+    Keep,
 }
 
 /// How strongly to deblur, as a fraction of the method's own result: 0 leaves the photo
@@ -534,7 +549,38 @@ pub fn deblur_capture(
         opts.amount.apply(&cp.plane, &mut plane);
         cp.plane = plane;
     }
+    if opts.fringes == Fringes::Suppress && !cap.is_raw {
+        suppress_fringes(cap, &mut out);
+    }
     Ok(out)
+}
+
+/// [`chroma::clamp_chroma`] on an RGB capture's R, G and B planes (nothing otherwise).
+fn suppress_fringes(cap: &Capture, out: &mut Capture) {
+    use crate::plane::Channel;
+    let find = |c: &Capture, ch| c.planes.iter().position(|p| p.channel == ch);
+    let (Some(r), Some(g), Some(b)) = (
+        find(cap, Channel::R),
+        find(cap, Channel::G),
+        find(cap, Channel::B),
+    ) else {
+        return;
+    };
+    let input = [
+        &cap.planes[r].plane,
+        &cap.planes[g].plane,
+        &cap.planes[b].plane,
+    ];
+    let mut planes: Vec<Option<&mut Plane>> =
+        out.planes.iter_mut().map(|p| Some(&mut p.plane)).collect();
+    let (Some(ro), Some(go), Some(bo)) = (
+        planes.get_mut(r).and_then(Option::take),
+        planes.get_mut(g).and_then(Option::take),
+        planes.get_mut(b).and_then(Option::take),
+    ) else {
+        return;
+    };
+    chroma::clamp_chroma(input, [ro, go, bo], chroma::CHROMA_WINDOW_RADIUS);
 }
 
 #[cfg(test)]
