@@ -10,7 +10,8 @@ use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
 use lensblur::app::view_data::{ColourRange, FieldOptions};
 use lensblur::app::{
-    AppOptions, Command, FieldShow, FieldSource, PlotId, StudioApp, SweepAxis, View,
+    AppOptions, Command, FieldShow, FieldSource, PlotId, SharpnessChoice, StudioApp, SweepAxis,
+    View,
 };
 use lensblur::job::JobContext;
 use lensblur::pipeline::ShotFile;
@@ -1556,7 +1557,9 @@ fn models_warn_what_to_shoot_when_the_settings_cannot_determine_the_model() {
 #[test]
 fn the_demo_streams_its_shots_and_blurs_a_photo() {
     let dir = tempfile::tempdir().expect("temp dir");
-    let spec = test_demo();
+    // The demo a user sees (its size, chart and nine settings), so these snapshots are
+    // what a first launch shows.
+    let spec = DemoSpec::studio();
     let t0 = Instant::now();
     let mut seen = Vec::new();
     let made = lensblur::simulate::demo::make_demo_streaming(
@@ -1658,6 +1661,83 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
         },
     );
     snapshot(&mut h, "studio_deblur_demo_photo");
+
+    // Hovering the before/after: a loupe of the same pixels before and after, and their
+    // values in both; the divider stays where it was.
+    let divider = h.get_by_label("divider").rect();
+    let slider = h.state().deblur.slider;
+    h.hover_at(divider.center() + egui::vec2(-120.0, -60.0));
+    h.run_steps(2);
+    assert_eq!(h.state().deblur.slider, slider, "hovering moves nothing");
+    h.get_by_label_contains("before R ");
+    // With the pointer: the loupe is drawn at once where it rests (no tooltip delay).
+    h.snapshot("studio_deblur_demo_loupe");
+    h.hover_at(egui::pos2(2.0, 2.0));
+    h.run_steps(1);
+
+    // The sharpness map the profile predicts at the photo's setting, then the one the
+    // photo's shot measured, and the lens's own: worse towards the corners in all three.
+    h.state_mut()
+        .commands
+        .push(Command::SelectView(View::Sharpness));
+    let corners_fall = |a: &StudioApp| {
+        a.views.sharpness.as_ref().is_some_and(|d| {
+            d.summary
+                .is_some_and(|s| s.corners < s.centre && s.min > 0.0)
+        })
+    };
+    step_until(
+        &mut h,
+        "the predicted sharpness map",
+        Duration::from_secs(30),
+        |a| a.sharpness.source == FieldSource::Predicted && corners_fall(a),
+    );
+    snapshot(&mut h, "studio_sharpness_demo");
+    for source in [FieldSource::Measured, FieldSource::Truth] {
+        let choice = SharpnessChoice {
+            source,
+            ..h.state().sharpness
+        };
+        h.state_mut().commands.push(Command::SetSharpness(choice));
+        step_until(&mut h, "the sharpness map", Duration::from_secs(30), |a| {
+            a.sharpness.source == source
+                && a.views.sharpness.as_ref().is_some_and(|d| d.map.is_ok())
+                && corners_fall(a)
+        });
+    }
+    snapshot(&mut h, "studio_sharpness_truth");
+
+    // The shooting plan of the demo's lens, every setting shot.
+    h.state_mut()
+        .commands
+        .push(Command::SelectView(View::Models));
+    h.run_steps(2);
+    h.get_by_label("Shooting plan").click();
+    h.run_steps(2);
+    h.get_by_label_contains("settings shot, ");
+    snapshot(&mut h, "studio_models_demo_plan");
+
+    // The map shown last, saved as the dialog's answer would save it: the PNG, and
+    // the CSV with one row per cell.
+    for png in [true, false] {
+        let path = dir.path().join(if png { "map.png" } else { "map.csv" });
+        h.state_mut().commands.push(Command::SaveSharpness {
+            path: path.clone(),
+            png,
+        });
+        h.run_steps(2);
+        if png {
+            let img = image::open(&path).expect("the saved map opens");
+            assert!(img.width() >= 960, "{}", img.width());
+        } else {
+            let csv = std::fs::read_to_string(&path).expect("the saved CSV");
+            assert_eq!(
+                csv.lines().count(),
+                1 + 48 * 32,
+                "a row per cell of 720 × 480"
+            );
+        }
+    }
 }
 
 fn folder_has_profile(folder: &Path) -> bool {

@@ -4,8 +4,8 @@
 
 use super::view_data;
 use super::{
-    DeblurLayout, DeblurResult, DeblurZoom, FieldShow, FieldSource, PlotId, SweepAxis, View,
-    ViewerState,
+    DeblurLayout, DeblurResult, DeblurZoom, FieldShow, FieldSource, PlotId, SharpnessChoice,
+    SweepAxis, View, ViewerState,
 };
 use crate::chart::ChartSpec;
 use crate::crossval::CvReport;
@@ -75,6 +75,8 @@ pub enum Command {
     SetDeblurOverview(bool),
     /// The amount, in percent of the method's result (0–200).
     SetDeblurAmount(f64),
+    /// Whether colour the deconvolution adds at edges is cut back.
+    SetDeblurFringes(crate::deblur::Fringes),
     SetDeblurDevice(crate::deblur::Device),
     /// Drag of the compared panes in progress (sensor px), drawn as a shift.
     DragDeblur([f32; 2]),
@@ -108,6 +110,17 @@ pub enum Command {
     SetFieldSource(FieldSource),
     SetFieldShow(FieldShow),
     SetSweepAxis(SweepAxis),
+    /// What the Sharpness view maps.
+    SetSharpness(SharpnessChoice),
+    /// Asks where to save the sharpness map shown, as a PNG with its colour bar or as
+    /// CSV.
+    SaveSharpnessDialog {
+        png: bool,
+    },
+    SaveSharpness {
+        path: PathBuf,
+        png: bool,
+    },
     /// Asks where to save a plot, as a PNG of it on screen or as CSV of its data.
     SavePlotDialog {
         plot: PlotId,
@@ -153,6 +166,8 @@ pub enum Command {
     /// The answer to the question asked: do it, or not.
     ConfirmAnswer(bool),
     /// Shows or hides the log panel (every message of this run, timestamped).
+    /// Shows or folds the session panel.
+    SetSessionPanel(bool),
     SetLogOpen(bool),
     ShowHelp(bool),
     /// The guide to calibrating your own lens.

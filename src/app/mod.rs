@@ -21,8 +21,8 @@ pub use command::{Command, Confirm, JobOutput};
 pub(crate) use state::Tally;
 pub use state::{
     AppOptions, ComparisonView, DeblurLayout, DeblurResult, DeblurState, DeblurZoom, FieldShow,
-    FieldSource, FrameLog, Message, PendingPlotPng, Photo, PlotId, ShotPreview, ShotView,
-    SweepAxis, View, ViewerState, clock_now,
+    FieldSource, FrameLog, Message, PendingPlotPng, Photo, PlotId, SharpnessChoice, ShotPreview,
+    ShotView, SweepAxis, View, ViewerState, clock_now,
 };
 
 use crate::chart::ChartSpec;
@@ -63,6 +63,8 @@ pub struct StudioApp {
     /// Every message of this run, newest last: the log panel.
     pub log: Vec<Message>,
     log_open: bool,
+    /// The session panel on the left; folded, the views have the whole width.
+    session_panel_open: bool,
     /// The question being asked, in a modal dialog.
     pub confirm: Option<Confirm>,
     show_help: bool,
@@ -89,6 +91,8 @@ pub struct StudioApp {
     field_show: FieldShow,
     pub field_options: view_data::FieldOptions,
     pub sweep_axis: SweepAxis,
+    /// What the Sharpness view maps.
+    pub sharpness: SharpnessChoice,
     pub plot_png: Option<PendingPlotPng>,
     /// What the views show that takes computing, cached by what it depends on.
     pub views: view_data::ViewData,
@@ -147,6 +151,7 @@ impl StudioApp {
             messages: Vec::new(),
             log: Vec::new(),
             log_open: false,
+            session_panel_open: true,
             confirm: None,
             show_help: false,
             show_guide: false,
@@ -166,6 +171,7 @@ impl StudioApp {
             field_show: FieldShow::Ellipses,
             field_options: view_data::FieldOptions::default(),
             sweep_axis: SweepAxis::Sigma,
+            sharpness: SharpnessChoice::default(),
             plot_png: None,
             views: view_data::ViewData::default(),
             deblur: DeblurState::default(),

@@ -16,15 +16,17 @@ use std::time::Instant;
 pub enum View {
     Shot,
     KernelField,
+    Sharpness,
     Sweeps,
     Models,
     Deblur,
 }
 
 impl View {
-    pub const ALL: [View; 5] = [
+    pub const ALL: [View; 6] = [
         View::Shot,
         View::KernelField,
+        View::Sharpness,
         View::Sweeps,
         View::Models,
         View::Deblur,
@@ -35,6 +37,7 @@ impl View {
         match self {
             View::Shot => "Shot",
             View::KernelField => "Kernel field",
+            View::Sharpness => "Sharpness",
             View::Sweeps => "Sweeps",
             View::Models => "Models",
             View::Deblur => "Deblur",
@@ -179,6 +182,25 @@ pub enum FieldSource {
     Predicted,
     /// The demo lens's exact blur (demo sessions only).
     Truth,
+}
+
+/// What the Sharpness view maps: from where, which MTF50, in which unit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SharpnessChoice {
+    pub source: FieldSource,
+    pub direction: crate::review::Mtf50Direction,
+    pub unit: crate::review::SharpnessUnit,
+}
+
+impl Default for SharpnessChoice {
+    /// What the profile predicts: the map a photographer asks for first, at any setting.
+    fn default() -> Self {
+        Self {
+            source: FieldSource::Predicted,
+            direction: crate::review::Mtf50Direction::Worst,
+            unit: crate::review::SharpnessUnit::LpPerPictureHeight,
+        }
+    }
 }
 
 /// What the Kernel field view draws at each position.
@@ -410,6 +432,8 @@ pub struct DeblurState {
     pub device: crate::deblur::Device,
     /// How strongly to deblur (the photographer's control).
     pub amount: crate::deblur::Amount,
+    /// Colour the deconvolution adds at edges: cut back (the default) or kept.
+    pub fringes: crate::deblur::Fringes,
     /// Whether the whole photo and the notes show above the compared panes; closed,
     /// the before/after has the view to itself.
     pub overview_open: bool,
@@ -437,6 +461,7 @@ impl Default for DeblurState {
             method: None,
             device: crate::deblur::Device::Auto,
             amount: crate::deblur::Amount::FULL,
+            fringes: crate::deblur::Fringes::Suppress,
             overview_open: true,
             device_note: None,
             drag: [0.0; 2],

@@ -72,6 +72,10 @@ pub(super) fn apply_deblur(app: &mut StudioApp, command: Command) {
             app.deblur.amount = crate::deblur::Amount::percent(percent);
             redeblur(app);
         }
+        Command::SetDeblurFringes(f) => {
+            app.deblur.fringes = f;
+            redeblur(app);
+        }
         Command::SetDeblurDevice(d) => {
             app.deblur.device = d;
             app.deblur.device_note = None;
@@ -237,6 +241,7 @@ fn deblur_options(app: &StudioApp) -> DeblurOptions {
         method: deblur_method(app),
         device: app.deblur.device,
         amount: app.deblur.amount,
+        fringes: app.deblur.fringes,
         ..DeblurOptions::default()
     }
 }

@@ -46,6 +46,7 @@ pub(super) fn apply_dialog(app: &mut StudioApp, command: Command) {
         Command::LoadCompareProfileDialog => load_profile_dialog(app, true),
         Command::SaveProfileDialog => save_profile_dialog(app),
         Command::SavePlotDialog { plot, png } => save_plot_dialog(app, plot, png),
+        Command::SaveSharpnessDialog { png } => save_sharpness_dialog(app, png),
         Command::OpenSessionDialog => spawn_dialog(app, || async {
             answer(
                 rfd::AsyncFileDialog::new()
@@ -195,6 +196,32 @@ fn save_plot_dialog(app: &mut StudioApp, plot: PlotId, png: bool) {
                     Command::SavePlotCsv { plot, path }
                 }
             },
+        )
+    });
+}
+
+/// Where to save the sharpness map shown, as a PNG or as CSV.
+fn save_sharpness_dialog(app: &mut StudioApp, png: bool) {
+    let (what, ext) = if png { ("PNG", "png") } else { ("CSV", "csv") };
+    let choice = app.sharpness;
+    let name = format!(
+        "sharpness-{}-{}.{ext}",
+        match choice.source {
+            crate::app::FieldSource::Measured => "measured",
+            crate::app::FieldSource::Predicted => "predicted",
+            crate::app::FieldSource::Truth => "truth",
+        },
+        choice.direction.label()
+    );
+    spawn_dialog(app, move || async move {
+        answer(
+            rfd::AsyncFileDialog::new()
+                .set_title(format!("Save the sharpness map as {what}"))
+                .add_filter(what, &[ext])
+                .set_file_name(name)
+                .save_file()
+                .await,
+            |path| Command::SaveSharpness { path, png },
         )
     });
 }

@@ -45,6 +45,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         | Command::SetFieldSource(_)
         | Command::SetFieldShow(_)
         | Command::SetSweepAxis(_)
+        | Command::SetSharpness(_)
         | Command::SetFieldSetting { .. }
         | Command::SetCompareUnits(_)
         | Command::SetFieldOptions(_)
@@ -55,6 +56,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         | Command::SetDark(_)
         | Command::DismissMessage(_)
         | Command::SetLogOpen(_)
+        | Command::SetSessionPanel(_)
         | Command::ShowHelp(_)
         | Command::ShowGuide(_)
         | Command::ShowAbout(_)
@@ -81,6 +83,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         | Command::SetDeblurCrop(_)
         | Command::SetDeblurMethod(_)
         | Command::SetDeblurAmount(_)
+        | Command::SetDeblurFringes(_)
         | Command::SetDeblurOverview(_)
         | Command::SetDeblurDevice(_)
         | Command::DragDeblur(_)
@@ -89,9 +92,9 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         | Command::SetSlider(_)
         | Command::ExportDeblur { .. }
         | Command::ExportPhotos { .. } => deblur::apply_deblur(app, command),
-        Command::SavePlotCsv { .. } | Command::SavePlotPng { .. } => {
-            plots::apply_plot(app, command)
-        }
+        Command::SavePlotCsv { .. }
+        | Command::SavePlotPng { .. }
+        | Command::SaveSharpness { .. } => plots::apply_plot(app, command),
         Command::AddShotsDialog
         | Command::LoadChartDialog
         | Command::OpenPhotoDialog
@@ -100,6 +103,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         | Command::LoadProfileDialog
         | Command::SaveProfileDialog
         | Command::SavePlotDialog { .. }
+        | Command::SaveSharpnessDialog { .. }
         | Command::OpenSessionDialog
         | Command::AskConfirm(_)
         | Command::ConfirmAnswer(_)

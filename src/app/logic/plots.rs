@@ -19,10 +19,29 @@ pub(super) fn apply_plot(app: &mut StudioApp, command: Command) {
             }
         }
         Command::SavePlotPng { plot, path } => request_plot_png(app, plot, path),
+        Command::SaveSharpness { path, png } => {
+            let written = match app.views.sharpness.as_ref().map(|d| &d.map) {
+                Some(Ok(map)) if png => {
+                    map.write_png(&path, app.sharpness.unit, SHARPNESS_PNG_WIDTH)
+                }
+                Some(Ok(map)) => {
+                    crate::io::write_atomic(&path, map.csv().as_bytes()).map_err(|e| e.to_string())
+                }
+                Some(Err(why)) => Err(why.clone()),
+                None => Err("the map is not made yet: open the Sharpness view".to_owned()),
+            };
+            match written {
+                Ok(()) => app.info(format!("sharpness map saved to {}", app.shown_path(&path))),
+                Err(e) => app.error(format!("cannot save the sharpness map: {e}")),
+            }
+        }
         // `apply` routes only this group's commands here.
         other => unreachable!("not routed to apply_plot: {other:?}"),
     }
 }
+
+/// How wide a saved sharpness map is, px: sharp on a screen, small enough to mail.
+const SHARPNESS_PNG_WIDTH: u32 = 1200;
 
 /// The data a plot draws, from the same view data and report its draw code reads.
 fn plot_table(app: &StudioApp, plot: PlotId) -> Result<PlotTable, String> {

@@ -17,6 +17,7 @@ pub(super) fn apply_view(app: &mut StudioApp, command: Command) {
         Command::SetFieldSource(f) => app.field_source = f,
         Command::SetFieldShow(f) => app.field_show = f,
         Command::SetSweepAxis(a) => app.sweep_axis = a,
+        Command::SetSharpness(s) => app.sharpness = s,
         Command::SetPlanRange(r) => app.plan_range = Some(r),
         Command::SetFieldSetting { focal_mm, f_number } => {
             app.field_focal_mm = focal_mm;
@@ -53,6 +54,7 @@ pub(super) fn apply_window(app: &mut StudioApp, command: Command) {
             }
         }
         Command::SetLogOpen(open) => app.log_open = open,
+        Command::SetSessionPanel(open) => app.session_panel_open = open,
         Command::ShowHelp(open) => app.show_help = open,
         Command::ShowGuide(open) => app.show_guide = open,
         Command::ShowAbout(open) => app.show_about = open,

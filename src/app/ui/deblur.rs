@@ -1,6 +1,8 @@
 //! The Deblur view: a photo, a region of it deblurred with the Gaussians the profile
 //! predicts and with the kernels measured at the photo's setting (the paper's
-//! Fig. 7–8), side by side or with a slider, and export of the whole photo.
+//! Fig. 7–8), side by side or with a slider, and export of the whole photo. Hovering
+//! the compared region shows a loupe of the same pixels before and after, and their
+//! values in both.
 
 use super::super::{Command, DeblurLayout, DeblurResult, DeblurZoom, StudioApp, ViewerState};
 use crate::deblur::{Device, HqsParams, IrlsParams, Method, WienerParams};
@@ -282,6 +284,19 @@ fn advanced_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
         }
         strength_ui(app, ui, method);
         ui.separator();
+        let mut suppress = app.deblur.fringes == crate::deblur::Fringes::Suppress;
+        if ui
+            .checkbox(&mut suppress, "no colour fringes")
+            .on_hover_text("Hold each deblurred pixel's colour inside the colours the photo has around it: the channels' deconvolutions ring a little differently, and at strong neutral edges that shows as fringes the scene never had (RGB photos; a RAW photo's Bayer planes are left as they are)")
+            .changed()
+        {
+            app.commands.push(Command::SetDeblurFringes(if suppress {
+                crate::deblur::Fringes::Suppress
+            } else {
+                crate::deblur::Fringes::Keep
+            }));
+        }
+        ui.separator();
         ui.label("device");
         for (d, label, tip) in [
             (Device::Auto, "Auto", "The GPU the window draws with when it is a hardware one, else the CPU"),
@@ -435,7 +450,9 @@ fn request_viewport(app: &mut StudioApp, ui: &egui::Ui, pane: Vec2, per_px: Opti
 }
 
 /// One compared pane: the texture at the zoom (or fitted), shifted by a drag in
-/// progress; dragging it pans every pane at once.
+/// progress; dragging it pans every pane at once. Returns, while the pointer is over the
+/// image and not dragging, where it is: on screen, on the texture (0–1) and the
+/// screen points per texel.
 fn pane_ui(
     app: &mut StudioApp,
     ui: &mut egui::Ui,
@@ -443,7 +460,7 @@ fn pane_ui(
     size: Vec2,
     per_px: Option<f32>,
     label: &str,
-) {
+) -> Option<(Pos2, Pos2, f32)> {
     let (rect, response) = ui.allocate_exact_size(size, Sense::drag());
     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, label));
     let tex = texture.size_vec2();
@@ -464,13 +481,142 @@ fn pane_ui(
     if response.drag_stopped() {
         app.commands.push(Command::EndDragDeblur);
     }
+    hovered_texel(&response, shown, scale)
+}
+
+/// Where the pointer is over an image drawn in `shown` at `scale` points per texel:
+/// on screen and in the image's 0–1 coordinates; `None` off it or while dragging.
+fn hovered_texel(response: &egui::Response, shown: Rect, scale: f32) -> Option<(Pos2, Pos2, f32)> {
+    if response.dragged() {
+        return None;
+    }
+    let p = response.hover_pos()?;
+    let uv = Pos2::new(
+        (p.x - shown.left()) / shown.width(),
+        (p.y - shown.top()) / shown.height(),
+    );
+    ((0.0..1.0).contains(&uv.x) && (0.0..1.0).contains(&uv.y)).then_some((p, uv, scale))
+}
+
+/// The planes behind pane `k` of the comparison (0 original, 1 predicted, 2 measured).
+fn plane_set(
+    c: &crate::review::DeblurComparison,
+    k: usize,
+) -> Option<&[(crate::plane::Channel, crate::plane::Plane)]> {
+    match k {
+        0 => Some(&c.original),
+        1 => c.predicted.as_ref().ok().map(Vec::as_slice),
+        _ => c.measured.as_ref().ok().map(Vec::as_slice),
+    }
+}
+
+/// Side of each half of the loupe, points.
+const LOUPE_SIDE: f32 = 150.0;
+
+/// The loupe beside the pointer: the same photo pixels around it before (left) and
+/// after (right), at twice the panes' magnification and at least one photo pixel per
+/// screen pixel, with both images' linear values at the pointer below.
+fn loupe_ui(
+    ui: &egui::Ui,
+    pointer: Pos2,
+    uv: Pos2,
+    scale: f32,
+    [before, after]: [&egui::TextureHandle; 2],
+    planes: [Option<&[(crate::plane::Channel, crate::plane::Plane)]>; 2],
+) {
+    let magnification = (2.0 * scale).max(1.0 / ui.ctx().pixels_per_point());
+    let tex = before.size_vec2();
+    // The loupe's window on the texture, in 0–1 units.
+    let half = Vec2::new(
+        LOUPE_SIDE / 2.0 / magnification / tex.x,
+        LOUPE_SIDE / 2.0 / magnification / tex.y,
+    );
+    let uv_rect = Rect::from_center_size(uv, half * 2.0);
+    let screen = ui.ctx().content_rect();
+    // Right of and below the pointer, or flipped where the window ends.
+    // The loupe with its frame and the two lines of values under it.
+    let size = Vec2::new(2.0 * LOUPE_SIDE + 20.0, LOUPE_SIDE + 76.0);
+    let mut min = pointer + Vec2::new(24.0, 24.0);
+    if min.x + size.x > screen.right() {
+        min.x = pointer.x - 24.0 - size.x;
+    }
+    if min.y + size.y > screen.bottom() {
+        min.y = pointer.y - 24.0 - size.y;
+    }
+    let values = |set: Option<&[(crate::plane::Channel, crate::plane::Plane)]>| {
+        set.map_or_else(
+            || "none".to_owned(),
+            |planes| {
+                planes
+                    .iter()
+                    .map(|(ch, p)| {
+                        let x = ((uv.x * p.width as f32) as usize).min(p.width.saturating_sub(1));
+                        let y = ((uv.y * p.height as f32) as usize).min(p.height.saturating_sub(1));
+                        format!("{} {:.3}", ch.name(), p.get(x, y))
+                    })
+                    .collect::<Vec<_>>()
+                    .join("  ")
+            },
+        )
+    };
+    // An area, not a bare painter, so the values are text a screen reader finds.
+    egui::Area::new(egui::Id::unique("deblur loupe"))
+        .order(egui::Order::Tooltip)
+        .fixed_pos(min)
+        .interactable(false)
+        .show(ui.ctx(), |ui| {
+            egui::Frame::popup(ui.style()).show(ui, |ui| {
+                let (row, _) = ui.allocate_exact_size(
+                    Vec2::new(2.0 * LOUPE_SIDE + 4.0, LOUPE_SIDE),
+                    Sense::hover(),
+                );
+                let painter = ui.painter_at(row);
+                for (k, (texture, label)) in [(before, "before"), (after, "after")]
+                    .into_iter()
+                    .enumerate()
+                {
+                    let r = Rect::from_min_size(
+                        row.min + Vec2::new(k as f32 * (LOUPE_SIDE + 4.0), 0.0),
+                        Vec2::splat(LOUPE_SIDE),
+                    );
+                    painter
+                        .with_clip_rect(r)
+                        .image(texture.id(), r, uv_rect, Color32::WHITE);
+                    super::caption(
+                        &painter,
+                        r.left_top() + Vec2::new(4.0, 4.0),
+                        egui::Align2::LEFT_TOP,
+                        label.into(),
+                    );
+                    // The pixel under the pointer, marked at the loupe's centre.
+                    painter.rect_stroke(
+                        Rect::from_center_size(r.center(), Vec2::splat(magnification.max(3.0))),
+                        0.0,
+                        Stroke::new(1.0, Color32::from_rgb(255, 210, 0)),
+                        egui::StrokeKind::Outside,
+                    );
+                }
+                ui.label(
+                    egui::RichText::new(format!(
+                        "before {}\nafter  {}",
+                        values(planes[0]),
+                        values(planes[1])
+                    ))
+                    .monospace()
+                    .size(11.0),
+                );
+                ui.weak(format!(
+                    "loupe {magnification:.1}× · linear values at the pointer"
+                ));
+            });
+        });
 }
 
 fn side_by_side_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     let Some(view) = &app.deblur.comparison else {
         return;
     };
-    let c = &view.comparison;
+    let c = view.comparison.clone();
     let reasons = [
         None,
         c.predicted.as_ref().err().cloned(),
@@ -494,7 +640,18 @@ fn side_by_side_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 ui.set_width(pane.x);
                 ui.add(egui::Label::new(&titles[k]).truncate());
                 match (&shown[k], &reasons[k]) {
-                    (Some(t), _) => pane_ui(app, ui, t, pane, per_px, &titles[k]),
+                    (Some(t), _) => {
+                        let hover = pane_ui(app, ui, t, pane, per_px, &titles[k]);
+                        // Before and after: the original and this pane's result (the
+                        // predicted one under the original's pane).
+                        let after = if k == 0 { 1 } else { k };
+                        if let (Some((pointer, uv, scale)), Some(before), Some(result)) =
+                            (hover, &shown[0], &shown[after])
+                        {
+                            let planes = [Some(&c.original[..]), plane_set(&c, after)];
+                            loupe_ui(ui, pointer, uv, scale, [before, result], planes);
+                        }
+                    }
                     (None, Some(reason)) => {
                         let (rect, _) = ui.allocate_exact_size(pane, Sense::hover());
                         ui.painter().rect_stroke(
@@ -574,6 +731,7 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         Some(pp) => ((avail - Vec2::splat(8.0)).max(Vec2::splat(64.0)), pp),
     };
     let (original, result) = (original.clone(), result.clone());
+    let comparison = view.comparison.clone();
     let (rect, response) = ui.allocate_exact_size(pane, Sense::click_and_drag());
     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Slider, true, "divider"));
     let mut t = app.deblur.slider;
@@ -616,4 +774,15 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         egui::Align2::RIGHT_TOP,
         app.deblur.slider_result.label().into(),
     );
+    if let Some((pointer, uv, scale)) = hovered_texel(&response, shown, scale) {
+        let c = &comparison;
+        loupe_ui(
+            ui,
+            pointer,
+            uv,
+            scale,
+            [&original, &result],
+            [Some(&c.original[..]), plane_set(c, k)],
+        );
+    }
 }

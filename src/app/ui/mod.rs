@@ -7,6 +7,7 @@ mod field;
 mod help;
 mod models;
 mod session_panel;
+mod sharpness;
 mod shot;
 mod sweeps;
 
@@ -40,13 +41,14 @@ const SHORTCUTS: &[(&str, &str)] = &[
         "export the photo deblurred with the predicted Gaussians",
     ),
     (
-        "Alt+1 … Alt+5",
-        "Shot, Kernel field, Sweeps, Models, Deblur",
+        "Alt+1 … Alt+6",
+        "Shot, Kernel field, Sharpness, Sweeps, Models, Deblur",
     ),
     ("Page Up / Page Down", "previous / next shot"),
     ("Alt+R, Alt+G, Alt+B", "red, green, blue channel"),
     ("Ctrl+T", "light or dark theme"),
     ("Ctrl+L", "show or hide the log"),
+    ("Ctrl+B", "show or fold the session panel"),
     ("Ctrl+Q", "quit"),
     ("Esc", "cancel every running job"),
 ];
@@ -63,15 +65,19 @@ pub(super) fn root_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             .default_size(180.0)
             .show(ui, |ui| log_ui(app, ui));
     }
-    egui::Panel::left("session")
-        .default_size(300.0)
-        .resizable(true)
-        .show(ui, |ui| {
-            egui::ScrollArea::vertical().show(ui, |ui| session_panel::session_panel_ui(app, ui));
-        });
+    if app.session_panel_open {
+        egui::Panel::left("session")
+            .default_size(300.0)
+            .resizable(true)
+            .show(ui, |ui| {
+                egui::ScrollArea::vertical()
+                    .show(ui, |ui| session_panel::session_panel_ui(app, ui));
+            });
+    }
     egui::CentralPanel::default().show(ui, |ui| match app.view {
         View::Shot => shot::shot_view_ui(app, ui),
         View::KernelField => field::kernel_field_ui(app, ui),
+        View::Sharpness => sharpness::sharpness_ui(app, ui),
         View::Sweeps => sweeps::sweeps_ui(app, ui),
         View::Models => models::models_ui(app, ui),
         View::Deblur => deblur::deblur_ui(app, ui),
@@ -199,6 +205,18 @@ fn menu_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 }
             }
             ui.separator();
+            if ui
+                .add(
+                    egui::Button::selectable(app.session_panel_open, "Session panel")
+                        .shortcut_text("Ctrl+B"),
+                )
+                .on_hover_text(
+                    "The shots and their stages on the left; folded, the view has the whole width",
+                )
+                .clicked()
+            {
+                out.push(Command::SetSessionPanel(!app.session_panel_open));
+            }
             if ui
                 .add(egui::Button::selectable(app.log_open, "Log").shortcut_text("Ctrl+L"))
                 .on_hover_text("Every message of this run, with its time")
@@ -367,15 +385,25 @@ fn shortcuts(app: &mut StudioApp, ctx: &egui::Context) {
         if i.consume_shortcut(&cmd(Key::L)) {
             out.push(Command::SetLogOpen(!app.log_open));
         }
+        if i.consume_shortcut(&cmd(Key::B)) {
+            out.push(Command::SetSessionPanel(!app.session_panel_open));
+        }
         if i.consume_shortcut(&cmd(Key::Q)) {
             out.push(Command::Quit);
         }
         if i.consume_key(Modifiers::NONE, Key::Escape) {
             out.push(Command::CancelAll);
         }
-        for (k, v) in [Key::Num1, Key::Num2, Key::Num3, Key::Num4, Key::Num5]
-            .into_iter()
-            .zip(View::ALL)
+        for (k, v) in [
+            Key::Num1,
+            Key::Num2,
+            Key::Num3,
+            Key::Num4,
+            Key::Num5,
+            Key::Num6,
+        ]
+        .into_iter()
+        .zip(View::ALL)
         {
             if i.consume_shortcut(&alt(k)) {
                 out.push(Command::SelectView(v));
@@ -428,6 +456,14 @@ fn dropped_files(app: &mut StudioApp, ctx: &egui::Context) {
 
 fn top_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
+        if ui
+            .selectable_label(app.session_panel_open, "Session")
+            .on_hover_text("Show or fold the session panel (Ctrl+B)")
+            .clicked()
+        {
+            app.commands
+                .push(Command::SetSessionPanel(!app.session_panel_open));
+        }
         ui.strong("lensblur studio");
         ui.separator();
         for (k, v) in View::ALL.into_iter().enumerate() {
@@ -542,6 +578,37 @@ fn x_axis<'a>(label: &str) -> egui_plot::AxisHints<'a> {
     egui_plot::AxisHints::new_x()
         .label(label.to_owned())
         .label_spacing(28.0..=40.0)
+}
+
+/// An aperture axis: the plot's x is in stops from f/1 and its ticks name the
+/// f-numbers a lens marks (f/4, f/4.5, f/5, f/5.6 …).
+fn aperture_axis<'a>(label: &str) -> egui_plot::AxisHints<'a> {
+    x_axis(label).formatter(|mark, _| crate::review::f_number_label(mark.value))
+}
+
+/// Grid lines of an aperture axis in stops: every third of a stop, every stop, every
+/// three stops.
+fn stops_grid() -> impl Fn(egui_plot::GridInput) -> Vec<egui_plot::GridMark> {
+    egui_plot::uniform_grid_spacer(|_| [1.0 / 3.0, 1.0, 3.0])
+}
+
+/// What hovering an aperture plot names: the f-number, not the stops the plot is in.
+fn aperture_hover(pos: &egui_plot::HoverPosition<'_>) -> Option<String> {
+    let (name, p) = match pos {
+        egui_plot::HoverPosition::NearDataPoint {
+            plot_name,
+            position,
+            ..
+        } => (*plot_name, position),
+        egui_plot::HoverPosition::Elsewhere { position } => ("", position),
+    };
+    let f = crate::review::f_number_at_stops(p.x);
+    let head = if name.is_empty() {
+        String::new()
+    } else {
+        format!("{name}\n")
+    };
+    Some(format!("{head}f/{f:.1}: {:.3}", p.y))
 }
 
 /// A y axis whose tick labels may stand 16 points apart (egui_plot's default, 20, drops

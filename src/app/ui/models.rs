@@ -14,7 +14,20 @@ fn family_color(name: &str) -> Color32 {
     }
 }
 
+/// Plots stop shrinking at this height; below it the view scrolls instead (the
+/// shooting plan open on a small window).
+const MIN_PLOT_H: f32 = 240.0;
+
 pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    let view_h = ui.available_height();
+    egui::ScrollArea::vertical()
+        .auto_shrink([false, false])
+        .show(ui, |ui| models_body_ui(app, ui, view_h));
+}
+
+/// The view's content; `view_h` is the height of the window's part it scrolls in, so
+/// the plots fill what is left of it and keep [`MIN_PLOT_H`] when little is.
+fn models_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, view_h: f32) {
     use egui_plot::{
         Corner, Legend, Line, LineStyle, MarkerShape, Plot, PlotPoints, Points, VLine,
     };
@@ -44,7 +57,9 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     });
     advice_ui(app, ui);
     egui::CollapsingHeader::new("Shooting plan")
-        .id_salt("shooting plan")
+        // A header of its own once a profile exists, so it folds then (the plots take
+        // the view) even where it was open before calibration.
+        .id_salt(("shooting plan", app.profile.is_some()))
         .default_open(app.profile.is_none())
         .show(ui, |ui| plan_ui(app, ui));
     if let Some((path, p)) = &app.profile {
@@ -116,7 +131,9 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         });
     let avail = ui.available_size();
     let plot_w = (avail.x - 24.0) / 3.0;
-    let plot_h = (avail.y - 28.0).max(140.0);
+    let used = ui.cursor().top() - ui.max_rect().top();
+    // Room below for the x axis's title and the scroll area's margin.
+    let plot_h = (view_h - used - 44.0).max(MIN_PLOT_H);
     let integer_ticks = |mark: egui_plot::GridMark, _: &std::ops::RangeInclusive<f64>| {
         if (mark.value - mark.value.round()).abs() < 1e-9 {
             format!("{:.0}", mark.value)
@@ -185,7 +202,7 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                         })
                         .formatter(integer_ticks),
                     ])
-                    .y_axis_label("mean error (% of range)")
+                    .custom_y_axes(vec![super::y_axis("mean error (% of range)")])
                     .x_grid_spacer(egui_plot::uniform_grid_spacer(|_| [1.0, 5.0, 10.0]))
                     .default_y_bounds(0.0, y_top(by_alpha))
                     .legend(Legend::default().position(Corner::RightTop))
@@ -255,7 +272,7 @@ pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .width(plot_w)
                 .height(plot_h - CDF_LEGEND_H)
                 .custom_x_axes(vec![super::x_axis("error (% of range)")])
-                .y_axis_label("held-out samples (%)")
+                .custom_y_axes(vec![super::y_axis("held-out samples (%)")])
                 .default_x_bounds(0.0, x_max * 1.02)
                 .default_y_bounds(0.0, 101.0)
                 .allow_scroll(false);

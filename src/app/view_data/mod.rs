@@ -2,7 +2,8 @@
 //! thread) when its inputs change and cached on the app keyed by exactly those inputs.
 //!
 //! Owns the shot viewer's plane choice, the Kernel field view's panels (measured
-//! ellipses, the kernel atlas texture, predicted and true fields), the Sweeps view's
+//! ellipses, the kernel atlas texture, predicted and true fields), the Sharpness view's
+//! map, the Sweeps view's
 //! measured points and model and truth curves, and the square inspector (its crops come
 //! from a job; their textures, the kernel's texture and the truth beside it are made
 //! here when they arrive). [`refresh`] runs once per frame from the app's logic step and
@@ -17,6 +18,7 @@ use crate::simulate::VirtualLens;
 use atlas::refresh_kernel_atlas;
 use field::refresh_field;
 use inspector::refresh_inspection;
+use sharpness::refresh_sharpness;
 use shot_plane::refresh_shot_plane;
 use std::sync::Arc;
 use sweeps::refresh_sweeps;
@@ -24,6 +26,7 @@ use sweeps::refresh_sweeps;
 mod atlas;
 mod field;
 mod inspector;
+mod sharpness;
 mod shot_plane;
 mod sweeps;
 
@@ -34,6 +37,7 @@ pub use field::{
 };
 pub(super) use inspector::inspected;
 pub use inspector::{InspectKey, InspectedSquare, Inspecting, Inspection};
+pub use sharpness::SharpnessData;
 pub use shot_plane::ShotPlane;
 pub use sweeps::{
     CurvePoint, LocationSweep, SWEEP_LOCATIONS, SweepData, SweepKind, SweepParam, SweepSeries,
@@ -84,6 +88,7 @@ pub struct ViewData {
     pub shot_plane: Option<ShotPlane>,
     pub kernel_atlas: Option<KernelAtlas>,
     pub field: Option<FieldData>,
+    pub sharpness: Option<SharpnessData>,
     pub sweeps: Option<SweepData>,
     pub inspection: Option<Inspecting>,
     /// The session's settings with shots and what they allow the model.
@@ -124,6 +129,7 @@ pub(super) fn refresh(app: &mut StudioApp) {
             refresh_kernel_atlas(app);
             refresh_field(app);
         }
+        View::Sharpness => refresh_sharpness(app),
         View::Sweeps => refresh_sweeps(app),
         View::Shot | View::Models | View::Deblur => {}
     }
