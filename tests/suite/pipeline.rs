@@ -61,16 +61,7 @@ fn calibrate_on_simulated_shots_and_predict_a_novel_setting() {
             &std::fs::read_to_string(dir.path().join(format!("{name}.truth.json"))).expect("truth"),
         )
         .expect("truth json");
-        let cached = std::fs::read_dir(&cache)
-            .expect("cache")
-            .filter_map(Result::ok)
-            .map(|e| e.path())
-            .find(|p| {
-                KernelsFile::load(p).is_ok_and(|k| {
-                    k.focal_mm == Some(setting.focal_mm) && k.f_number == Some(setting.f_number)
-                })
-            })
-            .expect("kernels of the shot cached");
+        let cached = cached_kernels_at(&cache, *setting);
         let k = KernelsFile::load(&cached).expect("kernels file");
         for s in &k.samples {
             let sq = truth
@@ -256,6 +247,20 @@ fn predicted_grid_as_csv(dir: &Path, profile: &Path, spec: &DemoSpec, novel: Len
     assert!(e50 <= 0.03 && e95 <= 0.08, "median {e50}, p95 {e95}");
 }
 
+/// The kernels file `calibrate --manifest` cached for the shot at `setting`.
+fn cached_kernels_at(cache: &Path, setting: LensSetting) -> std::path::PathBuf {
+    std::fs::read_dir(cache)
+        .expect("cache")
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .find(|p| {
+            KernelsFile::load(p).is_ok_and(|k| {
+                k.focal_mm == Some(setting.focal_mm) && k.f_number == Some(setting.f_number)
+            })
+        })
+        .expect("kernels of the shot cached")
+}
+
 /// `lensblur sharpness`: the map a profile predicts at the novel setting and the map
 /// one shot's kernels measured, each against the lens's own MTF50 over the frame
 /// (median relative error over the cells), written as CSV and as a PNG.
@@ -330,16 +335,7 @@ fn sharpness_maps_against_the_truth(
     let e_predicted = error(predicted, novel);
 
     let measured_at = spec.settings[4];
-    let kernels = std::fs::read_dir(dir.join(lensblur::pipeline::RESULTS_DIR))
-        .expect("cache")
-        .filter_map(Result::ok)
-        .map(|e| e.path())
-        .find(|p| {
-            KernelsFile::load(p).is_ok_and(|k| {
-                k.focal_mm == Some(measured_at.focal_mm) && k.f_number == Some(measured_at.f_number)
-            })
-        })
-        .expect("kernels of the shot cached");
+    let kernels = cached_kernels_at(&dir.join(lensblur::pipeline::RESULTS_DIR), measured_at);
     let measured = run(
         &["--kernels", kernels.to_str().expect("utf-8")],
         "measured-map",
