@@ -145,6 +145,9 @@ pub fn calibrate(
         && ds.shots.len() >= 2
         && ds.samples.iter().any(|s| s.kernel.is_some())
     {
+        // Reported before the residuals are taken, so the time that takes is the
+        // shapes' (the command line's timings say where the time goes).
+        job.report("kernel shapes", 0, 1);
         // The shapes are predicted around the Gaussians deblurring will use: the
         // preferred family at its orders.
         let (alpha, beta) = match profile.preferred {

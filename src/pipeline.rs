@@ -170,12 +170,18 @@ impl ResultCache {
         if !path.is_file() {
             return Ok(None);
         }
-        KernelsFile::load(&path)
-            .map(Some)
-            .map_err(|e| PipelineError::Cache {
-                path,
-                reason: e.reason,
-            })
+        if let Ok(k) = crate::kernel::packed::load_beside(&path) {
+            return Ok(Some(k));
+        }
+        let k = KernelsFile::load(&path).map_err(|e| PipelineError::Cache {
+            path: path.clone(),
+            reason: e.reason,
+        })?;
+        // A result cached before the packed form existed (or copied without its file
+        // times) gets one now, so the next read is fast; failing to write it only
+        // costs that speed, never the result.
+        let _ = crate::kernel::packed::write_beside(&path, &k);
+        Ok(Some(k))
     }
 }
 
@@ -331,7 +337,11 @@ pub fn kernels_of_shot(
     let mut file = estimate(capture, detection, &shot.path, setting, m, true, job)?;
     file.source = Some(shot.record());
     crate::io::create_dir_all(cache.dir())?;
-    crate::io::write_json(&cache.kernels_path(shot, m), &file)?;
+    let path = cache.kernels_path(shot, m);
+    crate::io::write_json(&path, &file)?;
+    // The packed form, which the cache reads instead of the JSON file's text; without
+    // it (a failed write) the JSON file is read, so the result stands either way.
+    let _ = crate::kernel::packed::write_beside(&path, &file);
     Ok(file)
 }
 

@@ -311,7 +311,9 @@ impl MeasureJob {
                 let _ = std::fs::remove_file(self.cache.detect_path(&file, &self.measurement));
             }
             if self.stages.measures_kernels() {
-                let _ = std::fs::remove_file(self.cache.kernels_path(&file, &self.measurement));
+                let kernels = self.cache.kernels_path(&file, &self.measurement);
+                let _ = std::fs::remove_file(&kernels);
+                let _ = std::fs::remove_file(crate::kernel::packed::path_beside(&kernels));
             }
         }
         let capture = match &w.capture {

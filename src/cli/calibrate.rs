@@ -5,7 +5,7 @@
 //! manifest, the same cache the studio keeps, so shots measured there or in an earlier
 //! run are not measured again), or a list of kernels files measured earlier.
 
-use super::common::{load_chart, progress_job, write_json};
+use super::common::{StageClock, load_chart, progress_job, progress_job_timed, write_json};
 use anyhow::Result;
 use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
 use lensblur::chart::ChartSpec;
@@ -270,7 +270,10 @@ pub fn run(args: Args) -> Result<()> {
         },
         shape: (!args.no_shape_model).then(ShapeCvOptions::default),
     };
-    let (profile, report) = calibrate(&ds, chart, &opts, &progress_job())?;
+    let loaded = std::time::Instant::now();
+    let clock = StageClock::default();
+    let (profile, report) = calibrate(&ds, chart, &opts, &progress_job_timed(Some(clock.clone())))?;
+    let modelled = std::time::Instant::now();
     profile.save(&args.out)?;
     if let (Some(p), Some(r)) = (&args.cv_out, &report) {
         write_json(p, r)?;
@@ -315,7 +318,34 @@ pub fn run(args: Args) -> Result<()> {
         args.out.display(),
         t0.elapsed().as_secs_f64()
     );
+    eprintln!(
+        "{}",
+        timings(
+            loaded.duration_since(t0).as_secs_f64(),
+            &clock.durations(modelled),
+            modelled.elapsed().as_secs_f64()
+        )
+    );
     Ok(())
+}
+
+/// Where the run's time went: the session's measurements (or the cache), the Gaussian
+/// models (their cross-validation and fits), the kernel shapes, and the writing.
+fn timings(load_s: f64, stages: &[(String, f64)], write_s: f64) -> String {
+    let stage = |name: &str| {
+        stages
+            .iter()
+            .find(|(s, _)| s == name)
+            .map_or(0.0, |(_, t)| *t)
+    };
+    let shapes = stage("kernel shapes");
+    let gaussian: f64 = stages.iter().map(|(_, t)| t).sum::<f64>() - shapes;
+    format!(
+        "timings: shots {load_s:.1} s; Gaussian models {gaussian:.1} s (global CV {:.1}, local CV {:.1}, fits {:.1}); kernel shapes {shapes:.1} s; writing {write_s:.1} s",
+        stage("global CV"),
+        stage("local CV"),
+        stage("fitting"),
+    )
 }
 
 /// One line on the kernel-shape model's cross-validation: what was kept and why.

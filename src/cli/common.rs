@@ -6,10 +6,16 @@ use lensblur::chart::ChartSpec;
 use lensblur::job::JobContext;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
+use std::time::Instant;
 
 /// A job context that draws an indicatif progress bar on stderr (hidden when stderr is
 /// not a terminal, so scripts and CI logs stay clean).
 pub fn progress_job() -> JobContext {
+    progress_job_timed(None)
+}
+
+/// [`progress_job`], also noting in `clock` when each stage begins.
+pub fn progress_job_timed(clock: Option<StageClock>) -> JobContext {
     let bar = ProgressBar::new(0);
     bar.set_style(
         ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} {elapsed_precise}")
@@ -18,6 +24,9 @@ pub fn progress_job() -> JobContext {
     );
     let bar = Arc::new(Mutex::new(bar));
     JobContext::with_sink(move |p| {
+        if let Some(clock) = &clock {
+            clock.saw(&p.stage);
+        }
         if let Ok(b) = bar.lock() {
             b.set_message(p.stage.clone());
             b.set_length(p.total as u64);
@@ -27,6 +36,39 @@ pub fn progress_job() -> JobContext {
             }
         }
     })
+}
+
+/// When each stage of a job began, in the order reported: a stage lasts until the next
+/// one begins, so a command can say where its time went.
+#[derive(Clone, Default)]
+pub struct StageClock(Arc<Mutex<Vec<(String, Instant)>>>);
+
+impl StageClock {
+    fn saw(&self, stage: &str) {
+        if let Ok(mut seen) = self.0.lock()
+            && seen.last().is_none_or(|(s, _)| s != stage)
+        {
+            seen.push((stage.to_string(), Instant::now()));
+        }
+    }
+
+    /// Seconds spent in each stage until `end`, a stage seen more than once summed, in
+    /// the order first seen.
+    pub fn durations(&self, end: Instant) -> Vec<(String, f64)> {
+        let Ok(seen) = self.0.lock() else {
+            return Vec::new();
+        };
+        let mut out: Vec<(String, f64)> = Vec::new();
+        for (i, (stage, start)) in seen.iter().enumerate() {
+            let until = seen.get(i + 1).map_or(end, |next| next.1);
+            let secs = until.saturating_duration_since(*start).as_secs_f64();
+            match out.iter_mut().find(|(s, _)| s == stage) {
+                Some((_, total)) => *total += secs,
+                None => out.push((stage.clone(), secs)),
+            }
+        }
+        out
+    }
 }
 
 /// The chart: the default 24 × 16 one, or the spec file given with `--chart`.

@@ -554,6 +554,190 @@ impl GlobalCv {
     }
 }
 
+/// The samples of `ds` whose shot `keep` accepts, with every shot's record (the
+/// normalisation's ranges stay the session's, as in the Gaussian models' folds), and
+/// their indices in `ds.samples`.
+fn shots_subset(ds: &Dataset, keep: impl Fn(usize) -> bool) -> (Dataset, Vec<usize>) {
+    let idx: Vec<usize> = (0..ds.samples.len())
+        .filter(|&i| keep(ds.samples[i].shot))
+        .collect();
+    let sub = Dataset {
+        width: ds.width,
+        height: ds.height,
+        identity: ds.identity.clone(),
+        samples: idx.iter().map(|&i| ds.samples[i].clone()).collect(),
+        shots: ds.shots.clone(),
+    };
+    (sub, idx)
+}
+
+/// The Gaussian model `kind` G/L_{α,β} fitted without each fold: what [`fit_model`]
+/// fits to the fold's training shots (with their samples' extent, and for the local
+/// family the grid and each centre's members that the training samples give), solved
+/// from normal equations accumulated once and split by fold, a fold's training system
+/// being the total minus the fold's. A local centre whose training members are not the
+/// session's members less the fold's (its circle widened, or the grid changed with the
+/// fold) is fitted from its members directly. `None` for a fold that leaves no
+/// training samples or that `wanted` declines (not fitted, so never an error).
+///
+/// # Errors
+/// As [`fit_model`] on a fold's training shots.
+fn fold_gaussian_models(
+    ds: &Dataset,
+    kind: ModelKind,
+    (alpha, beta): (usize, usize),
+    local: &LocalOptions,
+    fold_of_shot: &[usize],
+    folds: usize,
+    wanted: impl Fn(usize) -> bool,
+) -> Result<Vec<Option<Box<dyn FittedModel>>>, ModelError> {
+    use rayon::prelude::*;
+    // The training sets share the session's shots, so what fit_setup checks of them
+    // (settings, orders, β against the settings) is the session's.
+    let (norm, basis) = crate::model::fit_setup(ds, alpha, beta)?;
+    let data = channel_data(ds, fold_of_shot);
+    let all: Vec<usize> = (0..basis.len()).collect();
+    let too_few = |channel: Channel, samples: usize| ModelError::TooFewSamples {
+        model: format!("{} ({channel})", kind.model_name(alpha, beta)),
+        samples,
+        terms: basis.len(),
+    };
+    // Per fold, per channel: the training samples (indices into the channel's).
+    let train_of = |k: usize, cd: &ChannelData| -> Vec<usize> {
+        (0..cd.samples.len())
+            .filter(|&i| cd.samples[i].fold != k)
+            .collect()
+    };
+    let mut out = Vec::with_capacity(folds);
+    match kind {
+        ModelKind::Global => {
+            let systems: Vec<FoldedSystem> = data
+                .par_iter()
+                .map(|cd| {
+                    let rows: Vec<Row> = cd
+                        .samples
+                        .iter()
+                        .map(|s| Row {
+                            coords: global_coords(
+                                &norm,
+                                s.x,
+                                s.y,
+                                s.setting.focal_mm,
+                                s.setting.f_number,
+                            ),
+                            params: s.params,
+                            fold: s.fold,
+                        })
+                        .collect();
+                    FoldedSystem::build(&basis, &rows, folds)
+                })
+                .collect();
+            for k in 0..folds {
+                let (train, _) = shots_subset(ds, |s| fold_of_shot[s] != k);
+                if train.samples.is_empty() || !wanted(k) {
+                    out.push(None);
+                    continue;
+                }
+                let mut channels = Vec::new();
+                for (cd, sys) in data.iter().zip(&systems) {
+                    let n = cd.samples.iter().filter(|s| s.fold != k).count();
+                    if n == 0 {
+                        continue;
+                    }
+                    if n < basis.len() {
+                        return Err(too_few(cd.channel, n));
+                    }
+                    channels.push(ChannelCoeffs {
+                        channel: cd.channel,
+                        coeffs: sys.solve(Some(k), &all),
+                    });
+                }
+                out.push(Some(Box::new(GlobalModel {
+                    norm: train.normalisation(),
+                    alpha,
+                    beta,
+                    basis: basis.clone(),
+                    channels,
+                }) as Box<dyn FittedModel>));
+            }
+        }
+        ModelKind::Local => {
+            let grid = local_grid(ds, local);
+            // Per channel, per centre: the session's members and their folded system.
+            let systems: Vec<Vec<(Vec<usize>, FoldedSystem)>> = data
+                .iter()
+                .map(|cd| {
+                    let pts: Vec<[f64; 2]> = cd.samples.iter().map(|s| [s.x, s.y]).collect();
+                    (0..grid.len())
+                        .into_par_iter()
+                        .map(|idx| {
+                            let members = local_members(&grid, idx, &pts, basis.len());
+                            let rows = local_rows(cd, &grid, &norm, idx, &members);
+                            (members, FoldedSystem::build(&basis, &rows, folds))
+                        })
+                        .collect()
+                })
+                .collect();
+            for k in 0..folds {
+                let (train, _) = shots_subset(ds, |s| fold_of_shot[s] != k);
+                if train.samples.is_empty() || !wanted(k) {
+                    out.push(None);
+                    continue;
+                }
+                let fold_grid = local_grid(&train, local);
+                let mut channels = Vec::new();
+                for (cd, centres) in data.iter().zip(&systems) {
+                    let train_idx = train_of(k, cd);
+                    if train_idx.is_empty() {
+                        continue;
+                    }
+                    if train_idx.len() < basis.len() {
+                        return Err(too_few(cd.channel, train_idx.len()));
+                    }
+                    let pts: Vec<[f64; 2]> = train_idx
+                        .iter()
+                        .map(|&i| [cd.samples[i].x, cd.samples[i].y])
+                        .collect();
+                    let coeffs: Vec<[Vec<f64>; 3]> = (0..fold_grid.len())
+                        .into_par_iter()
+                        .map(|idx| {
+                            let members: Vec<usize> =
+                                local_members(&fold_grid, idx, &pts, basis.len())
+                                    .into_iter()
+                                    .map(|m| train_idx[m])
+                                    .collect();
+                            if fold_grid == grid {
+                                let (session, sys) = &centres[idx];
+                                if session
+                                    .iter()
+                                    .filter(|&&m| cd.samples[m].fold != k)
+                                    .eq(members.iter())
+                                {
+                                    return sys.solve(Some(k), &all);
+                                }
+                            }
+                            let rows = local_rows(cd, &fold_grid, &norm, idx, &members);
+                            let (a, y) =
+                                design_system(&basis, rows.iter().map(|r| (r.coords, r.params)));
+                            split_coeffs(&crate::model::solve_lsq(a, &y))
+                        })
+                        .collect();
+                    channels.push((cd.channel, coeffs));
+                }
+                out.push(Some(Box::new(LocalModel {
+                    norm: train.normalisation(),
+                    alpha,
+                    beta,
+                    grid: fold_grid,
+                    basis: basis.clone(),
+                    channels,
+                }) as Box<dyn FittedModel>));
+            }
+        }
+    }
+    Ok(out)
+}
+
 /// Cross-validation engine for the local family. Each centre's normal equations are
 /// accumulated once for the largest candidate; a smaller candidate whose centre takes
 /// the same samples (the radius widens with the number of terms, as in
@@ -944,3 +1128,6 @@ pub fn paper_test_models(report: Option<&CvReport>) -> Vec<TestModel> {
     }
     out
 }
+
+#[cfg(test)]
+mod oracle;

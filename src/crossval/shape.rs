@@ -1,6 +1,18 @@
 //! Cross-validation of the kernel-shape model: the Gaussian models' folds (whole
-//! shots), the Gaussian model, shape basis and coefficient fields refitted without each
+//! shots), the Gaussian model, shape basis and coefficient fields fitted without each
 //! fold, every held-out measured kernel against its prediction (relative L2).
+//!
+//! Nothing is refitted from the samples per fold where the fit is linear least squares:
+//! the Gaussian model's and the coefficient fields' normal equations are accumulated
+//! once, split by fold, and a fold's training system is the total minus the fold's
+//! (the grouped form of PRESS). The coefficient fields' right-hand sides are kept
+//! against the residuals themselves (basis terms × grid values), so a fold's own shape
+//! components, learnt from its training residuals by the randomised SVD, turn them
+//! into the fold's right-hand sides with one small product; the orders tried are
+//! sub-blocks of the largest. Each held-out kernel's grid is prepared once per fold
+//! and space ([`crate::model::PreparedKernels`]), so each model it is judged against
+//! costs a weighted sum per grid sample. The refitting form is kept in the tests as
+//! the oracle these must equal.
 
 #[allow(clippy::wildcard_imports)]
 use super::*;
@@ -95,22 +107,6 @@ fn rel_l2_point(
     }
 }
 
-/// The samples of `ds` whose shot `keep` accepts, with every shot's record (the
-/// normalisation stays the session's, as in the Gaussian models' folds).
-fn shots_subset(ds: &Dataset, keep: impl Fn(usize) -> bool) -> (Dataset, Vec<usize>) {
-    let idx: Vec<usize> = (0..ds.samples.len())
-        .filter(|&i| keep(ds.samples[i].shot))
-        .collect();
-    let sub = Dataset {
-        width: ds.width,
-        height: ds.height,
-        identity: ds.identity.clone(),
-        samples: idx.iter().map(|&i| ds.samples[i].clone()).collect(),
-        shots: ds.shots.clone(),
-    };
-    (sub, idx)
-}
-
 /// Cross-validates kernel-shape models around the Gaussian model `kind` G/L_{α,β}:
 /// per fold, that Gaussian model and, in each space, a shape basis with its
 /// coefficient fields are fitted without the fold's shots, and every held-out measured
@@ -131,9 +127,7 @@ pub fn cross_validate_shape(
     opts: &ShapeCvOptions,
     job: &JobContext,
 ) -> Result<ShapeCvReport, ModelError> {
-    use crate::model::{
-        ShapeFit, kernel_with_residual, kernel_with_shape, relative_l2, to_gaussian,
-    };
+    use crate::model::{PreparedKernels, kernel_with_residual, relative_l2, to_gaussian};
     use rayon::prelude::*;
     ds.validate()?;
     if ds.shots.len() < 2 {
@@ -149,88 +143,147 @@ pub fn cross_validate_shape(
     }
     let has_kernel = |i: usize| residuals.iter().all(|(_, r)| r[i].is_some());
     let (fold_of_shot, folds) = assign_folds(ds, cv.folds, cv.hold_out, cv.seed);
-    let mut components: Vec<usize> = opts
-        .components
-        .iter()
-        .copied()
-        .filter(|&k| k > 0 && k <= crate::model::MAX_COMPONENTS)
-        .collect();
-    components.sort_unstable();
-    components.dedup();
-    let k_max = components.last().copied().unwrap_or(0);
-    // Every (space, α) tried.
-    let combos: Vec<(usize, usize)> = (0..residuals.len())
-        .flat_map(|si| {
-            opts.alphas
-                .iter()
-                .copied()
-                .filter(|&a| crate::model::check_order(a, beta).is_ok())
-                .map(move |a| (si, a))
+    let tried = Tried::new(opts, residuals.len(), beta);
+    let (components, combos, k_max) = (&tried.components, &tried.combos, tried.k_max);
+    // The held-out kernels of each fold; a fold with none, or with no training
+    // samples, is not judged.
+    let tests: Vec<Vec<usize>> = (0..folds)
+        .map(|fold| {
+            (0..ds.samples.len())
+                .filter(|&i| fold_of_shot[ds.samples[i].shot] == fold && has_kernel(i))
+                .collect()
         })
         .collect();
-    // errors[m][c]: held-out errors of combo m, component count index c.
-    let mut errors = vec![vec![Vec::new(); components.len()]; combos.len()];
+    let judged = |fold: usize| {
+        !tests[fold].is_empty() && ds.samples.iter().any(|s| fold_of_shot[s.shot] != fold)
+    };
+    let gaussian_models = fold_gaussian_models(
+        ds,
+        kind,
+        (alpha, beta),
+        &cv.local,
+        &fold_of_shot,
+        folds,
+        judged,
+    )?;
+    job.check()?;
+    let systems: Vec<ShapeSystems> = residuals
+        .iter()
+        .enumerate()
+        .map(|(si, (_, res))| {
+            let alphas = combos.iter().filter(|c| c.0 == si).map(|c| c.1);
+            ShapeSystems::build(
+                ds,
+                res,
+                alphas.max().unwrap_or(0),
+                beta,
+                &fold_of_shot,
+                folds,
+            )
+        })
+        .collect();
     let mut usable = vec![true; combos.len()];
-    // (f-number, Gaussian error, errors[m][c]) per held-out kernel.
-    let mut held: Vec<(f64, f64, Vec<Vec<f64>>)> = Vec::new();
+    let mut held: Held = Vec::new();
+    // Per fold and space: the shape components learnt without the fold, as the
+    // session's are (from its training residuals, in session order). Not linear in the
+    // residuals, so learnt per fold; the folds in parallel.
+    let fold_bases: Vec<Vec<Option<Vec<Vec<f64>>>>> = (0..folds)
+        .into_par_iter()
+        .map(|fold| {
+            if gaussian_models[fold].is_none() {
+                return Vec::new();
+            }
+            residuals
+                .iter()
+                .map(|(_, res)| {
+                    let rows: Vec<&[f32]> = ds
+                        .samples
+                        .iter()
+                        .zip(res)
+                        .filter(|(s, _)| fold_of_shot[s.shot] != fold)
+                        .filter_map(|(_, r)| r.as_deref())
+                        .collect();
+                    (!rows.is_empty()).then(|| crate::model::shape_basis(&rows, k_max))
+                })
+                .collect()
+        })
+        .collect();
     for fold in 0..folds {
         job.check()?;
         job.report("kernel shapes", fold, folds);
-        let (train, train_idx) = shots_subset(ds, |s| fold_of_shot[s] != fold);
-        let test: Vec<usize> = (0..ds.samples.len())
-            .filter(|&i| fold_of_shot[ds.samples[i].shot] == fold && has_kernel(i))
-            .collect();
-        if test.is_empty() || train.samples.is_empty() {
+        let Some(gaussian_model) = gaussian_models[fold].as_ref() else {
             continue;
-        }
-        let gaussian_model = fit_model(&train, kind, alpha, beta, &cv.local)?;
-        let fits: Vec<Option<ShapeFit>> = residuals
-            .iter()
-            .map(|(space, res)| {
-                let train_res: Vec<Option<Vec<f32>>> =
-                    train_idx.iter().map(|&i| res[i].clone()).collect();
-                ShapeFit::new(&train, *space, &train_res, k_max).ok()
-            })
-            .collect();
+        };
+        let bases = &fold_bases[fold];
+        let norm = shots_subset(ds, |s| fold_of_shot[s] != fold)
+            .0
+            .normalisation();
         let models: Vec<Option<crate::model::ShapeModel>> = combos
             .iter()
-            .map(|&(si, a)| fits[si].as_ref()?.model(&train, a, beta).ok())
+            .map(|&(si, a)| {
+                let (space, _) = residuals[si];
+                systems[si].model(space, bases[si].as_ref()?, &norm, a, beta, fold)
+            })
             .collect();
         for (u, m) in usable.iter_mut().zip(&models) {
             *u &= m.is_some();
         }
-        let scored: Vec<(f64, f64, Vec<Vec<f64>>)> = test
+        let scored: Held = tests[fold]
             .par_iter()
             .filter_map(|&i| {
                 let s = &ds.samples[i];
                 let measured = s.kernel.as_ref()?;
                 let setting = s.setting();
                 let g = to_gaussian(gaussian_model.predict(s.channel, s.x, s.y, setting)?);
-                let (os, size) = (measured.oversample, Some(measured.size));
-                let plain = kernel_with_residual(&g, None, os, size)?;
-                let e_gauss = relative_l2(&plain, measured);
+                let (os, size) = (measured.oversample, measured.size);
+                if size % 2 == 0 {
+                    // Not a kernel the measured chain makes (they are odd-sized, and
+                    // the prepared grids are the measured one); judged as the
+                    // Gaussian alone.
+                    let plain = kernel_with_residual(&g, None, os, Some(size))?;
+                    let row = vec![f64::NAN; components.len()];
+                    return Some((
+                        s.f_number,
+                        relative_l2(&plain, measured),
+                        vec![row; combos.len()],
+                    ));
+                }
+                // Each space's grid for this kernel, prepared once for every model.
+                let prepared: Vec<PreparedKernels> = residuals
+                    .iter()
+                    .zip(bases)
+                    .map(|((space, _), b)| {
+                        PreparedKernels::new(*space, &g, b.as_deref().unwrap_or(&[]), os, size)
+                    })
+                    .collect::<Option<_>>()?;
+                // Whitened or in pixels, the base is the Gaussian's density: normalised,
+                // the kernel of the Gaussian alone.
+                let e_gauss = PreparedKernels::relative_l2(prepared[0].base(), measured);
+                let mut values = Vec::new();
                 let per_combo = models
                     .iter()
-                    .map(|m| {
+                    .zip(combos)
+                    .map(|(m, &(si, _))| {
+                        let nan = || vec![f64::NAN; components.len()];
                         let Some(m) = m else {
-                            return vec![f64::NAN; components.len()];
+                            return nan();
                         };
                         let Some(c) = m.coefficients(s.channel, s.x, s.y, setting) else {
-                            return vec![f64::NAN; components.len()];
+                            return nan();
                         };
-                        let mut r = vec![0.0; m.space.values()];
+                        let p = &prepared[si];
+                        values.clear();
+                        values.extend_from_slice(p.base());
                         let mut used = 0;
                         components
                             .iter()
                             .map(|&k| {
-                                for (b, &ci) in m.components[used..k].iter().zip(&c[used..k]) {
-                                    for (acc, v) in r.iter_mut().zip(b) {
-                                        *acc += ci * v;
-                                    }
+                                if k > c.len() {
+                                    return f64::NAN;
                                 }
+                                p.add(&mut values, used..k, &c);
                                 used = k;
-                                kernel_with_shape(m.space, &g, Some(&r), os, size)
-                                    .map_or(f64::NAN, |k| relative_l2(&k, measured))
+                                PreparedKernels::relative_l2(&values, measured)
                             })
                             .collect()
                     })
@@ -241,10 +294,68 @@ pub fn cross_validate_shape(
         held.extend(scored);
     }
     job.report("kernel shapes", folds, folds);
+    let spaces: Vec<crate::model::ShapeSpace> = residuals.iter().map(|r| r.0).collect();
+    report(&tried, &spaces, &held, &usable, kind, (alpha, beta), folds)
+}
+
+/// The models a shape cross-validation tries: the numbers of components (ascending;
+/// each fold learns the largest) and every (space index, α).
+pub(super) struct Tried {
+    pub(super) components: Vec<usize>,
+    pub(super) k_max: usize,
+    pub(super) combos: Vec<(usize, usize)>,
+}
+
+impl Tried {
+    pub(super) fn new(opts: &ShapeCvOptions, spaces: usize, beta: usize) -> Self {
+        let mut components: Vec<usize> = opts
+            .components
+            .iter()
+            .copied()
+            .filter(|&k| k > 0 && k <= crate::model::MAX_COMPONENTS)
+            .collect();
+        components.sort_unstable();
+        components.dedup();
+        let k_max = components.last().copied().unwrap_or(0);
+        let combos = (0..spaces)
+            .flat_map(|si| {
+                opts.alphas
+                    .iter()
+                    .copied()
+                    .filter(|&a| crate::model::check_order(a, beta).is_ok())
+                    .map(move |a| (si, a))
+            })
+            .collect();
+        Self {
+            components,
+            k_max,
+            combos,
+        }
+    }
+}
+
+/// Per held-out kernel: its f-number, the Gaussian's error, and `[combo][count]` the
+/// error of each model tried (NaN where it could not be predicted).
+pub(super) type Held = Vec<(f64, f64, Vec<Vec<f64>>)>;
+
+/// The report from the held-out errors; `usable[m]`: combo m could be fitted in every
+/// fold.
+pub(super) fn report(
+    tried: &Tried,
+    spaces: &[crate::model::ShapeSpace],
+    held: &Held,
+    usable: &[bool],
+    kind: ModelKind,
+    (alpha, beta): (usize, usize),
+    folds: usize,
+) -> Result<ShapeCvReport, ModelError> {
+    let (components, combos) = (&tried.components, &tried.combos);
+    // errors[m][c]: held-out errors of combo m, component count index c.
+    let mut errors = vec![vec![Vec::new(); components.len()]; combos.len()];
     if held.is_empty() {
         return Err(ModelError::Empty);
     }
-    for (_, _, per_combo) in &held {
+    for (_, _, per_combo) in held {
         for (m, row) in per_combo.iter().enumerate() {
             for (c, &e) in row.iter().enumerate() {
                 if e.is_finite() {
@@ -263,11 +374,7 @@ pub fn cross_validate_shape(
         for (c, &k) in components.iter().enumerate() {
             let mut e = errors[m][c].clone();
             if e.len() == held.len() {
-                points.push((
-                    m,
-                    c,
-                    rel_l2_point(residuals[si].0, alpha_s, beta, k, &mut e),
-                ));
+                points.push((m, c, rel_l2_point(spaces[si], alpha_s, beta, k, &mut e)));
             }
         }
     }
@@ -309,4 +416,143 @@ pub fn cross_validate_shape(
         shape_chosen,
         per_aperture,
     })
+}
+
+/// The coefficient fields' least-squares problems in one space, split by fold: per
+/// channel and fold, over the samples with a residual, the Gram matrix of the largest
+/// order's basis and that basis against the residuals themselves (terms × grid
+/// values). A fold's components turn the latter into its right-hand sides: the
+/// coordinates of a residual are linear in it.
+struct ShapeSystems {
+    union: Basis,
+    channels: Vec<ShapeChannelSystem>,
+}
+
+struct ShapeChannelSystem {
+    channel: Channel,
+    /// Samples with a residual, per fold and in all.
+    rows: Vec<usize>,
+    rows_total: usize,
+    gram: Vec<DMatrix<f64>>,
+    gram_total: DMatrix<f64>,
+    cross: Vec<DMatrix<f64>>,
+    cross_total: DMatrix<f64>,
+}
+
+impl ShapeSystems {
+    fn build(
+        ds: &Dataset,
+        residuals: &[Option<Vec<f32>>],
+        max_alpha: usize,
+        beta: usize,
+        fold_of_shot: &[usize],
+        folds: usize,
+    ) -> Self {
+        use rayon::prelude::*;
+        let norm = ds.normalisation();
+        let union = model_basis(&norm, max_alpha, beta);
+        let values = residuals.iter().flatten().next().map_or(0, Vec::len);
+        let channels = ds
+            .channels()
+            .into_iter()
+            .map(|channel| {
+                let per_fold: Vec<(usize, DMatrix<f64>, DMatrix<f64>)> = (0..folds)
+                    .into_par_iter()
+                    .map(|k| {
+                        let mine: Vec<(&crate::model::BlurSample, &Vec<f32>)> = ds
+                            .samples
+                            .iter()
+                            .zip(residuals)
+                            .filter(|(s, _)| s.channel == channel && fold_of_shot[s.shot] == k)
+                            .filter_map(|(s, r)| Some((s, r.as_ref()?)))
+                            .collect();
+                        // The design transposed (a column per sample), so both products
+                        // are plain matrix products (blocked, unlike tr_mul's dot products).
+                        let mut at = DMatrix::zeros(union.len(), mine.len());
+                        let mut r = DMatrix::zeros(mine.len(), values);
+                        let mut row = vec![0.0; union.len()];
+                        for (n, (s, res)) in mine.iter().enumerate() {
+                            union.row(
+                                global_coords(&norm, s.x, s.y, s.focal_mm, s.f_number),
+                                &mut row,
+                            );
+                            at.column_mut(n).copy_from_slice(&row);
+                            for (col, v) in res.iter().enumerate().take(values) {
+                                r[(n, col)] = f64::from(*v);
+                            }
+                        }
+                        (mine.len(), &at * at.transpose(), &at * r)
+                    })
+                    .collect();
+                let mut gram_total = DMatrix::zeros(union.len(), union.len());
+                let mut cross_total = DMatrix::zeros(union.len(), values);
+                for (_, g, c) in &per_fold {
+                    gram_total += g;
+                    cross_total += c;
+                }
+                let rows: Vec<usize> = per_fold.iter().map(|p| p.0).collect();
+                let (gram, cross) = per_fold.into_iter().map(|p| (p.1, p.2)).unzip();
+                ShapeChannelSystem {
+                    channel,
+                    rows_total: rows.iter().sum(),
+                    rows,
+                    gram,
+                    gram_total,
+                    cross,
+                    cross_total,
+                }
+            })
+            .collect();
+        Self { union, channels }
+    }
+
+    /// The shape model of orders (α, β) with `components`, its coefficient fields
+    /// fitted without `fold`; `norm` is the fold's training normalisation. `None`
+    /// where a channel has fewer training residuals than terms, or no channel has any.
+    fn model(
+        &self,
+        space: crate::model::ShapeSpace,
+        components: &[Vec<f64>],
+        norm: &Normalisation,
+        alpha: usize,
+        beta: usize,
+        fold: usize,
+    ) -> Option<crate::model::ShapeModel> {
+        let basis = model_basis(norm, alpha, beta);
+        let subset = subset_of(&self.union, &basis);
+        let k = components.len();
+        let mut channels = Vec::new();
+        for c in &self.channels {
+            let n = c.rows_total - c.rows[fold];
+            if n == 0 {
+                continue;
+            }
+            if n < basis.len() {
+                return None;
+            }
+            let coeffs = if k == 0 {
+                Vec::new()
+            } else {
+                let gram = (&c.gram_total - &c.gram[fold])
+                    .select_rows(&subset)
+                    .select_columns(&subset);
+                let cross = (&c.cross_total - &c.cross[fold]).select_rows(&subset);
+                let b = DMatrix::from_fn(cross.ncols(), k, |v, j| components[j][v]);
+                let x = solve_normal(gram, &(cross * b));
+                (0..k)
+                    .map(|j| x.column(j).iter().copied().collect())
+                    .collect()
+            };
+            channels.push((c.channel, coeffs));
+        }
+        (!channels.is_empty()).then(|| crate::model::ShapeModel {
+            space,
+            norm: norm.clone(),
+            alpha,
+            beta,
+            basis,
+            components: components.to_vec(),
+            channels,
+        })
+    }
 }

@@ -20,6 +20,7 @@
 
 pub mod edges;
 pub mod file;
+pub mod packed;
 mod solve;
 
 use crate::chart::{self, ChartSpec};

@@ -33,6 +33,7 @@ pub(crate) use basis::{design_system, split_coeffs};
 pub use dataset::{BlurSample, Dataset, PARAM_NAMES, ShotInfo};
 pub use global::{ChannelCoeffs, GlobalModel, global_coords};
 pub use local::{CentreGrid, LocalModel, LocalOptions, local_coords, local_grid, local_members};
+pub(crate) use shape::PreparedKernels;
 pub use shape::{
     KernelModel, MAX_COMPONENTS, PIXEL_SIDE, ShapeFit, ShapeModel, ShapeSpace, WHITENED_LEN,
     WHITENED_PER_SIGMA, WHITENED_SIDE, kernel_with_residual, kernel_with_shape, relative_l2,
