@@ -170,6 +170,9 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                 if name == "kernels" {
                     spawn_dataset(app);
                 }
+                if name == "demo session" {
+                    session::calibrate_demo(app);
+                }
                 if name == "deblur preview"
                     && let Some(centre) = app.deblur.pending.take()
                 {

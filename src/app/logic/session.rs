@@ -125,13 +125,21 @@ pub(super) fn session_output(app: &mut StudioApp, output: JobOutput) {
 /// The demo without a profile (a first launch, or one closed before its calibration
 /// ended) is calibrated by itself once all its shots exist, and then shows its photo
 /// before and after: a newcomer sees what lensblur does without a click.
-fn calibrate_demo(app: &mut StudioApp) {
+///
+/// Asked when the demo's shots are ready and again when its job has finished: the job
+/// still counts as running when its last output arrives in an earlier batch of events
+/// than its end, and the first launch must not wait on that.
+pub(super) fn calibrate_demo(app: &mut StudioApp) {
     let wanted = app.options.calibrate_demo
         && app
             .session()
             .is_some_and(|s| s.is_demo && s.profile.is_none() && !s.shots.is_empty())
         && !app.jobs.is_running("demo session")
-        && !app.jobs.is_running("calibrate all");
+        && !app.jobs.is_running("calibrate all")
+        && !app
+            .commands
+            .iter()
+            .any(|c| matches!(c, Command::CalibrateAll { .. }));
     if wanted {
         app.info("calibrating the demo lens: detect, kernels and calibrate, then its photo before and after");
         app.commands
