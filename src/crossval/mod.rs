@@ -380,6 +380,18 @@ struct ChannelData {
     samples: Vec<CvSample>,
 }
 
+/// A channel's samples as rows of the global model: coordinates, parameters, fold.
+fn global_rows(norm: &Normalisation, cd: &ChannelData) -> Vec<Row> {
+    cd.samples
+        .iter()
+        .map(|s| Row {
+            coords: global_coords(norm, s.x, s.y, s.setting.focal_mm, s.setting.f_number),
+            params: s.params,
+            fold: s.fold,
+        })
+        .collect()
+}
+
 fn channel_data(ds: &Dataset, fold_of_shot: &[usize]) -> Vec<ChannelData> {
     ds.channels()
         .into_iter()
@@ -510,21 +522,7 @@ impl GlobalCv {
                 .data
                 .par_iter()
                 .map(|cd| {
-                    let rows: Vec<Row> = cd
-                        .samples
-                        .iter()
-                        .map(|s| Row {
-                            coords: global_coords(
-                                norm,
-                                s.x,
-                                s.y,
-                                s.setting.focal_mm,
-                                s.setting.f_number,
-                            ),
-                            params: s.params,
-                            fold: s.fold,
-                        })
-                        .collect();
+                    let rows = global_rows(norm, cd);
                     FoldedSystem::build(union, &rows, folds)
                 })
                 .collect()
@@ -614,21 +612,7 @@ fn fold_gaussian_models(
             let systems: Vec<FoldedSystem> = data
                 .par_iter()
                 .map(|cd| {
-                    let rows: Vec<Row> = cd
-                        .samples
-                        .iter()
-                        .map(|s| Row {
-                            coords: global_coords(
-                                &norm,
-                                s.x,
-                                s.y,
-                                s.setting.focal_mm,
-                                s.setting.f_number,
-                            ),
-                            params: s.params,
-                            fold: s.fold,
-                        })
-                        .collect();
+                    let rows = global_rows(&norm, cd);
                     FoldedSystem::build(&basis, &rows, folds)
                 })
                 .collect();
