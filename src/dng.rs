@@ -286,6 +286,18 @@ fn exif_tags(info: &DngInfo) -> Vec<(u16, Val)> {
     };
     text(42033, &id.body_serial, &mut tags);
     text(42035, &raw.lens_make, &mut tags);
+    if let Some(f) = raw.focal_35mm {
+        tags.push((
+            41989,
+            Val::Short(vec![f.round().clamp(0.0, 65535.0) as u16]),
+        ));
+    }
+    if let Some(spec) = raw.lens_specification {
+        tags.push((
+            42034,
+            Val::Rational(spec.iter().map(|&v| rational(v)).collect()),
+        ));
+    }
     text(42036, &id.lens_model, &mut tags);
     text(42037, &id.lens_serial, &mut tags);
     tags

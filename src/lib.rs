@@ -12,6 +12,7 @@ pub mod app;
 pub mod batch;
 pub mod calibrate;
 pub mod chart;
+pub mod correction;
 pub mod crossval;
 pub mod deblur;
 pub mod detect;

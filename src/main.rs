@@ -37,6 +37,9 @@ enum Command {
     Predict(cli::predict::Args),
     /// MTF50 over the whole frame as a map (PNG and CSV), predicted or measured.
     Sharpness(cli::sharpness::Args),
+    /// Distortion, lateral colour and fall-off as a lensfun entry (XML) for darktable,
+    /// RawTherapee and the other editors that correct lenses through lensfun.
+    Lensfun(cli::lensfun::Args),
     /// Measured C_xx, C_yy, C_or against aperture and focal length (the paper's Fig. 4 data).
     Sweeps(cli::sweeps::Args),
     /// Remove the lens blur from a photo with a profile's or a kernels file's kernels.
@@ -58,6 +61,7 @@ fn main() -> ExitCode {
         Some(Command::Crossval(a)) => cli::crossval::run(a),
         Some(Command::Predict(a)) => cli::predict::run(a),
         Some(Command::Sharpness(a)) => cli::sharpness::run(a),
+        Some(Command::Lensfun(a)) => cli::lensfun::run(a),
         Some(Command::Sweeps(a)) => cli::sweeps::run(a),
         Some(Command::Deblur(a)) => cli::deblur::run(a),
         Some(Command::Experiment(a)) => cli::experiment::run(a),

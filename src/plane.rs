@@ -287,6 +287,11 @@ pub struct RawMeta {
     /// EXIF DateTimeOriginal, as written ("YYYY:MM:DD HH:MM:SS").
     pub date_time_original: Option<String>,
     pub lens_make: Option<String>,
+    /// EXIF FocalLengthIn35mmFilm, mm: with the focal length, the camera's crop factor.
+    pub focal_35mm: Option<f64>,
+    /// EXIF LensSpecification: shortest and longest focal length (mm), widest
+    /// aperture at each (f-number).
+    pub lens_specification: Option<[f64; 4]>,
     /// The file's ImageDescription: for a DNG lensblur wrote, how it was made.
     pub description: Option<String>,
 }
@@ -313,6 +318,8 @@ impl RawMeta {
             iso: None,
             date_time_original: None,
             lens_make: None,
+            focal_35mm: None,
+            lens_specification: None,
             description: None,
         }
     }

@@ -558,6 +558,8 @@ fn from_rawloader(
         iso: None,
         date_time_original: None,
         lens_make: None,
+        focal_35mm: None,
+        lens_specification: None,
         description: None,
     });
     c.identity.make = Some(img.clean_make.clone()).filter(|s| !s.is_empty());
@@ -721,6 +723,8 @@ fn read_uncompressed_dng(path: &Path, b: &[u8], ifd: &Ifd) -> Result<Capture, Lo
         iso: None,
         date_time_original: None,
         lens_make: None,
+        focal_35mm: None,
+        lens_specification: None,
         description: None,
     });
     Ok(c)
@@ -737,6 +741,10 @@ pub struct ExifInfo {
     pub date_time_original: Option<String>,
     pub lens_make: Option<String>,
     pub description: Option<String>,
+    /// FocalLengthIn35mmFilm, mm.
+    pub focal_35mm: Option<f64>,
+    /// LensSpecification: shortest and longest focal length, widest aperture at each.
+    pub lens_specification: Option<[f64; 4]>,
 }
 
 impl ExifInfo {
@@ -756,6 +764,8 @@ impl ExifInfo {
             raw.iso = self.iso;
             raw.date_time_original = self.date_time_original;
             raw.lens_make = self.lens_make;
+            raw.focal_35mm = self.focal_35mm;
+            raw.lens_specification = self.lens_specification;
             raw.description = self.description;
         }
     }
@@ -803,6 +813,21 @@ pub fn read_exif(bytes: &[u8]) -> ExifInfo {
             34855 => info.iso = info.iso.or(rational.map(|v| v.round() as u32)),
             36867 => info.date_time_original = info.date_time_original.take().or(text),
             42035 => info.lens_make = info.lens_make.take().or(text),
+            41989 => info.focal_35mm = info.focal_35mm.or(rational),
+            42034 => {
+                if let exif::Value::Rational(v) = &f.value
+                    && v.len() == 4
+                {
+                    let spec: Vec<f64> = v
+                        .iter()
+                        .map(|r| f64::from(r.num) / f64::from(r.denom.max(1)))
+                        .collect();
+                    // Unknown values are written as 0/0: keep the focal range anyway.
+                    if spec[0].is_finite() && spec[1].is_finite() && spec[0] > 0.0 {
+                        info.lens_specification = Some([spec[0], spec[1], spec[2], spec[3]]);
+                    }
+                }
+            }
             270 => info.description = info.description.take().or(text),
             33437 => info.f_number = info.f_number.or(rational),
             271 => id.make = id.make.take().or(text),

@@ -9,6 +9,7 @@ pub mod deblur_batch;
 pub mod detect;
 pub mod experiment;
 pub mod kernels;
+pub mod lensfun;
 pub mod predict;
 pub mod sharpness;
 pub mod simulate;

@@ -26,8 +26,17 @@ pub struct Aligned {
     pub sigma_by_channel: Vec<(Channel, f64)>,
     /// Each colour channel's own `image_from_chart` (the joint one translated and scaled), for
     /// a capture of several channels: lateral colour images the channels at slightly
-    /// different magnifications, up to about a pixel apart in the corners.
+    /// different magnifications, up to about a pixel apart in the corners. Empty
+    /// unless [`DetectParams::channel_shifts`] asks the kernels to use them.
     pub channel_image_from_chart: Vec<(Channel, Homography)>,
+    /// The same registration, always made for a capture of several channels: what the
+    /// lens's lateral colour is measured from (`correction`), whether or not the
+    /// kernels use it.
+    pub channel_registration: Vec<(Channel, Homography)>,
+    /// Each colour channel's fitted black and white levels (the mean over its planes,
+    /// normalised units): the white level across the frame is what the lens's fall-off
+    /// is measured from.
+    pub levels_by_channel: Vec<(Channel, [f64; 2])>,
 }
 
 #[derive(Clone, Copy)]
@@ -508,7 +517,9 @@ pub fn align_square(
     }
     let sigma_px = st.var.iter().map(|v| v.sqrt()).sum::<f64>() / np as f64;
     let channels = capture.channels();
-    let per_channel: Vec<(Channel, State)> = if channels.len() > 1 && params.channel_shifts {
+    // Measured on every capture of several channels (lateral colour is measured from
+    // it); the kernels take it only where `channel_shifts` asks.
+    let per_channel: Vec<(Channel, State)> = if channels.len() > 1 {
         let fine = samples(capture, rect, 0.0, 1);
         channels
             .iter()
@@ -539,7 +550,7 @@ pub fn align_square(
         // A channel's blur is best measured where that channel's image lies.
         let var = per_channel
             .iter()
-            .find(|(c, _)| *c == ch)
+            .find(|(c, _)| *c == ch && params.channel_shifts)
             .map_or(&st.var, |(_, s)| &s.var);
         let sigmas: Vec<f64> = capture
             .planes
@@ -552,6 +563,20 @@ pub fn align_square(
             sigma_by_channel.push((ch, sigmas.iter().sum::<f64>() / sigmas.len() as f64));
         }
     }
+    let levels_by_channel = channels
+        .iter()
+        .filter_map(|&ch| {
+            let planes: Vec<usize> = (0..np)
+                .filter(|&k| capture.planes[k].channel == ch)
+                .collect();
+            let n = planes.len() as f64;
+            let black = planes.iter().map(|&k| st.a[k]).sum::<f64>() / n;
+            let white = planes.iter().map(|&k| st.a[k] + st.b[k]).sum::<f64>() / n;
+            (!planes.is_empty()).then_some((ch, [black, white]))
+        })
+        .collect();
+    let channel_registration: Vec<(Channel, Homography)> =
+        per_channel.into_iter().map(|(c, s)| (c, s.h)).collect();
     Ok(Aligned {
         image_from_chart: st.h,
         residual_rms: (cost / n.max(1) as f64).sqrt(),
@@ -559,7 +584,13 @@ pub fn align_square(
         white_level: white_sum / np as f64,
         sigma_px,
         sigma_by_channel,
-        channel_image_from_chart: per_channel.into_iter().map(|(c, s)| (c, s.h)).collect(),
+        channel_image_from_chart: if params.channel_shifts {
+            channel_registration.clone()
+        } else {
+            Vec::new()
+        },
+        channel_registration,
+        levels_by_channel,
     })
 }
 

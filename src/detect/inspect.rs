@@ -161,6 +161,8 @@ mod tests {
             sigma_px: 1.2,
             sigma_by_channel: vec![(Channel::Y, 1.2)],
             channel_image_from_chart: Vec::new(),
+            channel_registration: Vec::new(),
+            levels_by_channel: Vec::new(),
         };
         let ins = inspect_square(&capture, &square, &spec, Channel::Y).expect("inside");
         assert!(ins.observed.width >= 30 && ins.observed.height >= 30);

@@ -114,6 +114,12 @@ pub struct SquareAlignment {
     /// [`align::Aligned::channel_image_from_chart`]); empty for one channel or a square
     /// that was not aligned, where every channel's is `image_from_chart`.
     pub channel_image_from_chart: Vec<(crate::plane::Channel, Homography)>,
+    /// Every colour channel's own registration, whether or not the kernels use it
+    /// ([`align::Aligned::channel_registration`]); empty for one channel.
+    pub channel_registration: Vec<(crate::plane::Channel, Homography)>,
+    /// Each colour channel's fitted [black, white] level, normalised units; empty for
+    /// a square that was not aligned.
+    pub levels_by_channel: Vec<(crate::plane::Channel, [f64; 2])>,
 }
 
 impl SquareAlignment {
@@ -287,6 +293,8 @@ fn square(
         sigma_px: f64::NAN,
         sigma_by_channel: Vec::new(),
         channel_image_from_chart: Vec::new(),
+        channel_registration: Vec::new(),
+        levels_by_channel: Vec::new(),
     };
     match align::align_square(capture, spec, col, row, &bootstrap, levels, params) {
         Ok(a) => {
@@ -299,6 +307,8 @@ fn square(
             out.sigma_px = a.sigma_px;
             out.sigma_by_channel = a.sigma_by_channel;
             out.channel_image_from_chart = a.channel_image_from_chart;
+            out.channel_registration = a.channel_registration;
+            out.levels_by_channel = a.levels_by_channel;
         }
         Err(reason) => out.reason = Some(reason),
     }
@@ -334,6 +344,12 @@ pub struct SquareRecord {
     /// Each colour channel's own `image_from_chart` where detection refined them.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub channel_homographies: Vec<(crate::plane::Channel, Homography)>,
+    /// Each colour channel's own registration, made whether or not the kernels use it.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub channel_registration: Vec<(crate::plane::Channel, Homography)>,
+    /// Each colour channel's fitted [black, white] level.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub levels: Vec<(crate::plane::Channel, [f64; 2])>,
 }
 
 /// The detection file's version.
@@ -367,6 +383,14 @@ impl DetectFile {
     }
 }
 
+/// The mean over channels of level `which` (0 black, 1 white); NaN for none.
+fn mean_level(levels: &[(crate::plane::Channel, [f64; 2])], which: usize) -> f64 {
+    if levels.is_empty() {
+        return f64::NAN;
+    }
+    levels.iter().map(|(_, l)| l[which]).sum::<f64>() / levels.len() as f64
+}
+
 impl Detection {
     /// The file form.
     #[must_use]
@@ -389,13 +413,16 @@ impl Detection {
                     homography: s.image_from_chart,
                     residual_rms: s.residual_rms.is_finite().then_some(s.residual_rms),
                     channel_homographies: s.channel_image_from_chart.clone(),
+                    channel_registration: s.channel_registration.clone(),
+                    levels: s.levels_by_channel.clone(),
                 })
                 .collect(),
         }
     }
 
     /// Back from the file form (what the studio reads when it reopens a session). The
-    /// levels and blur estimate are not in the file and come back as NaN.
+    /// blur estimate is not in the file and comes back as NaN; so do the mean levels
+    /// of a file without per-channel levels.
     #[must_use]
     pub fn from_file(file: &DetectFile) -> Self {
         let squares: Vec<SquareAlignment> = file
@@ -411,11 +438,13 @@ impl Detection {
                 image_from_chart: r.homography,
                 bootstrap: r.homography,
                 residual_rms: r.residual_rms.unwrap_or(f64::NAN),
-                black_level: f64::NAN,
-                white_level: f64::NAN,
+                black_level: mean_level(&r.levels, 0),
+                white_level: mean_level(&r.levels, 1),
                 sigma_px: f64::NAN,
                 sigma_by_channel: Vec::new(),
                 channel_image_from_chart: r.channel_homographies.clone(),
+                channel_registration: r.channel_registration.clone(),
+                levels_by_channel: r.levels.clone(),
             })
             .collect();
         let global = squares

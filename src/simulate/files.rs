@@ -78,7 +78,7 @@ pub fn write_shot_as(
             if !shot.capture.is_raw {
                 return Err(unsuitable("a DNG needs a Bayer shot"));
             }
-            let info = DngInfo::simulated(
+            let mut info = DngInfo::simulated(
                 shot.capture.identity.make.as_deref().unwrap_or_default(),
                 shot.capture.identity.model.as_deref().unwrap_or_default(),
                 shot.black_level,
@@ -86,6 +86,11 @@ pub fn write_shot_as(
                 Some(shot.truth.setting),
                 dng_layout,
             );
+            // What a camera records of its lens: lensfun finds entries by these.
+            info.identity = shot.capture.identity.clone();
+            info.raw.focal_35mm =
+                Some(shot.truth.setting.focal_mm * super::capture::SIM_CROP_FACTOR);
+            info.raw.lens_specification = Some(shot.lens_specification);
             write_dng(
                 path,
                 &shot.cfa,

@@ -977,6 +977,8 @@ fn camera_dng_info(setting: LensSetting) -> DngInfo {
             date_time_original: Some("2026:11:25 10:30:00".into()),
             lens_make: Some("Virtual Optics".into()),
             description: None,
+            focal_35mm: Some(75.0),
+            lens_specification: Some([24.0, 105.0, 4.0, 4.0]),
         },
         exif_in_ifd0: false,
         original_file_name: None,

@@ -154,7 +154,14 @@ pub struct CaptureParams {
     pub tile_px: usize,
     /// Gains of R, G, B relative to `exposure` (a camera's white balance).
     pub channel_gains: [f64; 3],
+    /// Light that is not even: the illumination falls by this many stops per half
+    /// diagonal along x and along y (0, 0: even light, as a chart should be lit).
+    pub light_gradient_stops: [f64; 2],
 }
+
+/// The crop factor of the simulated camera (an APS-C sensor, whatever its pixel
+/// count): what its EXIF's 35 mm focal length says.
+pub const SIM_CROP_FACTOR: f64 = 1.5;
 
 impl CaptureParams {
     /// A noiseless-free default shot of the given size and setting.
@@ -175,6 +182,7 @@ impl CaptureParams {
             oversample: 4,
             tile_px: 32,
             channel_gains: [0.82, 1.0, 0.74],
+            light_gradient_stops: [0.0, 0.0],
         }
     }
 }
@@ -298,6 +306,8 @@ pub struct SimulatedShot {
     /// Raw value of zero light and of saturation, as in `cfa`.
     pub black_level: u16,
     pub white_level: u16,
+    /// The lens's EXIF LensSpecification (focal range, widest aperture at each end).
+    pub lens_specification: [f64; 4],
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -628,13 +638,17 @@ pub fn simulate_shot(
         }
     }
     job.report("simulate", total_rows, total_rows);
-    if lens.geometry.vignetting_stops != [0.0; 2] {
+    if lens.geometry.vignetting_stops != [0.0; 2] || params.light_gradient_stops != [0.0; 2] {
         let map = lens
             .geometry
             .mapping_at(lens, Channel::G, params.setting, w, h);
+        let (cx, cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+        let half_diagonal = cx.hypot(cy).max(1.0);
+        let [gx, gy] = params.light_gradient_stops;
         for y in 0..h {
             for x in 0..w {
-                let gain = map.illumination([x as f64, y as f64]) as f32;
+                let light = ((gx * (x as f64 - cx) + gy * (y as f64 - cy)) / half_diagonal).exp2();
+                let gain = (map.illumination([x as f64, y as f64]) * light) as f32;
                 for plane in &mut out {
                     plane.data[y * w + x] *= gain;
                 }
@@ -652,6 +666,12 @@ pub fn simulate_shot(
         clean,
         black_level: params.black_level,
         white_level: params.white_level,
+        lens_specification: [
+            lens.focal_range_mm[0],
+            lens.focal_range_mm[1],
+            lens.f_number_range[0],
+            lens.f_number_range[0],
+        ],
     })
 }
 
