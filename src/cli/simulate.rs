@@ -98,6 +98,14 @@ pub struct Args {
     /// No photon or read noise (quantisation stays).
     #[arg(long)]
     pub noiseless: bool,
+    /// Light the chart unevenly: the light falls by GX stops per half diagonal along x
+    /// and GY along y ("0.3,0"), as a lamp to one side would.
+    #[arg(long, value_parser = parse_gradient, allow_hyphen_values = true)]
+    pub light_gradient: Option<[f64; 2]>,
+    /// Also write a flat field per setting (`flat_<setting>.png`, linear 16-bit grey):
+    /// an evenly lit white surface through the lens's fall-off, as a diffuser gives.
+    #[arg(long)]
+    pub flat_field: bool,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
 }
@@ -122,8 +130,23 @@ impl Default for Args {
             max_rotation_deg: 2.0,
             max_tilt: 0.02,
             noiseless: false,
+            light_gradient: None,
+            flat_field: false,
             seed: 1,
         }
+    }
+}
+
+fn parse_gradient(s: &str) -> Result<[f64; 2], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|t| t.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("'{s}' is not two numbers such as 0.3,0"))?;
+    match v[..] {
+        [gx, gy] if gx.abs() <= 4.0 && gy.abs() <= 4.0 => Ok([gx, gy]),
+        [_, _] => Err(format!("'{s}': at most 4 stops per half diagonal")),
+        _ => Err(format!("'{s}' is not two numbers such as 0.3,0")),
     }
 }
 
@@ -232,6 +255,9 @@ pub fn run(args: Args) -> Result<()> {
         if args.noiseless {
             params.noise = NoiseModel::none();
         }
+        if let Some(g) = args.light_gradient {
+            params.light_gradient_stops = g;
+        }
         let jitter = |rng: &mut rand_pcg::Pcg64, m: f64| {
             if m > 0.0 {
                 rng.random_range(-m..=m)
@@ -276,6 +302,21 @@ pub fn run(args: Args) -> Result<()> {
             focal_mm: Some(setting.focal_mm),
             f_number: Some(setting.f_number),
         });
+    }
+    if args.flat_field {
+        for setting in &settings {
+            let name = format!(
+                "flat_f{:05.1}_a{:04.1}.png",
+                setting.focal_mm, setting.f_number
+            );
+            let plane = lensblur::simulate::flat_field(&lens, *setting, args.width, args.height);
+            lensblur::raw::save_planes(
+                &args.out.join(&name),
+                &[(lensblur::plane::Channel::Y, plane)],
+                false,
+            )
+            .with_context(|| format!("{}: writing", args.out.join(&name).display()))?;
+        }
     }
     let manifest = Manifest::new(Some(ChartRef::Spec(chart)), shots);
     manifest.save(&args.out.join("manifest.json"))?;

@@ -233,6 +233,28 @@ impl SensorMapping {
     }
 }
 
+/// A flat field at `setting`: an evenly lit white surface (a diffuser over the lens)
+/// as a `width × height` linear plane, 0.8 at the centre and falling off as the lens's
+/// vignetting does; no blur (a flat surface stays flat) and no noise.
+#[must_use]
+pub fn flat_field(
+    lens: &super::VirtualLens,
+    setting: LensSetting,
+    width: usize,
+    height: usize,
+) -> crate::plane::Plane {
+    let map = lens
+        .geometry
+        .mapping_at(lens, Channel::G, setting, width, height);
+    let mut plane = crate::plane::Plane::new(width, height);
+    for y in 0..height {
+        for x in 0..width {
+            plane.data[y * width + x] = (0.8 * map.illumination([x as f64, y as f64])) as f32;
+        }
+    }
+    plane
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

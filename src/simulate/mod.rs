@@ -15,7 +15,7 @@ pub use capture::{
     CaptureParams, NoiseModel, Pose, PsfField, ShotTruth, SimulateError, SimulatedShot,
     SquareTruth, capture_from_raw, simulate_shot,
 };
-pub use distortion::{LensGeometry, SensorMapping};
+pub use distortion::{LensGeometry, SensorMapping, flat_field};
 pub use files::{ShotFormat, write_shot, write_shot_as};
 pub use lens::{Aberrations, PsfShape, Seidel, VirtualLens};
 pub use scene::{blur_varying, dead_leaves, hard_edges};

@@ -11,6 +11,7 @@ mod detect;
 mod formats;
 mod fuzz_smoke;
 mod kernels;
+mod lensfun;
 mod load;
 mod model;
 mod pipeline;
