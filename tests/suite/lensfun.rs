@@ -103,6 +103,18 @@ fn lensfun_reads_the_entry_and_its_corrections_straighten_a_held_out_shot() {
         "--report",
         &report,
     ]));
+    let dtd = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/lensfun/lensfun-database.dtd");
+    let valid = Command::new("xmllint")
+        .args(["--noout", "--dtdvalid"])
+        .arg(&dtd)
+        .arg(&xml)
+        .output()
+        .expect("xmllint (the README's test command installs libxml2-utils)");
+    assert!(
+        valid.status.success(),
+        "not valid against lensfun's DTD: {}",
+        String::from_utf8_lossy(&valid.stderr)
+    );
     // A shot the entry was not fitted to (another pose and noise), at a setting the
     // entry has, with a flat field at that setting.
     let held = tmp.path().join("held");
