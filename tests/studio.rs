@@ -1738,6 +1738,54 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
             );
         }
     }
+
+    // The Geometry view on the demo's detections: the demo lens's distortion (barrel at
+    // the wide end), lateral colour and fall-off; then its lensfun entry, exported as the
+    // dialog's answer would, with a distortion entry at each focal length.
+    h.state_mut()
+        .commands
+        .push(Command::SelectView(View::Geometry));
+    step_until(
+        &mut h,
+        "the lens's geometry",
+        Duration::from_secs(60),
+        |a| a.views.geometry.is_some() && idle(a),
+    );
+    let d = h.state().views.geometry.as_ref().expect("geometry");
+    assert_eq!(d.focal, 24.0, "the widest focal length first");
+    assert!(
+        d.grid.corner_px < -1.0,
+        "barrel at 24 mm: {} px at the corners",
+        d.grid.corner_px
+    );
+    assert!(d.colour.is_some(), "lateral colour measured");
+    assert!(
+        d.falloff.as_ref().is_some_and(|f| f.fit.corner_stops > 0.3),
+        "fall-off measured"
+    );
+    assert!(d.warning.is_none(), "the demo's light is even");
+    snapshot(&mut h, "studio_geometry_demo");
+    let xml_path = dir.path().join("demo.lensfun.xml");
+    h.state_mut()
+        .commands
+        .push(Command::ExportLensfun(xml_path.clone()));
+    step_until(&mut h, "the lensfun entry", Duration::from_secs(30), |a| {
+        idle(a) && (xml_path.is_file() || a.messages.iter().any(|m| m.is_error))
+    });
+    assert!(
+        !h.state().messages.iter().any(|m| m.is_error),
+        "{:?}",
+        h.state().messages
+    );
+    let xml = std::fs::read_to_string(&xml_path).expect("the lensfun entry");
+    for f in [24, 50, 105] {
+        assert!(
+            xml.lines()
+                .any(|l| l.contains("<distortion ") && l.contains(&format!("focal=\"{f}\""))),
+            "a distortion entry at {f} mm:\n{xml}"
+        );
+    }
+    assert_eq!(xml.matches("<distortion").count(), 3, "{xml}");
 }
 
 fn folder_has_profile(folder: &Path) -> bool {

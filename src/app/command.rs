@@ -121,6 +121,13 @@ pub enum Command {
         path: PathBuf,
         png: bool,
     },
+    /// The Geometry view's focal length and aperture (its fall-off map).
+    SetGeometryFocal(f64),
+    SetGeometryAperture(f64),
+    /// Asks where to write the lens's lensfun entry (the Geometry view's measurement).
+    ExportLensfunDialog,
+    /// Writes the lensfun entry (XML) of the Geometry view's measurement, on a job.
+    ExportLensfun(PathBuf),
     /// Asks where to save a plot, as a PNG of it on screen or as CSV of its data.
     SavePlotDialog {
         plot: PlotId,
@@ -242,6 +249,17 @@ pub enum JobOutput {
     DeblurExported(PathBuf),
     /// A set of photos exported: what became of each.
     PhotosExported(crate::batch::BatchReport),
+    /// The lens's geometry measured from the session's detections (the Geometry
+    /// view's), for the request it answers.
+    GeometryMeasured {
+        request: u64,
+        result: Result<Arc<crate::correction::LensCorrection>, String>,
+    },
+    /// A lensfun entry written: where, and the lens and camera it is for.
+    LensfunExported {
+        path: PathBuf,
+        lens: String,
+    },
     /// The crops of an inspected square (`None`: the square has none in that channel).
     SquareInspected {
         key: view_data::InspectKey,

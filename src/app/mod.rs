@@ -93,6 +93,9 @@ pub struct StudioApp {
     pub sweep_axis: SweepAxis,
     /// What the Sharpness view maps.
     pub sharpness: SharpnessChoice,
+    /// The Geometry view's focal length and aperture; `None`: the session's first.
+    pub geometry_focal_mm: Option<f64>,
+    pub geometry_f_number: Option<f64>,
     pub plot_png: Option<PendingPlotPng>,
     /// What the views show that takes computing, cached by what it depends on.
     pub views: view_data::ViewData,
@@ -172,6 +175,8 @@ impl StudioApp {
             field_options: view_data::FieldOptions::default(),
             sweep_axis: SweepAxis::Sigma,
             sharpness: SharpnessChoice::default(),
+            geometry_focal_mm: None,
+            geometry_f_number: None,
             plot_png: None,
             views: view_data::ViewData::default(),
             deblur: DeblurState::default(),

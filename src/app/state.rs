@@ -20,16 +20,19 @@ pub enum View {
     Sweeps,
     Models,
     Deblur,
+    /// Distortion, lateral colour and fall-off per focal length (lensfun's models).
+    Geometry,
 }
 
 impl View {
-    pub const ALL: [View; 6] = [
+    pub const ALL: [View; 7] = [
         View::Shot,
         View::KernelField,
         View::Sharpness,
         View::Sweeps,
         View::Models,
         View::Deblur,
+        View::Geometry,
     ];
 
     #[must_use]
@@ -41,6 +44,7 @@ impl View {
             View::Sweeps => "Sweeps",
             View::Models => "Models",
             View::Deblur => "Deblur",
+            View::Geometry => "Geometry",
         }
     }
 }

@@ -13,6 +13,7 @@ use crate::manifest::MANIFEST_FILE;
 use crate::plane::LensSetting;
 use crate::project::{CV_FILE, PROFILE_FILE};
 use crate::session::{DemoPhoto, SESSION_FILE, Session, SessionError, Shot};
+use crate::simulate::LensGeometry;
 use std::path::{Path, PathBuf};
 
 /// The size and settings of a demo session.
@@ -24,6 +25,10 @@ pub struct DemoSpec {
     pub seed: u64,
     /// The chart printed in the demo's shots.
     pub chart: ChartSpec,
+    /// The lens's distortion, lateral colour and fall-off in the calibration shots
+    /// (the demo photo is blurred without them): a typical zoom's, so the Geometry
+    /// view and the lensfun export have something to show.
+    pub geometry: LensGeometry,
 }
 
 impl DemoSpec {
@@ -66,6 +71,7 @@ impl DemoSpec {
             settings,
             seed: 7,
             chart,
+            geometry: LensGeometry::typical_zoom(),
         }
     }
 
@@ -74,6 +80,13 @@ impl DemoSpec {
     pub fn with_chart(mut self, cols: usize, rows: usize) -> Self {
         self.chart.cols = cols;
         self.chart.rows = rows;
+        self
+    }
+
+    /// The same demo with another lens geometry (`LensGeometry::default()`: none).
+    #[must_use]
+    pub fn with_geometry(mut self, geometry: LensGeometry) -> Self {
+        self.geometry = geometry;
         self
     }
 
@@ -92,7 +105,7 @@ impl DemoSpec {
             .iter()
             .map(|s| format!("{}@{}", s.focal_mm, s.f_number))
             .collect();
-        format!(
+        let mut key = format!(
             "lensblur {} demo {}x{} chart {}x{} seed {} settings {}",
             env!("CARGO_PKG_VERSION"),
             self.width,
@@ -101,7 +114,15 @@ impl DemoSpec {
             self.chart.rows,
             self.seed,
             settings.join(",")
-        )
+        );
+        if !self.geometry.is_none() {
+            let g = &self.geometry;
+            key.push_str(&format!(
+                " geometry {:?} {:?} {:?} {:?}",
+                g.distortion_wide, g.distortion_long, g.lateral_colour, g.vignetting_stops
+            ));
+        }
+        key
     }
 
     /// File name of the demo shot for a setting.
@@ -139,6 +160,11 @@ pub fn make_demo_streaming(
     use crate::simulate::{CaptureParams, Pose, VirtualLens, simulate_shot};
     let chart = spec.chart();
     let lens = VirtualLens::demo();
+    // The shots carry the spec's geometry; the photo is blurred by the plain lens.
+    let shot_lens = VirtualLens {
+        geometry: spec.geometry.clone(),
+        ..VirtualLens::demo()
+    };
     std::fs::create_dir_all(dir).map_err(|source| SessionError::Write {
         path: dir.to_path_buf(),
         source,
@@ -184,7 +210,7 @@ pub fn make_demo_streaming(
             params.seed = spec.seed.wrapping_add(k as u64);
             let shot = simulate_shot(
                 &chart,
-                &lens,
+                &shot_lens,
                 &params,
                 &job.prefixed(&format!("shot {} of {total}: ", k + 1)),
             )

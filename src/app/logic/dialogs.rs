@@ -47,6 +47,7 @@ pub(super) fn apply_dialog(app: &mut StudioApp, command: Command) {
         Command::SaveProfileDialog => save_profile_dialog(app),
         Command::SavePlotDialog { plot, png } => save_plot_dialog(app, plot, png),
         Command::SaveSharpnessDialog { png } => save_sharpness_dialog(app, png),
+        Command::ExportLensfunDialog => export_lensfun_dialog(app),
         Command::OpenSessionDialog => spawn_dialog(app, || async {
             answer(
                 rfd::AsyncFileDialog::new()
@@ -222,6 +223,30 @@ fn save_sharpness_dialog(app: &mut StudioApp, png: bool) {
                 .save_file()
                 .await,
             |path| Command::SaveSharpness { path, png },
+        )
+    });
+}
+
+/// Where to write the lens's lensfun entry: a file for `~/.local/share/lensfun/`.
+fn export_lensfun_dialog(app: &mut StudioApp) {
+    if crate::app::view_data::measured_geometry(app).is_none() {
+        app.error(
+            "nothing to export yet: the Geometry view needs the chart detected in shots at known settings (Detect, Ctrl+D)",
+        );
+        return;
+    }
+    let name = app
+        .session()
+        .map_or_else(|| "lens".to_owned(), |s| s.name.replace(' ', "-"));
+    spawn_dialog(app, move || async move {
+        answer(
+            rfd::AsyncFileDialog::new()
+                .set_title("Export the lens's lensfun entry (for darktable, RawTherapee)")
+                .add_filter("lensfun XML", &["xml"])
+                .set_file_name(format!("{name}.lensfun.xml"))
+                .save_file()
+                .await,
+            Command::ExportLensfun,
         )
     });
 }

@@ -12,6 +12,7 @@
 mod autorun;
 mod deblur;
 mod dialogs;
+mod geometry;
 mod plots;
 mod session;
 mod shots;
@@ -50,6 +51,8 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         | Command::SetCompareUnits(_)
         | Command::SetFieldOptions(_)
         | Command::SetViewer(_)
+        | Command::SetGeometryFocal(_)
+        | Command::SetGeometryAperture(_)
         | Command::SetPlanRange(_) => view::apply_view(app, command),
         Command::Cancel(_)
         | Command::CancelAll
@@ -95,6 +98,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         Command::SavePlotCsv { .. }
         | Command::SavePlotPng { .. }
         | Command::SaveSharpness { .. } => plots::apply_plot(app, command),
+        Command::ExportLensfun(_) => geometry::apply_geometry(app, command),
         Command::AddShotsDialog
         | Command::LoadChartDialog
         | Command::OpenPhotoDialog
@@ -104,6 +108,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         | Command::SaveProfileDialog
         | Command::SavePlotDialog { .. }
         | Command::SaveSharpnessDialog { .. }
+        | Command::ExportLensfunDialog
         | Command::OpenSessionDialog
         | Command::AskConfirm(_)
         | Command::ConfirmAnswer(_)
@@ -129,6 +134,9 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
         | JobOutput::DeblurExported(_)
         | JobOutput::PhotosExported(_) => deblur::deblur_output(app, output),
         JobOutput::SquareInspected { key, result } => view_data::inspected(app, key, result),
+        JobOutput::GeometryMeasured { .. } | JobOutput::LensfunExported { .. } => {
+            geometry::geometry_output(app, output);
+        }
     }
 }
 

@@ -26,6 +26,11 @@ pub(super) fn apply_view(app: &mut StudioApp, command: Command) {
         Command::SetCompareUnits(on) => app.compare_units = on,
         Command::SetFieldOptions(o) => app.field_options = o,
         Command::SetViewer(v) => app.viewer = v,
+        Command::SetGeometryFocal(f) => {
+            app.geometry_focal_mm = Some(f);
+            app.geometry_f_number = None;
+        }
+        Command::SetGeometryAperture(a) => app.geometry_f_number = Some(a),
         // `apply` routes only this group's commands here.
         other => unreachable!("not routed to apply_view: {other:?}"),
     }

@@ -4,6 +4,7 @@
 
 mod deblur;
 mod field;
+mod geometry;
 mod help;
 mod models;
 mod session_panel;
@@ -41,8 +42,8 @@ const SHORTCUTS: &[(&str, &str)] = &[
         "export the photo deblurred with the predicted Gaussians",
     ),
     (
-        "Alt+1 … Alt+6",
-        "Shot, Kernel field, Sharpness, Sweeps, Models, Deblur",
+        "Alt+1 … Alt+7",
+        "Shot, Kernel field, Sharpness, Sweeps, Models, Deblur, Geometry",
     ),
     ("Page Up / Page Down", "previous / next shot"),
     ("Alt+R, Alt+G, Alt+B", "red, green, blue channel"),
@@ -81,6 +82,7 @@ pub(super) fn root_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         View::Sweeps => sweeps::sweeps_ui(app, ui),
         View::Models => models::models_ui(app, ui),
         View::Deblur => deblur::deblur_ui(app, ui),
+        View::Geometry => geometry::geometry_ui(app, ui),
     });
     let ctx = ui.ctx().clone();
     confirm_ui(app, &ctx);
@@ -401,6 +403,7 @@ fn shortcuts(app: &mut StudioApp, ctx: &egui::Context) {
             Key::Num4,
             Key::Num5,
             Key::Num6,
+            Key::Num7,
         ]
         .into_iter()
         .zip(View::ALL)

@@ -4,7 +4,8 @@
 //! Owns the shot viewer's plane choice, the Kernel field view's panels (measured
 //! ellipses, the kernel atlas texture, predicted and true fields), the Sharpness view's
 //! map, the Sweeps view's
-//! measured points and model and truth curves, and the square inspector (its crops come
+//! measured points and model and truth curves, the Geometry view's measurement (a job)
+//! and drawing, and the square inspector (its crops come
 //! from a job; their textures, the kernel's texture and the truth beside it are made
 //! here when they arrive). [`refresh`] runs once per frame from the app's logic step and
 //! recomputes only what is stale; the draw code reads these caches and shows a
@@ -17,6 +18,7 @@ use crate::review::{LensRange, PlannedSetting, ShootingAdvice};
 use crate::simulate::VirtualLens;
 use atlas::refresh_kernel_atlas;
 use field::refresh_field;
+use geometry::refresh_geometry;
 use inspector::refresh_inspection;
 use sharpness::refresh_sharpness;
 use shot_plane::refresh_shot_plane;
@@ -25,6 +27,7 @@ use sweeps::refresh_sweeps;
 
 mod atlas;
 mod field;
+mod geometry;
 mod inspector;
 mod sharpness;
 mod shot_plane;
@@ -34,6 +37,10 @@ pub use atlas::{AtlasCell, KernelAtlas};
 pub use field::{
     ColourRange, ColourScale, Difference, FieldData, FieldOptions, FieldPanel, FieldPoint,
     PanelContent, PanelOf,
+};
+pub(super) use geometry::geometry_measured;
+pub use geometry::{
+    ColourArrows, Falloff, GeometryData, GeometryMeasure, WarpedGrid, measured_geometry,
 };
 pub(super) use inspector::inspected;
 pub use inspector::{InspectKey, InspectedSquare, Inspecting, Inspection};
@@ -91,6 +98,12 @@ pub struct ViewData {
     pub sharpness: Option<SharpnessData>,
     pub sweeps: Option<SweepData>,
     pub inspection: Option<Inspecting>,
+    /// The lens's geometry measured from the session's detections (on a job), and the
+    /// count of measurements asked for (a result answers one).
+    pub geometry_measure: Option<GeometryMeasure>,
+    geometry_requests: u64,
+    /// What the Geometry view draws at its focal length and aperture.
+    pub geometry: Option<GeometryData>,
     /// The session's settings with shots and what they allow the model.
     pub calibrated: Option<Calibrated>,
 }
@@ -131,6 +144,7 @@ pub(super) fn refresh(app: &mut StudioApp) {
         }
         View::Sharpness => refresh_sharpness(app),
         View::Sweeps => refresh_sweeps(app),
+        View::Geometry => refresh_geometry(app),
         View::Shot | View::Models | View::Deblur => {}
     }
 }

@@ -1,0 +1,115 @@
+//! The Geometry view's results: the lens's measured geometry as its job hands it back,
+//! and the lensfun entry written from it on a job of its own (the shot's EXIF is read
+//! there; the names and the checks are the core's, as `lensblur lensfun` makes them).
+
+use crate::app::jobs::JobScope;
+use crate::app::{Command, JobOutput, StudioApp, view_data};
+use crate::correction::lensfun::{NameOverrides, checked_entry};
+use crate::correction::{LensCorrection, LensfunNames};
+use std::path::PathBuf;
+use std::sync::Arc;
+
+pub(super) fn apply_geometry(app: &mut StudioApp, command: Command) {
+    match command {
+        Command::ExportLensfun(path) => export_lensfun(app, path),
+        // `apply` routes only this group's commands here.
+        other => unreachable!("not routed to apply_geometry: {other:?}"),
+    }
+}
+
+pub(super) fn geometry_output(app: &mut StudioApp, output: JobOutput) {
+    match output {
+        JobOutput::GeometryMeasured { request, result } => {
+            view_data::geometry_measured(app, request, result);
+        }
+        JobOutput::LensfunExported { path, lens } => {
+            let shown = app.shown_path(&path);
+            app.info(format!(
+                "Wrote the lensfun entry for {lens} to {shown}: copy it to ~/.local/share/lensfun/ for darktable and RawTherapee"
+            ));
+        }
+        // `apply_output` routes only this group's outputs here.
+        _ => unreachable!("not routed to geometry_output"),
+    }
+}
+
+/// The names the demo's entry is written under: its shots are simulated, with no EXIF.
+fn demo_names() -> NameOverrides {
+    NameOverrides {
+        camera_maker: Some("lensblur".into()),
+        camera_model: Some("virtual camera".into()),
+        lens_maker: Some("lensblur".into()),
+        lens_model: Some("demo zoom".into()),
+        mount: None,
+        crop_factor: Some(1.0),
+        focal_range_mm: None,
+    }
+}
+
+/// Writes the measured geometry as a lensfun entry on a job: the first detected shot's
+/// EXIF names the camera and lens; what the core refuses (no lens name, one focal
+/// length, uneven light) is said as an error.
+fn export_lensfun(app: &mut StudioApp, path: PathBuf) {
+    let Some(correction) = view_data::measured_geometry(app) else {
+        app.error("nothing to export yet: the Geometry view has not measured the lens");
+        return;
+    };
+    let Some(session) = app.session() else {
+        return;
+    };
+    let is_demo = session.is_demo;
+    let first = session
+        .shots
+        .iter()
+        .find(|s| s.setting().is_some() && app.detection(s.id).is_some())
+        .map(|s| session.folder().join(&s.path));
+    let Some(first) = first else {
+        app.error("nothing to export: no shot has a detected chart");
+        return;
+    };
+    let provenance = format!(
+        "written by lensblur {} studio from the session '{}' ({} × {} px); distortion {}, lateral colour {}",
+        env!("CARGO_PKG_VERSION"),
+        session.name,
+        correction.width,
+        correction.height,
+        correction.distortion_model.name(),
+        correction.tca_model.name()
+    );
+    let scope = JobScope::session(app.session_generation);
+    let r = app
+        .jobs
+        .spawn_scoped("lensfun export", scope, move |_ctx, out| {
+            let lens = write_entry(&correction, &first, is_demo, &path, &provenance)
+                .map_err(|e| format!("cannot export the lensfun entry: {e}"))?;
+            out.emit(JobOutput::LensfunExported { path, lens });
+            Ok(())
+        });
+    if let Err(e) = r {
+        app.error(e);
+    }
+}
+
+fn write_entry(
+    correction: &Arc<LensCorrection>,
+    first_shot: &std::path::Path,
+    is_demo: bool,
+    path: &std::path::Path,
+    provenance: &str,
+) -> Result<String, String> {
+    let (exif, overrides) = if is_demo {
+        (crate::raw::ExifInfo::default(), demo_names())
+    } else {
+        let header = crate::raw::read_header(first_shot).map_err(|e| e.to_string())?;
+        (header.exif, NameOverrides::default())
+    };
+    let focals: Vec<f64> = correction.focal.iter().map(|f| f.focal_mm).collect();
+    let names = LensfunNames::resolve(&exif, &overrides, &focals)
+        .map_err(|e| format!("{}: {e}", first_shot.display()))?;
+    let xml = checked_entry(&names, correction, false, provenance).map_err(|e| e.to_string())?;
+    crate::io::write_atomic(path, xml.as_bytes()).map_err(|e| e.to_string())?;
+    Ok(format!(
+        "{} {} on {} {}",
+        names.lens_maker, names.lens_model, names.camera_maker, names.camera_model
+    ))
+}

@@ -1,0 +1,478 @@
+//! The Geometry view's data: the lens's distortion, lateral colour and fall-off
+//! measured by the core (`crate::correction::measure`, on a job thread whenever the
+//! session's detections change), and what the view draws of it at the chosen focal
+//! length and aperture: a regular grid pushed through the distortion, lateral-colour
+//! arrows, the fall-off map's texture and colour scale, and the fits' numbers.
+
+use super::{ColourScale, Same, StudioApp};
+use crate::app::JobOutput;
+use crate::app::jobs::JobScope;
+use crate::chart::ChartSpec;
+use crate::correction::{
+    CorrectionOptions, FocalGeometry, GeometryShot, LensCorrection, LensfunFrame, TcaModel,
+    VignettingFit,
+};
+use crate::detect::Detection;
+use crate::plane::LensSetting;
+use crate::session::ShotId;
+use std::sync::Arc;
+
+/// What the measurement depends on: the session, its chart, and each shot's detection
+/// and setting.
+#[derive(Clone, Debug, PartialEq)]
+struct MeasureKey {
+    session: u64,
+    chart: ChartSpec,
+    shots: Vec<(ShotId, Same<Detection>, [f64; 2])>,
+}
+
+/// The session's geometry: being measured, or measured (or why it could not be).
+pub struct GeometryMeasure {
+    key: MeasureKey,
+    request: u64,
+    pub result: Option<Result<Arc<LensCorrection>, String>>,
+}
+
+/// The lines of a regular grid over the frame, ideal and as the lens (exaggerated)
+/// draws them, sensor px.
+pub struct WarpedGrid {
+    pub ideal: Vec<Vec<[f32; 2]>>,
+    pub warped: Vec<Vec<[f32; 2]>>,
+    /// How much the displacement is exaggerated.
+    pub factor: f64,
+    /// The displacement at the frame corner, px (negative: inward, barrel).
+    pub corner_px: f64,
+}
+
+/// Red and blue against green at a grid of points, sensor px (tips exaggerated).
+pub struct ColourArrows {
+    /// Each point's green position and red and blue tips.
+    pub arrows: Vec<[[f32; 2]; 3]>,
+    pub factor: f64,
+    pub red_corner_px: f64,
+    pub blue_corner_px: f64,
+}
+
+/// The fall-off at one aperture as a map in stops.
+pub struct Falloff {
+    pub f_number: f64,
+    pub texture: egui::TextureHandle,
+    pub scale: ColourScale,
+    pub fit: VignettingFit,
+}
+
+/// What the Geometry view draws at its focal length and aperture.
+pub struct GeometryData {
+    key: DisplayKey,
+    pub sensor: (usize, usize),
+    pub focal_mm: Vec<f64>,
+    pub focal: f64,
+    /// The apertures with a fall-off fit at this focal length.
+    pub f_numbers: Vec<f64>,
+    pub grid: WarpedGrid,
+    pub colour: Option<ColourArrows>,
+    pub falloff: Option<Falloff>,
+    /// The fits' models, coefficients with their standard errors, and residuals.
+    pub fit_lines: Vec<String>,
+    /// The light was not even at this aperture: the fall-off is not the lens's.
+    pub warning: Option<String>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+struct DisplayKey {
+    correction: Same<LensCorrection>,
+    focal: Option<f64>,
+    f_number: Option<f64>,
+}
+
+/// The measured geometry, once there is one.
+#[must_use]
+pub fn measured_geometry(app: &StudioApp) -> Option<Arc<LensCorrection>> {
+    match app.views.geometry_measure.as_ref()?.result.as_ref()? {
+        Ok(c) => Some(Arc::clone(c)),
+        Err(_) => None,
+    }
+}
+
+fn measure_key(app: &StudioApp) -> Option<MeasureKey> {
+    let session = app.session()?;
+    let shots: Vec<_> = session
+        .shots
+        .iter()
+        .filter_map(|s| {
+            let setting = s.setting()?;
+            let d = app.detection(s.id)?;
+            Some((
+                s.id,
+                Same::of(Some(d)),
+                [setting.focal_mm, setting.f_number],
+            ))
+        })
+        .collect();
+    (!shots.is_empty()).then(|| MeasureKey {
+        session: app.session_generation,
+        chart: session.chart.clone(),
+        shots,
+    })
+}
+
+/// Measures again when the detections changed (on a job: the fit pools every corner),
+/// then prepares the drawing at the chosen focal length and aperture.
+pub(super) fn refresh_geometry(app: &mut StudioApp) {
+    let key = measure_key(app);
+    let current = app.views.geometry_measure.as_ref().map(|m| &m.key);
+    if key.as_ref() != current {
+        app.views.geometry_measure = key.map(|key| spawn_measure(app, key));
+    }
+    refresh_display(app);
+}
+
+fn spawn_measure(app: &mut StudioApp, key: MeasureKey) -> GeometryMeasure {
+    app.views.geometry_requests += 1;
+    let request = app.views.geometry_requests;
+    let shots: Vec<(String, LensSetting, Arc<Detection>)> = key
+        .shots
+        .iter()
+        .filter_map(|(id, det, s)| {
+            let name = app.session()?.shot(*id)?.name();
+            Some((
+                name,
+                LensSetting {
+                    focal_mm: s[0],
+                    f_number: s[1],
+                },
+                det.0.clone()?,
+            ))
+        })
+        .collect();
+    let chart = key.chart.clone();
+    let r = app.jobs.spawn_scoped(
+        "geometry",
+        JobScope::session(key.session),
+        move |_ctx, out| {
+            let geometry_shots: Vec<GeometryShot<'_>> = shots
+                .iter()
+                .map(|(name, setting, detection)| GeometryShot {
+                    name,
+                    setting: *setting,
+                    detection,
+                })
+                .collect();
+            let result =
+                crate::correction::measure(&geometry_shots, &chart, CorrectionOptions::default())
+                    .map(Arc::new)
+                    .map_err(|e| e.to_string());
+            out.emit(JobOutput::GeometryMeasured { request, result });
+            Ok(())
+        },
+    );
+    let result = r.err().map(Err);
+    GeometryMeasure {
+        key,
+        request,
+        result,
+    }
+}
+
+/// A finished measurement: kept when it answers the latest request.
+pub(in crate::app) fn geometry_measured(
+    app: &mut StudioApp,
+    request: u64,
+    result: Result<Arc<LensCorrection>, String>,
+) {
+    if let Some(m) = app.views.geometry_measure.as_mut()
+        && m.request == request
+    {
+        m.result = Some(result);
+    }
+}
+
+fn refresh_display(app: &mut StudioApp) {
+    let Some(correction) = measured_geometry(app) else {
+        app.views.geometry = None;
+        return;
+    };
+    let key = DisplayKey {
+        correction: Same::of(Some(&correction)),
+        focal: app.geometry_focal_mm,
+        f_number: app.geometry_f_number,
+    };
+    if app.views.geometry.as_ref().is_some_and(|d| d.key == key) {
+        return;
+    }
+    let Some(focal) = key
+        .focal
+        .and_then(|f| correction.at_focal(f))
+        .or_else(|| correction.focal.first())
+    else {
+        app.views.geometry = None;
+        return;
+    };
+    let frame = correction.frame;
+    let sensor = (correction.width, correction.height);
+    let vignetting: Vec<&VignettingFit> = correction
+        .vignetting
+        .iter()
+        .filter(|v| LensSetting::same_value(v.setting.focal_mm, focal.focal_mm))
+        .collect();
+    let vig = key
+        .f_number
+        .and_then(|a| {
+            vignetting
+                .iter()
+                .find(|v| LensSetting::same_value(v.setting.f_number, a))
+        })
+        .or_else(|| vignetting.first())
+        .copied();
+    let falloff = vig.map(|v| falloff(app, &frame, v));
+    let mut fit_lines = fit_lines(&correction, focal);
+    if let Some(v) = vig {
+        fit_lines.push(falloff_line(v));
+    }
+    let warning = vig.filter(|v| !v.light_even()).map(|v| {
+        format!(
+            "The light on the chart was not even at f/{}: a gradient of {:.2} stops across it that no lens fall-off explains (more than {} stops). The map is not the lens's fall-off, and the lensfun export refuses it: light the chart evenly and shoot again.",
+            v.setting.f_number,
+            v.gradient_stops,
+            crate::correction::UNEVEN_LIGHT_STOPS
+        )
+    });
+    let data = GeometryData {
+        sensor,
+        focal_mm: correction.focal.iter().map(|f| f.focal_mm).collect(),
+        focal: focal.focal_mm,
+        f_numbers: vignetting.iter().map(|v| v.setting.f_number).collect(),
+        grid: warped_grid(&correction, focal),
+        colour: colour_arrows(&correction, focal),
+        falloff,
+        fit_lines,
+        warning,
+        key,
+    };
+    app.views.geometry = Some(data);
+}
+
+/// The largest of 1, 2, 5 × 10ⁿ at most `x` (at least 1).
+fn nice_factor(x: f64) -> f64 {
+    if !(x.is_finite() && x > 1.0) {
+        return 1.0;
+    }
+    let p = 10f64.powf(x.log10().floor());
+    [5.0, 2.0, 1.0]
+        .into_iter()
+        .map(|m| m * p)
+        .find(|&v| v <= x)
+        .unwrap_or(p)
+}
+
+/// Lines of a 12 × 8 grid over the frame through the distortion, the displacement
+/// (beside the uniform scale the model's normalisation carries) exaggerated so the
+/// corner moves by about 15 % of the frame's short side.
+fn warped_grid(c: &LensCorrection, focal: &FocalGeometry) -> WarpedGrid {
+    let d = focal.distortion_fit(c.distortion_model);
+    let frame = &c.frame;
+    let (w, h) = ((c.width as f64 - 1.0), (c.height as f64 - 1.0));
+    let centre = frame.centre();
+    let g0 = d.model.eval(&d.coefficients, 0.0).0;
+    let displacement = |u: [f64; 2]| {
+        let p = d.distort(frame, u);
+        [
+            p[0] - (centre[0] + (u[0] - centre[0]) * g0),
+            p[1] - (centre[1] + (u[1] - centre[1]) * g0),
+        ]
+    };
+    let corner = displacement([0.0, 0.0]);
+    let corner_len = corner[0].hypot(corner[1]);
+    let factor = nice_factor(0.15 * w.min(h) / corner_len.max(1e-9));
+    let (nx, ny, samples) = (12, 8, 48);
+    let mut ideal = Vec::new();
+    let mut warped = Vec::new();
+    let mut line = |pts: Vec<[f64; 2]>| {
+        ideal.push(pts.iter().map(|p| [p[0] as f32, p[1] as f32]).collect());
+        warped.push(
+            pts.iter()
+                .map(|&p| {
+                    let dp = displacement(p);
+                    [
+                        (p[0] + factor * dp[0]) as f32,
+                        (p[1] + factor * dp[1]) as f32,
+                    ]
+                })
+                .collect(),
+        );
+    };
+    for i in 0..=nx {
+        let x = w * f64::from(i) / f64::from(nx);
+        line(
+            (0..=samples)
+                .map(|k| [x, h * f64::from(k) / f64::from(samples)])
+                .collect(),
+        );
+    }
+    for j in 0..=ny {
+        let y = h * f64::from(j) / f64::from(ny);
+        line(
+            (0..=samples)
+                .map(|k| [w * f64::from(k) / f64::from(samples), y])
+                .collect(),
+        );
+    }
+    WarpedGrid {
+        ideal,
+        warped,
+        factor,
+        corner_px: d.corner_displacement_px,
+    }
+}
+
+/// Red and blue against green at a 9 × 6 grid of points, exaggerated so the longest
+/// arrow spans about two thirds of the grid's step.
+fn colour_arrows(c: &LensCorrection, focal: &FocalGeometry) -> Option<ColourArrows> {
+    let t = focal.tca_fit(c.tca_model)?;
+    let frame = &c.frame;
+    let (w, h) = (c.width as f64, c.height as f64);
+    let (nx, ny) = (9, 6);
+    let points: Vec<[f64; 2]> = (0..ny)
+        .flat_map(|j| {
+            (0..nx).map(move |i| {
+                [
+                    w * (f64::from(i) + 0.5) / f64::from(nx),
+                    h * (f64::from(j) + 0.5) / f64::from(ny),
+                ]
+            })
+        })
+        .collect();
+    let shift = |p: [f64; 2], blue: bool| {
+        let q = t.channel_at(frame, p, blue);
+        [q[0] - p[0], q[1] - p[1]]
+    };
+    let longest = points
+        .iter()
+        .flat_map(|&p| [shift(p, false), shift(p, true)])
+        .map(|v| v[0].hypot(v[1]))
+        .fold(0.0, f64::max);
+    let factor = nice_factor(0.65 * (w / f64::from(nx)) / longest.max(1e-9));
+    let tip = |p: [f64; 2], blue: bool| {
+        let s = shift(p, blue);
+        [(p[0] + factor * s[0]) as f32, (p[1] + factor * s[1]) as f32]
+    };
+    Some(ColourArrows {
+        arrows: points
+            .iter()
+            .map(|&p| [[p[0] as f32, p[1] as f32], tip(p, false), tip(p, true)])
+            .collect(),
+        factor,
+        red_corner_px: t.red.corner_shift_px,
+        blue_corner_px: t.blue.corner_shift_px,
+    })
+}
+
+/// Light lost (stops) at sensor point `p`.
+fn stops_at(frame: &LensfunFrame, v: &VignettingFit, p: [f64; 2]) -> f64 {
+    let q = frame.to_vignetting(p);
+    -v.illumination(q[0].hypot(q[1])).max(1e-6).log2()
+}
+
+/// The fall-off over the frame, one texel per cell, in the core's palette.
+fn falloff(app: &StudioApp, frame: &LensfunFrame, v: &VignettingFit) -> Falloff {
+    let (w, h) = (frame.width as f64, frame.height as f64);
+    let gx = 60usize;
+    let gy = ((gx as f64 * h / w).round() as usize).max(2);
+    let cells: Vec<f64> = (0..gy)
+        .flat_map(|j| {
+            (0..gx).map(move |i| {
+                let p = [
+                    w * (i as f64 + 0.5) / gx as f64,
+                    h * (j as f64 + 0.5) / gy as f64,
+                ];
+                stops_at(frame, v, p)
+            })
+        })
+        .collect();
+    let hi = cells
+        .iter()
+        .copied()
+        .fold(v.corner_stops.max(0.1), f64::max);
+    let range = [0.0, hi];
+    let scale = ColourScale {
+        range,
+        diverging: false,
+        title: format!("light lost at f/{}, stops", v.setting.f_number),
+        ticks: crate::review::nice_ticks(range, 5),
+    };
+    let pixels: Vec<egui::Color32> = cells
+        .iter()
+        .map(|&s| {
+            let [r, g, b] = crate::review::palette_rgb(scale.position(s), false);
+            egui::Color32::from_rgb(r, g, b)
+        })
+        .collect();
+    let image = egui::ColorImage::new([gx, gy], pixels);
+    let texture = app
+        .ctx
+        .load_texture("fall-off map", image, egui::TextureOptions::LINEAR);
+    Falloff {
+        f_number: v.setting.f_number,
+        texture,
+        scale,
+        fit: v.clone(),
+    }
+}
+
+fn terms(names: &[&str], values: &[f64], errors: &[f64]) -> String {
+    names
+        .iter()
+        .zip(values.iter().zip(errors))
+        .map(|(n, (v, e))| format!("{n} = {v:.5} ± {e:.5}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The distortion and lateral-colour fits written at this focal length.
+fn fit_lines(c: &LensCorrection, focal: &FocalGeometry) -> Vec<String> {
+    let d = focal.distortion_fit(c.distortion_model);
+    let mut lines = vec![format!(
+        "Distortion ({}, {} shots): {}; RMS {:.3} px, largest {:.2} px over {} corners{}",
+        d.model.name(),
+        focal.shots,
+        terms(d.model.terms(), &d.coefficients, &d.std_errors),
+        d.rms_px,
+        d.max_px,
+        d.corners,
+        if d.outliers > 0 {
+            format!(" ({} set aside)", d.outliers)
+        } else {
+            String::new()
+        }
+    )];
+    match focal.tca_fit(c.tca_model) {
+        Some(t) => {
+            let names: &[&str] = match t.model {
+                TcaModel::Linear => &["k"],
+                TcaModel::Poly3 => &["v", "c", "b"],
+            };
+            lines.push(format!(
+                "Lateral colour ({}): red {}, RMS {:.3} px; blue {}, RMS {:.3} px",
+                t.model.name(),
+                terms(names, &t.red.terms, &t.red.std_errors),
+                t.red.rms_px,
+                terms(names, &t.blue.terms, &t.blue.std_errors),
+                t.blue.rms_px
+            ));
+        }
+        None => lines.push("Lateral colour: not measured (a single-channel capture)".into()),
+    }
+    lines
+}
+
+fn falloff_line(v: &VignettingFit) -> String {
+    format!(
+        "Fall-off (pa) at f/{}: {}; {:.2} stops at the corners, residual {:.2} %, chart reached r = {:.2}, light gradient {:.2} stops",
+        v.setting.f_number,
+        terms(&["k1", "k2", "k3"], &v.k, &v.std_errors),
+        v.corner_stops,
+        100.0 * v.rms_relative,
+        v.max_radius,
+        v.gradient_stops
+    )
+}
