@@ -56,7 +56,7 @@ fn main() -> anyhow::Result<()> {
         let shot = simulate_shot(&chart, &lens, &p, &job)?;
         let d = detect(&shot.capture, &chart, &DetectParams::default(), &job)?;
         eprintln!(
-            "{} mm f/{}: {} squares aligned ({:.0} s)",
+            "{} mm f/{:.1}: {} squares aligned ({:.0} s)",
             s.focal_mm,
             s.f_number,
             d.ok_squares().count(),
@@ -143,7 +143,7 @@ fn main() -> anyhow::Result<()> {
         let fit_reach = -v.illumination(v.max_radius).log2();
         worst_v = worst_v.max((fit_reach - truth_reach).abs());
         println!(
-            "{:>5} mm f/{:<4}: fall-off at the corner {:.3} stops (truth {:.3}, error {:.3}); at the chart's reach r = {:.2}: {:.3} (truth {:.3}, error {:.3}); light gradient {:.3} stops",
+            "{:>5} mm f/{:<4.1}: fall-off at the corner {:.3} stops (truth {:.3}, error {:.3}); at the chart's reach r = {:.2}: {:.3} (truth {:.3}, error {:.3}); light gradient {:.3} stops",
             v.setting.focal_mm,
             v.setting.f_number,
             v.corner_stops,

@@ -26,8 +26,8 @@ pub struct DemoSpec {
     /// The chart printed in the demo's shots.
     pub chart: ChartSpec,
     /// The lens's distortion, lateral colour and fall-off in the calibration shots
-    /// (the demo photo is blurred without them): a typical zoom's, so the Geometry
-    /// view and the lensfun export have something to show.
+    /// (the demo photo is blurred without them); none unless given
+    /// ([`DemoSpec::with_geometry`]; the studio's demo has a typical zoom's).
     pub geometry: LensGeometry,
 }
 
@@ -35,10 +35,13 @@ impl DemoSpec {
     /// What the studio makes on first launch: 720 × 480 shots of a 12 × 8 chart (squares
     /// of about 54 px, as many pixels as a kernel needs) at a 3 × 3 grid of settings
     /// (enough for a β = 2 model): small enough that the first launch makes, measures
-    /// and calibrates it in about a minute on a 2-core laptop.
+    /// and calibrates it in about a minute on a 2-core laptop. Its lens has a typical
+    /// zoom's geometry, so the Geometry view and the lensfun export show something.
     #[must_use]
     pub fn studio() -> Self {
-        Self::grid(720, 480, &[24.0, 50.0, 105.0], &[4.0, 5.6, 10.0]).with_chart(12, 8)
+        Self::grid(720, 480, &[24.0, 50.0, 105.0], &[4.0, 5.6, 10.0])
+            .with_chart(12, 8)
+            .with_geometry(LensGeometry::typical_zoom())
     }
 
     /// A small demo for tests: 600 × 400 shots at a 2 × 2 grid of settings.
@@ -71,7 +74,7 @@ impl DemoSpec {
             settings,
             seed: 7,
             chart,
-            geometry: LensGeometry::typical_zoom(),
+            geometry: LensGeometry::default(),
         }
     }
 

@@ -33,16 +33,18 @@ pub(super) fn geometry_output(app: &mut StudioApp, output: JobOutput) {
     }
 }
 
-/// The names the demo's entry is written under: its shots are simulated, with no EXIF.
+/// The names the demo's entry is written under: its shots are PNGs without EXIF, so the
+/// simulated camera's and lens's names stand in, as its DNGs would carry them.
 fn demo_names() -> NameOverrides {
+    let lens = crate::simulate::VirtualLens::demo();
     NameOverrides {
-        camera_maker: Some("lensblur".into()),
-        camera_model: Some("virtual camera".into()),
-        lens_maker: Some("lensblur".into()),
-        lens_model: Some("demo zoom".into()),
+        camera_maker: Some("Virtual".into()),
+        camera_model: Some("Sim 14".into()),
+        lens_maker: Some(lens.make),
+        lens_model: Some(lens.model),
         mount: None,
-        crop_factor: Some(1.0),
-        focal_range_mm: None,
+        crop_factor: Some(crate::simulate::capture::SIM_CROP_FACTOR),
+        focal_range_mm: Some(lens.focal_range_mm),
     }
 }
 
