@@ -6,14 +6,14 @@
 use crate::chart::ChartSpec;
 use crate::crossval::{
     CvOptions, CvReport, Selection, ShapeCvOptions, assign_folds, cross_validate,
-    cross_validate_fixed, cross_validate_shape, param_ranges,
+    cross_validate_fixed, cross_validate_shape, held_out_errors, param_ranges,
 };
 use crate::job::JobContext;
 use crate::model::{
     Dataset, GlobalModel, LocalModel, ModelError, ModelKind, ShapeModel, ShapeSpace, check_order,
     session_residuals,
 };
-use crate::profile::{CvSummary, Profile};
+use crate::profile::{CvSummary, Profile, Trust};
 use serde::{Deserialize, Serialize};
 
 /// Which model families to fit.
@@ -141,6 +141,21 @@ pub fn calibrate(
         preferred,
     )
     .ok_or(ModelError::Empty)?;
+    // Where the profile is trusted: the preferred model's held-out errors, by setting
+    // and zone, from the same folds its orders were chosen by.
+    if ds.shots.len() >= 2 {
+        job.check()?;
+        let (alpha, beta) = match profile.preferred {
+            ModelKind::Global => g_ab,
+            ModelKind::Local => l_ab,
+        };
+        let errors = held_out_errors(ds, profile.preferred, alpha, beta, &opts.cv)?;
+        let name = match profile.preferred {
+            ModelKind::Global => format!("G_{{{alpha},{beta}}}"),
+            ModelKind::Local => format!("L_{{{alpha},{beta}}}"),
+        };
+        profile.trust = Trust::from_errors(name, &errors, (ds.width, ds.height));
+    }
     if let Some(shape_opts) = &opts.shape
         && ds.shots.len() >= 2
         && ds.samples.iter().any(|s| s.kernel.is_some())

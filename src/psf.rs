@@ -193,6 +193,21 @@ impl Kernel {
         None
     }
 
+    /// The same PSF moved by (dx, dy) px: its bilinear interpolant read at p − d on a
+    /// grid grown by the shift, so nothing falls off its edge; sums to 1. A shift of
+    /// zero returns the kernel as it is (bilinear reading would blur it slightly).
+    #[must_use]
+    pub fn shifted(&self, dx: f64, dy: f64) -> Kernel {
+        if dx == 0.0 && dy == 0.0 {
+            return self.clone();
+        }
+        let os = self.oversample as f64;
+        let grow = (dx.abs().max(dy.abs()) * os).ceil() as usize + 1;
+        Kernel::from_fn(self.size + 2 * grow, self.oversample, |x, y| {
+            self.sample_px(x - dx, y - dy)
+        })
+    }
+
     /// The PSF integrated over a pixel's area: convolved with the 1-pixel box at its own
     /// oversampling (an odd number of samples per pixel: exactly; an even one: the box
     /// one sample wider).

@@ -184,7 +184,7 @@ fn describe_event(project: &Project, event: &ShotEvent) -> Option<String> {
 pub struct Args {
     #[command(flatten)]
     pub session: SessionArgs,
-    /// Where to write the profile (lensblur.profile/2).
+    /// Where to write the profile (lensblur.profile/3).
     #[arg(long)]
     pub out: PathBuf,
     /// Which models to fit.

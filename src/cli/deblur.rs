@@ -219,10 +219,10 @@ pub fn run(args: Args) -> Result<()> {
             if !identity_warnings.is_empty() {
                 eprintln!("lensblur: warning: {}", identity_warnings.join("; "));
             }
-            if !profile.norm.contains(setting) {
-                eprintln!(
-                    "lensblur: warning: f = {focal_mm} mm, f/{f_number} is outside the calibrated range; extrapolating"
-                );
+            // Outside the shots' range (only reached with --allow-extrapolation), far
+            // from any shot, or where the profile recorded a large held-out error.
+            if let Some(line) = profile.trust_line(setting, None) {
+                eprintln!("lensblur: {line}");
             }
             let model = args
                 .kernel_model

@@ -13,7 +13,7 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Default)]
 pub struct Args {
-    /// The lens profile (lensblur.profile/2).
+    /// The lens profile (lensblur.profile/3).
     #[arg(long)]
     pub profile: PathBuf,
     /// Focal length in mm.
@@ -107,11 +107,12 @@ pub fn run(args: Args) -> Result<()> {
         focal_mm: args.focal,
         f_number: args.aperture,
     };
-    if !profile.norm.contains(setting) && args.allow_extrapolation {
-        eprintln!(
-            "lensblur: warning: f = {} mm, f/{} is outside the calibrated range; extrapolating",
-            args.focal, args.aperture
-        );
+    // Outside the shots' range (only reached with --allow-extrapolation), far from
+    // any shot, or where the profile recorded a large held-out error: one line.
+    if (args.allow_extrapolation || profile.covers(setting))
+        && let Some(line) = profile.trust_line(setting, None)
+    {
+        eprintln!("lensblur: {line}");
     }
     let (points, origin) = match (&args.points, args.grid) {
         (Some(path), _) => {

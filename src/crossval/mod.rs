@@ -413,20 +413,45 @@ fn channel_data(ds: &Dataset, fold_of_shot: &[usize]) -> Vec<ChannelData> {
         .collect()
 }
 
+/// One held-out sample's error as cross-validation found it: where and at which
+/// setting it was measured, and the mean over C_xx, C_yy and C_or of its error in % of
+/// range, predicted by the model fitted without its shot.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HeldOutError {
+    pub channel: Channel,
+    pub x: f64,
+    pub y: f64,
+    pub setting: LensSetting,
+    pub error_pct: f64,
+}
+
 /// Errors of every sample of `cd` as predicted by the model fitted without its fold
-/// (`fold_models[k]` is the fit without fold k), appended to `out`.
+/// (`fold_models[k]` is the fit without fold k), appended to `out`, and each sample's
+/// record to `at`.
 fn score_held_out<M: FittedModel>(
     cd: &ChannelData,
     fold_models: &[M],
     r: [f64; 3],
     out: &mut [Vec<f64>; 3],
+    at: &mut Vec<HeldOutError>,
 ) {
     for s in &cd.samples {
         if let Some(p) = fold_models[s.fold].predict(cd.channel, s.x, s.y, s.setting) {
             push_errors(out, p, s.params, r);
+            let error_pct = (0..3).map(|k| out[k][out[k].len() - 1]).sum::<f64>() / 3.0;
+            at.push(HeldOutError {
+                channel: cd.channel,
+                x: s.x,
+                y: s.y,
+                setting: s.setting,
+                error_pct,
+            });
         }
     }
 }
+
+/// A candidate's held-out errors: per parameter, the number of terms, and per sample.
+type HeldOut = ([Vec<f64>; 3], usize, Vec<HeldOutError>);
 
 /// What both families' engines hold: the session's normalisation, the basis of the
 /// largest candidate (every smaller one's terms are a subset of it), the samples by
@@ -465,15 +490,16 @@ impl CvCommon {
         beta: usize,
         ranges: &Ranges,
         fold_models: impl Fn(usize, &Basis, &[usize]) -> Vec<M>,
-    ) -> ([Vec<f64>; 3], usize) {
+    ) -> HeldOut {
         let basis = model_basis(&self.norm, alpha, beta);
         let subset = subset_of(&self.union, &basis);
         let mut out: [Vec<f64>; 3] = Default::default();
+        let mut at = Vec::new();
         for (c, cd) in self.data.iter().enumerate() {
             let models = fold_models(c, &basis, &subset);
-            score_held_out(cd, &models, ranges.as_array(), &mut out);
+            score_held_out(cd, &models, ranges.as_array(), &mut out, &mut at);
         }
-        (out, basis.len())
+        (out, basis.len(), at)
     }
 }
 
@@ -499,7 +525,7 @@ impl FamilyCv {
         }
     }
 
-    fn errors(&self, alpha: usize, beta: usize, ranges: &Ranges) -> ([Vec<f64>; 3], usize) {
+    fn errors(&self, alpha: usize, beta: usize, ranges: &Ranges) -> HeldOut {
         match self {
             Self::Global(cv) => cv.errors(alpha, beta, ranges),
             Self::Local(cv) => cv.errors(alpha, beta, ranges),
@@ -530,7 +556,7 @@ impl GlobalCv {
         Self { common, systems }
     }
 
-    fn errors(&self, alpha: usize, beta: usize, ranges: &Ranges) -> ([Vec<f64>; 3], usize) {
+    fn errors(&self, alpha: usize, beta: usize, ranges: &Ranges) -> HeldOut {
         use rayon::prelude::*;
         let cv = &self.common;
         cv.errors(alpha, beta, ranges, |c, basis, subset| {
@@ -795,7 +821,7 @@ impl LocalCv {
         }
     }
 
-    fn errors(&self, alpha: usize, beta: usize, ranges: &Ranges) -> ([Vec<f64>; 3], usize) {
+    fn errors(&self, alpha: usize, beta: usize, ranges: &Ranges) -> HeldOut {
         use rayon::prelude::*;
         let cv = &self.common;
         cv.errors(alpha, beta, ranges, |c, basis, subset| {
@@ -933,7 +959,8 @@ pub fn cross_validate(
         let data = channel_data(ds, &fold_of_shot);
         let cv = FamilyCv::new(kind, ds, data, &opts.local, (max_alpha, n - 1), folds);
         select(kind, alphas, n, job, &mut done, total, |a, b| {
-            cv.errors(a, b, &ranges)
+            let (e, terms, _) = cv.errors(a, b, &ranges);
+            (e, terms)
         })
         .map(Some)
     };
@@ -976,9 +1003,38 @@ pub fn cross_validate_fixed(
     let (fold_of_shot, folds) = assign_folds(ds, opts.folds, opts.hold_out, opts.seed);
     let ranges = param_ranges(ds);
     let data = channel_data(ds, &fold_of_shot);
-    let (e, terms) = FamilyCv::new(kind, ds, data, &opts.local, (alpha, beta), folds)
+    let (e, terms, _) = FamilyCv::new(kind, ds, data, &opts.local, (alpha, beta), folds)
         .errors(alpha, beta, &ranges);
     Ok((summarise(alpha, beta, terms, &e), e))
+}
+
+/// Every sample's held-out error under one fixed (α, β) of a family, the same folds
+/// and ranges as [`cross_validate`]'s: where the chosen model is trusted, per setting
+/// and part of the frame (the profile's record of it).
+///
+/// # Errors
+/// As [`cross_validate_fixed`].
+pub fn held_out_errors(
+    ds: &Dataset,
+    kind: ModelKind,
+    alpha: usize,
+    beta: usize,
+    opts: &CvOptions,
+) -> Result<Vec<HeldOutError>, ModelError> {
+    ds.validate()?;
+    crate::model::check_order(alpha, beta)?;
+    ds.check_beta(beta)?;
+    if ds.shots.len() < 2 {
+        return Err(ModelError::TooFewShots {
+            shots: ds.shots.len(),
+        });
+    }
+    let (fold_of_shot, folds) = assign_folds(ds, opts.folds, opts.hold_out, opts.seed);
+    let ranges = param_ranges(ds);
+    let data = channel_data(ds, &fold_of_shot);
+    let (_, _, at) = FamilyCv::new(kind, ds, data, &opts.local, (alpha, beta), folds)
+        .errors(alpha, beta, &ranges);
+    Ok(at)
 }
 
 /// One model's errors at a test set's samples (the paper's Fig. 6): fitted on the whole

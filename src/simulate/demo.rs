@@ -365,7 +365,7 @@ fn photo_pad(spec: &DemoSpec, lens: &crate::simulate::VirtualLens, setting: Lens
 
 /// The built-in photo covering a `pw × ph` frame (scaled to fill it, centred), as
 /// linear R, G and B planes: what the demo's photo is before the lens blurs it.
-fn sharp_photo(pw: usize, ph: usize) -> Result<[crate::plane::Plane; 3], String> {
+pub fn sharp_photo(pw: usize, ph: usize) -> Result<[crate::plane::Plane; 3], String> {
     let source = image::load_from_memory(DEMO_PHOTO_SOURCE)
         .map_err(|e| format!("the built-in photo: {e}"))?
         .into_rgb8();

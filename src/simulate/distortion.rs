@@ -126,6 +126,23 @@ impl LensGeometry {
         }
     }
 
+    /// How far lateral colour moves a channel's image against green's at sensor (x, y),
+    /// px: m_ch · (p − c), the magnification about the frame centre without the
+    /// distortion's (second-order) share.
+    #[must_use]
+    pub fn lateral_shift_px(
+        &self,
+        channel: Channel,
+        x: f64,
+        y: f64,
+        width: usize,
+        height: usize,
+    ) -> [f64; 2] {
+        let m = self.magnification(channel);
+        let (cx, cy) = ((width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0);
+        [m * (x - cx), m * (y - cy)]
+    }
+
     /// The mapping of one channel at one setting on a `width × height` sensor.
     /// `tf` and `ta` are the setting's normalised focal and aperture coordinates
     /// ([`super::VirtualLens::setting_coords`]).

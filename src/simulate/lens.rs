@@ -286,6 +286,27 @@ impl VirtualLens {
         )
     }
 
+    /// The lens's pixel-level kernel at 3× at sensor pixel (x, y): its optical PSF
+    /// integrated over the pixel, moved by the lateral colour of its geometry against
+    /// green ([`LensGeometry::lateral_shift_px`]). What a chart square measures there,
+    /// and what blurs a photo there.
+    #[must_use]
+    pub fn pixel_kernel_at(
+        &self,
+        channel: Channel,
+        x: f64,
+        y: f64,
+        (width, height): (usize, usize),
+        s: LensSetting,
+    ) -> Kernel {
+        let (u, v) = Self::normalised(x, y, width, height);
+        let k = self
+            .optical_kernel_uv(channel, u, v, s, 3)
+            .pixel_integrated();
+        let [dx, dy] = self.geometry.lateral_shift_px(channel, x, y, width, height);
+        k.shifted(dx, dy)
+    }
+
     /// The optical Gaussian at sensor pixel (x, y).
     #[must_use]
     pub fn gaussian_at(

@@ -99,7 +99,8 @@ pub struct SimulatedSession {
     pub noise: SampleNoise,
     pub seed: u64,
     /// Keep a measured kernel with every sample: the lens's pixel-level kernel at 3×
-    /// (its optical PSF in the lens's own shape, integrated over the pixel) plus white
+    /// (its optical PSF in the lens's own shape, integrated over the pixel, moved by
+    /// its lateral colour as one registration for all channels measures it) plus white
     /// noise of this standard deviation relative to the kernel's peak, clipped at zero
     /// and renormalised as the estimator's constraints do; each sample's Gaussian is
     /// then the robust fit of that kernel, as the measured chain's is (and
@@ -244,9 +245,9 @@ impl SimulatedSession {
         let (w, h) = (self.width, self.height);
         let seed = self.seed;
         ds.samples.par_iter_mut().enumerate().for_each(|(i, s)| {
-            let (u, v) = VirtualLens::normalised(s.x, s.y, w, h);
-            let optical = lens.optical_kernel_uv(s.channel, u, v, s.setting(), 3);
-            let mut k = optical.pixel_integrated();
+            // Lateral colour moves red's and blue's kernels off the square's centre,
+            // which one registration for all channels puts at green's.
+            let mut k = lens.pixel_kernel_at(s.channel, s.x, s.y, (w, h), s.setting());
             let mut rng = rand_pcg::Pcg64::seed_from_u64(
                 seed ^ (i as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15),
             );

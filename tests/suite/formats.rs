@@ -92,15 +92,42 @@ fn each_current_format_is_read_and_its_next_version_refused() {
 }
 
 #[test]
+fn a_version_2_profile_reads_without_a_trust_record_and_warns_only_by_setting() {
+    let path = kept("profile-v2.json");
+    let p = Profile::from_json(&text(&path), "profile-v2.json").unwrap();
+    assert!(p.trust.is_none());
+    // Its settings still bound what it is trusted for.
+    let [f0, f1] = p.norm.focal_range_mm;
+    let a = p.norm.f_number_range[0];
+    let beyond = lensblur::plane::LensSetting {
+        focal_mm: f1 * 1.5,
+        f_number: a,
+    };
+    assert!(p.trust_line(beyond, None).is_some());
+    let shot = p
+        .calibrated_settings
+        .first()
+        .copied()
+        .unwrap_or(lensblur::plane::LensSetting {
+            focal_mm: f0,
+            f_number: a,
+        });
+    assert_eq!(p.trust_line(shot, None), None);
+    // Written again, it is a version-3 file.
+    let again = String::from_utf8(p.to_json().unwrap()).unwrap();
+    assert!(again.contains("lensblur.profile/3"));
+}
+
+#[test]
 fn a_version_1_profile_reads_with_its_gaussians_and_no_shape_model() {
     let path = kept("profile-v1.json");
     let p = Profile::from_json(&text(&path), "profile-v1.json").unwrap();
     assert!(p.shape.is_none() && p.shape_cv.is_none());
     assert_eq!(p.kernel_model(), lensblur::model::KernelModel::Gaussian);
     assert!(p.global.is_some() || p.local.is_some());
-    // Written again, it is a version-2 file that reads back the same.
+    // Written again, it is a version-3 file that reads back the same.
     let again = String::from_utf8(p.to_json().unwrap()).unwrap();
-    assert!(again.contains("lensblur.profile/2"));
+    assert!(again.contains("lensblur.profile/3"));
     let q = Profile::from_json(&again, "again.json").unwrap();
     assert_eq!(q.calibrated_settings, p.calibrated_settings);
 }
@@ -160,7 +187,7 @@ fn a_file_of_another_kind_is_named_as_such() {
     let t = current("profile", "profile.json");
     let e = KernelsFile::from_json(&t).unwrap_err();
     assert!(
-        e.contains("lensblur.profile/2") && e.contains("not a lensblur.kernels file"),
+        e.contains("lensblur.profile/3") && e.contains("not a lensblur.kernels file"),
         "{e}"
     );
     let t = current("kernels", ".kernels.json");

@@ -160,6 +160,21 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             });
         }
     });
+    // Where the profile is less well trusted at this setting: the core's own words,
+    // as `lensblur deblur` prints them.
+    if let Some((_, profile)) = &app.profile
+        && f > 0.0
+        && a > 0.0
+        && let Some(line) = profile.trust_line(
+            crate::plane::LensSetting {
+                focal_mm: f,
+                f_number: a,
+            },
+            None,
+        )
+    {
+        ui.colored_label(ui.visuals().warn_fg_color, line);
+    }
     let overview_open = app.deblur.overview_open;
     let header = egui::CollapsingHeader::new("The whole photo (click it to choose the region)")
         .id_salt("deblur overview")

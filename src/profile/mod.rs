@@ -1,5 +1,5 @@
 //! Lens profiles (docs/formats.md, "Lens profile"): the fitted models of one camera + lens unit in a
-//! versioned JSON file, `lensblur.profile/2` (version 1 read too).
+//! versioned JSON file, `lensblur.profile/3` (versions 1 and 2 read too).
 //!
 //! Coefficients are stored as base64 of little-endian `f32` (7 significant digits, far
 //! below the measurement noise): a G_{8,3} profile of three channels is about 17 kB (the
@@ -26,12 +26,17 @@ use crate::psf::{Gaussian2, Kernel};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+pub mod trust;
+pub use trust::{LARGE_ERROR_PCT, SettingTrust, TRUST_ZONES, Trust, TrustWarning, warning_line};
+
 /// The profile's version.
 /// Version 2 adds the kernel-shape model and its cross-validation; a version-1 file
-/// reads as a profile without one (its kernels are its Gaussians).
+/// reads as a profile without one (its kernels are its Gaussians). Version 3 adds
+/// where the profile is trusted (held-out errors per setting and zone; a version-2
+/// file has none recorded).
 pub const PROFILE: crate::format::Schema = crate::format::Schema {
     kind: "profile",
-    current: 2,
+    current: 3,
     unversioned: None,
 };
 
@@ -187,6 +192,9 @@ struct ProfileFile {
     shape: Option<StoredShape>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     shape_cv: Option<ShapeCvReport>,
+    /// Version 3: where the profile is trusted.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    trust: Option<Trust>,
 }
 
 /// A loaded (or freshly fitted) lens profile.
@@ -206,6 +214,9 @@ pub struct Profile {
     pub shape: Option<ShapeModel>,
     /// That cross-validation, whichever way it went.
     pub shape_cv: Option<ShapeCvReport>,
+    /// Where the profile is trusted: its preferred model's held-out error by setting
+    /// and zone (version 3; `None` in earlier files and without cross-validation).
+    pub trust: Option<Trust>,
     /// Predict outside the calibrated range instead of failing. Off by default.
     pub allow_extrapolation: bool,
 }
@@ -510,6 +521,7 @@ impl Profile {
             cv,
             shape: None,
             shape_cv: None,
+            trust: None,
             allow_extrapolation: false,
         })
     }
@@ -573,6 +585,7 @@ impl Profile {
                     .collect(),
             }),
             shape_cv: self.shape_cv.clone(),
+            trust: self.trust.clone(),
         }
     }
 
@@ -791,6 +804,10 @@ impl Profile {
         if global.is_none() && local.is_none() {
             return Err(invalid("holds neither a global nor a local model".into()));
         }
+        if let Some(t) = &file.trust {
+            t.validate().map_err(&invalid)?;
+        }
+        let trust = file.trust.clone();
         let shape = match &file.shape {
             None => None,
             Some(sh) => Some(load_shape(sh, &norm, &invalid, &checked_basis)?),
@@ -815,6 +832,7 @@ impl Profile {
             cv: file.cv,
             shape,
             shape_cv: file.shape_cv,
+            trust,
             allow_extrapolation: false,
         })
     }
