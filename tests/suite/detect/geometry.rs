@@ -16,7 +16,7 @@ use lensblur::simulate::{
 /// side by about D''·L²/8 ≈ 6·0.03/385 px⁻¹ · 50² / 8 ≈ 0.15 px, and the best
 /// homography splits that between corners and edge middles. Undistorted shots reach
 /// 0.03 px; this allows two thirds of the corner squares' bend.
-const BARREL_CORNER_RMS_PX: f64 = 0.1;
+pub(super) const BARREL_CORNER_RMS_PX: f64 = 0.1;
 /// Kernel centroid and image position, per channel, at the two corner squares of the
 /// lateral-colour shot (the blurriest, σ up to 3 px). Green, with nothing to correct,
 /// measures 0.11 px there; registered against the joint homography, red and blue are
