@@ -552,8 +552,7 @@ pub fn compare_kernel_models(
     noise_sigma: f64,
     job: &JobContext,
 ) -> Result<KernelModelSsim, String> {
-    use crate::deblur::{DeblurOptions, ProfileKernels, deblur_channel_plane, plane_kernel};
-    use crate::model::KernelModel;
+    use crate::deblur::{DeblurOptions, deblur_channel_plane, plane_kernel};
     use crate::plane::ChannelPlane;
     let true_kernel = |x: f64, y: f64| {
         let (u, v) = VirtualLens::normalised(x, y, w, h);
@@ -597,13 +596,7 @@ pub fn compare_kernel_models(
         deblur_channel_plane(&cp, w, h, source, &hqs, job).map_err(|e| e.to_string())
     };
     let truth_source = |_c: Channel, x: f64, y: f64| true_kernel(x, y);
-    let x_true = run(&truth_source)?;
-    let gauss = ProfileKernels::with_model(profile.clone(), setting, KernelModel::Gaussian)
-        .map_err(|e| e.to_string())?;
-    let x_gauss = run(&gauss)?;
-    let shape = ProfileKernels::with_model(profile.clone(), setting, KernelModel::Shape)
-        .map_err(|e| e.to_string())?;
-    let x_shape = run(&shape)?;
+    let [x_true, x_gauss, x_shape] = three_ways(profile, setting, &truth_source, run)?;
     let params = SsimParams::default();
     let s = |x: &Plane| crate::metrics::ssim(x, &sharp, &params);
     let c = (w.min(h) / 4).max(16);
@@ -663,8 +656,7 @@ pub fn compare_colour(
     noise_sigma: f64,
     job: &JobContext,
 ) -> Result<Vec<CropColour>, String> {
-    use crate::deblur::{DeblurOptions, ProfileKernels, deblur_channel_plane, plane_kernel};
-    use crate::model::KernelModel;
+    use crate::deblur::{DeblurOptions, deblur_channel_plane, plane_kernel};
     use crate::plane::ChannelPlane;
     const RGB: [Channel; 3] = [Channel::R, Channel::G, Channel::B];
     let true_kernel = |ch: Channel, x: f64, y: f64| lens.pixel_kernel_at(ch, x, y, (w, h), setting);
@@ -725,13 +717,7 @@ pub fn compare_colour(
             .map(|cp| deblur_channel_plane(cp, w, h, source, &hqs, job).map_err(|e| e.to_string()))
             .collect()
     };
-    let x_true = run(&true_kernel)?;
-    let gauss = ProfileKernels::with_model(profile.clone(), setting, KernelModel::Gaussian)
-        .map_err(|e| e.to_string())?;
-    let x_gauss = run(&gauss)?;
-    let shape = ProfileKernels::with_model(profile.clone(), setting, KernelModel::Shape)
-        .map_err(|e| e.to_string())?;
-    let x_shape = run(&shape)?;
+    let [x_true, x_gauss, x_shape] = three_ways(profile, setting, &true_kernel, run)?;
     let blurry: Vec<Plane> = planes.into_iter().map(|cp| cp.plane).collect();
     let c = (w.min(h) / 4).max(16);
     let crops = [
@@ -774,4 +760,23 @@ pub fn compare_colour(
             }
         })
         .collect())
+}
+
+/// `run` (a deblur) with the true kernels, the profile's Gaussians and its shapes, in
+/// that order: the comparison every kernel-model experiment makes.
+fn three_ways<T>(
+    profile: &crate::profile::Profile,
+    setting: LensSetting,
+    truth: &dyn crate::deblur::KernelSource,
+    run: impl Fn(&dyn crate::deblur::KernelSource) -> Result<T, String>,
+) -> Result<[T; 3], String> {
+    use crate::deblur::ProfileKernels;
+    use crate::model::KernelModel;
+    let model =
+        |m| ProfileKernels::with_model(profile.clone(), setting, m).map_err(|e| e.to_string());
+    Ok([
+        run(truth)?,
+        run(&model(KernelModel::Gaussian)?)?,
+        run(&model(KernelModel::Shape)?)?,
+    ])
 }

@@ -265,7 +265,7 @@ pub struct CameraIdentity {
 /// What a RAW file says about its samples and its shot beyond the image and the
 /// camera's identity: everything a RAW editor needs to develop the file again, kept so
 /// a deblurred RAW can be written back as a DNG with it (`dng`).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Default)]
 pub struct RawMeta {
     /// Colour (0 R, 1 G, 2 B) of the CFA sites at (x mod 2, y mod 2), in the order
     /// (0, 0), (1, 0), (0, 1), (1, 1).

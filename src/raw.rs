@@ -554,13 +554,8 @@ fn from_rawloader(
             0 => 1,
             o => o,
         },
-        exposure_s: None,
-        iso: None,
-        date_time_original: None,
-        lens_make: None,
-        focal_35mm: None,
-        lens_specification: None,
-        description: None,
+        // The EXIF facts come with `ExifInfo::fill`.
+        ..RawMeta::default()
     });
     c.identity.make = Some(img.clean_make.clone()).filter(|s| !s.is_empty());
     c.identity.model = Some(img.clean_model.clone()).filter(|s| !s.is_empty());
@@ -719,13 +714,8 @@ fn read_uncompressed_dng(path: &Path, b: &[u8], ifd: &Ifd) -> Result<Capture, Lo
             .and_then(|v| v.first().copied())
             .filter(|v| (1.0..=8.0).contains(v))
             .map_or(1, |v| v as u16),
-        exposure_s: None,
-        iso: None,
-        date_time_original: None,
-        lens_make: None,
-        focal_35mm: None,
-        lens_specification: None,
-        description: None,
+        // The EXIF facts come with `ExifInfo::fill`.
+        ..RawMeta::default()
     });
     Ok(c)
 }

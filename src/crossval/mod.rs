@@ -992,19 +992,7 @@ pub fn cross_validate_fixed(
     beta: usize,
     opts: &CvOptions,
 ) -> Result<(CvPoint, [Vec<f64>; 3]), ModelError> {
-    ds.validate()?;
-    crate::model::check_order(alpha, beta)?;
-    ds.check_beta(beta)?;
-    if ds.shots.len() < 2 {
-        return Err(ModelError::TooFewShots {
-            shots: ds.shots.len(),
-        });
-    }
-    let (fold_of_shot, folds) = assign_folds(ds, opts.folds, opts.hold_out, opts.seed);
-    let ranges = param_ranges(ds);
-    let data = channel_data(ds, &fold_of_shot);
-    let (e, terms, _) = FamilyCv::new(kind, ds, data, &opts.local, (alpha, beta), folds)
-        .errors(alpha, beta, &ranges);
+    let (e, terms, _) = fixed_errors(ds, kind, (alpha, beta), opts)?;
     Ok((summarise(alpha, beta, terms, &e), e))
 }
 
@@ -1021,6 +1009,18 @@ pub fn held_out_errors(
     beta: usize,
     opts: &CvOptions,
 ) -> Result<Vec<HeldOutError>, ModelError> {
+    let (_, _, at) = fixed_errors(ds, kind, (alpha, beta), opts)?;
+    Ok(at)
+}
+
+/// The held-out errors of one fixed (α, β) of a family, over the session's folds: per
+/// parameter, the term count, and per sample.
+fn fixed_errors(
+    ds: &Dataset,
+    kind: ModelKind,
+    (alpha, beta): (usize, usize),
+    opts: &CvOptions,
+) -> Result<HeldOut, ModelError> {
     ds.validate()?;
     crate::model::check_order(alpha, beta)?;
     ds.check_beta(beta)?;
@@ -1032,9 +1032,10 @@ pub fn held_out_errors(
     let (fold_of_shot, folds) = assign_folds(ds, opts.folds, opts.hold_out, opts.seed);
     let ranges = param_ranges(ds);
     let data = channel_data(ds, &fold_of_shot);
-    let (_, _, at) = FamilyCv::new(kind, ds, data, &opts.local, (alpha, beta), folds)
-        .errors(alpha, beta, &ranges);
-    Ok(at)
+    Ok(
+        FamilyCv::new(kind, ds, data, &opts.local, (alpha, beta), folds)
+            .errors(alpha, beta, &ranges),
+    )
 }
 
 /// One model's errors at a test set's samples (the paper's Fig. 6): fitted on the whole

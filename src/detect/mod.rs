@@ -278,7 +278,7 @@ fn square(
     };
     let bootstrap =
         Homography::from_correspondences(&chart, &boot).unwrap_or(lattice.image_from_chart);
-    let mut out = SquareAlignment {
+    let skipped = SquareAlignment {
         row,
         col,
         status: SquareStatus::Skipped,
@@ -297,22 +297,25 @@ fn square(
         levels_by_channel: Vec::new(),
     };
     match align::align_square(capture, spec, col, row, &bootstrap, levels, params) {
-        Ok(a) => {
-            out.status = SquareStatus::Ok;
-            out.corners = chart.map(|p| a.image_from_chart.apply(p));
-            out.image_from_chart = a.image_from_chart;
-            out.residual_rms = a.residual_rms;
-            out.black_level = a.black_level;
-            out.white_level = a.white_level;
-            out.sigma_px = a.sigma_px;
-            out.sigma_by_channel = a.sigma_by_channel;
-            out.channel_image_from_chart = a.channel_image_from_chart;
-            out.channel_registration = a.channel_registration;
-            out.levels_by_channel = a.levels_by_channel;
-        }
-        Err(reason) => out.reason = Some(reason),
+        Ok(a) => SquareAlignment {
+            status: SquareStatus::Ok,
+            corners: chart.map(|p| a.image_from_chart.apply(p)),
+            image_from_chart: a.image_from_chart,
+            residual_rms: a.residual_rms,
+            black_level: a.black_level,
+            white_level: a.white_level,
+            sigma_px: a.sigma_px,
+            sigma_by_channel: a.sigma_by_channel,
+            channel_image_from_chart: a.channel_image_from_chart,
+            channel_registration: a.channel_registration,
+            levels_by_channel: a.levels_by_channel,
+            ..skipped
+        },
+        Err(reason) => SquareAlignment {
+            reason: Some(reason),
+            ..skipped
+        },
     }
-    out
 }
 
 /// `detect.json` (its format is in docs/formats.md).

@@ -130,17 +130,9 @@ impl LensGeometry {
     /// px: m_ch · (p − c), the magnification about the frame centre without the
     /// distortion's (second-order) share.
     #[must_use]
-    pub fn lateral_shift_px(
-        &self,
-        channel: Channel,
-        x: f64,
-        y: f64,
-        width: usize,
-        height: usize,
-    ) -> [f64; 2] {
+    pub fn lateral_shift_px(&self, channel: Channel, offset_from_centre: [f64; 2]) -> [f64; 2] {
         let m = self.magnification(channel);
-        let (cx, cy) = ((width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0);
-        [m * (x - cx), m * (y - cy)]
+        offset_from_centre.map(|d| m * d)
     }
 
     /// The mapping of one channel at one setting on a `width × height` sensor.

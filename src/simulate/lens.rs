@@ -303,7 +303,10 @@ impl VirtualLens {
         let k = self
             .optical_kernel_uv(channel, u, v, s, 3)
             .pixel_integrated();
-        let [dx, dy] = self.geometry.lateral_shift_px(channel, x, y, width, height);
+        let centre = [(width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0];
+        let [dx, dy] = self
+            .geometry
+            .lateral_shift_px(channel, [x - centre[0], y - centre[1]]);
         k.shifted(dx, dy)
     }
 
