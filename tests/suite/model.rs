@@ -1281,13 +1281,7 @@ fn comet_session_and_profile() -> &'static (VirtualLens, Dataset, Profile) {
             ..SimulatedSession::new(360, 240)
         }
         .dataset(&lens, &grid_settings(3, 3));
-        let opts = CalibrateOptions {
-            families: Families::Global,
-            alpha: Some(3),
-            beta: Some(2),
-            ..CalibrateOptions::default()
-        };
-        let (profile, _) = calibrate(&ds, None, &opts, &JobContext::silent()).expect("calibrate");
+        let profile = global_3_2(&ds);
         (lens, ds, profile)
     })
 }
@@ -1447,13 +1441,7 @@ fn predicted_channel_kernels_keep_the_measured_centroid_against_green() {
         ..SimulatedSession::new(w, h)
     }
     .dataset(&lens, &grid_settings(3, 3));
-    let opts = CalibrateOptions {
-        families: Families::Global,
-        alpha: Some(3),
-        beta: Some(2),
-        ..CalibrateOptions::default()
-    };
-    let (profile, _) = calibrate(&ds, None, &opts, &JobContext::silent()).expect("calibrate");
+    let profile = global_3_2(&ds);
     assert!(
         profile.shape.is_some(),
         "a comet lens keeps its shape model"
@@ -1581,4 +1569,18 @@ fn a_profile_records_where_it_is_trusted_and_warns_outside_it() {
         let err = Profile::from_json(&damaged, "damaged.json").expect_err("refused");
         assert!(err.to_string().contains("trust"), "{err}");
     }
+}
+
+/// The global model G_{3,2} calibrated on `ds` (orders given, no selection): the
+/// small sessions' profile in the trust and centroid tests.
+fn global_3_2(ds: &lensblur::model::Dataset) -> lensblur::profile::Profile {
+    let opts = CalibrateOptions {
+        families: Families::Global,
+        alpha: Some(3),
+        beta: Some(2),
+        ..CalibrateOptions::default()
+    };
+    calibrate(ds, None, &opts, &JobContext::silent())
+        .expect("calibrate")
+        .0
 }
