@@ -25,7 +25,7 @@ pub const RESULTS_DIR: &str = "results";
 
 /// Part of every cache key: bumped when a stage changes what it writes, so results of
 /// an older measurement are measured again instead of mixed with new ones.
-pub const MEASURE_VERSION: u32 = 2;
+pub const MEASURE_VERSION: u32 = 3;
 
 #[derive(Debug, thiserror::Error)]
 pub enum PipelineError {

@@ -27,7 +27,9 @@ pub struct Aligned {
     /// Each colour channel's own `image_from_chart` (the joint one translated and scaled), for
     /// a capture of several channels: lateral colour images the channels at slightly
     /// different magnifications, up to about a pixel apart in the corners. Empty
-    /// unless [`DetectParams::channel_shifts`] asks the kernels to use them.
+    /// unless [`DetectParams::channel_shifts`] asks the kernels to use them as they
+    /// are; otherwise detection fills it per shot from the channels' shift fields
+    /// ([`super::lateral`]).
     pub channel_image_from_chart: Vec<(Channel, Homography)>,
     /// The same registration, always made for a capture of several channels: what the
     /// lens's lateral colour is measured from (`correction`), whether or not the

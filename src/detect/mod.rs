@@ -14,6 +14,7 @@ pub mod align;
 pub mod filter;
 pub mod grid;
 pub mod inspect;
+pub mod lateral;
 
 use crate::chart::ChartSpec;
 use crate::geometry::Homography;
@@ -49,11 +50,12 @@ pub struct DetectParams {
     pub saturation_level: f64,
     /// A square with more clipped pixels than this fraction is skipped.
     pub max_saturated_fraction: f64,
-    /// Register each colour channel on its own as well (the joint homography translated
-    /// and scaled), so lateral colour does not put the channels' kernels off-centre. Off
-    /// by default: on a lens without lateral colour the extra freedom, fitted to a RAW
-    /// shot's quarter-resolution red and blue planes, costs the kernels' σ accuracy
-    /// (p95 6.8 % against 6 % on the Bayer kernel bars).
+    /// Centre each colour channel's kernels on that square's own registration of the
+    /// channel, however noisy. Off by default: on a lens without lateral colour one
+    /// square's registration of a RAW shot's quarter-resolution red and blue planes
+    /// costs the kernels' σ accuracy (p95 6.8 % against 6 % on the Bayer kernel bars).
+    /// Without it, the kernels follow each channel's shift field over the shot where
+    /// that is measured above its noise ([`lateral`]).
     pub channel_shifts: bool,
     /// A square whose white − black peak difference is below this is skipped.
     pub min_contrast: f64,
@@ -206,9 +208,12 @@ pub fn detect(
             Ok(sq)
         })
         .collect();
-    let squares = squares?;
+    let mut squares = squares?;
     if squares.iter().all(|s| s.status == SquareStatus::Skipped) && lattice.corners.len() < 4 {
         return Err(DetectError::NoChart);
+    }
+    if !params.channel_shifts {
+        lateral::register_where_measured(&mut squares, spec, capture.width, capture.height);
     }
     Ok(Detection {
         width: capture.width,
