@@ -16,11 +16,12 @@
 //! −M.
 //!
 //! `cargo run --release --example kernel_shapes -- [aberrated|comet] [W H] [measured]
-//! [cols=12] [rows=8] [shots=2] [pixel] [colour] [lateral=M]` (`pixel`: the pixel space
-//! among the candidates)
+//! [cols=12] [rows=8] [shots=2] [pixel] [colour] [lateral=M] [holdout=setting]`
+//! (`pixel`: the pixel space among the candidates; `holdout=setting`: cross-validation
+//! holds out whole settings)
 
 use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
-use lensblur::crossval::ShapeCvOptions;
+use lensblur::crossval::{CvOptions, HoldOut, ShapeCriterion, ShapeCvOptions, ShapeCvPoint};
 use lensblur::experiment::compare_kernel_models;
 use lensblur::job::JobContext;
 use lensblur::model::ShapeSpace;
@@ -81,15 +82,33 @@ fn main() -> anyhow::Result<()> {
     } else {
         vec![ShapeSpace::Whitened]
     };
-    let opts = CalibrateOptions {
+    // `holdout=setting`: every shot of a setting held out together, so the held-out
+    // errors are those of settings the model has not seen (with two shots a setting,
+    // holding out one shot leaves its twin in the training set).
+    let hold_out = if args.iter().any(|a| a == "holdout=setting") {
+        HoldOut::Setting
+    } else {
+        HoldOut::Shot
+    };
+    let opts = |criterion: ShapeCriterion| CalibrateOptions {
         families: Families::Global,
+        cv: CvOptions {
+            hold_out,
+            ..CvOptions::default()
+        },
         shape: Some(ShapeCvOptions {
-            spaces,
+            spaces: spaces.clone(),
+            criterion,
             ..ShapeCvOptions::default()
         }),
         ..CalibrateOptions::default()
     };
-    let (profile, _) = calibrate(&ds, None, &opts, &JobContext::silent())?;
+    let (profile, _) = calibrate(
+        &ds,
+        None,
+        &opts(ShapeCriterion::Restoration),
+        &JobContext::silent(),
+    )?;
     let bytes = profile.to_json()?.len();
     eprintln!(
         "calibrated in {:.1} s; profile {:.1} kB",
@@ -101,34 +120,63 @@ fn main() -> anyhow::Result<()> {
             "held-out kernels: {} (Gaussians from {}); Gaussian mean relative L2 {:.4} (p95 {:.4})",
             cv.kernels, cv.gaussian_model, cv.gaussian.mean_rel_l2, cv.gaussian.p95_rel_l2
         );
-        if let Some(b) = &cv.best_shape {
+        let line = |what: &str, b: &ShapeCvPoint| {
             println!(
-                "best shape model: {} components ({} space), α = {}, β = {}: mean {:.4} (p95 {:.4}); kept: {}",
+                "{what}: {} components ({} space), α = {}, β = {}: relative L2 mean {:.4} (p95 {:.4}), restoration error {:.5}",
                 b.components,
                 b.space.name(),
                 b.alpha,
                 b.beta,
                 b.mean_rel_l2,
                 b.p95_rel_l2,
-                cv.shape_chosen
+                b.restoration_rms.unwrap_or(f64::NAN)
             );
+        };
+        line("Gaussians alone", &cv.gaussian);
+        if let Some(b) = &cv.best_shape {
+            line("chosen by restoration error", b);
         }
-        println!("f-number  kernels  Gaussian  shape");
+        if let Some(b) = &cv.best_by_l2 {
+            line("chosen by held-out L2", b);
+        }
+        println!("kept: {}", cv.shape_chosen);
+        println!("f-number  kernels  Gaussian  shape   | restoration: Gaussian shape");
         for a in &cv.per_aperture {
             println!(
-                "f/{:<6.2}  {:>7}  {:.4}    {:.4}",
-                a.f_number, a.kernels, a.gaussian_mean_rel_l2, a.shape_mean_rel_l2
+                "f/{:<6.2}  {:>7}  {:.4}    {:.4}  |              {:.5}  {:.5}",
+                a.f_number,
+                a.kernels,
+                a.gaussian_mean_rel_l2,
+                a.shape_mean_rel_l2,
+                a.gaussian_restoration_rms.unwrap_or(f64::NAN),
+                a.shape_restoration_rms.unwrap_or(f64::NAN)
             );
         }
     }
-    if profile.shape.is_none() {
+    // The profile held-out L2 would have made, where it chooses another model.
+    let same_choice = profile.shape_cv.as_ref().is_none_or(|cv| {
+        let key = |p: &ShapeCvPoint| (p.space, p.alpha, p.components);
+        cv.best_shape.as_ref().map(key) == cv.best_by_l2.as_ref().map(key)
+    });
+    let profile_l2 = if same_choice {
+        None
+    } else {
+        let (p, _) = calibrate(
+            &ds,
+            None,
+            &opts(ShapeCriterion::HeldOutL2),
+            &JobContext::silent(),
+        )?;
+        Some(p)
+    };
+    if profile.shape.is_none() && profile_l2.is_none() {
         return Ok(());
     }
     if args.iter().any(|a| a == "colour") {
         return colour_figures(&profile, &lens, (w, h));
     }
     println!(
-        "setting           channel  blurry  true    Gaussian shape   | corners: true Gaussian shape"
+        "setting           channel  blurry  true    Gaussian shape  shape(L2) | corners: true Gaussian shape  shape(L2)"
     );
     for (i, (focal_mm, f_number, ch)) in [
         (31.0, 4.5, Channel::G),
@@ -141,26 +189,38 @@ fn main() -> anyhow::Result<()> {
     .enumerate()
     {
         let setting = LensSetting { focal_mm, f_number };
-        let r = compare_kernel_models(
-            &profile,
-            &lens,
-            ch,
-            setting,
-            (w, h),
-            40 + i as u64,
-            0.005,
-            &JobContext::silent(),
-        )
-        .map_err(anyhow::Error::msg)?;
+        let compare = |p: &lensblur::profile::Profile| {
+            compare_kernel_models(
+                p,
+                &lens,
+                ch,
+                setting,
+                (w, h),
+                40 + i as u64,
+                0.005,
+                &JobContext::silent(),
+            )
+            .map_err(anyhow::Error::msg)
+        };
+        let r = compare(&profile)?;
+        // The same photo and noise (same seed): only the shape model differs.
+        let l2 = match &profile_l2 {
+            Some(p) => Some(compare(p)?),
+            None => None,
+        };
+        let (l2_all, l2_corners) =
+            l2.map_or((r.shape, r.corners_shape), |l| (l.shape, l.corners_shape));
         println!(
-            "{focal_mm:>5} mm f/{f_number:<4}  {ch}        {:.4}  {:.4}  {:.4}   {:.4}  |          {:.4} {:.4}   {:.4}",
+            "{focal_mm:>5} mm f/{f_number:<4}  {ch}        {:.4}  {:.4}  {:.4}   {:.4}  {:.4}    |          {:.4} {:.4}   {:.4}  {:.4}",
             r.blurry,
             r.truth,
             r.gaussian,
             r.shape,
+            l2_all,
             r.corners_truth,
             r.corners_gaussian,
-            r.corners_shape
+            r.corners_shape,
+            l2_corners
         );
     }
     Ok(())

@@ -242,6 +242,27 @@ impl Kernel {
         out
     }
 
+    /// The same kernel centred in an `n × n` array of zeros (or as it is, if it is
+    /// that large already): two kernels on one grid.
+    #[must_use]
+    pub fn padded(&self, n: usize) -> Kernel {
+        if self.size >= n {
+            return self.clone();
+        }
+        let off = (n - self.size) / 2;
+        let mut data = vec![0.0; n * n];
+        for j in 0..self.size {
+            for i in 0..self.size {
+                data[(j + off) * n + i + off] = self.at(i, j);
+            }
+        }
+        Kernel {
+            size: n,
+            oversample: self.oversample,
+            data,
+        }
+    }
+
     /// The same PSF resampled at another oversampling (area-preserving: the result sums
     /// to 1). Going from 3× to 1× gives the pixel-level kernel a deconvolver uses.
     #[must_use]

@@ -9,7 +9,7 @@ use super::common::{StageClock, load_chart, progress_job, progress_job_timed, wr
 use anyhow::Result;
 use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
 use lensblur::chart::ChartSpec;
-use lensblur::crossval::{CvOptions, HoldOut, ShapeCvOptions};
+use lensblur::crossval::{CvOptions, HoldOut, ShapeCriterion, ShapeCvOptions};
 use lensblur::job::JobContext;
 use lensblur::model::{Dataset, LocalOptions};
 use lensblur::project::{MeasurePlan, Project, ShotEvent, Stages};
@@ -209,9 +209,32 @@ pub struct Args {
     #[arg(long)]
     pub cv_out: Option<PathBuf>,
     /// Fit no kernel-shape model (by default one is cross-validated from the measured
-    /// kernels and kept where it predicts held-out kernels better than the Gaussians).
+    /// kernels and kept where its held-out kernels deblur better than the Gaussians').
     #[arg(long)]
     pub no_shape_model: bool,
+    /// What the kernel-shape model is chosen by: the error its held-out kernels leave
+    /// in a deblurred photo, or their relative L2.
+    #[arg(long, value_enum, default_value = "restoration")]
+    pub shape_criterion: ShapeCriterionArg,
+}
+
+/// What the kernel-shape model is chosen by.
+#[derive(clap::ValueEnum, Clone, Copy, Default, PartialEq, Eq)]
+pub enum ShapeCriterionArg {
+    /// The RMS error the held-out kernels leave in a deblurred photo.
+    #[default]
+    Restoration,
+    /// The held-out kernels' relative L2.
+    L2,
+}
+
+impl From<ShapeCriterionArg> for ShapeCriterion {
+    fn from(c: ShapeCriterionArg) -> Self {
+        match c {
+            ShapeCriterionArg::Restoration => ShapeCriterion::Restoration,
+            ShapeCriterionArg::L2 => ShapeCriterion::HeldOutL2,
+        }
+    }
 }
 
 /// What a cross-validation fold holds out.
@@ -268,7 +291,10 @@ pub fn run(args: Args) -> Result<()> {
             },
             ..CvOptions::default()
         },
-        shape: (!args.no_shape_model).then(ShapeCvOptions::default),
+        shape: (!args.no_shape_model).then(|| ShapeCvOptions {
+            criterion: args.shape_criterion.into(),
+            ..ShapeCvOptions::default()
+        }),
     };
     let loaded = std::time::Instant::now();
     let clock = StageClock::default();
@@ -350,18 +376,40 @@ fn timings(load_s: f64, stages: &[(String, f64)], write_s: f64) -> String {
 
 /// One line on the kernel-shape model's cross-validation: what was kept and why.
 fn shape_summary(cv: &lensblur::crossval::ShapeCvReport) -> String {
-    let gauss = cv.gaussian.mean_rel_l2;
-    match (&cv.best_shape, cv.shape_chosen) {
+    let said = |p: &lensblur::crossval::ShapeCvPoint| cv.criterion.describe(p);
+    let gauss = said(&cv.gaussian);
+    let verdict = match (&cv.best_shape, cv.shape_chosen) {
         (Some(b), true) => format!(
-            "kernel shapes: {} components, α = {}, β = {}: held-out kernel error {:.3} vs {:.3} for the Gaussians alone (relative L2, {} kernels)",
-            b.components, b.alpha, b.beta, b.mean_rel_l2, gauss, cv.kernels
+            "kernel shapes: {} components, α = {}, β = {}: held-out {} against {gauss} for the Gaussians alone ({} kernels)",
+            b.components,
+            b.alpha,
+            b.beta,
+            said(b),
+            cv.kernels
         ),
         (Some(b), false) => format!(
-            "kernel shapes: not kept: the best ({} components) predicts held-out kernels no better than the Gaussians ({:.3} vs {:.3} relative L2)",
-            b.components, b.mean_rel_l2, gauss
+            "kernel shapes: not kept: the best ({} components) predicts held-out kernels no better than the Gaussians ({} against {gauss})",
+            b.components,
+            said(b)
         ),
-        (None, _) => format!(
-            "kernel shapes: none fitted; the Gaussians' held-out kernel error is {gauss:.3} (relative L2)"
-        ),
+        (None, _) => {
+            format!("kernel shapes: none fitted; the Gaussians' held-out kernels give {gauss}")
+        }
+    };
+    // Where held-out L2 alone would have chosen otherwise, say so: the two rank
+    // models differently on lenses whose kernels are far from Gaussian.
+    match (&cv.best_shape, &cv.best_by_l2) {
+        (Some(b), Some(l2))
+            if cv.criterion != ShapeCriterion::HeldOutL2
+                && (b.components, b.alpha, b.space) != (l2.components, l2.alpha, l2.space) =>
+        {
+            format!(
+                "{verdict}; held-out L2 alone would choose {} components, α = {} ({})",
+                l2.components,
+                l2.alpha,
+                said(l2)
+            )
+        }
+        _ => verdict,
     }
 }

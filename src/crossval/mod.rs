@@ -30,7 +30,10 @@ use rand::seq::SliceRandom;
 use serde::{Deserialize, Serialize};
 
 mod shape;
-pub use shape::{ApertureError, ShapeCvOptions, ShapeCvPoint, ShapeCvReport, cross_validate_shape};
+pub use shape::{
+    ApertureError, ShapeCriterion, ShapeCvOptions, ShapeCvPoint, ShapeCvReport,
+    cross_validate_shape,
+};
 
 /// What a fold holds out.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]

@@ -8,7 +8,7 @@ use super::*;
 use crate::model::{BlurSample, ShapeSpace, ShotInfo, session_residuals};
 use crate::plane::CameraIdentity;
 use crate::psf::{Gaussian2, Kernel};
-use shape::{Held, Tried, report};
+use shape::{Held, HeldKernel, KernelErrors, Tried, report};
 
 /// Held-out errors of G/L_{α,β} with every fold's model refitted to its training shots
 /// by [`fit_model`], in the order the fast engine scores them (channel by channel,
@@ -68,7 +68,8 @@ fn cross_validate_shape_refit(
     opts: &ShapeCvOptions,
 ) -> ShapeCvReport {
     use crate::model::{
-        ShapeFit, kernel_with_residual, kernel_with_shape, relative_l2, to_gaussian,
+        RestorationError, ShapeFit, kernel_with_residual, kernel_with_shape, relative_l2,
+        to_gaussian,
     };
     let has_kernel = |i: usize| residuals.iter().all(|(_, r)| r[i].is_some());
     let (fold_of_shot, folds) = assign_folds(ds, cv.folds, cv.hold_out, cv.seed);
@@ -76,6 +77,7 @@ fn cross_validate_shape_refit(
     let (components, combos, k_max) = (&tried.components, &tried.combos, tried.k_max);
     let mut usable = vec![true; combos.len()];
     let mut held: Held = Vec::new();
+    let spaces: Vec<ShapeSpace> = residuals.iter().map(|r| r.0).collect();
     for fold in 0..folds {
         let (train, train_idx) = shots_subset(ds, |s| fold_of_shot[s] != fold);
         let test: Vec<usize> = (0..ds.samples.len())
@@ -110,19 +112,35 @@ fn cross_validate_shape_refit(
                 continue;
             };
             let g = to_gaussian(p);
-            let (os, size) = (measured.oversample, Some(measured.size));
-            let Some(plain) = kernel_with_residual(&g, None, os, size) else {
+            let os = measured.oversample;
+            // Every kernel rendered as deblurring renders it, then compared on the
+            // common grid.
+            let Some((grid, measured)) = shape::judged_grid(measured, &g, &spaces) else {
                 continue;
             };
-            let e_gauss = relative_l2(&plain, measured);
+            let Some(plain) = kernel_with_residual(&g, None, os, None) else {
+                continue;
+            };
+            let Some(mut restoration) = RestorationError::new(&measured, crate::model::WIENER_NSR)
+            else {
+                continue;
+            };
+            let mut judge = |k: &crate::psf::Kernel| {
+                let k = k.padded(grid);
+                KernelErrors {
+                    rel_l2: relative_l2(&k, &measured),
+                    restoration: restoration.of_kernel(&k),
+                }
+            };
+            let e_gauss = judge(&plain);
             let per_combo = models
                 .iter()
                 .map(|m| {
                     let Some(m) = m else {
-                        return vec![f64::NAN; components.len()];
+                        return vec![KernelErrors::NONE; components.len()];
                     };
                     let Some(c) = m.coefficients(s.channel, s.x, s.y, setting) else {
-                        return vec![f64::NAN; components.len()];
+                        return vec![KernelErrors::NONE; components.len()];
                     };
                     let mut r = vec![0.0; m.space.values()];
                     let mut used = 0;
@@ -135,17 +153,30 @@ fn cross_validate_shape_refit(
                                 }
                             }
                             used = k;
-                            kernel_with_shape(m.space, &g, Some(&r), os, size)
-                                .map_or(f64::NAN, |k| relative_l2(&k, measured))
+                            kernel_with_shape(m.space, &g, Some(&r), os, None)
+                                .map_or(KernelErrors::NONE, |k| judge(&k))
                         })
                         .collect()
                 })
                 .collect();
-            held.push((s.f_number, e_gauss, per_combo));
+            held.push(HeldKernel {
+                f_number: s.f_number,
+                gaussian: e_gauss,
+                per_combo,
+            });
         }
     }
-    let spaces: Vec<ShapeSpace> = residuals.iter().map(|r| r.0).collect();
-    report(&tried, &spaces, &held, &usable, kind, (alpha, beta), folds).expect("report")
+    report(
+        &tried,
+        &spaces,
+        &held,
+        &usable,
+        kind,
+        (alpha, beta),
+        folds,
+        opts.criterion,
+    )
+    .expect("report")
 }
 
 /// A 3 × 3-setting session of `shots_per_setting` shots, a `cols × rows` grid of
@@ -313,6 +344,11 @@ fn assert_points_equal(fast: &ShapeCvPoint, refit: &ShapeCvPoint, what: &str) {
         (fast.mean_rel_l2, refit.mean_rel_l2, "mean"),
         (fast.median_rel_l2, refit.median_rel_l2, "median"),
         (fast.p95_rel_l2, refit.p95_rel_l2, "p95"),
+        (
+            fast.restoration_rms.expect("restoration"),
+            refit.restoration_rms.expect("restoration"),
+            "restoration",
+        ),
     ] {
         assert!(close(a, b, 1e-9), "{what} {stat}: {a} vs {b}");
     }
@@ -325,6 +361,7 @@ fn assert_shape_cv_equals_refit(kind: ModelKind, alpha: usize, beta: usize) {
         alphas: vec![1, 2],
         components: vec![0, 1, 2, 4],
         spaces: ShapeSpace::ALL.to_vec(),
+        ..ShapeCvOptions::default()
     };
     let residuals: Vec<(ShapeSpace, Vec<Option<Vec<f32>>>)> = opts
         .spaces
@@ -350,11 +387,22 @@ fn assert_shape_cv_equals_refit(kind: ModelKind, alpha: usize, beta: usize) {
         refit.best_shape.as_ref().expect("best"),
         "best",
     );
+    assert_points_equal(
+        fast.best_by_l2.as_ref().expect("best by L2"),
+        refit.best_by_l2.as_ref().expect("best by L2"),
+        "best by L2",
+    );
     assert_eq!(fast.per_aperture.len(), refit.per_aperture.len());
     for (a, b) in fast.per_aperture.iter().zip(&refit.per_aperture) {
         assert_eq!((a.f_number, a.kernels), (b.f_number, b.kernels));
         assert!(close(a.gaussian_mean_rel_l2, b.gaussian_mean_rel_l2, 1e-9));
         assert!(close(a.shape_mean_rel_l2, b.shape_mean_rel_l2, 1e-9));
+        for (x, y) in [
+            (a.gaussian_restoration_rms, b.gaussian_restoration_rms),
+            (a.shape_restoration_rms, b.shape_restoration_rms),
+        ] {
+            assert!(close(x.expect("fast"), y.expect("refit"), 1e-9));
+        }
     }
 }
 

@@ -28,6 +28,8 @@ pub struct ShapeCvOptions {
     /// lens the pixel space predicted held-out kernels closer in L2 but deblurred worse
     /// than the Gaussians alone (see the README's kernel-shape figures).
     pub spaces: Vec<crate::model::ShapeSpace>,
+    /// What the model is chosen by.
+    pub criterion: ShapeCriterion,
 }
 
 impl Default for ShapeCvOptions {
@@ -36,6 +38,55 @@ impl Default for ShapeCvOptions {
             alphas: vec![1, 2, 3, 4, 6],
             components: vec![0, 1, 2, 3, 4, 6, 8],
             spaces: vec![crate::model::ShapeSpace::Whitened],
+            criterion: ShapeCriterion::default(),
+        }
+    }
+}
+
+/// What the kernel-shape model (its space, order and number of components, and
+/// whether to keep one at all) is chosen by, over the held-out kernels.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ShapeCriterion {
+    /// The mean error the predicted kernel leaves in a deblurred photo
+    /// ([`crate::model::RestorationError`]).
+    #[default]
+    Restoration,
+    /// The mean relative L2 of the 3× kernels (how profiles before the restoration
+    /// error chose).
+    HeldOutL2,
+}
+
+impl ShapeCriterion {
+    /// What a profile that does not say was chosen by.
+    fn held_out_l2() -> Self {
+        Self::HeldOutL2
+    }
+
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Restoration => "restoration error",
+            Self::HeldOutL2 => "held-out L2",
+        }
+    }
+
+    /// A point's figure under this criterion, in words: "restoration error 0.012".
+    #[must_use]
+    pub fn describe(self, p: &ShapeCvPoint) -> String {
+        match (self, p.restoration_rms) {
+            (Self::Restoration, Some(r)) => format!("restoration error {r:.4}"),
+            _ => format!("relative L2 {:.3}", p.mean_rel_l2),
+        }
+    }
+
+    /// A point's figure under this criterion (lower is better); infinite where the
+    /// point has none.
+    #[must_use]
+    pub fn score(self, p: &ShapeCvPoint) -> f64 {
+        match self {
+            Self::Restoration => p.restoration_rms.unwrap_or(f64::INFINITY),
+            Self::HeldOutL2 => p.mean_rel_l2,
         }
     }
 }
@@ -54,6 +105,11 @@ pub struct ShapeCvPoint {
     pub mean_rel_l2: f64,
     pub median_rel_l2: f64,
     pub p95_rel_l2: f64,
+    /// √(mean restoration error) over the held-out kernels: the RMS error the
+    /// predicted kernels leave in a deblurred photo of unit gradient RMS
+    /// ([`crate::model::RestorationError`]). Absent in profiles made before it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub restoration_rms: Option<f64>,
 }
 
 /// The held-out errors at one aperture: the Gaussian's and the best shape model's.
@@ -63,6 +119,10 @@ pub struct ApertureError {
     pub kernels: usize,
     pub gaussian_mean_rel_l2: f64,
     pub shape_mean_rel_l2: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gaussian_restoration_rms: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shape_restoration_rms: Option<f64>,
 }
 
 /// Cross-validation of the kernel-shape model: the same folds as the Gaussian models',
@@ -79,31 +139,61 @@ pub struct ShapeCvReport {
     pub gaussian: ShapeCvPoint,
     /// Every shape model tried.
     pub points: Vec<ShapeCvPoint>,
-    /// The shape model with the lowest error.
+    /// What the model was chosen by (held-out L2 in profiles that do not say).
+    #[serde(default = "ShapeCriterion::held_out_l2")]
+    pub criterion: ShapeCriterion,
+    /// The shape model with the lowest error by `criterion`.
     pub best_shape: Option<ShapeCvPoint>,
-    /// Whether that beats the Gaussian: the profile then holds it.
+    /// The shape model held-out L2 alone would choose, for comparison.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub best_by_l2: Option<ShapeCvPoint>,
+    /// Whether `best_shape` beats the Gaussian by `criterion`: the profile then holds it.
     pub shape_chosen: bool,
     /// Per aperture: the Gaussian's and `best_shape`'s errors.
     pub per_aperture: Vec<ApertureError>,
 }
 
-fn rel_l2_point(
+/// One held-out kernel's errors under one model: relative L2 of the 3× kernels and
+/// the restoration error ([`crate::model::RestorationError`]); NaN where the model
+/// predicts none.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct KernelErrors {
+    pub(super) rel_l2: f64,
+    pub(super) restoration: f64,
+}
+
+impl KernelErrors {
+    pub(super) const NONE: Self = Self {
+        rel_l2: f64::NAN,
+        restoration: f64::NAN,
+    };
+
+    fn is_finite(self) -> bool {
+        self.rel_l2.is_finite() && self.restoration.is_finite()
+    }
+}
+
+fn error_point(
     space: crate::model::ShapeSpace,
     alpha: usize,
     beta: usize,
     components: usize,
-    errors: &mut [f64],
+    errors: &[KernelErrors],
 ) -> ShapeCvPoint {
-    errors.sort_by(f64::total_cmp);
-    let mean = errors.iter().sum::<f64>() / errors.len().max(1) as f64;
+    let mut l2: Vec<f64> = errors.iter().map(|e| e.rel_l2).collect();
+    l2.sort_by(f64::total_cmp);
+    let n = errors.len().max(1) as f64;
+    let mean = l2.iter().sum::<f64>() / n;
+    let restoration = errors.iter().map(|e| e.restoration).sum::<f64>() / n;
     ShapeCvPoint {
         space,
         alpha,
         beta,
         components,
         mean_rel_l2: mean,
-        median_rel_l2: percentile_sorted(errors, 50.0),
-        p95_rel_l2: percentile_sorted(errors, 95.0),
+        median_rel_l2: percentile_sorted(&l2, 50.0),
+        p95_rel_l2: percentile_sorted(&l2, 95.0),
+        restoration_rms: Some(restoration.sqrt()),
     }
 }
 
@@ -127,7 +217,10 @@ pub fn cross_validate_shape(
     opts: &ShapeCvOptions,
     job: &JobContext,
 ) -> Result<ShapeCvReport, ModelError> {
-    use crate::model::{PreparedKernels, kernel_with_residual, relative_l2, to_gaussian};
+    use crate::model::{
+        PreparedKernels, RestorationError, deployed_kernel_side, kernel_with_residual, relative_l2,
+        to_gaussian,
+    };
     use rayon::prelude::*;
     ds.validate()?;
     if ds.shots.len() < 2 {
@@ -145,6 +238,7 @@ pub fn cross_validate_shape(
     let (fold_of_shot, folds) = assign_folds(ds, cv.folds, cv.hold_out, cv.seed);
     let tried = Tried::new(opts, residuals.len(), beta);
     let (components, combos, k_max) = (&tried.components, &tried.combos, tried.k_max);
+    let spaces: Vec<crate::model::ShapeSpace> = residuals.iter().map(|r| r.0).collect();
     // The held-out kernels of each fold; a fold with none, or with no training
     // samples, is not judged.
     let tests: Vec<Vec<usize>> = (0..folds)
@@ -241,30 +335,44 @@ pub fn cross_validate_shape(
                     // the prepared grids are the measured one); judged as the
                     // Gaussian alone.
                     let plain = kernel_with_residual(&g, None, os, Some(size))?;
-                    let row = vec![f64::NAN; components.len()];
-                    return Some((
-                        s.f_number,
-                        relative_l2(&plain, measured),
-                        vec![row; combos.len()],
-                    ));
+                    let row = vec![KernelErrors::NONE; components.len()];
+                    return Some(HeldKernel {
+                        f_number: s.f_number,
+                        gaussian: KernelErrors {
+                            rel_l2: relative_l2(&plain, measured),
+                            restoration: f64::NAN,
+                        },
+                        per_combo: vec![row; combos.len()],
+                    });
                 }
-                // Each space's grid for this kernel, prepared once for every model.
+                let (grid, measured) = judged_grid(measured, &g, &spaces)?;
+                let mut restoration = RestorationError::new(&measured, crate::model::WIENER_NSR)?;
+                // Each space's kernels as deblurring renders them, on the common grid,
+                // prepared once for every model.
                 let prepared: Vec<PreparedKernels> = residuals
                     .iter()
                     .zip(bases)
                     .map(|((space, _), b)| {
-                        PreparedKernels::new(*space, &g, b.as_deref().unwrap_or(&[]), os, size)
+                        let deployed = deployed_kernel_side(*space, &g, os)?;
+                        let b = b.as_deref().unwrap_or(&[]);
+                        PreparedKernels::new(*space, &g, b, os, grid, deployed)
                     })
                     .collect::<Option<_>>()?;
-                // Whitened or in pixels, the base is the Gaussian's density: normalised,
-                // the kernel of the Gaussian alone.
-                let e_gauss = PreparedKernels::relative_l2(prepared[0].base(), measured);
+                let mut judge = |values: &[f64]| KernelErrors {
+                    rel_l2: PreparedKernels::relative_l2(values, &measured),
+                    restoration: restoration.of_values(values),
+                };
+                // The Gaussian alone: its density on its own support.
+                let whitened = crate::model::ShapeSpace::Whitened;
+                let deployed = deployed_kernel_side(whitened, &g, os)?;
+                let plain = PreparedKernels::new(whitened, &g, &[], os, grid, deployed)?;
+                let e_gauss = judge(plain.base());
                 let mut values = Vec::new();
                 let per_combo = models
                     .iter()
                     .zip(combos)
                     .map(|(m, &(si, _))| {
-                        let nan = || vec![f64::NAN; components.len()];
+                        let nan = || vec![KernelErrors::NONE; components.len()];
                         let Some(m) = m else {
                             return nan();
                         };
@@ -279,23 +387,59 @@ pub fn cross_validate_shape(
                             .iter()
                             .map(|&k| {
                                 if k > c.len() {
-                                    return f64::NAN;
+                                    return KernelErrors::NONE;
                                 }
                                 p.add(&mut values, used..k, &c);
                                 used = k;
-                                PreparedKernels::relative_l2(&values, measured)
+                                judge(&values)
                             })
                             .collect()
                     })
                     .collect();
-                Some((s.f_number, e_gauss, per_combo))
+                Some(HeldKernel {
+                    f_number: s.f_number,
+                    gaussian: e_gauss,
+                    per_combo,
+                })
             })
             .collect();
         held.extend(scored);
     }
     job.report("kernel shapes", folds, folds);
-    let spaces: Vec<crate::model::ShapeSpace> = residuals.iter().map(|r| r.0).collect();
-    report(&tried, &spaces, &held, &usable, kind, (alpha, beta), folds)
+    report(
+        &tried,
+        &spaces,
+        &held,
+        &usable,
+        kind,
+        (alpha, beta),
+        folds,
+        opts.criterion,
+    )
+}
+
+/// The grid a held-out kernel and the kernels predicted for it are compared on: the
+/// measured kernel's, grown to hold the largest kernel deblurring would render around
+/// `g` in any of `spaces` (a pixel-space shape reaches ±6 px however sharp the core);
+/// with the measured kernel on it. A prediction judged only where the measured kernel
+/// was would hide what it puts beyond.
+pub(super) fn judged_grid(
+    measured: &crate::psf::Kernel,
+    g: &crate::psf::Gaussian2,
+    spaces: &[crate::model::ShapeSpace],
+) -> Option<(usize, crate::psf::Kernel)> {
+    let mut grid = measured.size;
+    for &space in spaces
+        .iter()
+        .chain(std::iter::once(&crate::model::ShapeSpace::Whitened))
+    {
+        grid = grid.max(crate::model::deployed_kernel_side(
+            space,
+            g,
+            measured.oversample,
+        )?);
+    }
+    Some((grid, measured.padded(grid)))
 }
 
 /// The models a shape cross-validation tries: the numbers of components (ascending;
@@ -334,12 +478,19 @@ impl Tried {
     }
 }
 
-/// Per held-out kernel: its f-number, the Gaussian's error, and `[combo][count]` the
-/// error of each model tried (NaN where it could not be predicted).
-pub(super) type Held = Vec<(f64, f64, Vec<Vec<f64>>)>;
+/// One held-out kernel: its f-number, the Gaussian's errors, and `[combo][count]` the
+/// errors of each model tried (NaN where it could not be predicted).
+pub(super) struct HeldKernel {
+    pub(super) f_number: f64,
+    pub(super) gaussian: KernelErrors,
+    pub(super) per_combo: Vec<Vec<KernelErrors>>,
+}
+
+pub(super) type Held = Vec<HeldKernel>;
 
 /// The report from the held-out errors; `usable[m]`: combo m could be fitted in every
 /// fold.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn report(
     tried: &Tried,
     spaces: &[crate::model::ShapeSpace],
@@ -348,6 +499,7 @@ pub(super) fn report(
     kind: ModelKind,
     (alpha, beta): (usize, usize),
     folds: usize,
+    criterion: ShapeCriterion,
 ) -> Result<ShapeCvReport, ModelError> {
     let (components, combos) = (&tried.components, &tried.combos);
     // errors[m][c]: held-out errors of combo m, component count index c.
@@ -355,8 +507,8 @@ pub(super) fn report(
     if held.is_empty() {
         return Err(ModelError::Empty);
     }
-    for (_, _, per_combo) in held {
-        for (m, row) in per_combo.iter().enumerate() {
+    for h in held {
+        for (m, row) in h.per_combo.iter().enumerate() {
             for (c, &e) in row.iter().enumerate() {
                 if e.is_finite() {
                     errors[m][c].push(e);
@@ -364,39 +516,60 @@ pub(super) fn report(
             }
         }
     }
-    let mut gauss: Vec<f64> = held.iter().map(|h| h.1).filter(|e| e.is_finite()).collect();
-    let gaussian = rel_l2_point(crate::model::ShapeSpace::Whitened, 0, beta, 0, &mut gauss);
+    // The Gaussian is judged on the kernels every model is: a kernel whose
+    // restoration error is undefined (no 1× mass) is left out of both.
+    let gauss: Vec<KernelErrors> = held
+        .iter()
+        .map(|h| h.gaussian)
+        .filter(|e| e.rel_l2.is_finite())
+        .collect();
+    let mut gaussian = error_point(crate::model::ShapeSpace::Whitened, 0, beta, 0, &gauss);
+    if gauss.iter().any(|e| !e.restoration.is_finite()) {
+        gaussian.restoration_rms = None;
+    }
     let mut points = Vec::new();
     for (m, &(si, alpha_s)) in combos.iter().enumerate() {
         if !usable[m] {
             continue;
         }
         for (c, &k) in components.iter().enumerate() {
-            let mut e = errors[m][c].clone();
-            if e.len() == held.len() {
-                points.push((m, c, rel_l2_point(spaces[si], alpha_s, beta, k, &mut e)));
+            if errors[m][c].len() == held.len() {
+                points.push((
+                    m,
+                    c,
+                    error_point(spaces[si], alpha_s, beta, k, &errors[m][c]),
+                ));
             }
         }
     }
-    let best = points
-        .iter()
-        .min_by(|x, y| x.2.mean_rel_l2.total_cmp(&y.2.mean_rel_l2))
-        .cloned();
-    let f_numbers = LensSetting::distinct_values(held.iter().map(|h| h.0));
+    let best_by = |criterion: ShapeCriterion| {
+        points
+            .iter()
+            .min_by(|x, y| criterion.score(&x.2).total_cmp(&criterion.score(&y.2)))
+            .cloned()
+    };
+    let best = best_by(criterion);
+    let best_by_l2 = best_by(ShapeCriterion::HeldOutL2).map(|b| b.2);
+    let f_numbers = LensSetting::distinct_values(held.iter().map(|h| h.f_number));
     let per_aperture = match &best {
         Some((a, c, _)) => f_numbers
             .iter()
             .map(|&f| {
-                let mine: Vec<&(f64, f64, Vec<Vec<f64>>)> = held
+                let mine: Vec<&HeldKernel> = held
                     .iter()
-                    .filter(|h| LensSetting::same_value(h.0, f))
+                    .filter(|h| LensSetting::same_value(h.f_number, f))
                     .collect();
                 let n = mine.len().max(1) as f64;
+                let mean =
+                    |e: &dyn Fn(&HeldKernel) -> f64| mine.iter().map(|h| e(h)).sum::<f64>() / n;
+                let rms = |v: f64| v.is_finite().then(|| v.sqrt());
                 ApertureError {
                     f_number: f,
                     kernels: mine.len(),
-                    gaussian_mean_rel_l2: mine.iter().map(|h| h.1).sum::<f64>() / n,
-                    shape_mean_rel_l2: mine.iter().map(|h| h.2[*a][*c]).sum::<f64>() / n,
+                    gaussian_mean_rel_l2: mean(&|h| h.gaussian.rel_l2),
+                    shape_mean_rel_l2: mean(&|h| h.per_combo[*a][*c].rel_l2),
+                    gaussian_restoration_rms: rms(mean(&|h| h.gaussian.restoration)),
+                    shape_restoration_rms: rms(mean(&|h| h.per_combo[*a][*c].restoration)),
                 }
             })
             .collect(),
@@ -405,14 +578,16 @@ pub(super) fn report(
     let best_shape = best.map(|b| b.2);
     let shape_chosen = best_shape
         .as_ref()
-        .is_some_and(|b| b.mean_rel_l2 < gaussian.mean_rel_l2);
+        .is_some_and(|b| criterion.score(b) < criterion.score(&gaussian));
     Ok(ShapeCvReport {
         folds,
         kernels: held.len(),
         gaussian_model: kind.model_name(alpha, beta),
         gaussian,
         points: points.into_iter().map(|p| p.2).collect(),
+        criterion,
         best_shape,
+        best_by_l2,
         shape_chosen,
         per_aperture,
     })

@@ -68,7 +68,9 @@ pub struct WienerParams {
 
 impl Default for WienerParams {
     fn default() -> Self {
-        Self { nsr: 0.003 }
+        Self {
+            nsr: crate::model::WIENER_NSR,
+        }
     }
 }
 

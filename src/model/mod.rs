@@ -23,6 +23,7 @@ mod basis;
 mod dataset;
 mod global;
 mod local;
+mod restoration;
 mod shape;
 
 pub use basis::{
@@ -33,12 +34,13 @@ pub(crate) use basis::{design_system, split_coeffs};
 pub use dataset::{BlurSample, Dataset, PARAM_NAMES, ShotInfo};
 pub use global::{ChannelCoeffs, GlobalModel, global_coords};
 pub use local::{CentreGrid, LocalModel, LocalOptions, local_coords, local_grid, local_members};
-pub(crate) use shape::PreparedKernels;
+pub use restoration::{RestorationError, WIENER_NSR};
 pub use shape::{
     KernelModel, MAX_COMPONENTS, PIXEL_SIDE, ShapeFit, ShapeModel, ShapeSpace, WHITENED_LEN,
     WHITENED_PER_SIGMA, WHITENED_SIDE, kernel_with_residual, kernel_with_shape, relative_l2,
     session_residuals, shape_basis, shape_residual, whitened_residual,
 };
+pub(crate) use shape::{PreparedKernels, deployed_kernel_side};
 
 use crate::plane::{Channel, LensSetting};
 use crate::psf::Gaussian2;

@@ -245,6 +245,34 @@ pub fn kernel_with_residual(
     kernel_with_shape(ShapeSpace::Whitened, gaussian, residual, oversample, size)
 }
 
+/// The side of the kernel [`kernel_with_shape`] renders when given no size (what
+/// deblurring uses): ±5σ along the Gaussian's widest axis, at least ±6 px for a
+/// pixel-space residual, within the largest kernel allowed.
+fn deployed_side(space: ShapeSpace, wh: &Whitening, residual: bool, oversample: usize) -> usize {
+    let limit = (crate::limits::MAX_KERNEL_RADIUS_PX * oversample as f64) as usize;
+    let mut radius = WHITENED_RADIUS * wh.sigma_max;
+    if space == ShapeSpace::Pixel && residual {
+        radius = radius.max(PIXEL_RADIUS_PX as f64);
+    }
+    let half = (radius * oversample as f64).ceil() as usize;
+    2 * half.min(limit) + 1
+}
+
+/// [`deployed_side`] of a shape model's kernels around `gaussian` (`None` when it is
+/// degenerate).
+pub(crate) fn deployed_kernel_side(
+    space: ShapeSpace,
+    gaussian: &Gaussian2,
+    oversample: usize,
+) -> Option<usize> {
+    Some(deployed_side(
+        space,
+        &Whitening::of(gaussian)?,
+        true,
+        oversample.max(1),
+    ))
+}
+
 /// [`kernel_with_residual`] for a residual in either space.
 #[must_use]
 pub fn kernel_with_shape(
@@ -256,15 +284,7 @@ pub fn kernel_with_shape(
 ) -> Option<Kernel> {
     let wh = Whitening::of(gaussian)?;
     let os = oversample.max(1);
-    let limit = (crate::limits::MAX_KERNEL_RADIUS_PX * os as f64) as usize;
-    let size = size.unwrap_or_else(|| {
-        let mut radius = WHITENED_RADIUS * wh.sigma_max;
-        if space == ShapeSpace::Pixel && residual.is_some() {
-            radius = radius.max(PIXEL_RADIUS_PX as f64);
-        }
-        let half = (radius * os as f64).ceil() as usize;
-        2 * half.min(limit) + 1
-    });
+    let size = size.unwrap_or_else(|| deployed_side(space, &wh, residual.is_some(), os));
     let size = size | 1;
     let c = (size / 2) as f64;
     let mut data = Vec::with_capacity(size * size);
@@ -358,14 +378,16 @@ pub(crate) struct PreparedKernels {
 
 impl PreparedKernels {
     /// The `size`-sample grid (made odd, as [`kernel_with_shape`] does) at `oversample`×
-    /// around `gaussian`, with `components` residuals of `space`. `None` when the
-    /// Gaussian is degenerate.
+    /// around `gaussian`, with `components` residuals of `space`, zero outside the
+    /// centred `deployed`-sample window: the kernel deblurring renders, on a grid it
+    /// can be compared on. `None` when the Gaussian is degenerate.
     pub(crate) fn new(
         space: ShapeSpace,
         gaussian: &Gaussian2,
         components: &[Vec<f64>],
         oversample: usize,
         size: usize,
+        deployed: usize,
     ) -> Option<Self> {
         let wh = Whitening::of(gaussian)?;
         let os = oversample.max(1) as f64;
@@ -376,8 +398,16 @@ impl PreparedKernels {
         let per_unit = space.per_unit() as f64;
         let mut base = Vec::with_capacity(size * size);
         let mut sampled = vec![Vec::with_capacity(size * size); components.len()];
+        let reach = (deployed / 2) as f64;
         for j in 0..size {
             for i in 0..size {
+                if (i as f64 - c).abs() > reach || (j as f64 - c).abs() > reach {
+                    base.push(0.0);
+                    for out in &mut sampled {
+                        out.push(0.0);
+                    }
+                    continue;
+                }
                 let p = [(i as f64 - c) / os, (j as f64 - c) / os];
                 let (q, density) = match space {
                     ShapeSpace::Whitened => {

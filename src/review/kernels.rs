@@ -110,8 +110,9 @@ pub fn no_shape_reason(profile: &Profile) -> Option<String> {
     Some(match &profile.shape_cv {
         Some(cv) => match &cv.best_shape {
             Some(best) => format!(
-                "cross-validation kept the Gaussians (held-out error: Gaussian {:.3}, best shapes {:.3})",
-                cv.gaussian.mean_rel_l2, best.mean_rel_l2
+                "cross-validation kept the Gaussians (held-out {} for the Gaussian, {} for the best shapes)",
+                cv.criterion.describe(&cv.gaussian),
+                cv.criterion.describe(best)
             ),
             None => "cross-validation kept the Gaussians (no shape model could be fitted)".into(),
         },

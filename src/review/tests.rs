@@ -250,7 +250,7 @@ fn truth_tail_fractions(shape: crate::simulate::PsfShape, noise: f64, stripes: f
         for focal_mm in [24.0, 105.0] {
             for f_number in [4.0, 10.0] {
                 let s = LensSetting { focal_mm, f_number };
-                let mut k = padded(
+                let mut k = Kernel::padded(
                     &lens
                         .optical_kernel_uv(Channel::G, u, v, s, 3)
                         .pixel_integrated(),
@@ -302,25 +302,6 @@ fn truth_tail_fractions(shape: crate::simulate::PsfShape, noise: f64, stripes: f
 /// support a measured kernel's stripes and speckle can spread over.
 const MEASURED_SIZE: usize = 37;
 
-/// `k` centred in an `n` × `n` array (or as it is, if larger).
-fn padded(k: &Kernel, n: usize) -> Kernel {
-    if k.size >= n {
-        return k.clone();
-    }
-    let off = (n - k.size) / 2;
-    let mut data = vec![0.0; n * n];
-    for j in 0..k.size {
-        for i in 0..k.size {
-            data[(j + off) * n + i + off] = k.at(i, j);
-        }
-    }
-    Kernel {
-        size: n,
-        oversample: k.oversample,
-        data,
-    }
-}
-
 #[test]
 fn clean_simulated_kernels_pass_and_striped_tails_are_flagged() {
     use crate::simulate::PsfShape;
@@ -343,7 +324,7 @@ fn clean_simulated_kernels_pass_and_striped_tails_are_flagged() {
         sigma_y: 0.9,
         rho: 0.2,
     };
-    let clean = padded(&g.kernel(3), MEASURED_SIZE);
+    let clean = g.kernel(3).padded(MEASURED_SIZE);
     assert_eq!(noisy_kernel_reason(&clean, &g), None);
     let mut striped = clean.clone();
     let peak = striped.data.iter().copied().fold(0.0, f64::max);

@@ -382,8 +382,11 @@ fn shape_cv_ui(ui: &mut egui::Ui, p: &crate::profile::Profile) {
         _ => "cross-validation kept the Gaussians".to_owned(),
     };
     ui.label(format!(
-        "Kernel shapes: {} held-out kernels in {} folds, predicted around {}; {verdict}. Mean relative L2 error of predicted against measured kernels:",
-        cv.kernels, cv.folds, cv.gaussian_model
+        "Kernel shapes: {} held-out kernels in {} folds, predicted around {}; chosen by {}: {verdict}. Held-out error of predicted against measured kernels (relative L2; restoration: the RMS error left in a deblurred photo):",
+        cv.kernels,
+        cv.folds,
+        cv.gaussian_model,
+        cv.criterion.name()
     ));
     egui::Grid::new("shape-cv")
         .striped(true)
@@ -395,19 +398,36 @@ fn shape_cv_ui(ui: &mut egui::Ui, p: &crate::profile::Profile) {
                 ui.label(format!("f/{:.1}", a.f_number));
             }
             ui.end_row();
-            ui.label("Gaussian");
-            ui.monospace(format!("{:.3}", cv.gaussian.mean_rel_l2));
-            for a in &cv.per_aperture {
-                ui.monospace(format!("{:.3}", a.gaussian_mean_rel_l2));
-            }
-            ui.end_row();
-            if let Some(b) = &cv.best_shape {
-                ui.label("shapes");
-                ui.monospace(format!("{:.3}", b.mean_rel_l2));
+            let row = |ui: &mut egui::Ui,
+                       name: &str,
+                       all: f64,
+                       per: &dyn Fn(&crate::crossval::ApertureError) -> f64| {
+                ui.label(name);
+                ui.monospace(format!("{all:.3}"));
                 for a in &cv.per_aperture {
-                    ui.monospace(format!("{:.3}", a.shape_mean_rel_l2));
+                    ui.monospace(format!("{:.3}", per(a)));
                 }
                 ui.end_row();
+            };
+            row(ui, "Gaussian, L2", cv.gaussian.mean_rel_l2, &|a| {
+                a.gaussian_mean_rel_l2
+            });
+            if let Some(b) = &cv.best_shape {
+                row(ui, "shapes, L2", b.mean_rel_l2, &|a| a.shape_mean_rel_l2);
+            }
+            let restoration = |v: Option<f64>| v.unwrap_or(f64::NAN);
+            if let Some(g) = cv.gaussian.restoration_rms {
+                row(ui, "Gaussian, restoration", g, &|a| {
+                    restoration(a.gaussian_restoration_rms)
+                });
+                if let Some(b) = &cv.best_shape {
+                    row(
+                        ui,
+                        "shapes, restoration",
+                        restoration(b.restoration_rms),
+                        &|a| restoration(a.shape_restoration_rms),
+                    );
+                }
             }
         });
 }
