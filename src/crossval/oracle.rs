@@ -73,11 +73,10 @@ fn cross_validate_shape_refit(
     };
     let has_kernel = |i: usize| residuals.iter().all(|(_, r)| r[i].is_some());
     let (fold_of_shot, folds) = assign_folds(ds, cv.folds, cv.hold_out, cv.seed);
-    let tried = Tried::new(opts, residuals.len(), beta);
+    let tried = Tried::new(opts, residuals.iter().map(|r| r.0).collect(), beta);
     let (components, combos, k_max) = (&tried.components, &tried.combos, tried.k_max);
     let mut usable = vec![true; combos.len()];
     let mut held: Held = Vec::new();
-    let spaces: Vec<ShapeSpace> = residuals.iter().map(|r| r.0).collect();
     for fold in 0..folds {
         let (train, train_idx) = shots_subset(ds, |s| fold_of_shot[s] != fold);
         let test: Vec<usize> = (0..ds.samples.len())
@@ -115,7 +114,7 @@ fn cross_validate_shape_refit(
             let os = measured.oversample;
             // Every kernel rendered as deblurring renders it, then compared on the
             // common grid.
-            let Some((grid, measured)) = shape::judged_grid(measured, &g, &spaces) else {
+            let Some((grid, measured)) = shape::judged_grid(measured, &g, &tried.spaces) else {
                 continue;
             };
             let Some(plain) = kernel_with_residual(&g, None, os, None) else {
@@ -166,17 +165,7 @@ fn cross_validate_shape_refit(
             });
         }
     }
-    report(
-        &tried,
-        &spaces,
-        &held,
-        &usable,
-        kind,
-        (alpha, beta),
-        folds,
-        opts.criterion,
-    )
-    .expect("report")
+    report(&tried, &held, &usable, kind, (alpha, beta), folds).expect("report")
 }
 
 /// A 3 × 3-setting session of `shots_per_setting` shots, a `cols × rows` grid of

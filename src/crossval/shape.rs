@@ -236,9 +236,8 @@ pub fn cross_validate_shape(
     }
     let has_kernel = |i: usize| residuals.iter().all(|(_, r)| r[i].is_some());
     let (fold_of_shot, folds) = assign_folds(ds, cv.folds, cv.hold_out, cv.seed);
-    let tried = Tried::new(opts, residuals.len(), beta);
+    let tried = Tried::new(opts, residuals.iter().map(|r| r.0).collect(), beta);
     let (components, combos, k_max) = (&tried.components, &tried.combos, tried.k_max);
-    let spaces: Vec<crate::model::ShapeSpace> = residuals.iter().map(|r| r.0).collect();
     // The held-out kernels of each fold; a fold with none, or with no training
     // samples, is not judged.
     let tests: Vec<Vec<usize>> = (0..folds)
@@ -345,7 +344,7 @@ pub fn cross_validate_shape(
                         per_combo: vec![row; combos.len()],
                     });
                 }
-                let (grid, measured) = judged_grid(measured, &g, &spaces)?;
+                let (grid, measured) = judged_grid(measured, &g, &tried.spaces)?;
                 let mut restoration = RestorationError::new(&measured, crate::model::WIENER_NSR)?;
                 // Each space's kernels as deblurring renders them, on the common grid,
                 // prepared once for every model.
@@ -406,16 +405,7 @@ pub fn cross_validate_shape(
         held.extend(scored);
     }
     job.report("kernel shapes", folds, folds);
-    report(
-        &tried,
-        &spaces,
-        &held,
-        &usable,
-        kind,
-        (alpha, beta),
-        folds,
-        opts.criterion,
-    )
+    report(&tried, &held, &usable, kind, (alpha, beta), folds)
 }
 
 /// The grid a held-out kernel and the kernels predicted for it are compared on: the
@@ -448,10 +438,17 @@ pub(super) struct Tried {
     pub(super) components: Vec<usize>,
     pub(super) k_max: usize,
     pub(super) combos: Vec<(usize, usize)>,
+    /// The spaces of the residual sets, in their order.
+    pub(super) spaces: Vec<crate::model::ShapeSpace>,
+    pub(super) criterion: ShapeCriterion,
 }
 
 impl Tried {
-    pub(super) fn new(opts: &ShapeCvOptions, spaces: usize, beta: usize) -> Self {
+    pub(super) fn new(
+        opts: &ShapeCvOptions,
+        spaces: Vec<crate::model::ShapeSpace>,
+        beta: usize,
+    ) -> Self {
         let mut components: Vec<usize> = opts
             .components
             .iter()
@@ -461,7 +458,7 @@ impl Tried {
         components.sort_unstable();
         components.dedup();
         let k_max = components.last().copied().unwrap_or(0);
-        let combos = (0..spaces)
+        let combos = (0..spaces.len())
             .flat_map(|si| {
                 opts.alphas
                     .iter()
@@ -474,6 +471,8 @@ impl Tried {
             components,
             k_max,
             combos,
+            spaces,
+            criterion: opts.criterion,
         }
     }
 }
@@ -490,18 +489,16 @@ pub(super) type Held = Vec<HeldKernel>;
 
 /// The report from the held-out errors; `usable[m]`: combo m could be fitted in every
 /// fold.
-#[allow(clippy::too_many_arguments)]
 pub(super) fn report(
     tried: &Tried,
-    spaces: &[crate::model::ShapeSpace],
     held: &Held,
     usable: &[bool],
     kind: ModelKind,
     (alpha, beta): (usize, usize),
     folds: usize,
-    criterion: ShapeCriterion,
 ) -> Result<ShapeCvReport, ModelError> {
     let (components, combos) = (&tried.components, &tried.combos);
+    let (spaces, criterion) = (&tried.spaces, tried.criterion);
     // errors[m][c]: held-out errors of combo m, component count index c.
     let mut errors = vec![vec![Vec::new(); components.len()]; combos.len()];
     if held.is_empty() {
