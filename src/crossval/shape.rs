@@ -357,15 +357,18 @@ pub fn cross_validate_shape(
                         PreparedKernels::new(*space, &g, b, os, grid, deployed)
                     })
                     .collect::<Option<_>>()?;
-                let mut judge = |values: &[f64]| KernelErrors {
-                    rel_l2: PreparedKernels::relative_l2(values, &measured),
-                    restoration: restoration.of_values(values),
-                };
                 // The Gaussian alone: its density on its own support.
                 let whitened = crate::model::ShapeSpace::Whitened;
                 let deployed = deployed_kernel_side(whitened, &g, os)?;
                 let plain = PreparedKernels::new(whitened, &g, &[], os, grid, deployed)?;
-                let e_gauss = judge(plain.base());
+                let e_gauss = KernelErrors {
+                    rel_l2: PreparedKernels::relative_l2(plain.base(), &measured),
+                    restoration: restoration.of_values(plain.base()),
+                };
+                let linear: Vec<Linear1x> = prepared
+                    .iter()
+                    .map(|p| Linear1x::new(&mut restoration, p))
+                    .collect();
                 let mut values = Vec::new();
                 let per_combo = models
                     .iter()
@@ -378,9 +381,10 @@ pub fn cross_validate_shape(
                         let Some(c) = m.coefficients(s.channel, s.x, s.y, setting) else {
                             return nan();
                         };
-                        let p = &prepared[si];
+                        let (p, lin) = (&prepared[si], &linear[si]);
                         values.clear();
                         values.extend_from_slice(p.base());
+                        let (mut samples, mut spectrum) = lin.base.clone();
                         let mut used = 0;
                         components
                             .iter()
@@ -389,8 +393,19 @@ pub fn cross_validate_shape(
                                     return KernelErrors::NONE;
                                 }
                                 p.add(&mut values, used..k, &c);
+                                lin.add(&mut samples, &mut spectrum, used..k, &c);
                                 used = k;
-                                judge(&values)
+                                // Where clipping at zero changes nothing, the kernel's
+                                // spectrum is the weighted sum already at hand.
+                                let restoration = if samples.iter().all(|v| *v >= 0.0) {
+                                    restoration.of_spectrum(&spectrum)
+                                } else {
+                                    restoration.of_values(&values)
+                                };
+                                KernelErrors {
+                                    rel_l2: PreparedKernels::relative_l2(&values, &measured),
+                                    restoration,
+                                }
                             })
                             .collect()
                     })
@@ -406,6 +421,48 @@ pub fn cross_validate_shape(
     }
     job.report("kernel shapes", folds, folds);
     report(&tried, &held, &usable, kind, (alpha, beta), folds)
+}
+
+/// One space's prepared kernels ([`crate::model::PreparedKernels`]) at 1×, the base and each
+/// component with its spectrum: a model's kernel is a weighted sum of them, and so is
+/// its spectrum, as long as clipping at zero changes nothing. Each model judged then
+/// costs a weighted sum instead of a transform.
+struct Linear1x {
+    base: (Vec<f64>, Vec<rustfft::num_complex::Complex64>),
+    components: Vec<(Vec<f64>, Vec<rustfft::num_complex::Complex64>)>,
+}
+
+impl Linear1x {
+    fn new(r: &mut crate::model::RestorationError, p: &crate::model::PreparedKernels) -> Self {
+        let mut at_1x = |values: &[f64]| {
+            let samples = r.samples(values);
+            let spectrum = r.spectrum_of(&samples);
+            (samples, spectrum)
+        };
+        Self {
+            base: at_1x(p.base()),
+            components: (0..p.components()).map(|k| at_1x(p.component(k))).collect(),
+        }
+    }
+
+    /// Adds components `range` with their `coeffs` to 1× `samples` and their `spectrum`.
+    fn add(
+        &self,
+        samples: &mut [f64],
+        spectrum: &mut [rustfft::num_complex::Complex64],
+        range: std::ops::Range<usize>,
+        coeffs: &[f64],
+    ) {
+        for k in range {
+            let (ck, (s, f)) = (coeffs[k], &self.components[k]);
+            for (a, b) in samples.iter_mut().zip(s) {
+                *a += ck * b;
+            }
+            for (a, b) in spectrum.iter_mut().zip(f) {
+                *a += b * ck;
+            }
+        }
+    }
 }
 
 /// The grid a held-out kernel and the kernels predicted for it are compared on: the

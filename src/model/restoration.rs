@@ -53,8 +53,8 @@ pub struct RestorationError {
     /// Per half-spectrum entry: W(K)·K, the restoration's response with the measured
     /// kernel itself.
     response: Vec<f64>,
+    /// Scratch: the F × F block a spectrum is taken of.
     block: Vec<f64>,
-    spectrum: Vec<Complex64>,
 }
 
 impl RestorationError {
@@ -82,12 +82,15 @@ impl RestorationError {
             measured: fft.new_spectrum(),
             response: Vec::new(),
             block: vec![0.0; f * f],
-            spectrum: fft.new_spectrum(),
             fft,
         };
-        me.transform(&measured.data)?;
-        let dc = me.spectrum[0].re;
-        me.measured = me.spectrum.iter().map(|v| v / dc).collect();
+        let samples = me.samples(&measured.data);
+        let spectrum = me.spectrum_of(&samples);
+        let dc = spectrum[0].re;
+        if dc <= 0.0 || !dc.is_finite() {
+            return None;
+        }
+        me.measured = spectrum.iter().map(|v| v / dc).collect();
         let gradient = me.fft.gradient_energy();
         let (rows, f2) = (f, (f * f) as f64);
         me.weight = gradient
@@ -121,18 +124,12 @@ impl RestorationError {
     /// restored photo of unit gradient power. NaN when the predicted 1× kernel has no
     /// positive mass.
     pub fn of_values(&mut self, values: &[f64]) -> f64 {
-        if self.transform(values).is_none() {
-            return f64::NAN;
+        let mut samples = self.samples(values);
+        for v in &mut samples {
+            *v = v.max(0.0);
         }
-        let inv_dc = 1.0 / self.spectrum[0].re;
-        let mut sum = 0.0;
-        for e in 0..self.spectrum.len() {
-            let p = self.spectrum[e] * inv_dc;
-            let m = self.measured[e];
-            let restored = p.conj() * m / (p.norm_sqr() + self.regularisation[e]);
-            sum += self.weight[e] * (restored - self.response[e]).norm_sqr();
-        }
-        sum
+        let spectrum = self.spectrum_of(&samples);
+        self.of_spectrum(&spectrum)
     }
 
     /// [`Self::of_values`] of a rendered kernel on the measured kernel's grid.
@@ -147,23 +144,49 @@ impl RestorationError {
         self.of_values(&predicted.data)
     }
 
-    /// The 1× samples of `values` (clipped at zero), centred at (0, 0) and wrapped,
-    /// transformed into `self.spectrum`. `None` when they do not sum above zero.
-    fn transform(&mut self, values: &[f64]) -> Option<()> {
+    /// The 1× samples of 3× `values` (row-major, centre at `side / 2`), unclipped.
+    pub(crate) fn samples(&self, values: &[f64]) -> Vec<f64> {
+        self.taps
+            .iter()
+            .map(|&t| values.get(t).copied().unwrap_or(0.0))
+            .collect()
+    }
+
+    /// The half spectrum of 1× `samples` (from [`Self::samples`]), centred at (0, 0).
+    /// Linear in the samples: the spectrum of a sum of kernels is the sum of theirs.
+    pub(crate) fn spectrum_of(&mut self, samples: &[f64]) -> Vec<Complex64> {
         let (side, half, f) = (self.side, self.side / 2, self.fft.width());
-        let mut sum = 0.0;
-        for (n, &t) in self.taps.iter().enumerate() {
+        // Only the taps' places are ever written, so the rest stays zero.
+        for (n, &v) in samples.iter().enumerate() {
             let (i, j) = (n % side, n / side);
-            let v = values.get(t).copied().unwrap_or(0.0).max(0.0);
-            sum += v;
-            let (x, y) = ((i + f - half) % f, (j + f - half) % f);
-            self.block[y * f + x] = v;
+            self.block[((j + f - half) % f) * f + (i + f - half) % f] = v;
         }
-        if sum <= 0.0 || !sum.is_finite() {
-            return None;
+        let mut spectrum = self.fft.new_spectrum();
+        self.fft.forward(&self.block, &mut spectrum);
+        spectrum
+    }
+
+    /// [`Self::of_values`] of a kernel whose 1× samples are all ≥ 0 (so nothing is
+    /// clipped), given their half spectrum. NaN when they do not sum above zero.
+    pub(crate) fn of_spectrum(&self, spectrum: &[Complex64]) -> f64 {
+        let dc = spectrum[0].re;
+        if dc <= 0.0 || !dc.is_finite() {
+            return f64::NAN;
         }
-        self.fft.forward(&self.block, &mut self.spectrum);
-        Some(())
+        let inv_dc = 1.0 / dc;
+        let mut sum = 0.0;
+        for ((((p, m), r), w), t) in spectrum
+            .iter()
+            .zip(&self.measured)
+            .zip(&self.regularisation)
+            .zip(&self.weight)
+            .zip(&self.response)
+        {
+            let p = p * inv_dc;
+            let restored = p.conj() * m / (p.norm_sqr() + r);
+            sum += w * (restored - t).norm_sqr();
+        }
+        sum
     }
 }
 

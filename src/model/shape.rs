@@ -431,6 +431,16 @@ impl PreparedKernels {
         &self.base
     }
 
+    /// How many components were prepared.
+    pub(crate) fn components(&self) -> usize {
+        self.sampled.len()
+    }
+
+    /// Component `k`'s values on the grid.
+    pub(crate) fn component(&self, k: usize) -> &[f64] {
+        &self.sampled[k]
+    }
+
     /// Adds components `range` with their `coeffs` (indexed as the components) to
     /// `values`.
     pub(crate) fn add(&self, values: &mut [f64], range: std::ops::Range<usize>, coeffs: &[f64]) {
