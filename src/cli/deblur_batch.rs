@@ -152,14 +152,26 @@ pub fn run(
                 profile,
                 setting,
                 extrapolated,
-            } => eprintln!(
-                "{photo}: deblurred with {} at f = {} mm, f/{}{} to {}",
-                profile.display(),
-                setting.focal_mm,
-                setting.f_number,
-                if *extrapolated { " (extrapolated)" } else { "" },
-                o.output.display()
-            ),
+            } => {
+                eprintln!(
+                    "{photo}: deblurred with {} at f = {} mm, f/{}{} to {}",
+                    profile.display(),
+                    setting.focal_mm,
+                    setting.f_number,
+                    if *extrapolated { " (extrapolated)" } else { "" },
+                    o.output.display()
+                );
+                // As for one photo: outside the shots' range, far from any shot, or
+                // where the profile recorded a large held-out error.
+                let trust = library
+                    .profiles
+                    .iter()
+                    .find(|p| &p.path == profile)
+                    .and_then(|p| p.profile.trust_line(*setting, None));
+                if let Some(line) = trust {
+                    eprintln!("{photo}: {line}");
+                }
+            }
             Outcome::Skipped(s) => eprintln!("{photo}: skipped: {s}"),
             Outcome::Failed(e) => {
                 // Errors from reading the photo name it already.

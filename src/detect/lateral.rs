@@ -30,13 +30,15 @@ use nalgebra::{Matrix4, Vector4};
 const CHI2_MEASURED: f64 = 18.47;
 
 /// A field whose shift stays below this at every square leaves the kernels on the
-/// joint registration: the measured chain's kernel centroids scatter by about this
-/// much even with every channel registered on its own (0.05–0.06 px, docs/figures.md,
-/// lateral colour), so a smaller shift cannot smear them. Chart squares register so
-/// precisely (scatter about a field of 0.002–0.007 px) that a blur whose centroid
-/// differs a little between channels, such as a coma tail, is a measured field of a
-/// few hundredths of a pixel.
-const MATERIAL_SHIFT_PX: f64 = 0.05;
+/// joint registration. A kernel measured δ px off its channel's image has its fitted
+/// σ² widened by about δ²/2 per axis: below 0.1 px that is under 1 % of σ for the
+/// sharpest kernels measured (σ ≈ 0.7 px), half the σ bar's median, and the kernels'
+/// own centroids scatter by 0.05–0.06 px even with each channel registered on its own.
+/// Chart squares register so precisely (scatter about a field of 0.002–0.007 px) that a
+/// blur whose centroid differs a little between channels, such as the comet lens's
+/// coma tails, is a measured field of a few hundredths of a pixel; 0.05 px here made
+/// the kernels follow that on some shots and not others.
+const MATERIAL_SHIFT_PX: f64 = 0.1;
 
 /// Squares a field needs: four terms from two equations a square, with room to judge
 /// the scatter.

@@ -236,6 +236,24 @@ fn batch_picks_each_photos_profile_skips_with_reasons_and_resumes() {
     assert!(!ok, "{err}");
     assert!(line_of(&err, "a.tif").contains("failed"), "{err}");
     assert!(err.lines().any(|l| l.trim() == "failed: 1"), "{err}");
+
+    // Allowed to extrapolate, the far photo is deblurred, and warned about as one photo
+    // would be.
+    let (ok, err) = lensblur(&[
+        Path::new("deblur"),
+        &d("photos/far.tif"),
+        Path::new("--out-dir"),
+        &d("extrapolated"),
+        Path::new("--profiles"),
+        &d("profiles"),
+        Path::new("--allow-extrapolation"),
+    ]);
+    assert!(ok, "{err}");
+    assert!(
+        err.lines()
+            .any(|l| l.contains("far.tif: warning:") && l.contains("outside the calibrated range")),
+        "{err}"
+    );
 }
 
 #[test]
