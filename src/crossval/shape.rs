@@ -1,6 +1,8 @@
 //! Cross-validation of the kernel-shape model: the Gaussian models' folds (whole
 //! shots), the Gaussian model, shape basis and coefficient fields fitted without each
-//! fold, every held-out measured kernel against its prediction (relative L2).
+//! fold, every held-out measured kernel against its prediction, by relative L2 and by
+//! the error the prediction leaves in a deblurred photo
+//! ([`crate::model::RestorationError`]), which chooses the model by default.
 //!
 //! Nothing is refitted from the samples per fold where the fit is linear least squares:
 //! the Gaussian model's and the coefficient fields' normal equations are accumulated
