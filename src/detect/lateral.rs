@@ -10,12 +10,12 @@
 //! channel the squares' shifts against the joint registration are fitted by one field,
 //! a constant shift plus a radial magnification (linear and cubic in the radius) about
 //! the frame's centre. Where that field stands above its own noise (a χ² test on its
-//! terms), and one channel's field moves some square by more than the kernels' own
-//! centring noise, each square's registration for each channel with a measured field
-//! is the joint one moved and scaled by the field there; elsewhere the kernels keep
-//! the joint one. The field's noise is the
-//! squares' scatter about it divided among all the squares, so what the kernels are
-//! moved by is far steadier than any one square's registration.
+//! terms), and one channel's field moves some square far enough to widen its kernels
+//! (`MATERIAL_SHIFT_PX`), each square's registration for each channel with a measured
+//! field is the joint one moved and scaled by the field there; elsewhere the kernels
+//! keep the joint one. The field's noise is the squares' scatter about it divided among
+//! all the squares, so what the kernels are moved by is far steadier than any one
+//! square's registration.
 
 use super::SquareAlignment;
 use super::SquareStatus;
