@@ -776,14 +776,9 @@ fn three_ways<T>(
         |m| ProfileKernels::with_model(profile.clone(), setting, m).map_err(|e| e.to_string());
     // The third way is what the profile deblurs with: its shapes, or its Gaussians
     // where cross-validation kept no shape model.
-    let own = if profile.shape.is_some() {
-        KernelModel::Shape
-    } else {
-        KernelModel::Gaussian
-    };
     Ok([
         run(truth)?,
         run(&model(KernelModel::Gaussian)?)?,
-        run(&model(own)?)?,
+        run(&model(profile.kernel_model())?)?,
     ])
 }
