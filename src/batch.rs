@@ -426,6 +426,8 @@ pub struct BatchOptions {
     /// The kernels to deblur with; `None`: each profile's recommended (its shape model
     /// where it holds one). A photo whose profile lacks the model asked for fails.
     pub kernel_model: Option<crate::model::KernelModel>,
+    /// Whether deblurring corrects the lens's lateral colour or leaves it for lensfun.
+    pub lateral_colour: crate::model::LateralColour,
 }
 
 /// What the batch does with one photo.
@@ -785,10 +787,15 @@ fn deblur_photo(
     profile.allow_extrapolation = opts.allow_extrapolation;
     let model = opts.kernel_model.unwrap_or_else(|| profile.kernel_model());
     let source = match ProfileKernels::with_model(profile, pick.setting, model) {
-        Ok(s) => s,
+        Ok(s) => s.with_lateral(opts.lateral_colour),
         Err(e) => return Outcome::Failed(format!("{}: {e}", entry.path.display())),
     };
-    let described = crate::deblur::output::profile_described(&entry.path, pick.setting, model);
+    let described = crate::deblur::output::profile_described(
+        &entry.path,
+        pick.setting,
+        model,
+        source.lateral_colour(),
+    );
     match deblur_one(&p.photo, &capture, &source, &p.output, &described, job) {
         Ok(()) => Outcome::Done {
             profile: entry.path.clone(),

@@ -10,8 +10,8 @@ use crate::crossval::{
 };
 use crate::job::JobContext;
 use crate::model::{
-    Dataset, GlobalModel, LocalModel, ModelError, ModelKind, ShapeModel, ShapeSpace, check_order,
-    session_residuals,
+    CentroidModel, Dataset, GlobalModel, LocalModel, ModelError, ModelKind, ShapeModel, ShapeSpace,
+    check_order, session_residuals,
 };
 use crate::profile::{CvSummary, Profile, Trust};
 use serde::{Deserialize, Serialize};
@@ -155,6 +155,18 @@ pub fn calibrate(
             ModelKind::Local => format!("L_{{{alpha},{beta}}}"),
         };
         profile.trust = Trust::from_errors(name, &errors, (ds.width, ds.height));
+    }
+    // Where each channel's kernels are centred: lateral colour and the kernels' own
+    // centroids, chosen over the same folds. Sessions without kernels keep every
+    // kernel centred on its pixel.
+    if ds.samples.iter().any(|s| s.kernel.is_some()) {
+        job.check()?;
+        let (fold_of_shot, folds) = if ds.shots.len() >= 2 {
+            assign_folds(ds, opts.cv.folds, opts.cv.hold_out, opts.cv.seed)
+        } else {
+            (Vec::new(), 0)
+        };
+        profile.centroids = Some(CentroidModel::fit(ds, &fold_of_shot, folds)?);
     }
     if let Some(shape_opts) = &opts.shape
         && ds.shots.len() >= 2

@@ -399,8 +399,19 @@ impl Gaussian2 {
     /// Point-sampled kernel at `oversample`×, wide enough for 4σ.
     #[must_use]
     pub fn kernel(&self, oversample: usize) -> Kernel {
-        let half = (self.radius_px(4.0) * oversample as f64).ceil() as usize;
-        Kernel::from_fn(2 * half + 1, oversample, |dx, dy| self.density(dx, dy))
+        self.kernel_at(oversample, [0.0, 0.0])
+    }
+
+    /// As [`Gaussian2::kernel`] with the Gaussian's mean at `mean` px, the grid grown
+    /// so the 4σ support stays on it. Rendered at its place rather than moved after,
+    /// because interpolating a sharp kernel widens it.
+    #[must_use]
+    pub fn kernel_at(&self, oversample: usize, mean: [f64; 2]) -> Kernel {
+        let reach = self.radius_px(4.0) + mean[0].abs().max(mean[1].abs());
+        let half = (reach * oversample as f64).ceil() as usize;
+        Kernel::from_fn(2 * half + 1, oversample, |dx, dy| {
+            self.density(dx - mean[0], dy - mean[1])
+        })
     }
 }
 

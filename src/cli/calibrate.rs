@@ -184,7 +184,7 @@ fn describe_event(project: &Project, event: &ShotEvent) -> Option<String> {
 pub struct Args {
     #[command(flatten)]
     pub session: SessionArgs,
-    /// Where to write the profile (lensblur.profile/3).
+    /// Where to write the profile (lensblur.profile/4).
     #[arg(long)]
     pub out: PathBuf,
     /// Which models to fit.

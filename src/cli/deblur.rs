@@ -10,7 +10,7 @@ use anyhow::{Context, Result, bail};
 use lensblur::deblur::output::{output_supported, profile_described};
 use lensblur::deblur::source::{Prefer, ScatteredKernels, load_kernels};
 use lensblur::deblur::{Amount, DeblurOptions, Device, KernelSource, Method, ProfileKernels};
-use lensblur::model::KernelModel;
+use lensblur::model::{KernelModel, LateralColour};
 use lensblur::plane::LensSetting;
 use lensblur::profile::Profile;
 use lensblur::raw::{LoadOptions, load_capture};
@@ -70,6 +70,12 @@ pub struct Args {
     /// calibration keeps only where it predicts held-out kernels better).
     #[arg(long, value_enum)]
     pub kernel_model: Option<KernelModelArg>,
+    /// With a profile that knows where each channel's kernels sit: move red and blue
+    /// back onto green as the blur is removed (correct), or leave the lens's lateral
+    /// colour in the photo for lensfun's correction to remove afterwards (keep; doing
+    /// both would move the channels twice).
+    #[arg(long, value_enum, default_value = "correct")]
+    pub lateral_colour: LateralColourArg,
     /// Use a profile made for another camera or lens unit anyway.
     #[arg(long)]
     pub force: bool,
@@ -91,6 +97,22 @@ impl From<KernelModelArg> for KernelModel {
         match m {
             KernelModelArg::Gaussian => KernelModel::Gaussian,
             KernelModelArg::Shape => KernelModel::Shape,
+        }
+    }
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Default, PartialEq, Eq)]
+pub enum LateralColourArg {
+    #[default]
+    Correct,
+    Keep,
+}
+
+impl From<LateralColourArg> for LateralColour {
+    fn from(m: LateralColourArg) -> Self {
+        match m {
+            LateralColourArg::Correct => LateralColour::Correct,
+            LateralColourArg::Keep => LateralColour::Keep,
         }
     }
 }
@@ -136,6 +158,7 @@ pub fn run(args: Args) -> Result<()> {
             &args.batch,
             args.allow_extrapolation,
             args.kernel_model.map(Into::into),
+            args.lateral_colour.into(),
             &opts,
         );
     }
@@ -227,11 +250,11 @@ pub fn run(args: Args) -> Result<()> {
             let model = args
                 .kernel_model
                 .map_or_else(|| profile.kernel_model(), Into::into);
-            described = profile_described(p, setting, model);
-            Box::new(
-                ProfileKernels::with_model(profile, setting, model)
-                    .with_context(|| p.display().to_string())?,
-            )
+            let source = ProfileKernels::with_model(profile, setting, model)
+                .with_context(|| p.display().to_string())?
+                .with_lateral(args.lateral_colour.into());
+            described = profile_described(p, setting, model, source.lateral_colour());
+            Box::new(source)
         }
         (None, Some(k)) => {
             let file = load_kernels(k)?;

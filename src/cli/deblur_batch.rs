@@ -14,7 +14,7 @@ use lensblur::deblur::output::{
 };
 use lensblur::deblur::{DeblurOptions, KernelSource};
 use lensblur::job::JobContext;
-use lensblur::model::KernelModel;
+use lensblur::model::{KernelModel, LateralColour};
 use lensblur::plane::Capture;
 use std::path::{Path, PathBuf};
 
@@ -100,6 +100,7 @@ pub fn run(
     b: &BatchArgs,
     allow_extrapolation: bool,
     kernel_model: Option<KernelModel>,
+    lateral_colour: LateralColour,
     deblur: &DeblurOptions,
 ) -> Result<()> {
     let (Some(out_dir), Some(profiles)) = (&b.out_dir, &b.profiles) else {
@@ -131,6 +132,7 @@ pub fn run(
         memory_budget: None,
         max_parallel: b.jobs,
         kernel_model,
+        lateral_colour,
     };
     let planned = plan(&photos, &library, &opts);
     let job = progress_job();

@@ -13,7 +13,7 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Default)]
 pub struct Args {
-    /// The lens profile (lensblur.profile/3).
+    /// The lens profile (lensblur.profile/4).
     #[arg(long)]
     pub profile: PathBuf,
     /// Focal length in mm.

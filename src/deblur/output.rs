@@ -127,6 +127,7 @@ pub fn profile_described(
     profile: &Path,
     setting: crate::plane::LensSetting,
     model: crate::model::KernelModel,
+    lateral: Option<crate::model::LateralColour>,
 ) -> String {
     let name = profile.file_name().map_or_else(
         || profile.display().to_string(),
@@ -136,8 +137,13 @@ pub fn profile_described(
         crate::model::KernelModel::Shape => " with its kernel shapes",
         crate::model::KernelModel::Gaussian => "",
     };
+    let lateral = match lateral {
+        Some(crate::model::LateralColour::Correct) => ", lateral colour corrected",
+        Some(crate::model::LateralColour::Keep) => ", lateral colour kept for lensfun",
+        None => "",
+    };
     format!(
-        "the profile {name} at {} mm, f/{}{shapes}",
+        "the profile {name} at {} mm, f/{}{shapes}{lateral}",
         setting.focal_mm, setting.f_number
     )
 }

@@ -270,6 +270,8 @@ pub struct ProfileKernels {
     pub profile: crate::profile::Profile,
     pub setting: crate::plane::LensSetting,
     pub model: crate::model::KernelModel,
+    /// Whether the kernels carry the lens's lateral colour, so deblurring corrects it.
+    pub lateral: crate::model::LateralColour,
 }
 
 impl ProfileKernels {
@@ -282,6 +284,7 @@ impl ProfileKernels {
             profile,
             setting,
             model,
+            lateral: crate::model::LateralColour::default(),
         }
     }
 
@@ -301,7 +304,21 @@ impl ProfileKernels {
             profile,
             setting,
             model,
+            lateral: crate::model::LateralColour::default(),
         })
+    }
+
+    /// The same kernels, correcting or keeping the lens's lateral colour.
+    #[must_use]
+    pub fn with_lateral(self, lateral: crate::model::LateralColour) -> Self {
+        Self { lateral, ..self }
+    }
+
+    /// What the kernels do with lateral colour, where the profile knows where each
+    /// channel's kernels are centred.
+    #[must_use]
+    pub fn lateral_colour(&self) -> Option<crate::model::LateralColour> {
+        self.profile.centroids.as_ref().map(|_| self.lateral)
     }
 }
 
@@ -314,7 +331,7 @@ impl KernelSource for ProfileKernels {
             Channel::G
         };
         self.profile
-            .predict_kernel(self.model, ch, x, y, self.setting)
+            .predict_kernel(self.model, self.lateral, ch, x, y, self.setting)
             .map_err(|e| SourceError::Other(e.to_string()))
     }
 }

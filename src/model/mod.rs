@@ -20,6 +20,7 @@
 //! cross-validation and the sweeps predict with; everything is re-exported here.
 
 mod basis;
+mod centroid;
 mod dataset;
 mod global;
 mod local;
@@ -31,6 +32,7 @@ pub use basis::{
     solve_normal, terms,
 };
 pub(crate) use basis::{design_system, split_coeffs};
+pub use centroid::{CentroidCv, CentroidModel, ChannelCentroid, LateralColour, MAX_CENTROID_BETA};
 pub use dataset::{BlurSample, Dataset, PARAM_NAMES, ShotInfo};
 pub use global::{ChannelCoeffs, GlobalModel, global_coords};
 pub use local::{CentreGrid, LocalModel, LocalOptions, local_coords, local_grid, local_members};

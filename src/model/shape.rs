@@ -282,15 +282,36 @@ pub fn kernel_with_shape(
     oversample: usize,
     size: Option<usize>,
 ) -> Option<Kernel> {
+    kernel_with_shape_at(space, gaussian, residual, oversample, size, [0.0, 0.0])
+}
+
+/// [`kernel_with_shape`] with the whole predicted PSF moved by `offset` px: rendered at
+/// its place (the Gaussian exactly, the residual read where it lands), the deployed
+/// grid grown by the offset.
+#[must_use]
+pub fn kernel_with_shape_at(
+    space: ShapeSpace,
+    gaussian: &Gaussian2,
+    residual: Option<&[f64]>,
+    oversample: usize,
+    size: Option<usize>,
+    offset: [f64; 2],
+) -> Option<Kernel> {
     let wh = Whitening::of(gaussian)?;
     let os = oversample.max(1);
-    let size = size.unwrap_or_else(|| deployed_side(space, &wh, residual.is_some(), os));
+    let size = size.unwrap_or_else(|| {
+        let grow = (offset[0].abs().max(offset[1].abs()) * os as f64).ceil() as usize;
+        deployed_side(space, &wh, residual.is_some(), os) + 2 * grow
+    });
     let size = size | 1;
     let c = (size / 2) as f64;
     let mut data = Vec::with_capacity(size * size);
     for j in 0..size {
         for i in 0..size {
-            let p = [(i as f64 - c) / os as f64, (j as f64 - c) / os as f64];
+            let p = [
+                (i as f64 - c) / os as f64 - offset[0],
+                (j as f64 - c) / os as f64 - offset[1],
+            ];
             // Both spaces' values are densities in their own units; the kernel is
             // normalised below, so the whitened space's 1/det A drops out.
             let value = match space {
@@ -668,6 +689,25 @@ impl ShapeModel {
     ) -> Option<Kernel> {
         let r = self.residual(channel, x, y, s)?;
         kernel_with_shape(self.space, gaussian, Some(&r), oversample, None)
+    }
+
+    /// [`ShapeModel::kernel`] moved so that its centroid lies at `centroid` px: the
+    /// shape as predicted, its place from the centroid model.
+    #[must_use]
+    pub fn kernel_centred_at(
+        &self,
+        channel: Channel,
+        [x, y]: [f64; 2],
+        s: LensSetting,
+        gaussian: &Gaussian2,
+        oversample: usize,
+        centroid: [f64; 2],
+    ) -> Option<Kernel> {
+        let r = self.residual(channel, x, y, s)?;
+        let k = kernel_with_shape(self.space, gaussian, Some(&r), oversample, None)?;
+        let m = k.moments();
+        let offset = [centroid[0] - m.mean_x, centroid[1] - m.mean_y];
+        kernel_with_shape_at(self.space, gaussian, Some(&r), oversample, None, offset)
     }
 }
 

@@ -1,5 +1,5 @@
 //! Lens profiles (docs/formats.md, "Lens profile"): the fitted models of one camera + lens unit in a
-//! versioned JSON file, `lensblur.profile/3` (versions 1 and 2 read too).
+//! versioned JSON file, `lensblur.profile/4` (versions 1–3 read too).
 //!
 //! Coefficients are stored as base64 of little-endian `f32` (7 significant digits, far
 //! below the measurement noise): a G_{8,3} profile of three channels is about 17 kB (the
@@ -20,7 +20,7 @@ use crate::model::{
     CentreGrid, ChannelCoeffs, FieldAtSetting, FittedModel, GlobalModel, LocalModel, MAX_ORDER,
     ModelKind, Normalisation, model_basis, to_gaussian,
 };
-use crate::model::{KernelModel, ShapeModel};
+use crate::model::{KernelModel, LateralColour, ShapeModel};
 use crate::plane::{CameraIdentity, Channel, LensSetting};
 use crate::psf::{Gaussian2, Kernel};
 use serde::{Deserialize, Serialize};
@@ -33,10 +33,12 @@ pub use trust::{LARGE_ERROR_PCT, SettingTrust, TRUST_ZONES, Trust, TrustWarning,
 /// Version 2 adds the kernel-shape model and its cross-validation; a version-1 file
 /// reads as a profile without one (its kernels are its Gaussians). Version 3 adds
 /// where the profile is trusted (held-out errors per setting and zone; a version-2
-/// file has none recorded).
+/// file has none recorded). Version 4 adds where each channel's kernels are centred
+/// (the centroid model, lateral colour included); earlier files centre every kernel's
+/// Gaussian on its pixel as they were read before.
 pub const PROFILE: crate::format::Schema = crate::format::Schema {
     kind: "profile",
-    current: 3,
+    current: 4,
     unversioned: None,
 };
 
@@ -195,6 +197,25 @@ struct ProfileFile {
     /// Version 3: where the profile is trusted.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     trust: Option<Trust>,
+    /// Version 4: where each channel's kernels are centred.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    centroids: Option<StoredCentroids>,
+}
+
+/// The centroid model as stored: per channel, each part's x and y offsets (px) as
+/// coefficients over the G_{α,β} basis.
+#[derive(Serialize, Deserialize)]
+struct StoredCentroids {
+    alpha: usize,
+    beta: usize,
+    terms: usize,
+    channels: Vec<crate::model::ChannelCentroid>,
+    /// Held-out RMS of the centroids per order tried, px.
+    #[serde(default)]
+    cv: Vec<crate::model::CentroidCv>,
+    /// RMS of the measured centroids about the pixel, px.
+    #[serde(default)]
+    centred_rms_px: f64,
 }
 
 /// A loaded (or freshly fitted) lens profile.
@@ -214,6 +235,10 @@ pub struct Profile {
     pub shape: Option<ShapeModel>,
     /// That cross-validation, whichever way it went.
     pub shape_cv: Option<ShapeCvReport>,
+    /// Where each channel's kernels are centred, lateral colour included (version 4;
+    /// `None` in earlier files and for sessions that kept no kernels: every kernel
+    /// centred on its pixel).
+    pub centroids: Option<crate::model::CentroidModel>,
     /// Where the profile is trusted: its preferred model's held-out error by setting
     /// and zone (version 3; `None` in earlier files and without cross-validation).
     pub trust: Option<Trust>,
@@ -521,6 +546,7 @@ impl Profile {
             cv,
             shape: None,
             shape_cv: None,
+            centroids: None,
             trust: None,
             allow_extrapolation: false,
         })
@@ -586,6 +612,14 @@ impl Profile {
             }),
             shape_cv: self.shape_cv.clone(),
             trust: self.trust.clone(),
+            centroids: self.centroids.as_ref().map(|c| StoredCentroids {
+                alpha: c.alpha,
+                beta: c.beta,
+                terms: c.channels.first().map_or(0, |ch| ch.kernel[0].len()),
+                channels: c.channels.clone(),
+                cv: c.cv.clone(),
+                centred_rms_px: c.centred_rms_px,
+            }),
         }
     }
 
@@ -812,6 +846,34 @@ impl Profile {
             None => None,
             Some(sh) => Some(load_shape(sh, &norm, &invalid, &checked_basis)?),
         };
+        let centroids = match file.centroids {
+            None => None,
+            Some(c) => {
+                let channels: Vec<Channel> = c.channels.iter().map(|ch| ch.channel).collect();
+                if (1..channels.len()).any(|i| channels[..i].contains(&channels[i])) {
+                    return Err(invalid("centroid model lists a channel twice".into()));
+                }
+                let model = crate::model::CentroidModel::from_parts(
+                    norm.clone(),
+                    (c.alpha, c.beta),
+                    c.channels,
+                    c.cv,
+                    c.centred_rms_px,
+                )
+                .map_err(&invalid)?;
+                if model
+                    .channels
+                    .iter()
+                    .any(|ch| ch.kernel[0].len() != c.terms)
+                {
+                    return Err(invalid(format!(
+                        "centroid model of orders {}, {} says {} terms",
+                        c.alpha, c.beta, c.terms
+                    )));
+                }
+                Some(model)
+            }
+        };
         let preferred = match (file.preferred, global.is_some(), local.is_some()) {
             (ModelKind::Global, false, _) | (ModelKind::Local, _, false) => {
                 return Err(invalid(format!(
@@ -832,6 +894,7 @@ impl Profile {
             cv: file.cv,
             shape,
             shape_cv: file.shape_cv,
+            centroids,
             trust,
             allow_extrapolation: false,
         })
@@ -965,7 +1028,8 @@ impl Profile {
 
     /// The kernel the profile predicts for deblurring at sensor (x, y) for a setting,
     /// at 3×: the preferred model's Gaussian, with the shape model's predicted shape
-    /// when `model` asks for it.
+    /// when `model` asks for it, centred where the centroid model puts the channel's
+    /// kernels (`lateral` says whether that includes the lens's lateral colour).
     ///
     /// # Errors
     /// As [`Profile::predict`]; [`ProfileError::NoShapeModel`] when the shape is asked
@@ -973,18 +1037,26 @@ impl Profile {
     pub fn predict_kernel(
         &self,
         model: KernelModel,
+        lateral: LateralColour,
         channel: Channel,
         x: f64,
         y: f64,
         setting: LensSetting,
     ) -> Result<Kernel, ProfileError> {
         let g = self.predict(channel, x, y, setting)?;
-        match (model, &self.shape) {
-            (KernelModel::Gaussian, _) => Ok(g.kernel(3)),
-            (KernelModel::Shape, Some(shape)) => shape
+        let centroid = self
+            .centroids
+            .as_ref()
+            .and_then(|c| c.centroid(channel, x, y, setting, lateral));
+        match (model, &self.shape, centroid) {
+            (KernelModel::Gaussian, _, c) => Ok(g.kernel_at(3, c.unwrap_or([0.0, 0.0]))),
+            (KernelModel::Shape, Some(shape), Some(c)) => shape
+                .kernel_centred_at(channel, [x, y], setting, &g, 3, c)
+                .ok_or(ProfileError::NoChannel(channel)),
+            (KernelModel::Shape, Some(shape), None) => shape
                 .kernel(channel, x, y, setting, &g, 3)
                 .ok_or(ProfileError::NoChannel(channel)),
-            (KernelModel::Shape, None) => Err(ProfileError::NoShapeModel),
+            (KernelModel::Shape, None, _) => Err(ProfileError::NoShapeModel),
         }
     }
 

@@ -4,7 +4,7 @@
 
 use crate::detect::SquareAlignment;
 use crate::kernel::file::KernelsFile;
-use crate::model::{KernelModel, relative_l2};
+use crate::model::{KernelModel, LateralColour, relative_l2};
 use crate::plane::{Channel, LensSetting, bilinear_zero_outside};
 use crate::profile::Profile;
 use crate::psf::{Gaussian2, Kernel};
@@ -39,7 +39,7 @@ pub fn predicted_kernels(
                 .predict(channel, x, y, setting)
                 .map_err(|e| e.to_string())?;
             let kernel = profile
-                .predict_kernel(model, channel, x, y, setting)
+                .predict_kernel(model, LateralColour::Correct, channel, x, y, setting)
                 .map_err(|e| e.to_string())?;
             Ok(PredictedKernel {
                 x,
@@ -84,7 +84,7 @@ pub fn kernel_errors(
             let measured = s.kernel_at(file.oversample)?;
             let error = |model| {
                 profile
-                    .predict_kernel(model, channel, s.x, s.y, setting)
+                    .predict_kernel(model, LateralColour::Keep, channel, s.x, s.y, setting)
                     .ok()
                     .map(|k| relative_l2(&k, &measured))
             };

@@ -115,7 +115,7 @@ fn a_version_2_profile_reads_without_a_trust_record_and_warns_only_by_setting() 
     assert_eq!(p.trust_line(shot, None), None);
     // Written again, it is a version-3 file.
     let again = String::from_utf8(p.to_json().unwrap()).unwrap();
-    assert!(again.contains("lensblur.profile/3"));
+    assert!(again.contains("lensblur.profile/4"));
 }
 
 #[test]
@@ -127,7 +127,7 @@ fn a_version_1_profile_reads_with_its_gaussians_and_no_shape_model() {
     assert!(p.global.is_some() || p.local.is_some());
     // Written again, it is a version-3 file that reads back the same.
     let again = String::from_utf8(p.to_json().unwrap()).unwrap();
-    assert!(again.contains("lensblur.profile/3"));
+    assert!(again.contains("lensblur.profile/4"));
     let q = Profile::from_json(&again, "again.json").unwrap();
     assert_eq!(q.calibrated_settings, p.calibrated_settings);
 }
@@ -187,7 +187,7 @@ fn a_file_of_another_kind_is_named_as_such() {
     let t = current("profile", "profile.json");
     let e = KernelsFile::from_json(&t).unwrap_err();
     assert!(
-        e.contains("lensblur.profile/3") && e.contains("not a lensblur.kernels file"),
+        e.contains("lensblur.profile/4") && e.contains("not a lensblur.kernels file"),
         "{e}"
     );
     let t = current("kernels", ".kernels.json");

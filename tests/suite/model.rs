@@ -13,8 +13,8 @@ use lensblur::crossval::{
 };
 use lensblur::job::JobContext;
 use lensblur::model::{
-    CentreGrid, Dataset, FittedModel, GlobalModel, LocalModel, LocalOptions, ModelError, ModelKind,
-    fit_model, local_coords, spaced, terms,
+    CentreGrid, Dataset, FittedModel, GlobalModel, LateralColour, LocalModel, LocalOptions,
+    ModelError, ModelKind, fit_model, local_coords, spaced, terms,
 };
 use lensblur::plane::{CameraIdentity, Channel, LensSetting};
 use lensblur::profile::{Profile, ProfileError};
@@ -534,7 +534,7 @@ fn profile_round_trip_and_validation() {
 
     // Wrong schema / version, and a truncated coefficient array.
     let text = std::fs::read_to_string(&path).unwrap();
-    let bad = text.replace("lensblur.profile/3", "lensblur.profile/4");
+    let bad = text.replace("lensblur.profile/4", "lensblur.profile/5");
     assert!(matches!(
         Profile::from_json(&bad, "p.json"),
         Err(ProfileError::Schema { .. })
@@ -1322,7 +1322,7 @@ fn cross_validation_keeps_a_shape_model_where_kernels_are_not_gaussian() {
     let json = profile.to_json().expect("serialise");
     assert!(json.len() < 1_000_000, "{} bytes", json.len());
     let text = String::from_utf8(json).expect("utf-8");
-    assert!(text.contains("\"lensblur.profile/3\""));
+    assert!(text.contains("\"lensblur.profile/4\""));
     let back = Profile::from_json(&text, "profile.json").expect("reads back");
     let s = LensSetting {
         focal_mm: 40.0,
@@ -1330,10 +1330,10 @@ fn cross_validation_keeps_a_shape_model_where_kernels_are_not_gaussian() {
     };
     let model = lensblur::model::KernelModel::Shape;
     let a = profile
-        .predict_kernel(model, Channel::B, 30.0, 200.0, s)
+        .predict_kernel(model, LateralColour::Correct, Channel::B, 30.0, 200.0, s)
         .expect("predicts");
     let b = back
-        .predict_kernel(model, Channel::B, 30.0, 200.0, s)
+        .predict_kernel(model, LateralColour::Correct, Channel::B, 30.0, 200.0, s)
         .expect("predicts");
     assert!(lensblur::model::relative_l2(&b, &a) < 1e-5);
 }
@@ -1358,10 +1358,24 @@ fn predicted_shapes_follow_the_true_kernels_at_novel_settings() {
                 let (u, v) = VirtualLens::normalised(x, y, w, h);
                 let truth = lens.optical_kernel_uv(ch, u, v, s, 3).pixel_integrated();
                 let g = profile
-                    .predict_kernel(lensblur::model::KernelModel::Gaussian, ch, x, y, s)
+                    .predict_kernel(
+                        lensblur::model::KernelModel::Gaussian,
+                        LateralColour::Correct,
+                        ch,
+                        x,
+                        y,
+                        s,
+                    )
                     .expect("predicts");
                 let k = profile
-                    .predict_kernel(lensblur::model::KernelModel::Shape, ch, x, y, s)
+                    .predict_kernel(
+                        lensblur::model::KernelModel::Shape,
+                        LateralColour::Correct,
+                        ch,
+                        x,
+                        y,
+                        s,
+                    )
                     .expect("predicts");
                 assert!((k.data.iter().sum::<f64>() - 1.0).abs() < 1e-9);
                 assert!(k.data.iter().all(|&v| v >= 0.0));
@@ -1391,9 +1405,10 @@ fn a_profile_of_version_1_reads_as_one_without_a_shape_model() {
     let mut old = profile.clone();
     old.shape = None;
     old.shape_cv = None;
+    old.centroids = None;
     let text = String::from_utf8(old.to_json().expect("serialise"))
         .expect("utf-8")
-        .replace("lensblur.profile/3", "lensblur.profile/1");
+        .replace("lensblur.profile/4", "lensblur.profile/1");
     let p = Profile::from_json(&text, "old.json").expect("version 1 reads");
     assert!(p.shape.is_none());
     assert_eq!(p.kernel_model(), lensblur::model::KernelModel::Gaussian);
@@ -1404,6 +1419,7 @@ fn a_profile_of_version_1_reads_as_one_without_a_shape_model() {
     assert!(matches!(
         p.predict_kernel(
             lensblur::model::KernelModel::Shape,
+            LateralColour::Correct,
             Channel::G,
             10.0,
             10.0,
@@ -1464,8 +1480,15 @@ fn predicted_channel_kernels_keep_the_measured_centroid_against_green() {
                 let y = extent[1] + fy * (extent[3] - extent[1]);
                 let predicted = |ch| {
                     centroid(
-                        &p.predict_kernel(lensblur::model::KernelModel::Shape, ch, x, y, s)
-                            .expect("predicts"),
+                        &p.predict_kernel(
+                            lensblur::model::KernelModel::Shape,
+                            LateralColour::Correct,
+                            ch,
+                            x,
+                            y,
+                            s,
+                        )
+                        .expect("predicts"),
                     )
                 };
                 let truth = |ch| centroid(&lens.pixel_kernel_at(ch, x, y, (w, h), s));

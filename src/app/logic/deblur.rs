@@ -381,6 +381,7 @@ fn run_export_photos(app: &mut StudioApp, photos: Vec<PathBuf>, out_dir: PathBuf
         allow_extrapolation: false,
         deblur: deblur_options(app),
         kernel_model: None,
+        lateral_colour: crate::model::LateralColour::default(),
         memory_budget: None,
         max_parallel: None,
     };
