@@ -6,17 +6,21 @@
 //! Gaussians and the predicted shapes.
 //!
 //! With `measured`, the session is the real chain instead: every shot simulated (a
-//! 12 × 8 chart, RAW Bayer, realistic noise), detected, and its kernels estimated.
+//! 12 × 8 chart, RAW Bayer, realistic noise), detected, and its kernels estimated;
+//! `cache=DIR` keeps each shot's kernels file there and reads it back on the next run
+//! (of the same lens, size and lateral colour: the files do not say which).
 //!
 //! With `colour`, the demo's photo (RGB) is blurred through the lens's true kernels per
 //! channel and deblurred the three ways at a wide-open and a stopped-down setting
 //! between the calibrated ones, and each of five crops scored by the colour error at
 //! edges and SSIM; a neutral dead-leaves scene too, where every colour is a fringe.
 //! `lateral=M` gives the lens lateral colour: red magnified by M against green, blue by
-//! −M.
+//! −M. `centred` deblurs with every kernel centred on its pixel, as profiles did
+//! before they kept where each channel's kernels sit.
 //!
 //! `cargo run --release --example kernel_shapes -- [aberrated|comet] [W H] [measured]
-//! [cols=12] [rows=8] [shots=2] [pixel] [colour] [lateral=M] [holdout=setting]`
+//! [cols=12] [rows=8] [shots=2] [pixel] [colour [centred]] [lateral=M] [holdout=setting]
+//! [cache=DIR]`
 //! (`pixel`: the pixel space among the candidates; `holdout=setting`: cross-validation
 //! holds out whole settings)
 
@@ -57,8 +61,12 @@ fn main() -> anyhow::Result<()> {
     };
     let settings = lens.setting_grid(5, 5);
     let t0 = std::time::Instant::now();
+    let cache = args
+        .iter()
+        .find_map(|a| a.strip_prefix("cache="))
+        .map(std::path::PathBuf::from);
     let ds = if args.iter().any(|a| a == "measured") {
-        measured_session(&lens, &settings, w, h)?
+        measured_session(&lens, &settings, w, h, cache.as_deref())?
     } else {
         SimulatedSession {
             cols: option("cols", 12),
@@ -173,6 +181,11 @@ fn main() -> anyhow::Result<()> {
         return Ok(());
     }
     if args.iter().any(|a| a == "colour") {
+        let mut profile = profile;
+        if args.iter().any(|a| a == "centred") {
+            // Every kernel centred on its pixel, as profiles before the centroid model.
+            profile.centroids = None;
+        }
         return colour_figures(&profile, &lens, (w, h));
     }
     println!(
@@ -233,6 +246,7 @@ fn measured_session(
     settings: &[LensSetting],
     w: usize,
     h: usize,
+    cache: Option<&std::path::Path>,
 ) -> anyhow::Result<lensblur::model::Dataset> {
     use lensblur::chart::ChartSpec;
     use lensblur::kernel::KernelParams;
@@ -256,8 +270,14 @@ fn measured_session(
                 shift_px: [rep as f64 * 7.0, rep as f64 * -5.0],
                 ..Pose::default()
             };
-            let sim = simulate_shot(&chart, lens, &cp, &job)?;
             let name = std::path::PathBuf::from(format!("shot-{i:02}-{rep}"));
+            let cached = cache.map(|d| d.join(format!("{}.kernels.json", name.display())));
+            if let Some(path) = cached.as_ref().filter(|p| p.exists()) {
+                let k = lensblur::kernel::file::KernelsFile::load(path)?;
+                files.push((name.display().to_string(), k, Some(setting)));
+                continue;
+            }
+            let sim = simulate_shot(&chart, lens, &cp, &job)?;
             let det = pipeline::detect(&sim.capture, &name, &m, &job)?;
             let given = GivenSetting {
                 focal_mm: Some(setting.focal_mm),
@@ -265,6 +285,9 @@ fn measured_session(
             };
             let k = pipeline::estimate(&sim.capture, &det, &name, given, &m, true, &job)?;
             eprintln!("{}: {} kernels", name.display(), k.samples.len());
+            if let Some(path) = &cached {
+                lensblur::io::write_atomic(path, &serde_json::to_vec(&k)?)?;
+            }
             files.push((name.display().to_string(), k, Some(setting)));
         }
     }

@@ -77,6 +77,8 @@ pub enum Command {
     SetDeblurAmount(f64),
     /// Whether colour the deconvolution adds at edges is cut back.
     SetDeblurFringes(crate::deblur::Fringes),
+    /// Whether deblurring corrects the lens's lateral colour or leaves it for lensfun.
+    SetDeblurLateral(crate::model::LateralColour),
     SetDeblurDevice(crate::deblur::Device),
     /// Drag of the compared panes in progress (sensor px), drawn as a shift.
     DragDeblur([f32; 2]),

@@ -438,6 +438,9 @@ pub struct DeblurState {
     pub amount: crate::deblur::Amount,
     /// Colour the deconvolution adds at edges: cut back (the default) or kept.
     pub fringes: crate::deblur::Fringes,
+    /// The lens's lateral colour: corrected with the blur (the default) or kept for
+    /// lensfun.
+    pub lateral: crate::model::LateralColour,
     /// Whether the whole photo and the notes show above the compared panes; closed,
     /// the before/after has the view to itself.
     pub overview_open: bool,
@@ -466,6 +469,7 @@ impl Default for DeblurState {
             device: crate::deblur::Device::Auto,
             amount: crate::deblur::Amount::FULL,
             fringes: crate::deblur::Fringes::Suppress,
+            lateral: crate::model::LateralColour::Correct,
             overview_open: true,
             device_note: None,
             drag: [0.0; 2],

@@ -76,6 +76,10 @@ pub(super) fn apply_deblur(app: &mut StudioApp, command: Command) {
             app.deblur.fringes = f;
             redeblur(app);
         }
+        Command::SetDeblurLateral(l) => {
+            app.deblur.lateral = l;
+            redeblur(app);
+        }
         Command::SetDeblurDevice(d) => {
             app.deblur.device = d;
             app.deblur.device_note = None;
@@ -269,7 +273,8 @@ fn photo_sources(app: &StudioApp, photo: &Photo) -> Sources {
     let cap = &photo.capture;
     let setting = photo.setting();
     let predicted = match &app.profile {
-        Some((_, p)) => crate::review::profile_source(p, cap, setting),
+        Some((_, p)) => crate::review::profile_source(p, cap, setting)
+            .map(|s| s.with_lateral(app.deblur.lateral)),
         None => Err("no profile yet: Calibrate (Ctrl+M) or load one in Models".into()),
     };
     let found = match (app.session(), setting) {
@@ -381,7 +386,7 @@ fn run_export_photos(app: &mut StudioApp, photos: Vec<PathBuf>, out_dir: PathBuf
         allow_extrapolation: false,
         deblur: deblur_options(app),
         kernel_model: None,
-        lateral_colour: crate::model::LateralColour::default(),
+        lateral_colour: app.deblur.lateral,
         memory_budget: None,
         max_parallel: None,
     };

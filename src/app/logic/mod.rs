@@ -87,6 +87,7 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         | Command::SetDeblurMethod(_)
         | Command::SetDeblurAmount(_)
         | Command::SetDeblurFringes(_)
+        | Command::SetDeblurLateral(_)
         | Command::SetDeblurOverview(_)
         | Command::SetDeblurDevice(_)
         | Command::DragDeblur(_)

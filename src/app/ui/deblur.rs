@@ -311,6 +311,18 @@ fn advanced_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
                 crate::deblur::Fringes::Keep
             }));
         }
+        let mut correct = app.deblur.lateral == crate::model::LateralColour::Correct;
+        if ui
+            .checkbox(&mut correct, "correct lateral colour")
+            .on_hover_text("Move red and blue back onto green as the blur is removed, where the profile measured how far the lens moves them. Leave it off when darktable or RawTherapee corrects lateral colour with the lens's lensfun entry, or the channels move twice")
+            .changed()
+        {
+            app.commands.push(Command::SetDeblurLateral(if correct {
+                crate::model::LateralColour::Correct
+            } else {
+                crate::model::LateralColour::Keep
+            }));
+        }
         ui.separator();
         ui.label("device");
         for (d, label, tip) in [
