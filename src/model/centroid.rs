@@ -396,33 +396,43 @@ impl CentroidModel {
         lateral: LateralColour,
     ) -> Option<[f64; 2]> {
         let c = self.channels.iter().find(|c| c.channel == channel)?;
-        let zero = vec![0.0; self.basis.len()];
-        let registration = match lateral {
-            LateralColour::Correct => &c.registration,
-            LateralColour::Keep => &[zero.clone(), zero],
-        };
-        // The parts' sum is one field; its third output is unused.
-        let coeffs = [
-            c.kernel[0]
-                .iter()
-                .zip(&registration[0])
-                .map(|(a, b)| a + b)
-                .collect(),
-            c.kernel[1]
-                .iter()
-                .zip(&registration[1])
-                .map(|(a, b)| a + b)
-                .collect(),
-            Vec::new(),
-        ];
+        let own = self.eval(&c.kernel, x, y, setting);
+        Some(match lateral {
+            LateralColour::Correct => {
+                let r = self.eval(&c.registration, x, y, setting);
+                [own[0] + r[0], own[1] + r[1]]
+            }
+            LateralColour::Keep => own,
+        })
+    }
+
+    /// Where `channel`'s registration lies against green's at sensor (x, y) for a
+    /// setting, px: lateral colour that kernels centred on their own channel's image
+    /// do not carry. `None` for a channel the model lacks.
+    #[must_use]
+    pub fn registration(
+        &self,
+        channel: Channel,
+        x: f64,
+        y: f64,
+        setting: LensSetting,
+    ) -> Option<[f64; 2]> {
+        let c = self.channels.iter().find(|c| c.channel == channel)?;
+        Some(self.eval(&c.registration, x, y, setting))
+    }
+
+    /// An offset's x and y fields at sensor (x, y) for a setting, continued linearly
+    /// beyond the area the chart covered.
+    fn eval(&self, field: &[Vec<f64>; 2], x: f64, y: f64, setting: LensSetting) -> [f64; 2] {
         let v = self.norm.extrapolate(x, y, |x, y| {
             let coords = global_coords(&self.norm, x, y, setting.focal_mm, setting.f_number);
             let mut row = vec![0.0; self.basis.len()];
             self.basis.row(coords, &mut row);
             let dot = |c: &Vec<f64>| c.iter().zip(&row).map(|(a, b)| a * b).sum::<f64>();
-            [dot(&coeffs[0]), dot(&coeffs[1]), 0.0]
+            // The extrapolation carries three outputs; the third is unused.
+            [dot(&field[0]), dot(&field[1]), 0.0]
         });
-        Some([v[0], v[1]])
+        [v[0], v[1]]
     }
 }
 

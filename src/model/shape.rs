@@ -691,22 +691,19 @@ impl ShapeModel {
         kernel_with_shape(self.space, gaussian, Some(&r), oversample, None)
     }
 
-    /// [`ShapeModel::kernel`] moved so that its centroid lies at `centroid` px: the
-    /// shape as predicted, its place from the centroid model.
+    /// [`ShapeModel::kernel`] moved by `offset` px: rendered at its place, so the
+    /// move neither blurs nor reshapes it.
     #[must_use]
-    pub fn kernel_centred_at(
+    pub fn kernel_moved(
         &self,
         channel: Channel,
         [x, y]: [f64; 2],
         s: LensSetting,
         gaussian: &Gaussian2,
         oversample: usize,
-        centroid: [f64; 2],
+        offset: [f64; 2],
     ) -> Option<Kernel> {
         let r = self.residual(channel, x, y, s)?;
-        let k = kernel_with_shape(self.space, gaussian, Some(&r), oversample, None)?;
-        let m = k.moments();
-        let offset = [centroid[0] - m.mean_x, centroid[1] - m.mean_y];
         kernel_with_shape_at(self.space, gaussian, Some(&r), oversample, None, offset)
     }
 }

@@ -1044,19 +1044,29 @@ impl Profile {
         setting: LensSetting,
     ) -> Result<Kernel, ProfileError> {
         let g = self.predict(channel, x, y, setting)?;
-        let centroid = self
-            .centroids
-            .as_ref()
-            .and_then(|c| c.centroid(channel, x, y, setting, lateral));
-        match (model, &self.shape, centroid) {
-            (KernelModel::Gaussian, _, c) => Ok(g.kernel_at(3, c.unwrap_or([0.0, 0.0]))),
-            (KernelModel::Shape, Some(shape), Some(c)) => shape
-                .kernel_centred_at(channel, [x, y], setting, &g, 3, c)
-                .ok_or(ProfileError::NoChannel(channel)),
-            (KernelModel::Shape, Some(shape), None) => shape
-                .kernel(channel, x, y, setting, &g, 3)
-                .ok_or(ProfileError::NoChannel(channel)),
-            (KernelModel::Shape, None, _) => Err(ProfileError::NoShapeModel),
+        let centroids = self.centroids.as_ref();
+        match (model, &self.shape) {
+            // A Gaussian is centred: all of its place comes from the centroid model.
+            (KernelModel::Gaussian, _) => {
+                let c = centroids.and_then(|c| c.centroid(channel, x, y, setting, lateral));
+                Ok(g.kernel_at(3, c.unwrap_or([0.0, 0.0])))
+            }
+            // A shape keeps the place it learnt from the kernels (moving it to their
+            // centroid would move its core by whatever its tail gets wrong, and the core
+            // is what deconvolution aligns the channels by); it moves only by what the
+            // kernels did not carry, their channel's registration against green's.
+            (KernelModel::Shape, Some(shape)) => {
+                let offset = match lateral {
+                    LateralColour::Correct => centroids
+                        .and_then(|c| c.registration(channel, x, y, setting))
+                        .unwrap_or([0.0, 0.0]),
+                    LateralColour::Keep => [0.0, 0.0],
+                };
+                shape
+                    .kernel_moved(channel, [x, y], setting, &g, 3, offset)
+                    .ok_or(ProfileError::NoChannel(channel))
+            }
+            (KernelModel::Shape, None) => Err(ProfileError::NoShapeModel),
         }
     }
 
