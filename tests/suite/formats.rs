@@ -113,7 +113,7 @@ fn a_version_2_profile_reads_without_a_trust_record_and_warns_only_by_setting() 
             f_number: a,
         });
     assert_eq!(p.trust_line(shot, None), None);
-    // Written again, it is a version-3 file.
+    // Written again, it is a version-4 file.
     let again = String::from_utf8(p.to_json().unwrap()).unwrap();
     assert!(again.contains("lensblur.profile/4"));
 }
@@ -125,7 +125,7 @@ fn a_version_1_profile_reads_with_its_gaussians_and_no_shape_model() {
     assert!(p.shape.is_none() && p.shape_cv.is_none());
     assert_eq!(p.kernel_model(), lensblur::model::KernelModel::Gaussian);
     assert!(p.global.is_some() || p.local.is_some());
-    // Written again, it is a version-3 file that reads back the same.
+    // Written again, it is a version-4 file that reads back the same.
     let again = String::from_utf8(p.to_json().unwrap()).unwrap();
     assert!(again.contains("lensblur.profile/4"));
     let q = Profile::from_json(&again, "again.json").unwrap();
