@@ -117,16 +117,16 @@ fn main() -> anyhow::Result<()> {
         &opts(ShapeCriterion::Restoration),
         &JobContext::silent(),
     )?;
-    if let Some(c) = &profile.centroids {
+    if let Some(c) = &profile.place {
         eprintln!(
-            "centroids: α {} β {}, held out {:.4} px against {:.4} px centred",
+            "place: α {} β {}, held out {:.4} px against {:.4} px centred",
             c.alpha,
             c.beta,
             c.cv.iter().map(|p| p.rms_px).fold(f64::INFINITY, f64::min),
             c.centred_rms_px
         );
-        if args.iter().any(|a| a == "centroids") {
-            centroid_figures(&profile, &lens, (w, h));
+        if args.iter().any(|a| a == "place") {
+            place_figures(&profile, &lens, (w, h));
         }
     }
     let bytes = profile.to_json()?.len();
@@ -195,8 +195,8 @@ fn main() -> anyhow::Result<()> {
     if args.iter().any(|a| a == "colour") {
         let mut profile = profile;
         if args.iter().any(|a| a == "centred") {
-            // Every kernel centred on its pixel, as profiles before the centroid model.
-            profile.centroids = None;
+            // Every kernel centred on its pixel, as profiles before the place model.
+            profile.place = None;
         }
         return colour_figures(&profile, &lens, (w, h));
     }
@@ -366,9 +366,9 @@ fn colour_figures(
     Ok(())
 }
 
-/// Predicted against true kernel centroids (px) at the frame's centre, the corner crops'
+/// Predicted against true kernel cores (px) at the frame's centre, the corner crops'
 /// centres and the frame's corners, per channel, at the wide-open test setting.
-fn centroid_figures(profile: &lensblur::profile::Profile, lens: &VirtualLens, (w, h): (usize, usize)) {
+fn place_figures(profile: &lensblur::profile::Profile, lens: &VirtualLens, (w, h): (usize, usize)) {
     use lensblur::model::LateralColour;
     let s = LensSetting {
         focal_mm: 31.0,
@@ -383,15 +383,15 @@ fn centroid_figures(profile: &lensblur::profile::Profile, lens: &VirtualLens, (w
         ("top-left corner", 0.0, 0.0),
     ] {
         for ch in [Channel::R, Channel::G, Channel::B] {
-            let t = lens.pixel_kernel_at(ch, x, y, (w, h), s).moments();
+            let t = lensblur::model::core_px(&lens.pixel_kernel_at(ch, x, y, (w, h), s));
             let p = profile
-                .centroids
+                .place
                 .as_ref()
-                .and_then(|m| m.centroid(ch, x, y, s, LateralColour::Correct));
+                .and_then(|m| m.core(ch, x, y, s, LateralColour::Correct));
             eprintln!(
                 "{name:<18} {ch}: true {:+.3} {:+.3}  predicted {}",
-                t.mean_x,
-                t.mean_y,
+                t[0],
+                t[1],
                 p.map_or("-".into(), |p| format!("{:+.3} {:+.3}", p[0], p[1]))
             );
         }

@@ -10,7 +10,7 @@ use crate::crossval::{
 };
 use crate::job::JobContext;
 use crate::model::{
-    CentroidModel, Dataset, GlobalModel, LocalModel, ModelError, ModelKind, ShapeModel, ShapeSpace,
+    Dataset, GlobalModel, LocalModel, ModelError, ModelKind, PlaceModel, ShapeModel, ShapeSpace,
     check_order, session_residuals,
 };
 use crate::profile::{CvSummary, Profile, Trust};
@@ -157,7 +157,7 @@ pub fn calibrate(
         profile.trust = Trust::from_errors(name, &errors, (ds.width, ds.height));
     }
     // Where each channel's kernels are centred: lateral colour and the kernels' own
-    // centroids, chosen over the same folds. Sessions without kernels keep every
+    // cores, chosen over the same folds. Sessions without kernels keep every
     // kernel centred on its pixel.
     if ds.samples.iter().any(|s| s.kernel.is_some()) {
         job.check()?;
@@ -166,7 +166,7 @@ pub fn calibrate(
         } else {
             (Vec::new(), 0)
         };
-        profile.centroids = Some(CentroidModel::fit(ds, &fold_of_shot, folds)?);
+        profile.place = Some(PlaceModel::fit(ds, &fold_of_shot, folds)?);
     }
     if let Some(shape_opts) = &opts.shape
         && ds.shots.len() >= 2

@@ -318,7 +318,7 @@ impl ProfileKernels {
     /// channel's kernels are centred.
     #[must_use]
     pub fn lateral_colour(&self) -> Option<crate::model::LateralColour> {
-        self.profile.centroids.as_ref().map(|_| self.lateral)
+        self.profile.place.as_ref().map(|_| self.lateral)
     }
 }
 

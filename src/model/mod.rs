@@ -20,10 +20,10 @@
 //! cross-validation and the sweeps predict with; everything is re-exported here.
 
 mod basis;
-mod centroid;
 mod dataset;
 mod global;
 mod local;
+mod place;
 mod restoration;
 mod shape;
 
@@ -32,10 +32,12 @@ pub use basis::{
     solve_normal, terms,
 };
 pub(crate) use basis::{design_system, split_coeffs};
-pub use centroid::{CentroidCv, CentroidModel, ChannelCentroid, LateralColour, MAX_CENTROID_BETA};
 pub use dataset::{BlurSample, Dataset, PARAM_NAMES, ShotInfo};
 pub use global::{ChannelCoeffs, GlobalModel, global_coords};
 pub use local::{CentreGrid, LocalModel, LocalOptions, local_coords, local_grid, local_members};
+pub use place::{
+    ChannelPlace, LateralColour, MAX_PLACE_ALPHA, MAX_PLACE_BETA, PlaceCv, PlaceModel, core_px,
+};
 pub use restoration::{RestorationError, WIENER_NSR};
 pub use shape::{
     KernelModel, MAX_COMPONENTS, PIXEL_SIDE, ShapeFit, ShapeModel, ShapeSpace, WHITENED_LEN,

@@ -34,7 +34,7 @@ pub use trust::{LARGE_ERROR_PCT, SettingTrust, TRUST_ZONES, Trust, TrustWarning,
 /// reads as a profile without one (its kernels are its Gaussians). Version 3 adds
 /// where the profile is trusted (held-out errors per setting and zone; a version-2
 /// file has none recorded). Version 4 adds where each channel's kernels are centred
-/// (the centroid model, lateral colour included); earlier files centre every kernel's
+/// (where its core lies, lateral colour included); earlier files centre every kernel's
 /// Gaussian on its pixel as they were read before.
 pub const PROFILE: crate::format::Schema = crate::format::Schema {
     kind: "profile",
@@ -199,21 +199,21 @@ struct ProfileFile {
     trust: Option<Trust>,
     /// Version 4: where each channel's kernels are centred.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    centroids: Option<StoredCentroids>,
+    place: Option<StoredPlace>,
 }
 
-/// The centroid model as stored: per channel, each part's x and y offsets (px) as
+/// Where the kernels sit, as stored: per channel, each part's x and y offsets (px) as
 /// coefficients over the G_{α,β} basis.
 #[derive(Serialize, Deserialize)]
-struct StoredCentroids {
+struct StoredPlace {
     alpha: usize,
     beta: usize,
     terms: usize,
-    channels: Vec<crate::model::ChannelCentroid>,
-    /// Held-out RMS of the centroids per order tried, px.
+    channels: Vec<crate::model::ChannelPlace>,
+    /// Held-out RMS of the cores' offsets per order tried, px.
     #[serde(default)]
-    cv: Vec<crate::model::CentroidCv>,
-    /// RMS of the measured centroids about the pixel, px.
+    cv: Vec<crate::model::PlaceCv>,
+    /// RMS of the measured cores' offsets about the pixel, px.
     #[serde(default)]
     centred_rms_px: f64,
 }
@@ -238,7 +238,7 @@ pub struct Profile {
     /// Where each channel's kernels are centred, lateral colour included (version 4;
     /// `None` in earlier files and for sessions that kept no kernels: every kernel
     /// centred on its pixel).
-    pub centroids: Option<crate::model::CentroidModel>,
+    pub place: Option<crate::model::PlaceModel>,
     /// Where the profile is trusted: its preferred model's held-out error by setting
     /// and zone (version 3; `None` in earlier files and without cross-validation).
     pub trust: Option<Trust>,
@@ -546,7 +546,7 @@ impl Profile {
             cv,
             shape: None,
             shape_cv: None,
-            centroids: None,
+            place: None,
             trust: None,
             allow_extrapolation: false,
         })
@@ -612,7 +612,7 @@ impl Profile {
             }),
             shape_cv: self.shape_cv.clone(),
             trust: self.trust.clone(),
-            centroids: self.centroids.as_ref().map(|c| StoredCentroids {
+            place: self.place.as_ref().map(|c| StoredPlace {
                 alpha: c.alpha,
                 beta: c.beta,
                 terms: c.channels.first().map_or(0, |ch| ch.kernel[0].len()),
@@ -846,14 +846,14 @@ impl Profile {
             None => None,
             Some(sh) => Some(load_shape(sh, &norm, &invalid, &checked_basis)?),
         };
-        let centroids = match file.centroids {
+        let place = match file.place {
             None => None,
             Some(c) => {
                 let channels: Vec<Channel> = c.channels.iter().map(|ch| ch.channel).collect();
                 if (1..channels.len()).any(|i| channels[..i].contains(&channels[i])) {
-                    return Err(invalid("centroid model lists a channel twice".into()));
+                    return Err(invalid("kernel place model lists a channel twice".into()));
                 }
-                let model = crate::model::CentroidModel::from_parts(
+                let model = crate::model::PlaceModel::from_parts(
                     norm.clone(),
                     (c.alpha, c.beta),
                     c.channels,
@@ -867,7 +867,7 @@ impl Profile {
                     .any(|ch| ch.kernel[0].len() != c.terms)
                 {
                     return Err(invalid(format!(
-                        "centroid model of orders {}, {} says {} terms",
+                        "kernel place model of orders {}, {} says {} terms",
                         c.alpha, c.beta, c.terms
                     )));
                 }
@@ -894,7 +894,7 @@ impl Profile {
             cv: file.cv,
             shape,
             shape_cv: file.shape_cv,
-            centroids,
+            place,
             trust,
             allow_extrapolation: false,
         })
@@ -1028,7 +1028,7 @@ impl Profile {
 
     /// The kernel the profile predicts for deblurring at sensor (x, y) for a setting,
     /// at 3×: the preferred model's Gaussian, with the shape model's predicted shape
-    /// when `model` asks for it, centred where the centroid model puts the channel's
+    /// when `model` asks for it, placed where the profile's place model puts the channel's
     /// kernels (`lateral` says whether that includes the lens's lateral colour).
     ///
     /// # Errors
@@ -1044,11 +1044,11 @@ impl Profile {
         setting: LensSetting,
     ) -> Result<Kernel, ProfileError> {
         let g = self.predict(channel, x, y, setting)?;
-        let centroids = self.centroids.as_ref();
+        let place = self.place.as_ref();
         match (model, &self.shape) {
-            // A Gaussian is centred: all of its place comes from the centroid model.
+            // A Gaussian is centred: all of its place comes from the place model.
             (KernelModel::Gaussian, _) => {
-                let c = centroids.and_then(|c| c.centroid(channel, x, y, setting, lateral));
+                let c = place.and_then(|p| p.core(channel, x, y, setting, lateral));
                 Ok(g.kernel_at(3, c.unwrap_or([0.0, 0.0])))
             }
             // A shape keeps the place it learnt from the kernels (moving it to their
@@ -1057,7 +1057,7 @@ impl Profile {
             // kernels did not carry, their channel's registration against green's.
             (KernelModel::Shape, Some(shape)) => {
                 let offset = match lateral {
-                    LateralColour::Correct => centroids
+                    LateralColour::Correct => place
                         .and_then(|c| c.registration(channel, x, y, setting))
                         .unwrap_or([0.0, 0.0]),
                     LateralColour::Keep => [0.0, 0.0],

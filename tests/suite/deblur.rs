@@ -1501,7 +1501,7 @@ fn predicted_kernel_shapes_deblur_an_aberrated_lens_better_than_its_gaussians() 
 /// colour at an edge is a fringe. Item by item against the sharp scene (the RMS of
 /// R − G, B − G over the strongest 10 % of edges of each of five crops): wherever the
 /// true kernels do not raise the colour error over the blurry photo's, the profile's
-/// kernels do not either. Without the profile's centroid model (every kernel centred on
+/// kernels do not either. Without the profile's place model (every kernel centred on
 /// its pixel, as before it) the same deblur raises it, so the comparison can fail.
 #[test]
 fn deblurring_adds_no_colour_the_lens_did_not_make() {
@@ -1524,7 +1524,7 @@ fn deblurring_adds_no_colour_the_lens_did_not_make() {
         ..CalibrateOptions::default()
     };
     let (profile, _) = calibrate(&ds, None, &opts, &JobContext::silent()).expect("calibrate");
-    assert!(profile.centroids.is_some(), "the session kept its kernels");
+    assert!(profile.place.is_some(), "the session kept its kernels");
     let pad = 24;
     let leaves = dead_leaves(w + 2 * pad, h + 2 * pad, 5);
     let neutral = [leaves.clone(), leaves.clone(), leaves];
@@ -1557,7 +1557,7 @@ fn deblurring_adds_no_colour_the_lens_did_not_make() {
         }
     }
     let centred = Profile {
-        centroids: None,
+        place: None,
         ..profile.clone()
     };
     let centred = colour(&centred);

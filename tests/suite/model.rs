@@ -1402,7 +1402,7 @@ fn a_profile_of_version_1_reads_as_one_without_a_shape_model() {
     let mut old = profile.clone();
     old.shape = None;
     old.shape_cv = None;
-    old.centroids = None;
+    old.place = None;
     let text = String::from_utf8(old.to_json().expect("serialise"))
         .expect("utf-8")
         .replace("lensblur.profile/4", "lensblur.profile/1");
