@@ -366,7 +366,7 @@ fn colour_figures(
     Ok(())
 }
 
-/// Predicted against true kernel cores (px) at the frame's centre, the corner crops'
+/// Predicted against true kernel centroids (px) at the frame's centre, the corner crops'
 /// centres and the frame's corners, per channel, at the wide-open test setting.
 fn place_figures(profile: &lensblur::profile::Profile, lens: &VirtualLens, (w, h): (usize, usize)) {
     use lensblur::model::LateralColour;
@@ -383,11 +383,12 @@ fn place_figures(profile: &lensblur::profile::Profile, lens: &VirtualLens, (w, h
         ("top-left corner", 0.0, 0.0),
     ] {
         for ch in [Channel::R, Channel::G, Channel::B] {
-            let t = lensblur::model::core_px(&lens.pixel_kernel_at(ch, x, y, (w, h), s));
+            let m = lens.pixel_kernel_at(ch, x, y, (w, h), s).moments();
+            let t = [m.mean_x, m.mean_y];
             let p = profile
                 .place
                 .as_ref()
-                .and_then(|m| m.core(ch, x, y, s, LateralColour::Correct));
+                .and_then(|m| m.centroid(ch, x, y, s, LateralColour::Correct));
             eprintln!(
                 "{name:<18} {ch}: true {:+.3} {:+.3}  predicted {}",
                 t[0],

@@ -36,7 +36,7 @@ pub use dataset::{BlurSample, Dataset, PARAM_NAMES, ShotInfo};
 pub use global::{ChannelCoeffs, GlobalModel, global_coords};
 pub use local::{CentreGrid, LocalModel, LocalOptions, local_coords, local_grid, local_members};
 pub use place::{
-    ChannelPlace, LateralColour, MAX_PLACE_ALPHA, MAX_PLACE_BETA, PlaceCv, PlaceModel, core_px,
+    ChannelPlace, LateralColour, MAX_PLACE_ALPHA, MAX_PLACE_BETA, PlaceCv, PlaceModel, centroid_px,
 };
 pub use restoration::{RestorationError, WIENER_NSR};
 pub use shape::{

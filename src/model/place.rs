@@ -1,19 +1,18 @@
 //! Where each channel's kernel sits: the place model.
 //!
 //! A kernel's place is as much the lens's as its shape. Green's kernels sit where coma
-//! and other odd aberrations put their cores, and red's and blue's also where lateral
+//! and other odd aberrations put their light, and red's and blue's also where lateral
 //! colour images those channels against green. Deconvolution moves a channel back by
 //! where its kernel sits, so a red kernel placed a fraction of a pixel away from where
 //! the lens put red is a colour fringe the photo never had, and one placed where the
-//! lens put red removes the lens's own fringe. A kernel's place here is its core's (its
-//! half-maximum region, [`core_px`]): the Gaussians are fitted to it and deconvolution
-//! aligns by it, while a kernel's mean sits wherever a faint tail puts it.
+//! lens put red removes the lens's own fringe. A kernel's place here is its centroid
+//! ([`centroid_px`], which says why not its core).
 //!
 //! Two parts are measured at every square of every shot:
-//! - the kernel's core against its channel's registration of the square (`kernel`);
+//! - the kernel's centroid against its channel's registration of the square (`kernel`);
 //! - where that registration lies against green's (`registration`): the lateral colour
 //!   detection found, zero wherever the kernels kept one registration for all channels
-//!   (their cores then carry it instead).
+//!   (their centroids then carry it instead).
 //!
 //! Each part's x and y offsets are fitted per channel by the polynomial fields of the
 //! blur models, G_{α,β} over (x, y, f, a) in their Legendre basis: a lens's lateral
@@ -68,14 +67,14 @@ impl LateralColour {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ChannelPlace {
     pub channel: Channel,
-    /// The kernel's core against its channel's registration.
+    /// The kernel's centroid against its channel's registration.
     pub kernel: [Vec<f64>; 2],
     /// The channel's registration against green's (zero for green).
     pub registration: [Vec<f64>; 2],
 }
 
 /// Held-out error of one pair of orders: RMS over held-out kernels and both axes of the
-/// measured core offset against the predicted one, px.
+/// measured centroid against the predicted one, px.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PlaceCv {
     pub alpha: usize,
@@ -98,7 +97,7 @@ pub struct PlaceModel {
     basis: Basis,
 }
 
-/// One sample's two measured offsets (px): its kernel's core, and its registration
+/// One sample's two measured offsets (px): its kernel's centroid, and its registration
 /// against green's at the same square of the same shot.
 struct Measured {
     shot: usize,
@@ -121,7 +120,7 @@ fn measured(ds: &Dataset, norm: &Normalisation, channel: Channel) -> Vec<Measure
         .iter()
         .filter(|s| s.channel == channel)
         .filter_map(|s| {
-            let core = core_px(s.kernel.as_ref()?);
+            let centroid = centroid_px(s.kernel.as_ref()?);
             let registration = match channel {
                 // Files without square indices were measured on one registration.
                 Channel::R | Channel::B => match s.square {
@@ -136,36 +135,39 @@ fn measured(ds: &Dataset, norm: &Normalisation, channel: Channel) -> Vec<Measure
             Some(Measured {
                 shot: s.shot,
                 coords: global_coords(norm, s.x, s.y, s.focal_mm, s.f_number),
-                kernel: core,
+                kernel: centroid,
                 registration,
             })
         })
         .collect()
 }
 
-/// A kernel's core: the samples above this fraction of its peak, its half-maximum
-/// region. The Gaussians are fitted to the core, and deconvolution aligns the channels
-/// by it: the mean of the whole kernel sits wherever a faint tail puts it (coma's
-/// lies opposite its core), and a Gaussian placed there moved the aberrated lens's
-/// sharp cores off their place (0.9509 → 0.9574 SSIM over the frame at 31 mm f/4.5, but
-/// 0.9047 → 0.8513 in its corners; placed by the core, 0.9719 and 0.9170).
-const CORE_FRACTION: f64 = 0.5;
+/// A kernel's samples below this fraction of its peak are left out of its centroid:
+/// the kernel estimator's own cleaning threshold, so a floor of noise spread over the
+/// kernel's grid does not pull the centroid towards the grid's centre.
+const CENTROID_THRESHOLD: f64 = 0.02;
 
-/// Where a kernel's core lies, px from its centre sample: the mean of its half-maximum
-/// region, each sample weighted by its height above half the peak.
+/// Where a kernel's light lies, px from its centre sample: the mean of its samples
+/// above [`CENTROID_THRESHOLD`] of its peak.
+///
+/// The centroid, not the core: a chart square's registration is where the blurred
+/// square's light is, so measured kernels are centred about their means, and a common
+/// shift of all channels is the chart's geometry as much as the blur's. On the measured
+/// chain, Gaussians placed at the kernels' centroids deblurred the aberrated lens
+/// better than centred ones at every setting tried (31 mm f/4.5: 0.9553 against 0.9526
+/// SSIM), and placed at their cores (the half-maximum region) far worse (0.9126),
+/// though on exact kernels the cores did best: the measured place of a core is off
+/// by what the registration took for the blur's mean.
 #[must_use]
-pub fn core_px(k: &crate::psf::Kernel) -> [f64; 2] {
+pub fn centroid_px(k: &crate::psf::Kernel) -> [f64; 2] {
     let peak = k.data.iter().copied().fold(0.0f64, f64::max);
     let c = (k.size / 2) as f64;
     let s = k.oversample as f64;
     let (mut m0, mut mx, mut my) = (0.0, 0.0, 0.0);
     for j in 0..k.size {
         for i in 0..k.size {
-            // Weighted by the height above half the peak, so a sample crossing the
-            // threshold (noise, or a sub-sample shift) enters with no weight rather
-            // than with all of it.
-            let v = k.at(i, j) - CORE_FRACTION * peak;
-            if v > 0.0 {
+            let v = k.at(i, j);
+            if v > CENTROID_THRESHOLD * peak {
                 m0 += v;
                 mx += v * (i as f64 - c) / s;
                 my += v * (j as f64 - c) / s;
@@ -400,10 +402,10 @@ impl PlaceModel {
         })
     }
 
-    /// Where `channel`'s kernel core lies at sensor (x, y) for a setting, px against
+    /// Where `channel`'s kernel's centroid lies at sensor (x, y) for a setting, px against
     /// the pixel; `None` for a channel the model lacks.
     #[must_use]
-    pub fn core(
+    pub fn centroid(
         &self,
         channel: Channel,
         x: f64,
@@ -488,7 +490,7 @@ mod tests {
         PlaceModel::fit(ds, &folds, 3).expect("fit")
     }
 
-    /// Predicted against true cores (the lens's pixel-level kernels, lateral colour
+    /// Predicted against true centroids (the lens's pixel-level kernels, lateral colour
     /// included) at a setting between the shots, over the chart's area and to the
     /// frame's corners: the largest and the RMS error, and the largest true offset of
     /// red or blue against green, px.
@@ -502,11 +504,14 @@ mod tests {
             for i in 0..7 {
                 let x = 10.0 + i as f64 * 460.0 / 6.0;
                 let y = 10.0 + j as f64 * 300.0 / 4.0;
-                let truth = |ch| core_px(&lens.pixel_kernel_at(ch, x, y, SIZE, s));
+                let truth = |ch| {
+                    let m = lens.pixel_kernel_at(ch, x, y, SIZE, s).moments();
+                    [m.mean_x, m.mean_y]
+                };
                 let g = truth(Channel::G);
                 for ch in [Channel::R, Channel::G, Channel::B] {
                     let t = truth(ch);
-                    let p = model.core(ch, x, y, s, lateral).expect("channel");
+                    let p = model.centroid(ch, x, y, s, lateral).expect("channel");
                     let e = (p[0] - t[0]).hypot(p[1] - t[1]);
                     worst = worst.max(e);
                     sse += e * e;
@@ -563,7 +568,7 @@ mod tests {
 
     /// Coma moves every channel's kernels, and this lens's comet turns abruptly about
     /// the frame's centre, which no smooth field follows: held out, the model still
-    /// takes most of the cores' spread away, and against the truth it is far
+    /// takes most of the centroids' spread away, and against the truth it is far
     /// closer than centring every kernel.
     #[test]
     fn coma_and_lateral_colour_together() {

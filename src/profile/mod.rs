@@ -34,7 +34,7 @@ pub use trust::{LARGE_ERROR_PCT, SettingTrust, TRUST_ZONES, Trust, TrustWarning,
 /// reads as a profile without one (its kernels are its Gaussians). Version 3 adds
 /// where the profile is trusted (held-out errors per setting and zone; a version-2
 /// file has none recorded). Version 4 adds where each channel's kernels are centred
-/// (where its core lies, lateral colour included); earlier files centre every kernel's
+/// (where its centroid lies, lateral colour included); earlier files centre every kernel's
 /// Gaussian on its pixel as they were read before.
 pub const PROFILE: crate::format::Schema = crate::format::Schema {
     kind: "profile",
@@ -210,10 +210,10 @@ struct StoredPlace {
     beta: usize,
     terms: usize,
     channels: Vec<crate::model::ChannelPlace>,
-    /// Held-out RMS of the cores' offsets per order tried, px.
+    /// Held-out RMS of the centroids' offsets per order tried, px.
     #[serde(default)]
     cv: Vec<crate::model::PlaceCv>,
-    /// RMS of the measured cores' offsets about the pixel, px.
+    /// RMS of the measured centroids about the pixel, px.
     #[serde(default)]
     centred_rms_px: f64,
 }
@@ -1048,7 +1048,7 @@ impl Profile {
         match (model, &self.shape) {
             // A Gaussian is centred: all of its place comes from the place model.
             (KernelModel::Gaussian, _) => {
-                let c = place.and_then(|p| p.core(channel, x, y, setting, lateral));
+                let c = place.and_then(|p| p.centroid(channel, x, y, setting, lateral));
                 Ok(g.kernel_at(3, c.unwrap_or([0.0, 0.0])))
             }
             // A shape keeps the place it learnt from the kernels (moving it to their
