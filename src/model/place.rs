@@ -161,24 +161,22 @@ const CENTROID_THRESHOLD: f64 = 0.02;
 #[must_use]
 pub fn centroid_px(k: &crate::psf::Kernel) -> [f64; 2] {
     let peak = k.data.iter().copied().fold(0.0f64, f64::max);
-    let c = (k.size / 2) as f64;
-    let s = k.oversample as f64;
-    let (mut m0, mut mx, mut my) = (0.0, 0.0, 0.0);
-    for j in 0..k.size {
-        for i in 0..k.size {
-            let v = k.at(i, j);
-            if v > CENTROID_THRESHOLD * peak {
-                m0 += v;
-                mx += v * (i as f64 - c) / s;
-                my += v * (j as f64 - c) / s;
-            }
-        }
-    }
-    if m0 > 0.0 {
-        [mx / m0, my / m0]
-    } else {
-        [0.0, 0.0]
-    }
+    let light = crate::psf::Kernel {
+        data: k
+            .data
+            .iter()
+            .map(|&v| {
+                if v > CENTROID_THRESHOLD * peak {
+                    v
+                } else {
+                    0.0
+                }
+            })
+            .collect(),
+        ..k.clone()
+    };
+    let m = light.moments();
+    [m.mean_x, m.mean_y]
 }
 
 /// Columns of the right-hand sides: each part's x and y, then their sums.
@@ -329,8 +327,7 @@ impl PlaceModel {
             .iter()
             .min_by(|a, b| a.rms_px.total_cmp(&b.rms_px))
             .map_or((3, max_beta), |c| (c.alpha, c.beta));
-        let basis = model_basis(&norm, alpha, beta);
-        let idx = sub_terms(&largest, &basis);
+        let idx = sub_terms(&largest, &model_basis(&norm, alpha, beta));
         let channels = per_channel
             .iter()
             .zip(&totals)
@@ -346,15 +343,26 @@ impl PlaceModel {
                 }
             })
             .collect();
-        Ok(Self {
+        let centred_rms_px = (centred / rows.max(1) as f64).sqrt();
+        Ok(Self::new(norm, (alpha, beta), channels, cv, centred_rms_px))
+    }
+
+    fn new(
+        norm: Normalisation,
+        (alpha, beta): (usize, usize),
+        channels: Vec<ChannelPlace>,
+        cv: Vec<PlaceCv>,
+        centred_rms_px: f64,
+    ) -> Self {
+        Self {
+            basis: model_basis(&norm, alpha, beta),
             norm,
             alpha,
             beta,
             channels,
             cv,
-            centred_rms_px: (centred / rows.max(1) as f64).sqrt(),
-            basis,
-        })
+            centred_rms_px,
+        }
     }
 
     /// A stored model, checked against the basis its orders imply.
@@ -391,15 +399,7 @@ impl PlaceModel {
                 ));
             }
         }
-        Ok(Self {
-            norm,
-            alpha,
-            beta,
-            channels,
-            cv,
-            centred_rms_px,
-            basis,
-        })
+        Ok(Self::new(norm, (alpha, beta), channels, cv, centred_rms_px))
     }
 
     /// Where `channel`'s kernel's centroid lies at sensor (x, y) for a setting, px against
