@@ -450,7 +450,18 @@ impl PlaceModel {
             // The extrapolation carries three outputs; the third is unused.
             [dot(&field[0]), dot(&field[1]), 0.0]
         });
-        [v[0], v[1]]
+        // A place past the widest kernel lensblur accepts is no lens's (a damaged
+        // profile, or a field continued far past the chart): held there, so the kernel
+        // rendered around it stays within the limits.
+        let limit = crate::limits::MAX_KERNEL_RADIUS_PX;
+        let held = |o: f64| {
+            if o.is_finite() {
+                o.clamp(-limit, limit)
+            } else {
+                0.0
+            }
+        };
+        [held(v[0]), held(v[1])]
     }
 }
 
@@ -564,6 +575,26 @@ mod tests {
             keep_worst > 0.8,
             "keeping moved the kernels by {keep_worst} px"
         );
+    }
+
+    /// A damaged profile's place (finite, but of no lens) stays within the widest kernel
+    /// lensblur accepts, so nothing is sized from it.
+    #[test]
+    fn a_place_of_no_lens_is_held_within_the_kernel_limit() {
+        let (_, ds) = session(PsfShape::Gaussian);
+        let mut model = fit(&ds);
+        model.channels[0].kernel[0][0] = 1e300;
+        model.channels[0].kernel[1][0] = -1e300;
+        let s = LensSetting {
+            focal_mm: 45.0,
+            f_number: 6.3,
+        };
+        let ch = model.channels[0].channel;
+        let p = model
+            .centroid(ch, 100.0, 100.0, s, LateralColour::Correct)
+            .expect("channel");
+        let limit = crate::limits::MAX_KERNEL_RADIUS_PX;
+        assert!(p.iter().all(|v| v.abs() <= limit), "{p:?}");
     }
 
     /// Coma moves every channel's kernels, and this lens's comet turns abruptly about
