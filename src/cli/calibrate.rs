@@ -337,6 +337,9 @@ pub fn run(args: Args) -> Result<()> {
     if let Some(cv) = &profile.shape_cv {
         eprintln!("{}", shape_summary(cv));
     }
+    if let Some(place) = &profile.place {
+        eprintln!("{}", place_summary(place));
+    }
     eprintln!(
         "{} shots, {} samples; profile {} written in {:.1} s",
         ds.shots.len(),
@@ -372,6 +375,24 @@ fn timings(load_s: f64, stages: &[(String, f64)], write_s: f64) -> String {
         stage("local CV"),
         stage("fitting"),
     )
+}
+
+/// One line on where the kernels sit: the place model's orders and held-out error.
+fn place_summary(place: &lensblur::model::PlaceModel) -> String {
+    match place
+        .cv
+        .iter()
+        .find(|c| (c.alpha, c.beta) == (place.alpha, place.beta))
+    {
+        Some(c) => format!(
+            "kernel place: α = {}, β = {}: held-out {:.3} px against {:.3} px with every kernel centred",
+            place.alpha, place.beta, c.rms_px, place.centred_rms_px
+        ),
+        None => format!(
+            "kernel place: α = {}, β = {} (no shot to hold out); the kernels' centroids lie {:.3} px RMS from their pixels",
+            place.alpha, place.beta, place.centred_rms_px
+        ),
+    }
 }
 
 /// One line on the kernel-shape model's cross-validation: what was kept and why.
