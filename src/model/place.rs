@@ -415,13 +415,11 @@ impl PlaceModel {
     ) -> Option<[f64; 2]> {
         let c = self.channels.iter().find(|c| c.channel == channel)?;
         let own = self.eval(&c.kernel, x, y, setting);
-        Some(match lateral {
-            LateralColour::Correct => {
-                let r = self.eval(&c.registration, x, y, setting);
-                [own[0] + r[0], own[1] + r[1]]
-            }
-            LateralColour::Keep => own,
-        })
+        let apart = match lateral {
+            LateralColour::Correct => self.eval(&c.registration, x, y, setting),
+            LateralColour::Keep => [0.0, 0.0],
+        };
+        Some([own[0] + apart[0], own[1] + apart[1]])
     }
 
     /// Where `channel`'s registration lies against green's at sensor (x, y) for a

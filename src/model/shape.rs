@@ -687,8 +687,7 @@ impl ShapeModel {
         gaussian: &Gaussian2,
         oversample: usize,
     ) -> Option<Kernel> {
-        let r = self.residual(channel, x, y, s)?;
-        kernel_with_shape(self.space, gaussian, Some(&r), oversample, None)
+        self.kernel_moved(channel, [x, y], s, gaussian, oversample, [0.0, 0.0])
     }
 
     /// [`ShapeModel::kernel`] moved by `offset` px: rendered at its place, so the

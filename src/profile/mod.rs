@@ -451,13 +451,15 @@ fn load_shape(
 
 /// Refuses a model that stores a channel twice (which of the two would it predict?).
 fn check_distinct_channels(
-    channels: &[StoredChannel],
+    channels: impl Iterator<Item = Channel>,
     invalid: &dyn Fn(String) -> ProfileError,
 ) -> Result<(), ProfileError> {
-    for (i, c) in channels.iter().enumerate() {
-        if channels[..i].iter().any(|d| d.channel == c.channel) {
-            return Err(invalid(format!("channel {} is stored twice", c.channel)));
+    let mut seen = Vec::new();
+    for c in channels {
+        if seen.contains(&c) {
+            return Err(invalid(format!("channel {c} is stored twice")));
         }
+        seen.push(c);
     }
     Ok(())
 }
@@ -752,7 +754,7 @@ impl Profile {
                     ModelKind::Global.model_name(g.alpha, g.beta)
                 );
                 let basis = checked_basis(name, g.alpha, g.beta, g.terms)?;
-                check_distinct_channels(&g.channels, &invalid)?;
+                check_distinct_channels(g.channels.iter().map(|c| c.channel), &invalid)?;
                 let mut channels = Vec::new();
                 for sc in &g.channels {
                     channels.push(ChannelCoeffs {
@@ -803,7 +805,7 @@ impl Profile {
                 let expected = n.checked_mul(n_centres).ok_or_else(|| {
                     invalid(format!("local model: {n_centres} centres of {n} terms"))
                 })?;
-                check_distinct_channels(&l.channels, &invalid)?;
+                check_distinct_channels(l.channels.iter().map(|c| c.channel), &invalid)?;
                 let grid = CentreGrid {
                     nx: l.centres_x,
                     ny: l.centres_y,
@@ -849,10 +851,7 @@ impl Profile {
         let place = match file.place {
             None => None,
             Some(c) => {
-                let channels: Vec<Channel> = c.channels.iter().map(|ch| ch.channel).collect();
-                if (1..channels.len()).any(|i| channels[..i].contains(&channels[i])) {
-                    return Err(invalid("kernel place model lists a channel twice".into()));
-                }
+                check_distinct_channels(c.channels.iter().map(|ch| ch.channel), &invalid)?;
                 let model = crate::model::PlaceModel::from_parts(
                     norm.clone(),
                     (c.alpha, c.beta),
