@@ -9,6 +9,7 @@
 //! back to what the photo showed. Luminance (G) is untouched, so the sharpening stays.
 
 use crate::plane::Plane;
+use rayon::prelude::*;
 
 /// Half-width of the window, px: the blurs lensblur removes reach a few pixels, and a
 /// window wider than the blur only loosens the bound.
@@ -24,48 +25,70 @@ pub fn clamp_chroma(input: [&Plane; 3], out: [&mut Plane; 3], radius: usize) {
         return;
     }
     let [r_out, g_out, b_out] = out;
+    let (g_in, g_out): (&Plane, &Plane) = (input[1], g_out);
     for (channel, plane_out) in [(input[0], r_out), (input[2], b_out)] {
-        let chroma: Vec<f32> = channel
+        // Bands of whole rows in parallel, each with the few rows around it it reads:
+        // the window's extremes are made and used while they are in cache.
+        plane_out
             .data
-            .iter()
-            .zip(&input[1].data)
-            .map(|(c, g)| c - g)
-            .collect();
-        let (lo, hi) = window_extremes(&chroma, w, h, radius);
-        for (i, v) in plane_out.data.iter_mut().enumerate() {
-            let g = g_out.data[i];
-            *v = g + (*v - g).clamp(lo[i], hi[i]);
-        }
+            .par_chunks_mut(BAND_ROWS * w)
+            .enumerate()
+            .for_each(|(band, rows_out)| {
+                let y0 = band * BAND_ROWS;
+                let y1 = y0 + rows_out.len() / w;
+                let a = y0.saturating_sub(radius);
+                let b = (y1 + radius).min(h);
+                // Along each row first: the extremes of the chroma over ±radius columns.
+                let (mut row_lo, mut row_hi) =
+                    (vec![0.0f32; (b - a) * w], vec![0.0f32; (b - a) * w]);
+                let mut chroma = vec![0.0f32; w];
+                for (i, y) in (a..b).enumerate() {
+                    let row = y * w..(y + 1) * w;
+                    for ((c, &v), &g) in chroma
+                        .iter_mut()
+                        .zip(&channel.data[row.clone()])
+                        .zip(&g_in.data[row])
+                    {
+                        *c = v - g;
+                    }
+                    let (lo, hi) = (
+                        &mut row_lo[i * w..(i + 1) * w],
+                        &mut row_hi[i * w..(i + 1) * w],
+                    );
+                    for x in 0..w {
+                        let span = &chroma[x.saturating_sub(radius)..=(x + radius).min(w - 1)];
+                        lo[x] = span.iter().copied().fold(f32::INFINITY, f32::min);
+                        hi[x] = span.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+                    }
+                }
+                // Then across ±radius rows, and the clamp.
+                let (mut lo, mut hi) = (vec![0.0f32; w], vec![0.0f32; w]);
+                for (y, out_row) in (y0..y1).zip(rows_out.chunks_exact_mut(w)) {
+                    lo.fill(f32::INFINITY);
+                    hi.fill(f32::NEG_INFINITY);
+                    for yy in y.saturating_sub(radius)..=(y + radius).min(h - 1) {
+                        let line = (yy - a) * w..(yy - a + 1) * w;
+                        for ((l, u), (&rl, &rh)) in lo
+                            .iter_mut()
+                            .zip(hi.iter_mut())
+                            .zip(row_lo[line.clone()].iter().zip(&row_hi[line]))
+                        {
+                            *l = l.min(rl);
+                            *u = u.max(rh);
+                        }
+                    }
+                    let g_row = &g_out.data[y * w..(y + 1) * w];
+                    for (((v, &g), &l), &u) in out_row.iter_mut().zip(g_row).zip(&lo).zip(&hi) {
+                        *v = g + (*v - g).clamp(l, u);
+                    }
+                }
+            });
     }
 }
 
-/// The minimum and maximum of `data` (w × h) over a (2r + 1)² window at each pixel,
-/// the window cut at the borders: separable, a row pass then a column pass.
-fn window_extremes(data: &[f32], w: usize, h: usize, r: usize) -> (Vec<f32>, Vec<f32>) {
-    let pass = |src: &[f32], along_rows: bool, pick: fn(f32, f32) -> f32| {
-        let mut dst = vec![0.0f32; src.len()];
-        let (n, lines) = if along_rows { (w, h) } else { (h, w) };
-        let at = |line: usize, k: usize| {
-            if along_rows {
-                line * w + k
-            } else {
-                k * w + line
-            }
-        };
-        for line in 0..lines {
-            for k in 0..n {
-                let (a, b) = (k.saturating_sub(r), (k + r).min(n - 1));
-                dst[at(line, k)] = (a..=b)
-                    .map(|j| src[at(line, j)])
-                    .fold(src[at(line, k)], pick);
-            }
-        }
-        dst
-    };
-    let lo = pass(&pass(data, true, f32::min), false, f32::min);
-    let hi = pass(&pass(data, true, f32::max), false, f32::max);
-    (lo, hi)
-}
+/// Rows per band of work: enough to share the rows a band reads around it, few enough
+/// that a band's extremes stay in cache.
+const BAND_ROWS: usize = 32;
 
 #[cfg(test)]
 mod tests {
@@ -128,12 +151,38 @@ mod tests {
     }
 
     #[test]
-    fn extremes_cover_the_window_and_stop_at_the_borders() {
-        let data: Vec<f32> = (0..20).map(|i| i as f32).collect();
-        let (lo, hi) = window_extremes(&data, 5, 4, 1);
-        // Pixel (2, 1) = 7 sees rows 0–2, columns 1–3: 1..=13.
-        assert_eq!((lo[7], hi[7]), (1.0, 13.0));
-        // The corner sees only its 2 × 2.
-        assert_eq!((lo[0], hi[0]), (0.0, 6.0));
+    fn each_pixel_is_held_to_its_own_window_across_bands() {
+        // Taller than a band, so windows straddle band borders, and cut at every edge.
+        let (w, h, r) = (23, 2 * BAND_ROWS + 7, 3);
+        let field = |seed: usize| {
+            plane(w, h, move |x, y| {
+                (((x + w * y) * 7919 + seed) % 101) as f32 / 100.0
+            })
+        };
+        let (r_in, g_in, b_in) = (field(1), field(2), field(3));
+        let (mut r_out, mut g_out, mut b_out) = (field(4), field(5), field(6));
+        let (r_before, b_before) = (r_out.clone(), b_out.clone());
+        clamp_chroma(
+            [&r_in, &g_in, &b_in],
+            [&mut r_out, &mut g_out, &mut b_out],
+            r,
+        );
+        assert_eq!(g_out.data, field(5).data, "green is untouched");
+        for (input, before, after) in [(&r_in, &r_before, &r_out), (&b_in, &b_before, &b_out)] {
+            for y in 0..h {
+                for x in 0..w {
+                    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+                    for v in y.saturating_sub(r)..=(y + r).min(h - 1) {
+                        for u in x.saturating_sub(r)..=(x + r).min(w - 1) {
+                            let c = input.get(u, v) - g_in.get(u, v);
+                            (lo, hi) = (lo.min(c), hi.max(c));
+                        }
+                    }
+                    let g = g_out.get(x, y);
+                    let want = g + (before.get(x, y) - g).clamp(lo, hi);
+                    assert_eq!(after.get(x, y), want, "at ({x}, {y})");
+                }
+            }
+        }
     }
 }
