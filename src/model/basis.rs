@@ -238,21 +238,33 @@ impl Basis {
     }
 }
 
-/// Least squares for three right-hand sides: QR, or SVD where R is (near) singular.
-/// Returns `n × 3`.
+/// Least squares for `y`'s right-hand sides (three for the Gaussians' σx, σy, ρ):
+/// Householder QR, or SVD where R is (near) singular. Returns `n × y.ncols()`.
+///
+/// The QR is taken by blocks of rows (a tall-skinny QR): each block of `[A | y]` is
+/// reduced to its triangle, the triangles stacked and reduced again until one is left.
+/// That triangle is R with Qᵀy beside it, as a QR of the whole would give (to
+/// rounding), at a block's cost in memory traffic and with the blocks in parallel: a
+/// session's design has tens of thousands of rows, and a column-at-a-time QR of it
+/// streams the whole matrix once per column.
 #[must_use]
 pub fn solve_lsq(a: DMatrix<f64>, y: &DMatrix<f64>) -> DMatrix<f64> {
     let (m, n) = a.shape();
-    if m >= n && n > 0 {
-        let qr = a.clone().qr();
-        let r = qr.r();
+    if m >= n && n > 0 && y.nrows() == m {
+        let k = y.ncols();
+        let augmented = DMatrix::from_fn(
+            m,
+            n + k,
+            |i, j| {
+                if j < n { a[(i, j)] } else { y[(i, j - n)] }
+            },
+        );
+        let r = tall_skinny_r(augmented);
         let diag_max = (0..n).map(|i| r[(i, i)].abs()).fold(0.0, f64::max);
         let well_posed = (0..n).all(|i| r[(i, i)].abs() > 1e-10 * diag_max.max(1e-300));
         if well_posed {
-            let mut qty = y.clone();
-            qr.q_tr_mul(&mut qty);
-            let top = qty.rows(0, n).into_owned();
-            if let Some(x) = r.solve_upper_triangular(&top) {
+            let top = r.view((0, n), (n, k)).into_owned();
+            if let Some(x) = r.view((0, 0), (n, n)).solve_upper_triangular(&top) {
                 return x;
             }
         }
@@ -260,6 +272,34 @@ pub fn solve_lsq(a: DMatrix<f64>, y: &DMatrix<f64>) -> DMatrix<f64> {
     let svd = a.svd(true, true);
     svd.solve(y, 1e-10 * svd.singular_values.max().max(1e-300))
         .unwrap_or_else(|_| DMatrix::zeros(n, y.ncols()))
+}
+
+/// The R factor of `m`'s QR (at most `m.ncols()` rows), block by block of rows.
+fn tall_skinny_r(mut m: DMatrix<f64>) -> DMatrix<f64> {
+    use rayon::prelude::*;
+    let cols = m.ncols();
+    // Blocks of a few triangles' height: small enough to stay in cache, tall enough
+    // that each reduction removes most of its rows.
+    let block = (4 * cols).max(256);
+    while m.nrows() > block {
+        let starts: Vec<usize> = (0..m.nrows()).step_by(block).collect();
+        let triangles: Vec<DMatrix<f64>> = starts
+            .par_iter()
+            .map(|&r0| {
+                let rows = block.min(m.nrows() - r0);
+                m.rows(r0, rows).into_owned().qr().r()
+            })
+            .collect();
+        let height = triangles.iter().map(DMatrix::nrows).sum();
+        let mut stacked = DMatrix::zeros(height, cols);
+        let mut at = 0;
+        for t in &triangles {
+            stacked.rows_mut(at, t.nrows()).copy_from(t);
+            at += t.nrows();
+        }
+        m = stacked;
+    }
+    m.qr().r()
 }
 
 /// Solves the normal equations `gram · x = rhs` (Cholesky; SVD pseudo-inverse where the
@@ -397,7 +437,8 @@ mod tests {
     fn qr_and_normal_equations_agree() {
         let basis = Basis::new(terms(3, 2, true, true));
         let n = basis.len();
-        let m = 400;
+        // Tall enough that the QR is taken in blocks, and their triangles in blocks again.
+        let m = 40 * (n + 3);
         let mut a = DMatrix::zeros(m, n);
         let mut y = DMatrix::zeros(m, 3);
         let mut row = vec![0.0; n];
@@ -419,6 +460,16 @@ mod tests {
         }
         let x1 = solve_lsq(a.clone(), &y);
         let x2 = solve_normal(a.tr_mul(&a), &a.tr_mul(&y));
-        assert!((x1 - x2).abs().max() < 1e-8);
+        assert!((&x1 - x2).abs().max() < 1e-8);
+        // The same solution as one Householder QR of the whole design.
+        let qr = a.qr();
+        let mut qty = y.clone();
+        qr.q_tr_mul(&mut qty);
+        let x3 = qr
+            .r()
+            .solve_upper_triangular(&qty.rows(0, n).into_owned())
+            .expect("well posed");
+        let scale = x3.abs().max();
+        assert!((x1 - x3).abs().max() < 1e-12 * scale.max(1.0));
     }
 }
