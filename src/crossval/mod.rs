@@ -329,8 +329,11 @@ impl FoldedSystem {
         for k in 0..folds {
             let mine: Vec<&Row> = rows.iter().filter(|r| r.fold == k).collect();
             let (a, y) = design_system(basis, mine.iter().map(|r| (r.coords, r.params)));
-            gram_fold.push(a.tr_mul(&a));
-            rhs_fold.push(a.tr_mul(&y));
+            // Aᵀ made once, so both products are blocked matrix products (tr_mul takes
+            // a dot product per entry).
+            let at = a.transpose();
+            gram_fold.push(&at * &a);
+            rhs_fold.push(&at * &y);
         }
         let mut gram_total = DMatrix::zeros(n, n);
         let mut rhs_total = DMatrix::zeros(n, 3);
