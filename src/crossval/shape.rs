@@ -359,13 +359,23 @@ pub fn cross_validate_shape(
                         PreparedKernels::new(*space, &g, b, os, grid, deployed)
                     })
                     .collect::<Option<_>>()?;
-                // The Gaussian alone: its density on its own support.
+                // The Gaussian alone: its density on its own support, which is the
+                // whitened space's base where that space is tried.
                 let whitened = crate::model::ShapeSpace::Whitened;
-                let deployed = deployed_kernel_side(whitened, &g, os)?;
-                let plain = PreparedKernels::new(whitened, &g, &[], os, grid, deployed)?;
+                let plain: std::borrow::Cow<'_, [f64]> =
+                    match residuals.iter().position(|(space, _)| *space == whitened) {
+                        Some(i) => prepared[i].base().into(),
+                        None => {
+                            let deployed = deployed_kernel_side(whitened, &g, os)?;
+                            PreparedKernels::new(whitened, &g, &[], os, grid, deployed)?
+                                .base()
+                                .to_vec()
+                                .into()
+                        }
+                    };
                 let e_gauss = KernelErrors {
-                    rel_l2: PreparedKernels::relative_l2(plain.base(), &measured),
-                    restoration: restoration.of_values(plain.base()),
+                    rel_l2: PreparedKernels::relative_l2(&plain, &measured),
+                    restoration: restoration.of_values(&plain),
                 };
                 let linear: Vec<Linear1x> = prepared
                     .iter()

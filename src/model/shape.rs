@@ -24,6 +24,7 @@ use crate::plane::{Channel, LensSetting};
 use crate::psf::{Gaussian2, Kernel};
 use nalgebra::DMatrix;
 use rand::SeedableRng;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Half-width of the whitened grid, in σ of the kernel's Gaussian along each principal
@@ -438,7 +439,16 @@ impl PreparedKernels {
                     ShapeSpace::Pixel => (p, gaussian.density(p[0], p[1])),
                 };
                 base.push(density);
-                let taps = bilinear_taps(side, q[0] * per_unit + h, q[1] * per_unit + h);
+                let (u, w) = (q[0] * per_unit + h, q[1] * per_unit + h);
+                // Beyond the components' grid (most of a wide kernel's samples) every
+                // tap weighs nothing.
+                if u < -1.0 || w < -1.0 || u >= side as f64 || w >= side as f64 {
+                    for out in &mut sampled {
+                        out.push(0.0);
+                    }
+                    continue;
+                }
+                let taps = bilinear_taps(side, u, w);
                 for (out, comp) in sampled.iter_mut().zip(components) {
                     out.push(taps.iter().map(|&(idx, w)| w * comp[idx]).sum());
                 }
@@ -746,7 +756,7 @@ impl ShapeFit {
         }
         let components = shape_basis(&rows, components);
         let coords = residuals
-            .iter()
+            .par_iter()
             .map(|r| {
                 r.as_ref().map(|r| {
                     components
@@ -774,8 +784,8 @@ impl ShapeFit {
         let norm = ds.normalisation();
         let basis = model_basis(&norm, alpha, beta);
         let k = self.components.len();
-        let mut channels = Vec::new();
-        for ch in ds.channels() {
+        // Channels in parallel; each is its own least-squares problem.
+        let fitted = ds.channels().into_par_iter().map(|ch| {
             let rows: Vec<(&super::BlurSample, &Vec<f64>)> = ds
                 .samples
                 .iter()
@@ -784,7 +794,7 @@ impl ShapeFit {
                 .filter_map(|(s, c)| c.as_ref().map(|c| (s, c)))
                 .collect();
             if rows.is_empty() {
-                continue;
+                return Ok(None);
             }
             if rows.len() < basis.len() {
                 return Err(ModelError::TooFewSamples {
@@ -816,8 +826,13 @@ impl ShapeFit {
                     .map(|col| x.column(col).iter().copied().collect())
                     .collect()
             };
-            channels.push((ch, coeffs));
-        }
+            Ok(Some((ch, coeffs)))
+        });
+        let channels: Vec<(Channel, Vec<Vec<f64>>)> = fitted
+            .collect::<Result<Vec<_>, ModelError>>()?
+            .into_iter()
+            .flatten()
+            .collect();
         if channels.is_empty() {
             return Err(ModelError::Empty);
         }
