@@ -7,6 +7,7 @@ use super::{
     fit_samples, fit_setup, fitted_model_fields,
 };
 use crate::plane::{Channel, LensSetting};
+use rayon::prelude::*;
 
 /// One channel's coefficients: `coeffs[p][n]` for parameter p (C_xx, C_yy, C_or) and
 /// basis term n.
@@ -33,24 +34,27 @@ impl GlobalModel {
     /// Unknown settings, β too large for the session, or fewer samples than terms.
     pub fn fit(ds: &Dataset, alpha: usize, beta: usize) -> Result<Self, ModelError> {
         let (norm, basis) = fit_setup(ds, alpha, beta)?;
-        let mut channels = Vec::new();
-        for ch in ds.channels() {
-            let samples = fit_samples(ds, ModelKind::Global, (alpha, beta), ch, basis.len())?;
-            let (a, y) = design_system(
-                &basis,
-                samples.iter().map(|s| {
-                    (
-                        global_coords(&norm, s.x, s.y, s.focal_mm, s.f_number),
-                        s.params(),
-                    )
-                }),
-            );
-            let x = solve_lsq(a, &y);
-            channels.push(ChannelCoeffs {
-                channel: ch,
-                coeffs: super::split_coeffs(&x),
-            });
-        }
+        // Channels in parallel; each is its own least-squares problem.
+        let channels = ds
+            .channels()
+            .into_par_iter()
+            .map(|ch| {
+                let samples = fit_samples(ds, ModelKind::Global, (alpha, beta), ch, basis.len())?;
+                let (a, y) = design_system(
+                    &basis,
+                    samples.iter().map(|s| {
+                        (
+                            global_coords(&norm, s.x, s.y, s.focal_mm, s.f_number),
+                            s.params(),
+                        )
+                    }),
+                );
+                Ok(ChannelCoeffs {
+                    channel: ch,
+                    coeffs: super::split_coeffs(&solve_lsq(a, &y)),
+                })
+            })
+            .collect::<Result<Vec<_>, ModelError>>()?;
         Ok(Self {
             norm,
             alpha,

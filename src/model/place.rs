@@ -27,6 +27,7 @@
 use super::{Basis, Dataset, ModelError, Normalisation, global_coords, model_basis};
 use crate::plane::{Channel, LensSetting};
 use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// The highest spatial order tried: lateral colour's cubic radial term is order 3, and
@@ -232,34 +233,38 @@ impl PlaceModel {
             .ok_or(ModelError::Empty)?;
         let largest = model_basis(&norm, MAX_PLACE_ALPHA, max_beta);
         let n = largest.len();
-        let mut per_channel = Vec::new();
-        for channel in ds.channels() {
-            let samples = measured(ds, &norm, channel);
-            if samples.is_empty() {
-                continue;
-            }
-            let mut shots: Vec<ShotSystem> =
-                (0..ds.shots.len()).map(|_| ShotSystem::new(n)).collect();
-            let mut row = DVector::zeros(n);
-            for m in &samples {
-                largest.row(m.coords, row.as_mut_slice());
-                let sys = &mut shots[m.shot];
-                sys.gram.ger(1.0, &row, &row, 1.0);
-                for axis in 0..2 {
-                    let (k, r) = (m.kernel[axis], m.registration[axis]);
-                    for (c, v) in [
-                        (KERNEL[axis], k),
-                        (REGISTRATION[axis], r),
-                        (SUM[axis], k + r),
-                    ] {
-                        sys.rhs.column_mut(c).axpy(v, &row, 1.0);
-                    }
-                    sys.sum_squares += (k + r) * (k + r);
+        // Channels in parallel: each sums its own shots' systems.
+        let per_channel: Vec<(Channel, Vec<ShotSystem>)> = ds
+            .channels()
+            .into_par_iter()
+            .filter_map(|channel| {
+                let samples = measured(ds, &norm, channel);
+                if samples.is_empty() {
+                    return None;
                 }
-                sys.rows += 2;
-            }
-            per_channel.push((channel, shots));
-        }
+                let mut shots: Vec<ShotSystem> =
+                    (0..ds.shots.len()).map(|_| ShotSystem::new(n)).collect();
+                let mut row = DVector::zeros(n);
+                for m in &samples {
+                    largest.row(m.coords, row.as_mut_slice());
+                    let sys = &mut shots[m.shot];
+                    sys.gram.ger(1.0, &row, &row, 1.0);
+                    for axis in 0..2 {
+                        let (k, r) = (m.kernel[axis], m.registration[axis]);
+                        for (c, v) in [
+                            (KERNEL[axis], k),
+                            (REGISTRATION[axis], r),
+                            (SUM[axis], k + r),
+                        ] {
+                            sys.rhs.column_mut(c).axpy(v, &row, 1.0);
+                        }
+                        sys.sum_squares += (k + r) * (k + r);
+                    }
+                    sys.rows += 2;
+                }
+                Some((channel, shots))
+            })
+            .collect();
         if per_channel.is_empty() {
             return Err(ModelError::Empty);
         }
