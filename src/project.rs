@@ -395,61 +395,120 @@ impl SurveyJob {
     /// # Errors
     /// Only cancellation: everything else is a dropped entry or an unreadable shot.
     pub fn run(self, job: &JobContext) -> Result<Survey, Cancelled> {
+        use rayon::prelude::*;
+        use std::sync::atomic::{AtomicUsize, Ordering};
         let (m, cache) = (&self.measurement, &self.cache);
-        let mut survey = Survey::default();
         let total = self.shots.len();
-        for (k, (id, name, path, detect_done, kernels_done)) in self.shots.into_iter().enumerate() {
-            job.check()?;
-            job.report("reading results", k, total);
-            let state = survey.shots.entry(id).or_default();
-            if is_kernels_file(&path) {
-                // A manifest may list kernels measured earlier instead of photos.
-                match KernelsFile::load(&path) {
-                    Ok(k) => state.kernels = Some(Arc::new(k)),
-                    Err(e) => state.unreadable = Some(e.to_string()),
-                }
-                continue;
-            }
-            let file = match ShotFile::read(&path) {
-                Ok(f) => f,
-                Err(e) => {
-                    let why = if path.exists() {
-                        e.to_string()
-                    } else {
-                        format!("{}: not found (renamed or removed?)", path.display())
-                    };
+        let done = AtomicUsize::new(0);
+        job.report("reading results", 0, total);
+        // Shots are read in parallel (fingerprinting a photo reads all of it, and a
+        // kernels file decodes tens of thousands of kernels); the survey is put
+        // together in the shots' order, so it and its messages do not depend on it.
+        let read: Vec<ShotRead> = self
+            .shots
+            .into_par_iter()
+            .map(|(id, name, path, detect_done, kernels_done)| {
+                job.check()?;
+                let what = if is_kernels_file(&path) {
+                    // A manifest may list kernels measured earlier instead of photos.
+                    Read::Listed(KernelsFile::load(&path).map_err(|e| e.to_string()))
+                } else {
+                    match ShotFile::read(&path) {
+                        Ok(file) => Read::Shot {
+                            detection: cache.detection(&file, m),
+                            kernels: cache.kernels(&file, m),
+                            file,
+                        },
+                        Err(e) => Read::Unreadable(if path.exists() {
+                            e.to_string()
+                        } else {
+                            format!("{}: not found (renamed or removed?)", path.display())
+                        }),
+                    }
+                };
+                job.report(
+                    "reading results",
+                    done.fetch_add(1, Ordering::Relaxed) + 1,
+                    total,
+                );
+                Ok(ShotRead {
+                    id,
+                    name,
+                    detect_done,
+                    kernels_done,
+                    what,
+                })
+            })
+            .collect::<Result<_, Cancelled>>()?;
+        let mut survey = Survey::default();
+        for r in read {
+            let state = survey.shots.entry(r.id).or_default();
+            match r.what {
+                Read::Listed(Ok(k)) => state.kernels = Some(Arc::new(k)),
+                Read::Listed(Err(e)) => state.unreadable = Some(e),
+                Read::Unreadable(why) => {
                     survey
                         .dropped
                         .push(format!("{why}: its results are left out until it is back"));
                     state.unreadable = Some(why);
-                    continue;
                 }
-            };
-            match cache.detection(&file, m) {
-                Ok(Some(d)) => state.detection = Some(Arc::new(d)),
-                Ok(None) if detect_done => survey.dropped.push(format!(
-                    "{name}: its recorded detection is gone from the results: pending again"
-                )),
-                Ok(None) => {}
-                Err(e) => survey
-                    .dropped
-                    .push(format!("{e}: left out, detected again when needed")),
+                Read::Shot {
+                    file,
+                    detection,
+                    kernels,
+                } => {
+                    match detection {
+                        Ok(Some(d)) => state.detection = Some(Arc::new(d)),
+                        Ok(None) if r.detect_done => survey.dropped.push(format!(
+                            "{}: its recorded detection is gone from the results: pending again",
+                            r.name
+                        )),
+                        Ok(None) => {}
+                        Err(e) => survey
+                            .dropped
+                            .push(format!("{e}: left out, detected again when needed")),
+                    }
+                    match kernels {
+                        Ok(Some(k)) => state.kernels = Some(Arc::new(k)),
+                        Ok(None) if r.kernels_done => survey.dropped.push(format!(
+                            "{}: its recorded kernels are gone from the results: pending again",
+                            r.name
+                        )),
+                        Ok(None) => {}
+                        Err(e) => survey
+                            .dropped
+                            .push(format!("{e}: left out, measured again when needed")),
+                    }
+                    state.file = Some(file);
+                }
             }
-            match cache.kernels(&file, m) {
-                Ok(Some(k)) => state.kernels = Some(Arc::new(k)),
-                Ok(None) if kernels_done => survey.dropped.push(format!(
-                    "{name}: its recorded kernels are gone from the results: pending again"
-                )),
-                Ok(None) => {}
-                Err(e) => survey
-                    .dropped
-                    .push(format!("{e}: left out, measured again when needed")),
-            }
-            state.file = Some(file);
         }
         job.report("reading results", total, total);
         Ok(survey)
     }
+}
+
+/// One shot as the survey read it, before it joins the survey.
+struct ShotRead {
+    id: ShotId,
+    name: String,
+    detect_done: bool,
+    kernels_done: bool,
+    what: Read,
+}
+
+/// What reading one shot found.
+enum Read {
+    /// A kernels file the manifest lists instead of a photo.
+    Listed(Result<KernelsFile, String>),
+    /// A photo that could not be read (why, in words).
+    Unreadable(String),
+    /// A photo, fingerprinted, with what the cache holds for it.
+    Shot {
+        file: ShotFile,
+        detection: Result<Option<Detection>, pipeline::PipelineError>,
+        kernels: Result<Option<KernelsFile>, pipeline::PipelineError>,
+    },
 }
 
 /// Whether a shot path is a kernels file measured earlier rather than a photo.
