@@ -238,7 +238,7 @@ impl Basis {
     }
 }
 
-/// Least squares for `y`'s right-hand sides (three for the Gaussians' σx, σy, ρ):
+/// Least squares for `y`'s right-hand sides (three for the Gaussians' C_xx, C_yy, C_or):
 /// Householder QR, or SVD where R is (near) singular. Returns `n × y.ncols()`.
 ///
 /// The QR is taken by blocks of rows (a tall-skinny QR): each block of `[A | y]` is

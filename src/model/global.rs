@@ -54,7 +54,10 @@ impl GlobalModel {
                     coeffs: super::split_coeffs(&solve_lsq(a, &y)),
                 })
             })
-            .collect::<Result<Vec<_>, ModelError>>()?;
+            .collect::<Vec<Result<_, ModelError>>>()
+            // The first channel's error in channel order, whichever thread met it first.
+            .into_iter()
+            .collect::<Result<Vec<_>, _>>()?;
         Ok(Self {
             norm,
             alpha,

@@ -828,8 +828,11 @@ impl ShapeFit {
             };
             Ok(Some((ch, coeffs)))
         });
+        // The first channel's error in channel order, whichever thread met it first.
         let channels: Vec<(Channel, Vec<Vec<f64>>)> = fitted
-            .collect::<Result<Vec<_>, ModelError>>()?
+            .collect::<Vec<Result<_, ModelError>>>()
+            .into_iter()
+            .collect::<Result<Vec<_>, _>>()?
             .into_iter()
             .flatten()
             .collect();
