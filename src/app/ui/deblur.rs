@@ -312,9 +312,14 @@ fn advanced_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
             }));
         }
         let mut correct = app.deblur.lateral == crate::model::LateralColour::Correct;
+        let has_place = app
+            .profile
+            .as_ref()
+            .is_some_and(|(_, p)| p.place.is_some());
         if ui
-            .checkbox(&mut correct, "correct lateral colour")
+            .add_enabled(has_place, egui::Checkbox::new(&mut correct, "correct lateral colour"))
             .on_hover_text("Move red and blue back onto green as the blur is removed, where the profile measured how far the lens moves them. Leave it off when darktable or RawTherapee corrects lateral colour with the lens's lensfun entry, or the channels move twice")
+            .on_disabled_hover_text("This profile does not record where each channel's kernels sit (it was calibrated before profile version 4, or from shots whose kernels were not kept): calibrate again to correct lateral colour")
             .changed()
         {
             app.commands.push(Command::SetDeblurLateral(if correct {
