@@ -421,7 +421,7 @@ impl PlaceModel {
         let c = self.channels.iter().find(|c| c.channel == channel)?;
         let own = self.eval(&c.kernel, x, y, setting);
         let apart = match lateral {
-            LateralColour::Correct => self.eval(&c.registration, x, y, setting),
+            LateralColour::Correct => self.registration(channel, x, y, setting)?,
             LateralColour::Keep => [0.0, 0.0],
         };
         Some([own[0] + apart[0], own[1] + apart[1]])
