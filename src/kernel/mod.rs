@@ -94,7 +94,7 @@ impl Default for KernelParams {
             cg_iterations: 30,
             cg_tolerance: 1e-7,
             smoothness: 0.0,
-            threshold: 0.02,
+            threshold: crate::gaussian::CLEAN_THRESHOLD,
             max_support_px: 40.0,
             clipped_fraction: 0.02,
         }

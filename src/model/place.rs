@@ -146,7 +146,7 @@ fn measured(ds: &Dataset, norm: &Normalisation, channel: Channel) -> Vec<Measure
 /// A kernel's samples below this fraction of its peak are left out of its centroid:
 /// the kernel estimator's own cleaning threshold, so a floor of noise spread over the
 /// kernel's grid does not pull the centroid towards the grid's centre.
-const CENTROID_THRESHOLD: f64 = 0.02;
+const CENTROID_THRESHOLD: f64 = crate::gaussian::CLEAN_THRESHOLD;
 
 /// Where a kernel's light lies, px from its centre sample: the mean of its samples
 /// above [`CENTROID_THRESHOLD`] of its peak.
