@@ -480,8 +480,9 @@ impl Linear1x {
 /// The grid a held-out kernel and the kernels predicted for it are compared on: the
 /// measured kernel's, grown to hold the largest kernel deblurring would render around
 /// `g` in any of `spaces` (a pixel-space shape reaches ±6 px however sharp the core);
-/// with the measured kernel on it. A prediction judged only where the measured kernel
-/// was would hide what it puts beyond.
+/// with the measured kernel's [`crate::model::psf_mass`], which the shapes are learnt
+/// from, on it. A prediction judged only where the measured kernel was would hide what
+/// it puts beyond.
 pub(super) fn judged_grid(
     measured: &crate::psf::Kernel,
     g: &crate::psf::Gaussian2,
@@ -498,7 +499,7 @@ pub(super) fn judged_grid(
             measured.oversample,
         )?);
     }
-    Some((grid, measured.padded(grid)))
+    Some((grid, crate::model::psf_mass(measured).padded(grid)))
 }
 
 /// The models a shape cross-validation tries: the numbers of components (ascending;

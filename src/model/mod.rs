@@ -41,8 +41,8 @@ pub use place::{
 pub use restoration::{RestorationError, WIENER_NSR};
 pub use shape::{
     KernelModel, MAX_COMPONENTS, PIXEL_SIDE, ShapeFit, ShapeModel, ShapeSpace, WHITENED_LEN,
-    WHITENED_PER_SIGMA, WHITENED_SIDE, kernel_with_residual, kernel_with_shape, relative_l2,
-    session_residuals, shape_basis, shape_residual, whitened_residual,
+    WHITENED_PER_SIGMA, WHITENED_SIDE, kernel_with_residual, kernel_with_shape, psf_mass,
+    relative_l2, session_residuals, shape_basis, shape_residual, whitened_residual,
 };
 pub(crate) use shape::{PreparedKernels, deployed_kernel_side};
 

@@ -195,10 +195,31 @@ fn grid_sample(space: ShapeSpace, grid: &[f64], w: [f64; 2]) -> f64 {
     crate::plane::bilinear_zero_outside(grid, side, w[0] * s + h, w[1] * s + h)
 }
 
+/// The part of a measured kernel the shape model describes: its central region (the
+/// connected region above the estimator's cleaning threshold that holds the centre,
+/// which is what its Gaussian was fitted to), normalised.
+///
+/// Specks apart from the core are noise the threshold let through, and all of it
+/// positive (the estimator clips at zero), so it does not average out: kept, a
+/// session's specks add up to a pedestal the shape components learn as a halo that no
+/// lens made, larger in red and blue (half as many Bayer samples as green) than in
+/// green. On the comet lens's measured chain that halo made the predicted kernels'
+/// second moments 1.6 to 2.5 times the true ones in the frame's centre and moved the
+/// colour channels' sharpness apart: a fringe at every strong edge.
+#[must_use]
+pub fn psf_mass(kernel: &Kernel) -> Kernel {
+    let mut k = Kernel {
+        data: crate::gaussian::central_region(kernel, crate::gaussian::CLEAN_THRESHOLD),
+        ..kernel.clone()
+    };
+    k.normalise();
+    k
+}
+
 /// A measured kernel's shape beyond its Gaussian, on a space's grid (row-major):
 /// whitened, its density in the Gaussian's whitened coordinates minus the unit normal;
-/// pixel, its density minus the Gaussian's, per px². `None` when the Gaussian is
-/// degenerate.
+/// pixel, its density minus the Gaussian's, per px². Of the kernel's [`psf_mass`].
+/// `None` when the Gaussian is degenerate.
 #[must_use]
 pub fn shape_residual(
     space: ShapeSpace,
@@ -206,6 +227,7 @@ pub fn shape_residual(
     gaussian: &Gaussian2,
 ) -> Option<Vec<f64>> {
     let wh = Whitening::of(gaussian)?;
+    let kernel = &psf_mass(kernel);
     // Kernel weights are per sample; per px² they are os² times larger.
     let os2 = (kernel.oversample * kernel.oversample) as f64;
     let side = space.side();
@@ -886,6 +908,64 @@ mod tests {
         let without = relative_l2(&plain, &k);
         assert!(with < 0.05, "round trip error {with}");
         assert!(without > 0.2, "a Gaussian should miss the tail: {without}");
+    }
+
+    #[test]
+    fn noise_apart_from_the_core_is_not_part_of_the_shape() {
+        let g = Gaussian2::new(1.1, 1.0, -0.2);
+        let tail = Gaussian2::isotropic(0.8);
+        let mut k = Kernel::from_fn(31, 3, |dx, dy| {
+            g.density(dx, dy) + 0.3 * tail.density(dx - 2.5, dy)
+        });
+        // As the estimator leaves it: nothing below its threshold.
+        let peak = k.data.iter().copied().fold(0.0, f64::max);
+        for v in &mut k.data {
+            if *v <= crate::gaussian::CLEAN_THRESHOLD * peak {
+                *v = 0.0;
+            }
+        }
+        k.normalise();
+        let clean = shape_residual(ShapeSpace::Whitened, &k, &g).expect("whitens");
+        // Specks of noise above the threshold wherever the kernel is zero around them
+        // (so apart from the core and its tail and from each other), every third
+        // sample: the pedestal the estimator's clipped noise leaves.
+        let mut specked = k.clone();
+        let n = k.size;
+        let zero_around = |i: usize, j: usize| {
+            (i.saturating_sub(1)..=(i + 1).min(n - 1))
+                .all(|a| (j.saturating_sub(1)..=(j + 1).min(n - 1)).all(|b| k.at(a, b) == 0.0))
+        };
+        let mut specks = 0;
+        for j in (0..n).step_by(3) {
+            for i in (0..n).step_by(3) {
+                if zero_around(i, j) {
+                    specked.data[j * n + i] = 0.04 * peak;
+                    specks += 1;
+                }
+            }
+        }
+        assert!(specks > 20, "{specks} specks");
+        specked.normalise();
+        let with = shape_residual(ShapeSpace::Whitened, &specked, &g).expect("whitens");
+        let worst = clean
+            .iter()
+            .zip(&with)
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        assert!(worst < 1e-12, "specks moved the residual by {worst}");
+        // The PSF mass is the core and its tail, sample for sample.
+        let mass = psf_mass(&specked);
+        assert_eq!(
+            mass.data.iter().filter(|&&v| v > 0.0).count(),
+            k.data.iter().filter(|&&v| v > 0.0).count()
+        );
+        // And the specks are not too faint to matter: taken as PSF mass, they would
+        // widen the kernel.
+        let (before, after) = (k.moments(), specked.moments());
+        let grown = (after.var_x + after.var_y) / (before.var_x + before.var_y);
+        assert!(
+            grown > 1.2,
+            "the specks are too faint to test anything: {grown}"
+        );
     }
 
     #[test]
