@@ -134,9 +134,12 @@ impl CentreGrid {
     pub fn within(&self, idx: usize, pts: &[[f64; 2]], scale: f64) -> Vec<usize> {
         let c = self.centre(idx);
         let r = self.radius_px * scale;
+        // Squared distances: hypot's care with overflow costs a tenth of a calibration
+        // here, and no sensor is that large.
+        let r2 = r * r;
         pts.iter()
             .enumerate()
-            .filter(|(_, p)| (p[0] - c[0]).hypot(p[1] - c[1]) <= r)
+            .filter(|(_, p)| (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) <= r2)
             .map(|(i, _)| i)
             .collect()
     }
