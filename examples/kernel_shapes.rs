@@ -18,9 +18,12 @@
 //! −M. `centred` deblurs with every kernel centred on its pixel, as profiles did
 //! before they kept where each channel's kernels sit.
 //!
-//! `cargo run --release --example kernel_shapes -- [aberrated|comet] [W H] [measured]
-//! [cols=12] [rows=8] [shots=2] [pixel] [colour [centred]] [lateral=M] [holdout=setting]
-//! [cache=DIR]`
+//! With `truth` (and `measured`), the measured kernels are first compared with the
+//! lens's true ones at five settings.
+//!
+//! `cargo run --release --example kernel_shapes -- [aberrated|comet] [W H] [measured
+//! [truth]] [cols=12] [rows=8] [shots=2] [pixel] [colour [centred]] [lateral=M]
+//! [holdout=setting] [cache=DIR]`
 //! (`pixel`: the pixel space among the candidates; `holdout=setting`: cross-validation
 //! holds out whole settings)
 
@@ -84,6 +87,9 @@ fn main() -> anyhow::Result<()> {
         ds.samples.len(),
         t0.elapsed().as_secs_f64()
     );
+    if args.iter().any(|a| a == "truth") {
+        measured_against_truth(&ds, &lens, &settings, (w, h));
+    }
     let t1 = std::time::Instant::now();
     let spaces = if args.iter().any(|a| a == "pixel") {
         vec![ShapeSpace::Whitened, ShapeSpace::Pixel]
@@ -249,6 +255,64 @@ fn main() -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// The session's kernels against the lens's true ones at five of its settings (the
+/// first shot of each): mean relative L2 of the kernels as stored, of their PSF mass
+/// (what the shape model learns from) and of their robust Gaussians, and the ratio of
+/// the stored kernels' second moments to the true ones per channel. Measured kernels
+/// are centred on their squares' registrations, so the truth is taken centred too.
+fn measured_against_truth(
+    ds: &lensblur::model::Dataset,
+    lens: &VirtualLens,
+    settings: &[LensSetting],
+    (w, h): (usize, usize),
+) {
+    use lensblur::model::{psf_mass, relative_l2};
+    println!(
+        "kernels against the truth: setting, relative L2 of stored / PSF mass / Gaussian, second moments ÷ true (R G B) stored; PSF mass"
+    );
+    for si in [0, 2, 4, 12, 24] {
+        let Some(&st) = settings.get(si) else {
+            continue;
+        };
+        let (mut sums, mut n) = ([0.0; 3], 0.0);
+        let mut spread = [(0.0, 0.0, 0.0); 3];
+        for s in ds.samples.iter().filter(|s| s.shot == 2 * si) {
+            let Some(k) = &s.kernel else { continue };
+            let (u, v) = VirtualLens::normalised(s.x, s.y, w, h);
+            let t = lens
+                .optical_kernel_uv(s.channel, u, v, st, 3)
+                .pixel_integrated();
+            sums[0] += relative_l2(k, &t);
+            sums[1] += relative_l2(&psf_mass(k), &t);
+            sums[2] += relative_l2(&s.gaussian.kernel(3), &t);
+            n += 1.0;
+            let c = match s.channel {
+                Channel::R => 0,
+                Channel::B => 2,
+                _ => 1,
+            };
+            let (mk, mp, mt) = (k.moments(), psf_mass(k).moments(), t.moments());
+            spread[c].0 += mk.var_x + mk.var_y;
+            spread[c].1 += mp.var_x + mp.var_y;
+            spread[c].2 += mt.var_x + mt.var_y;
+        }
+        println!(
+            "{:>5.1} mm f/{:<5.2}  {:.3} / {:.3} / {:.3}   {:.2} {:.2} {:.2}; {:.2} {:.2} {:.2}",
+            st.focal_mm,
+            st.f_number,
+            sums[0] / n,
+            sums[1] / n,
+            sums[2] / n,
+            spread[0].0 / spread[0].2,
+            spread[1].0 / spread[1].2,
+            spread[2].0 / spread[2].2,
+            spread[0].1 / spread[0].2,
+            spread[1].1 / spread[1].2,
+            spread[2].1 / spread[2].2
+        );
+    }
 }
 
 /// Two shots per setting through simulate → detect → kernels, as `lensblur calibrate`
