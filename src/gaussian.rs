@@ -80,15 +80,12 @@ pub fn label_regions(mask: &[bool], size: usize) -> (Vec<u32>, u32) {
 pub fn central_region(kernel: &Kernel, threshold: f64) -> Vec<f64> {
     let n = kernel.size;
     let peak = kernel.data.iter().copied().fold(0.0f64, f64::max);
-    let mask: Vec<bool> = kernel
-        .data
-        .iter()
-        .map(|&v| v > threshold * peak && v > 0.0)
-        .collect();
+    let above = |v: f64| v > threshold * peak && v > 0.0;
     let centre = (n / 2) * n + n / 2;
-    if mask.get(centre) == Some(&true) {
-        return region_of(&kernel.data, &mask, n, centre);
+    if kernel.data.get(centre).is_some_and(|&v| above(v)) {
+        return region_of(&kernel.data, above, n, centre);
     }
+    let mask: Vec<bool> = kernel.data.iter().map(|&v| above(v)).collect();
     let (labels, count) = label_regions(&mask, n);
     let chosen = if labels[centre] != 0 {
         labels[centre]
@@ -109,23 +106,23 @@ pub fn central_region(kernel: &Kernel, threshold: f64) -> Vec<f64> {
         .collect()
 }
 
-/// `values` kept on the 8-connected region of `mask` that holds `seed`, zero elsewhere:
-/// what labelling the whole grid gives for that one region, at the cost of the region
-/// alone. Every kernel read for its shape or its fit needs its centre's region, and
-/// labelling also converts the grid to an image and labels every speck of noise.
-fn region_of(values: &[f64], mask: &[bool], n: usize, seed: usize) -> Vec<f64> {
+/// `values` kept on the 8-connected region of samples `above` holds that contains
+/// `seed` (itself above), zero elsewhere: what labelling the whole grid gives for that
+/// one region, at the cost of the region alone. Every kernel read for its shape or its
+/// fit needs its centre's region, and labelling also converts the grid to an image and
+/// labels every speck of noise. Samples above are positive, so a sample is taken once
+/// its output is no longer zero.
+fn region_of(values: &[f64], above: impl Fn(f64) -> bool, n: usize, seed: usize) -> Vec<f64> {
     let mut out = vec![0.0; values.len()];
-    let mut seen = vec![false; values.len()];
     let mut stack = vec![seed];
-    seen[seed] = true;
+    out[seed] = values[seed];
     while let Some(p) = stack.pop() {
-        out[p] = values[p];
         let (i, j) = (p % n, p / n);
         for b in j.saturating_sub(1)..=(j + 1).min(n - 1) {
             for a in i.saturating_sub(1)..=(i + 1).min(n - 1) {
                 let q = b * n + a;
-                if mask[q] && !seen[q] {
-                    seen[q] = true;
+                if out[q] == 0.0 && above(values[q]) {
+                    out[q] = values[q];
                     stack.push(q);
                 }
             }

@@ -209,8 +209,9 @@ fn grid_sample(space: ShapeSpace, grid: &[f64], w: [f64; 2]) -> f64 {
 #[must_use]
 pub fn psf_mass(kernel: &Kernel) -> Kernel {
     let mut k = Kernel {
+        size: kernel.size,
+        oversample: kernel.oversample,
         data: crate::gaussian::central_region(kernel, crate::gaussian::CLEAN_THRESHOLD),
-        ..kernel.clone()
     };
     k.normalise();
     k
