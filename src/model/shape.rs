@@ -204,7 +204,7 @@ fn grid_sample(space: ShapeSpace, grid: &[f64], w: [f64; 2]) -> f64 {
 /// session's specks add up to a pedestal the shape components learn as a halo that no
 /// lens made, larger in red and blue (half as many Bayer samples as green) than in
 /// green. On the comet lens's measured chain that halo made the predicted kernels'
-/// second moments 1.6 to 2.5 times the true ones in the frame's centre and moved the
+/// second moments 1.7 (green) to 2.5 times the true ones in the frame's centre and moved the
 /// colour channels' sharpness apart: a fringe at every strong edge.
 #[must_use]
 pub fn psf_mass(kernel: &Kernel) -> Kernel {
