@@ -441,8 +441,16 @@ fn score_held_out<M: FittedModel>(
     out: &mut [Vec<f64>; 3],
     at: &mut Vec<HeldOutError>,
 ) {
-    for s in &cd.samples {
-        if let Some(p) = fold_models[s.fold].predict(cd.channel, s.x, s.y, s.setting) {
+    use rayon::prelude::*;
+    // Every held-out sample's prediction evaluates the model's basis there: in
+    // parallel, then scored in sample order.
+    let predicted: Vec<Option<[f64; 3]>> = cd
+        .samples
+        .par_iter()
+        .map(|s| fold_models[s.fold].predict(cd.channel, s.x, s.y, s.setting))
+        .collect();
+    for (s, p) in cd.samples.iter().zip(predicted) {
+        if let Some(p) = p {
             push_errors(out, p, s.params, r);
             let error_pct = (0..3).map(|k| out[k][out[k].len() - 1]).sum::<f64>() / 3.0;
             at.push(HeldOutError {
