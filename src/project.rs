@@ -457,27 +457,18 @@ impl SurveyJob {
                     detection,
                     kernels,
                 } => {
-                    match detection {
-                        Ok(Some(d)) => state.detection = Some(Arc::new(d)),
-                        Ok(None) if r.detect_done => survey.dropped.push(format!(
-                            "{}: its recorded detection is gone from the results: pending again",
-                            r.name
-                        )),
-                        Ok(None) => {}
-                        Err(e) => survey
-                            .dropped
-                            .push(format!("{e}: left out, detected again when needed")),
+                    let dropped = &mut survey.dropped;
+                    let recorded = (r.name.as_str(), r.detect_done);
+                    if let Some(d) =
+                        from_cache(detection, recorded, "detection is", "detected", dropped)
+                    {
+                        state.detection = Some(d);
                     }
-                    match kernels {
-                        Ok(Some(k)) => state.kernels = Some(Arc::new(k)),
-                        Ok(None) if r.kernels_done => survey.dropped.push(format!(
-                            "{}: its recorded kernels are gone from the results: pending again",
-                            r.name
-                        )),
-                        Ok(None) => {}
-                        Err(e) => survey
-                            .dropped
-                            .push(format!("{e}: left out, measured again when needed")),
+                    let recorded = (r.name.as_str(), r.kernels_done);
+                    if let Some(k) =
+                        from_cache(kernels, recorded, "kernels are", "measured", dropped)
+                    {
+                        state.kernels = Some(k);
                     }
                     state.file = Some(file);
                 }
@@ -509,6 +500,27 @@ enum Read {
         detection: Result<Option<Detection>, pipeline::PipelineError>,
         kernels: Result<Option<KernelsFile>, pipeline::PipelineError>,
     },
+}
+
+/// A shot's cached detection or kernels as the survey takes them: what the cache holds,
+/// or a line in `dropped` saying why not where the project had recorded it
+/// (`recorded`: the shot's name and whether it had) or the cache could not be read.
+fn from_cache<T>(
+    found: Result<Option<T>, pipeline::PipelineError>,
+    (name, recorded): (&str, bool),
+    what_is: &str,
+    redone: &str,
+    dropped: &mut Vec<String>,
+) -> Option<Arc<T>> {
+    match found {
+        Ok(Some(v)) => return Some(Arc::new(v)),
+        Ok(None) if recorded => dropped.push(format!(
+            "{name}: its recorded {what_is} gone from the results: pending again"
+        )),
+        Ok(None) => {}
+        Err(e) => dropped.push(format!("{e}: left out, {redone} again when needed")),
+    }
+    None
 }
 
 /// Whether a shot path is a kernels file measured earlier rather than a photo.
