@@ -209,6 +209,7 @@ fn main() -> anyhow::Result<()> {
     println!(
         "setting           channel  blurry  true    Gaussian shape  shape(L2) | corners: true Gaussian shape  shape(L2)"
     );
+    let mut crops = Vec::new();
     for (i, (focal_mm, f_number, ch)) in [
         (31.0, 4.5, Channel::G),
         (62.0, 4.5, Channel::R),
@@ -234,6 +235,7 @@ fn main() -> anyhow::Result<()> {
             .map_err(anyhow::Error::msg)
         };
         let r = compare(&profile)?;
+        crops.push((focal_mm, f_number, ch, r));
         // The same photo and noise (same seed): only the shape model differs.
         let l2 = match &profile_l2 {
             Some(p) => Some(compare(p)?),
@@ -253,6 +255,14 @@ fn main() -> anyhow::Result<()> {
             r.corners_shape,
             l2_corners
         );
+    }
+    println!(
+        "five crops, SSIM as they are | each crop aligned first (largest shift, px): blurry true Gaussian shape"
+    );
+    for (focal_mm, f_number, ch, r) in crops {
+        let [a, b] = [r.crops, r.crops_registered].map(|v| v.map(|x| format!("{x:.4}")).join(" "));
+        let shifts = r.largest_shift_px.map(|x| format!("{x:.2}")).join(" ");
+        println!("{focal_mm:>5} mm f/{f_number:<4}  {ch}   {a} | {b} ({shifts})");
     }
     Ok(())
 }

@@ -102,6 +102,45 @@ impl Plane {
         ))
     }
 
+    /// The rectangle `[x0, x0 + w) × [y0, y0 + h)` read at every pixel moved by
+    /// (dx, dy) px: sample (x, y) of the result is the plane at (x0 + x + dx, y0 + y +
+    /// dy), interpolated with a Lanczos-3 window (sharp enough that a sub-pixel move
+    /// does not itself blur what is compared). Positions past the border read the
+    /// nearest edge pixel.
+    #[must_use]
+    pub fn shifted_crop(
+        &self,
+        (x0, y0): (usize, usize),
+        (w, h): (usize, usize),
+        [dx, dy]: [f64; 2],
+    ) -> Plane {
+        // Six taps per axis, normalised so a flat region stays flat.
+        let taps = |d: f64| -> (isize, [f64; 6]) {
+            let whole = d.floor();
+            let frac = d - whole;
+            let mut t = [0.0; 6];
+            for (k, v) in t.iter_mut().enumerate() {
+                *v = lanczos3(k as f64 - 2.0 - frac);
+            }
+            let sum: f64 = t.iter().sum();
+            t.iter_mut().for_each(|v| *v /= sum);
+            (whole as isize - 2, t)
+        };
+        let ((ox, tx), (oy, ty)) = (taps(dx), taps(dy));
+        let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
+        Plane::from_fn(w, h, |x, y| {
+            let mut acc = 0.0;
+            for (b, wy) in ty.iter().enumerate() {
+                let yy = clamp((y0 + y) as isize + oy + b as isize, self.height);
+                for (a, wx) in tx.iter().enumerate() {
+                    let xx = clamp((x0 + x) as isize + ox + a as isize, self.width);
+                    acc += wx * wy * f64::from(self.get(xx, yy));
+                }
+            }
+            acc as f32
+        })
+    }
+
     /// A copy of the rectangle `[x0, x0 + w) × [y0, y0 + h)`, which must lie inside.
     #[must_use]
     pub fn crop(&self, x0: usize, y0: usize, w: usize, h: usize) -> Plane {
@@ -445,6 +484,18 @@ impl Capture {
 /// sampler in the crate uses ([`Plane::bilinear`], [`bilinear_zero_outside`]).
 #[inline]
 #[must_use]
+/// The Lanczos window of three lobes, sinc(t)·sinc(t/3) for |t| < 3.
+fn lanczos3(t: f64) -> f64 {
+    if t.abs() < 1e-12 {
+        return 1.0;
+    }
+    if t.abs() >= 3.0 {
+        return 0.0;
+    }
+    let p = std::f64::consts::PI * t;
+    3.0 * p.sin() * (p / 3.0).sin() / (p * p)
+}
+
 pub fn bilinear_blend<T>(q: [T; 4], fx: T, fy: T) -> T
 where
     T: Copy
