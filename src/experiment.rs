@@ -635,8 +635,8 @@ pub fn compare_kernel_models(
     {
         for &origin in &five {
             let r = crate::metrics::registered_ssim(
-                x,
-                &sharp,
+                &[x],
+                &[&sharp],
                 origin,
                 (c, c),
                 REGISTRATION_REACH_PX,
@@ -676,6 +676,9 @@ pub struct CropColour {
     /// [blurry, true kernels, Gaussians, shapes].
     pub colour: [f64; 4],
     pub ssim: [f64; 4],
+    /// SSIM with the crop's three channels first moved together by the translation that
+    /// best aligns them ([`crate::metrics::registered_ssim`]).
+    pub ssim_registered: [f64; 4],
 }
 
 /// Blurs an RGB photo through `lens` at `setting` (its true pixel-level kernels per
@@ -790,7 +793,15 @@ pub fn compare_colour(
                     .map(|i| crate::metrics::ssim(&x[i], &t[i], &params))
                     .sum::<f64>()
                     / 3.0;
-                (colour, ssim)
+                let registered = crate::metrics::registered_ssim(
+                    &[&p[0], &p[1], &p[2]],
+                    &[&truth[0], &truth[1], &truth[2]],
+                    (x0, y0),
+                    (c, c),
+                    REGISTRATION_REACH_PX,
+                    &params,
+                );
+                (colour, ssim, registered.ssim)
             };
             let s = [
                 score(&blurry),
@@ -802,6 +813,7 @@ pub fn compare_colour(
                 name: name.into(),
                 colour: s.map(|v| v.0),
                 ssim: s.map(|v| v.1),
+                ssim_registered: s.map(|v| v.2),
             }
         })
         .collect())

@@ -211,9 +211,11 @@ pub struct Registered {
     pub shift_px: [f64; 2],
 }
 
-/// SSIM of `image` against `reference` (the same size) over the crop at `origin` of
-/// `size`, with `image` first moved by the translation within ±`max_shift_px` that
-/// scores best: a grid of 0.25 px, then 0.05 px around its best.
+/// Mean SSIM of the channels of `image` against those of `reference` (planes of one
+/// size) over the crop at `origin` of `size`, with every channel of `image` first moved
+/// by the one translation within ±`max_shift_px` that scores best: a grid of 0.25 px,
+/// then 0.05 px around its best. One move for all channels, so what moves the channels
+/// against each other (a fringe) still counts.
 ///
 /// A kernel measured from a chart is known only relative to where the chart's blurred
 /// edges appear, so where a lens's PSF is lopsided (coma, flare), a deblur with measured
@@ -222,22 +224,39 @@ pub struct Registered {
 /// this alignment for the same reason (Levin et al. 2009); both figures are reported.
 ///
 /// # Panics
-/// If the planes differ in size or the crop does not lie inside them.
+/// If the planes differ in size or number, there are none, or the crop does not lie
+/// inside them.
 #[must_use]
 pub fn registered_ssim(
-    image: &Plane,
-    reference: &Plane,
+    image: &[&Plane],
+    reference: &[&Plane],
     origin: (usize, usize),
     size: (usize, usize),
     max_shift_px: f64,
     p: &SsimParams,
 ) -> Registered {
     assert!(
-        image.width == reference.width && image.height == reference.height,
+        !image.is_empty()
+            && image.len() == reference.len()
+            && image
+                .iter()
+                .zip(reference)
+                .all(|(a, b)| { a.width == b.width && a.height == b.height }),
         "image sizes differ"
     );
-    let target = reference.crop(origin.0, origin.1, size.0, size.1);
-    let score = |shift: [f64; 2]| ssim(&image.shifted_crop(origin, size, shift), &target, p);
+    let targets: Vec<Plane> = reference
+        .iter()
+        .map(|r| r.crop(origin.0, origin.1, size.0, size.1))
+        .collect();
+    let mean = |crop: &dyn Fn(&Plane) -> Plane| {
+        image
+            .iter()
+            .zip(&targets)
+            .map(|(a, t)| ssim(&crop(a), t, p))
+            .sum::<f64>()
+            / image.len() as f64
+    };
+    let score = |shift: [f64; 2]| mean(&|a: &Plane| a.shifted_crop(origin, size, shift));
     let search = |mut best: Registered, centre: [f64; 2], step: f64, reach: f64| {
         let n = (reach / step).round() as i32;
         for j in -n..=n {
@@ -261,7 +280,7 @@ pub fn registered_ssim(
         best
     };
     let unmoved = Registered {
-        ssim: ssim(&image.crop(origin.0, origin.1, size.0, size.1), &target, p),
+        ssim: mean(&|a: &Plane| a.crop(origin.0, origin.1, size.0, size.1)),
         shift_px: [0.0, 0.0],
     };
     let coarse = search(unmoved, [0.0, 0.0], 0.25, max_shift_px);
@@ -296,7 +315,7 @@ mod tests {
         let moved = pattern(0.3, -0.45);
         let p = SsimParams::default();
         let (origin, size) = ((20, 16), (48, 40));
-        let same = registered_ssim(&reference, &reference, origin, size, 1.0, &p);
+        let same = registered_ssim(&[&reference], &[&reference], origin, size, 1.0, &p);
         assert_eq!(same.shift_px, [0.0, 0.0]);
         assert!((same.ssim - 1.0).abs() < 1e-12, "{same:?}");
         let unaligned = ssim(
@@ -304,7 +323,7 @@ mod tests {
             &reference.crop(origin.0, origin.1, size.0, size.1),
             &p,
         );
-        let found = registered_ssim(&moved, &reference, origin, size, 1.0, &p);
+        let found = registered_ssim(&[&moved], &[&reference], origin, size, 1.0, &p);
         assert!((found.shift_px[0] - 0.3).abs() < 1e-9, "{found:?}");
         assert!((found.shift_px[1] + 0.45).abs() < 1e-9, "{found:?}");
         assert!(found.ssim > 0.9995, "{found:?}");
