@@ -541,6 +541,18 @@ pub struct KernelModelSsim {
     pub largest_shift_px: [f64; 4],
 }
 
+/// The five crops the deblurring comparisons score, each `c` px square in a `w × h`
+/// frame: the centre, then the four corners.
+fn five_crops(w: usize, h: usize, c: usize) -> [(&'static str, usize, usize); 5] {
+    [
+        ("centre", (w - c) / 2, (h - c) / 2),
+        ("top-left", 0, 0),
+        ("top-right", w - c, 0),
+        ("bottom-left", 0, h - c),
+        ("bottom-right", w - c, h - c),
+    ]
+}
+
 /// Most a crop is moved to align it in [`KernelModelSsim::crops_registered`], px: a
 /// lopsided PSF's centroid lies up to about a pixel from its core on these lenses.
 const REGISTRATION_REACH_PX: f64 = 1.5;
@@ -612,41 +624,31 @@ pub fn compare_kernel_models(
     let params = SsimParams::default();
     let s = |x: &Plane| crate::metrics::ssim(x, &sharp, &params);
     let c = (w.min(h) / 4).max(16);
+    let five = five_crops(w, h, c);
     let corners = |x: &Plane| {
-        [(0, 0), (w - c, 0), (0, h - c), (w - c, h - c)]
+        five[1..]
             .iter()
-            .map(|&(x0, y0)| {
+            .map(|&(_, x0, y0)| {
                 crate::metrics::ssim(&x.crop(x0, y0, c, c), &sharp.crop(x0, y0, c, c), &params)
             })
             .sum::<f64>()
             / 4.0
     };
-    let five = [
-        ((w - c) / 2, (h - c) / 2),
-        (0, 0),
-        (w - c, 0),
-        (0, h - c),
-        (w - c, h - c),
-    ];
     let (mut crops, mut crops_registered, mut largest_shift_px) = ([0.0; 4], [0.0; 4], [0.0; 4]);
     for (i, x) in [&cp.plane, &x_true, &x_gauss, &x_shape]
         .into_iter()
         .enumerate()
     {
-        for &origin in &five {
+        for &(_, x0, y0) in &five {
             let r = crate::metrics::registered_ssim(
                 &[x],
                 &[&sharp],
-                origin,
+                (x0, y0),
                 (c, c),
                 REGISTRATION_REACH_PX,
                 &params,
             );
-            crops[i] += crate::metrics::ssim(
-                &x.crop(origin.0, origin.1, c, c),
-                &sharp.crop(origin.0, origin.1, c, c),
-                &params,
-            ) / five.len() as f64;
+            crops[i] += r.unmoved / five.len() as f64;
             crops_registered[i] += r.ssim / five.len() as f64;
             largest_shift_px[i] = f64::max(largest_shift_px[i], r.shift_px[0].hypot(r.shift_px[1]));
         }
@@ -768,13 +770,7 @@ pub fn compare_colour(
     let [x_true, x_gauss, x_shape] = three_ways(profile, setting, &true_kernel, run)?;
     let blurry: Vec<Plane> = planes.into_iter().map(|cp| cp.plane).collect();
     let c = (w.min(h) / 4).max(16);
-    let crops = [
-        ("centre", (w - c) / 2, (h - c) / 2),
-        ("top-left", 0, 0),
-        ("top-right", w - c, 0),
-        ("bottom-left", 0, h - c),
-        ("bottom-right", w - c, h - c),
-    ];
+    let crops = five_crops(w, h, c);
     let params = SsimParams::default();
     Ok(crops
         .iter()
@@ -789,10 +785,6 @@ pub fn compare_colour(
                     [&t[0], &t[1], &t[2]],
                     0.1,
                 );
-                let ssim = (0..3)
-                    .map(|i| crate::metrics::ssim(&x[i], &t[i], &params))
-                    .sum::<f64>()
-                    / 3.0;
                 let registered = crate::metrics::registered_ssim(
                     &[&p[0], &p[1], &p[2]],
                     &[&truth[0], &truth[1], &truth[2]],
@@ -801,7 +793,7 @@ pub fn compare_colour(
                     REGISTRATION_REACH_PX,
                     &params,
                 );
-                (colour, ssim, registered.ssim)
+                (colour, registered.unmoved, registered.ssim)
             };
             let s = [
                 score(&blurry),

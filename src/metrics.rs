@@ -209,6 +209,8 @@ pub struct Registered {
     pub ssim: f64,
     /// The restored image is read at reference position + `shift_px`.
     pub shift_px: [f64; 2],
+    /// The SSIM of the crop as it is, unmoved.
+    pub unmoved: f64,
 }
 
 /// Mean SSIM of the channels of `image` against those of `reference` (planes of one
@@ -273,15 +275,18 @@ pub fn registered_ssim(
                     best = Registered {
                         ssim: v,
                         shift_px: shift,
+                        ..best
                     };
                 }
             }
         }
         best
     };
+    let ssim_unmoved = mean(&|a: &Plane| a.crop(origin.0, origin.1, size.0, size.1));
     let unmoved = Registered {
-        ssim: mean(&|a: &Plane| a.crop(origin.0, origin.1, size.0, size.1)),
+        ssim: ssim_unmoved,
         shift_px: [0.0, 0.0],
+        unmoved: ssim_unmoved,
     };
     let coarse = search(unmoved, [0.0, 0.0], 0.25, max_shift_px);
     search(coarse, coarse.shift_px, 0.05, 0.2)

@@ -479,11 +479,6 @@ impl Capture {
     }
 }
 
-/// The bilinear blend of four neighbouring samples `[(0, 0), (1, 0), (0, 1), (1, 1)]` at
-/// fractions (`fx`, `fy`) between them: the one interpolation formula every bilinear
-/// sampler in the crate uses ([`Plane::bilinear`], [`bilinear_zero_outside`]).
-#[inline]
-#[must_use]
 /// The Lanczos window of three lobes, sinc(t)·sinc(t/3) for |t| < 3.
 fn lanczos3(t: f64) -> f64 {
     if t.abs() < 1e-12 {
@@ -496,6 +491,11 @@ fn lanczos3(t: f64) -> f64 {
     3.0 * p.sin() * (p / 3.0).sin() / (p * p)
 }
 
+/// The bilinear blend of four neighbouring samples `[(0, 0), (1, 0), (0, 1), (1, 1)]` at
+/// fractions (`fx`, `fy`) between them: the one interpolation formula every bilinear
+/// sampler in the crate uses ([`Plane::bilinear`], [`bilinear_zero_outside`]).
+#[inline]
+#[must_use]
 pub fn bilinear_blend<T>(q: [T; 4], fx: T, fy: T) -> T
 where
     T: Copy
