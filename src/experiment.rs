@@ -667,20 +667,41 @@ pub fn compare_kernel_models(
     })
 }
 
-/// One crop's figures in [`compare_colour`]: the colour error at edges
-/// ([`crate::metrics::edge_colour_error`], strongest 10 %) and SSIM (mean over R, G, B)
-/// against the sharp photo, each for the blurry photo and HQS with the true kernels,
-/// the profile's Gaussians and its kernel shapes.
+/// One crop's figures in [`compare_colour`], each for the blurry photo and HQS with the
+/// true kernels, the profile's Gaussians and its kernel shapes: the deconvolution alone,
+/// and as a user gets it, each deblur's chroma held inside the blurry photo's
+/// ([`Fringes::Suppress`], the default; the blurry photo's figures are the same in
+/// both).
+///
+/// [`Fringes::Suppress`]: crate::deblur::Fringes::Suppress
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CropColour {
     /// "centre", "top-left", "top-right", "bottom-left", "bottom-right".
     pub name: String,
-    /// [blurry, true kernels, Gaussians, shapes].
+    pub alone: CropScores,
+    pub held: CropScores,
+}
+
+/// A crop's colour error at edges ([`crate::metrics::edge_colour_error`], strongest
+/// 10 %) and SSIM (mean over R, G, B) against the sharp photo, each
+/// [blurry, true kernels, Gaussians, shapes].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CropScores {
     pub colour: [f64; 4],
     pub ssim: [f64; 4],
     /// SSIM with the crop's three channels first moved together by the translation that
     /// best aligns them ([`crate::metrics::registered_ssim`]).
     pub ssim_registered: [f64; 4],
+}
+
+impl CropScores {
+    fn new(s: [(f64, f64, f64); 4]) -> Self {
+        Self {
+            colour: s.map(|v| v.0),
+            ssim: s.map(|v| v.1),
+            ssim_registered: s.map(|v| v.2),
+        }
+    }
 }
 
 /// Blurs an RGB photo through `lens` at `setting` (its true pixel-level kernels per
@@ -769,6 +790,15 @@ pub fn compare_colour(
     };
     let [x_true, x_gauss, x_shape] = three_ways(profile, setting, &true_kernel, run)?;
     let blurry: Vec<Plane> = planes.into_iter().map(|cp| cp.plane).collect();
+    let hold = |x: &[Plane]| -> Vec<Plane> {
+        use crate::deblur::chroma::{CHROMA_WINDOW_RADIUS, clamp_chroma};
+        let mut out = x.to_vec();
+        if let ([r, g, b], [ri, gi, bi]) = (out.as_mut_slice(), blurry.as_slice()) {
+            clamp_chroma([ri, gi, bi], [r, g, b], CHROMA_WINDOW_RADIUS);
+        }
+        out
+    };
+    let held = [hold(&x_true), hold(&x_gauss), hold(&x_shape)];
     let c = (w.min(h) / 4).max(16);
     let crops = five_crops(w, h, c);
     let params = SsimParams::default();
@@ -803,9 +833,8 @@ pub fn compare_colour(
             ];
             CropColour {
                 name: name.into(),
-                colour: s.map(|v| v.0),
-                ssim: s.map(|v| v.1),
-                ssim_registered: s.map(|v| v.2),
+                alone: CropScores::new(s),
+                held: CropScores::new([s[0], score(&held[0]), score(&held[1]), score(&held[2])]),
             }
         })
         .collect())

@@ -1502,7 +1502,8 @@ fn predicted_kernel_shapes_deblur_an_aberrated_lens_better_than_its_gaussians() 
 /// R − G, B − G over the strongest 10 % of edges of each of five crops): wherever the
 /// true kernels do not raise the colour error over the blurry photo's, the profile's
 /// kernels do not either. Without the profile's place model (every kernel centred on
-/// its pixel, as before it) the same deblur raises it, so the comparison can fail.
+/// its pixel, as before it) the same deblur raises it, so the comparison can fail. The
+/// same holds with the default fringe hold.
 #[test]
 fn deblurring_adds_no_colour_the_lens_did_not_make() {
     let mut lens = VirtualLens::demo();
@@ -1549,11 +1550,22 @@ fn deblurring_adds_no_colour_the_lens_did_not_make() {
     let crops = colour(&profile);
     for c in &crops {
         eprintln!(
-            "{:<13} colour: blurry {:.4} true {:.4} profile {:.4}",
-            c.name, c.colour[0], c.colour[1], c.colour[2]
+            "{:<13} colour: blurry {:.4} true {:.4} profile {:.4}; held: true {:.4} profile {:.4}",
+            c.name,
+            c.alone.colour[0],
+            c.alone.colour[1],
+            c.alone.colour[2],
+            c.held.colour[1],
+            c.held.colour[2]
         );
-        if c.colour[1] <= c.colour[0] {
-            assert!(c.colour[2] <= c.colour[0], "{}: {:?}", c.name, c.colour);
+        let alone = c.alone.colour;
+        if alone[1] <= alone[0] {
+            assert!(alone[2] <= alone[0], "{}: {alone:?}", c.name);
+        }
+        // The same, as a user gets it: the default fringe hold on every deblur.
+        let held = c.held.colour;
+        if held[1] <= held[0] {
+            assert!(held[2] <= held[0], "{} held: {held:?}", c.name);
         }
     }
     let centred = Profile {
@@ -1563,12 +1575,28 @@ fn deblurring_adds_no_colour_the_lens_did_not_make() {
     let centred = colour(&centred);
     for c in &centred {
         eprintln!(
-            "{:<13} centred: blurry {:.4} true {:.4} profile {:.4}",
-            c.name, c.colour[0], c.colour[1], c.colour[2]
+            "{:<13} centred: blurry {:.4} true {:.4} profile {:.4}; held: true {:.4} profile {:.4}",
+            c.name,
+            c.alone.colour[0],
+            c.alone.colour[1],
+            c.alone.colour[2],
+            c.held.colour[1],
+            c.held.colour[2]
         );
     }
-    let raised = centred.iter().filter(|c| c.colour[2] > c.colour[0]).count();
+    let raised = centred
+        .iter()
+        .filter(|c| c.alone.colour[2] > c.alone.colour[0])
+        .count();
     assert!(raised > 0, "centred kernels raised no crop's colour error");
+    let raised = centred
+        .iter()
+        .filter(|c| c.held.colour[2] > c.held.colour[0])
+        .count();
+    assert!(
+        raised > 0,
+        "held, centred kernels raised no crop's colour error"
+    );
 }
 
 /// A 3-colour capture of dead leaves blurred by a field of Gaussians that widen and
