@@ -1547,25 +1547,21 @@ fn deblurring_adds_no_colour_the_lens_did_not_make() {
         )
         .expect("deblurs")
     };
+    let show = |label: &str, c: &lensblur::experiment::CropColour| {
+        let (a, h) = (c.alone.colour, c.held.colour);
+        eprintln!(
+            "{:<13} {label}: blurry {:.4} true {:.4} profile {:.4}; held: true {:.4} profile {:.4}",
+            c.name, a[0], a[1], a[2], h[1], h[2]
+        );
+    };
     let crops = colour(&profile);
     for c in &crops {
-        eprintln!(
-            "{:<13} colour: blurry {:.4} true {:.4} profile {:.4}; held: true {:.4} profile {:.4}",
-            c.name,
-            c.alone.colour[0],
-            c.alone.colour[1],
-            c.alone.colour[2],
-            c.held.colour[1],
-            c.held.colour[2]
-        );
-        let alone = c.alone.colour;
-        if alone[1] <= alone[0] {
-            assert!(alone[2] <= alone[0], "{}: {alone:?}", c.name);
-        }
-        // The same, as a user gets it: the default fringe hold on every deblur.
-        let held = c.held.colour;
-        if held[1] <= held[0] {
-            assert!(held[2] <= held[0], "{} held: {held:?}", c.name);
+        show("colour", c);
+        // The deconvolution alone, and as a user gets it (the default fringe hold).
+        for (what, v) in [("alone", c.alone.colour), ("held", c.held.colour)] {
+            if v[1] <= v[0] {
+                assert!(v[2] <= v[0], "{} {what}: {v:?}", c.name);
+            }
         }
     }
     let centred = Profile {
@@ -1573,28 +1569,16 @@ fn deblurring_adds_no_colour_the_lens_did_not_make() {
         ..profile.clone()
     };
     let centred = colour(&centred);
-    for c in &centred {
-        eprintln!(
-            "{:<13} centred: blurry {:.4} true {:.4} profile {:.4}; held: true {:.4} profile {:.4}",
-            c.name,
-            c.alone.colour[0],
-            c.alone.colour[1],
-            c.alone.colour[2],
-            c.held.colour[1],
-            c.held.colour[2]
-        );
-    }
-    let raised = centred
-        .iter()
-        .filter(|c| c.alone.colour[2] > c.alone.colour[0])
-        .count();
-    assert!(raised > 0, "centred kernels raised no crop's colour error");
-    let raised = centred
-        .iter()
-        .filter(|c| c.held.colour[2] > c.held.colour[0])
-        .count();
+    centred.iter().for_each(|c| show("centred", c));
+    let raised = |score: fn(&lensblur::experiment::CropColour) -> [f64; 4]| {
+        centred.iter().filter(|c| score(c)[2] > score(c)[0]).count()
+    };
     assert!(
-        raised > 0,
+        raised(|c| c.alone.colour) > 0,
+        "centred kernels raised no crop's colour error"
+    );
+    assert!(
+        raised(|c| c.held.colour) > 0,
         "held, centred kernels raised no crop's colour error"
     );
 }
