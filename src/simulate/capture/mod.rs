@@ -330,9 +330,9 @@ struct PsfCentre {
 
 struct CentrePsf {
     cov: [f64; 3],
-    gaussian: Gaussian2,
-    /// The optical kernel at `oversample`× for non-Gaussian shapes.
-    kernel: Option<Kernel>,
+    /// How far the PSF reaches, px: a non-Gaussian shape's kernel grid's half-width
+    /// and one standard deviation more; 4σ for a Gaussian.
+    radius_px: f64,
 }
 
 fn centre_grid(n_px: usize, tile_px: usize) -> Vec<f64> {
@@ -397,7 +397,9 @@ pub fn simulate_shot(
     let ys = centre_grid(h, tile);
 
     // The PSFs of every centre; a non-Gaussian lens's kernels are the costly part of a
-    // shot, and independent.
+    // shot, and independent. Only their moments and reach are kept here: every centre's
+    // oversampled kernel held at once is gigabytes at 2400 × 1600 (14 GB for the
+    // aberrated lens), so each is made again where its window is rendered.
     let grid: Vec<(f64, f64)> = ys
         .iter()
         .flat_map(|&cy| xs.iter().map(move |&cx| (cx, cy)))
@@ -411,16 +413,14 @@ pub fn simulate_shot(
                     let g = lens.gaussian_uv(ch, u, v, params.setting);
                     CentrePsf {
                         cov: [g.sigma_x.powi(2), g.sigma_y.powi(2), g.cov_xy()],
-                        gaussian: g,
-                        kernel: None,
+                        radius_px: g.radius_px(4.0),
                     }
                 } else {
                     let k = lens.optical_kernel_uv(ch, u, v, params.setting, s);
                     let m = k.moments();
                     CentrePsf {
                         cov: [m.var_x, m.var_y, m.cov_xy],
-                        gaussian: Gaussian2::from_covariance(m.var_x, m.var_y, m.cov_xy),
-                        kernel: Some(k),
+                        radius_px: k.radius_px() + m.var_x.max(m.var_y).sqrt(),
                     }
                 }
             });
@@ -429,11 +429,7 @@ pub fn simulate_shot(
         .collect();
     let mut radius_px: f64 = 1.0;
     for p in centres.iter().flat_map(|c| &c.psfs) {
-        let r = match &p.kernel {
-            Some(k) => k.radius_px() + (p.cov[0].max(p.cov[1])).sqrt(),
-            None => p.gaussian.radius_px(4.0),
-        };
-        radius_px = radius_px.max(r);
+        radius_px = radius_px.max(p.radius_px);
     }
     let margin = radius_px.ceil() as usize + 2;
     let m = good_size(2 * tile + 1 + 2 * margin);
@@ -542,9 +538,12 @@ pub fn simulate_shot(
                     let mut results: [Vec<f32>; 3] = [Vec::new(), Vec::new(), Vec::new()];
                     let fold: Vec<usize> = (0..n).map(|k| k % m).collect();
                     let mut small = vec![Complex32::new(0.0, 0.0); m * m];
+                    let (u, v) = VirtualLens::normalised(cx, cy, w, h);
                     for (ci, psf) in c.psfs.iter().enumerate() {
                         let spectrum = &spectra[bent.as_ref().map_or(0, |b| b.1[ci])];
-                        let kernel_tf: Option<Vec<Complex32>> = psf.kernel.as_ref().map(|k| {
+                        let kernel = (lens.shape != PsfShape::Gaussian)
+                            .then(|| lens.optical_kernel_uv(CHANNELS[ci], u, v, params.setting, s));
+                        let kernel_tf: Option<Vec<Complex32>> = kernel.as_ref().map(|k| {
                             let mut buf = vec![Complex32::new(0.0, 0.0); n * n];
                             let half = k.size / 2;
                             for j in 0..k.size {
@@ -944,13 +943,16 @@ fn shot_truth(
             .map(|(ci, &ch)| (ch, centres.iter().map(|c| c.psfs[ci].cov).collect()))
             .collect(),
     };
-    // Neighbouring squares blend the same centres: each centre's fine kernel is made
-    // once, and they are independent.
-    let fine: HashMap<(usize, usize, usize), Kernel> = if lens.shape == PsfShape::Gaussian {
-        HashMap::new()
-    } else {
-        let mut need = BTreeSet::new();
-        for row in 0..spec.rows {
+    // The centres whose fine kernels each chart row's squares blend. Neighbouring
+    // squares share centres, so each fine kernel is made once, when the first row that
+    // needs it comes, and dropped after the last: at 12× they are megabytes each, and
+    // all of a 2400 × 1600 shot's at once were gigabytes.
+    let row_needs: Vec<BTreeSet<(usize, usize, usize)>> = (0..spec.rows)
+        .map(|row| {
+            let mut need = BTreeSet::new();
+            if lens.shape == PsfShape::Gaussian {
+                return need;
+            }
             for col in 0..spec.cols {
                 let ideal = image_from_chart.apply([col as f64 + 0.5, row as f64 + 0.5]);
                 for ci in 0..CHANNELS.len() {
@@ -968,18 +970,32 @@ fn shot_truth(
                     }
                 }
             }
+            need
+        })
+        .collect();
+    let mut last_row: HashMap<(usize, usize, usize), usize> = HashMap::new();
+    for (row, need) in row_needs.iter().enumerate() {
+        for &key in need {
+            last_row.insert(key, row);
         }
-        let need: Vec<(usize, usize, usize)> = need.into_iter().collect();
-        need.par_iter()
-            .map(|&(ci, i, j)| {
+    }
+    let mut fine: HashMap<(usize, usize, usize), Kernel> = HashMap::new();
+    let mut squares = Vec::with_capacity(spec.rows * spec.cols);
+    for (row, need) in row_needs.iter().enumerate() {
+        let missing: Vec<(usize, usize, usize)> = need
+            .iter()
+            .copied()
+            .filter(|key| !fine.contains_key(key))
+            .collect();
+        let made: Vec<((usize, usize, usize), Kernel)> = missing
+            .into_par_iter()
+            .map(|(ci, i, j)| {
                 let (u, v) = VirtualLens::normalised(xs[i], ys[j], w, h);
                 let k = lens.optical_kernel_uv(CHANNELS[ci], u, v, params.setting, FINE);
                 ((ci, i, j), k)
             })
-            .collect()
-    };
-    let mut squares = Vec::with_capacity(spec.rows * spec.cols);
-    for row in 0..spec.rows {
+            .collect();
+        fine.extend(made);
         for col in 0..spec.cols {
             let ideal_corners = spec
                 .square_corners(col, row)
@@ -1044,6 +1060,7 @@ fn shot_truth(
                 channels: positions,
             });
         }
+        fine.retain(|key, _| last_row.get(key).is_some_and(|&last| last > row));
     }
     ShotTruth {
         width: w,
