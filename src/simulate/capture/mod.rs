@@ -398,7 +398,7 @@ pub fn simulate_shot(
 
     // The PSFs of every centre; a non-Gaussian lens's kernels are the costly part of a
     // shot, and independent. Only their moments and reach are kept here: every centre's
-    // oversampled kernel held at once is gigabytes at 2400 × 1600 (14 GB for the
+    // oversampled kernel held at once is gigabytes at 2400 × 1600 (about 3 GB for the
     // aberrated lens), so each is made again where its window is rendered.
     let grid: Vec<(f64, f64)> = ys
         .iter()
