@@ -377,6 +377,8 @@ impl MeasureJob {
 #[derive(Clone, Debug, Default)]
 pub struct Survey {
     shots: BTreeMap<ShotId, ShotState>,
+    /// The chart and stage settings the results were read for.
+    measurement: Option<Measurement>,
     /// What was left out, one line each, naming the file and why.
     pub dropped: Vec<String>,
 }
@@ -440,7 +442,10 @@ impl SurveyJob {
                 })
             })
             .collect::<Result<_, Cancelled>>()?;
-        let mut survey = Survey::default();
+        let mut survey = Survey {
+            measurement: Some(self.measurement.clone()),
+            ..Survey::default()
+        };
         for r in read {
             let state = survey.shots.entry(r.id).or_default();
             match r.what {
@@ -992,6 +997,11 @@ impl Project {
     /// Takes what a survey found: each shot's file, detection and kernels, and each
     /// stage's status settled (done where a result exists, pending where a recorded
     /// one has gone, a recorded failure kept). Returns what had to be left out.
+    ///
+    /// The survey runs off the caller's thread, so a job may record results while it
+    /// reads: what the project recorded is newer than what the survey read and is
+    /// kept, and results read for a chart or stage settings changed since are not
+    /// taken (kernels files a manifest lists do not depend on them).
     pub fn apply_survey(&mut self, survey: Survey) -> Vec<String> {
         fn settle(status: &StageStatus, found: Option<String>) -> StageStatus {
             match (found, status) {
@@ -1002,13 +1012,28 @@ impl Project {
                 (None, _) => StageStatus::Pending,
             }
         }
+        let current = survey
+            .measurement
+            .is_none_or(|m| m == self.session.measurement());
         for (id, found) in survey.shots {
             let Some(shot) = self.session.shot_mut(id) else {
                 continue;
             };
-            shot.detect = settle(&shot.detect, found.detection.as_deref().map(detect_summary));
-            shot.kernels = settle(&shot.kernels, found.kernels.as_deref().map(kernels_summary));
-            self.states.insert(id, found);
+            let listed = is_kernels_file(&shot.path);
+            let state = self.states.entry(id).or_default();
+            // A job that read the shot knows its file better than the survey did.
+            if state.file.is_none() {
+                state.file = found.file;
+                state.unreadable = found.unreadable;
+            }
+            if current {
+                state.detection = state.detection.take().or(found.detection);
+            }
+            if current || listed {
+                state.kernels = state.kernels.take().or(found.kernels);
+            }
+            shot.detect = settle(&shot.detect, state.detection.as_deref().map(detect_summary));
+            shot.kernels = settle(&shot.kernels, state.kernels.as_deref().map(kernels_summary));
         }
         survey.dropped
     }

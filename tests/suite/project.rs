@@ -207,3 +207,39 @@ fn kernels_on_a_session_measures_what_is_missing_and_records_it() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("0 shots measured, 4 from the cache"), "{err}");
 }
+
+#[test]
+fn a_survey_that_ends_after_a_job_keeps_what_the_job_recorded() {
+    let dir = tempfile::tempdir().unwrap();
+    small_demo(dir.path());
+    let (mut project, _) = Project::open(dir.path(), "the test").unwrap();
+    let ctx = JobContext::silent();
+
+    // The survey reads an empty cache, and a detection job records every shot before
+    // the survey's result is taken (the studio surveys on a job at open, while the
+    // user may already have pressed Detect).
+    let stale = project.survey_job().run(&ctx).unwrap();
+    run(&mut project, &MeasurePlan::missing(Stages::Detect));
+    assert!(project.apply_survey(stale).is_empty());
+    assert!(
+        project
+            .shots()
+            .all(|s| s.shot.detect.is_done() && s.state.detection.is_some()),
+        "the survey read before the job must not undo what it recorded"
+    );
+
+    // A survey that found those detections, taken after the chart changed: they are
+    // not the new chart's.
+    let found = project.survey_job().run(&ctx).unwrap();
+    let mut chart = project.session().chart.clone();
+    chart.square_mm *= 2.0;
+    project.session_mut().chart = chart;
+    project.forget_results(true, true);
+    project.apply_survey(found);
+    assert!(
+        project
+            .shots()
+            .all(|s| s.state.detection.is_none() && s.shot.detect == StageStatus::Pending),
+        "a survey of another chart's results is not taken"
+    );
+}
