@@ -96,7 +96,13 @@ fn step_until(
     while !done(h.state()) {
         assert!(
             start.elapsed() < timeout,
-            "timed out after {timeout:?} waiting for {what}; messages: {:?}",
+            "timed out after {timeout:?} waiting for {what}; jobs running: {:?}; messages: {:?}",
+            h.state()
+                .jobs
+                .running
+                .iter()
+                .map(|j| (&j.name, j.progress()))
+                .collect::<Vec<_>>(),
             h.state().messages
         );
         h.run_steps(1);

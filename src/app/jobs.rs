@@ -281,10 +281,18 @@ impl<T: Send + 'static> Jobs<T> {
             .name(format!("job-{id}-{name}"))
             .spawn(move || {
                 lower_priority();
-                let result = match pool.as_deref() {
+                // A job that panics still ends: otherwise the studio would wait on it
+                // (busy, its stage refused as "already running") until it is closed.
+                let run = std::panic::AssertUnwindSafe(|| match pool.as_deref() {
                     Some(pool) => pool.install(|| work(&worker_ctx, &emitter)),
                     None => work(&worker_ctx, &emitter),
-                };
+                });
+                let result = std::panic::catch_unwind(run).unwrap_or_else(|panic| {
+                    Err(format!(
+                        "{job_name}: internal error: {}",
+                        panic_message(panic.as_ref())
+                    ))
+                });
                 let result = if worker_ctx.is_cancelled() && result.is_err() {
                     Err("cancelled".into())
                 } else {
@@ -356,6 +364,15 @@ impl<T: Send + 'static> Jobs<T> {
     }
 }
 
+/// What a panic said, when it said it as text.
+fn panic_message(panic: &(dyn std::any::Any + Send)) -> &str {
+    panic
+        .downcast_ref::<&str>()
+        .copied()
+        .or_else(|| panic.downcast_ref::<String>().map(String::as_str))
+        .unwrap_or("a panic without a message")
+}
+
 /// Lowers the calling thread's scheduling priority (nice 10): jobs then take the CPU
 /// the window leaves, rather than the window waiting for a core behind them. On Linux a
 /// thread's nice value is its own. Failure only costs responsiveness, so it is ignored.
@@ -364,5 +381,43 @@ fn lower_priority() {
     {
         // SAFETY: setpriority only reads its arguments; `who` = 0 is the calling thread.
         let _ = unsafe { libc::setpriority(libc::PRIO_PROCESS, 0, 10) };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::mpsc;
+    use std::time::Duration;
+
+    /// A job that panics ends like one that failed, naming itself: the studio would
+    /// otherwise count it as running until it is closed.
+    #[test]
+    fn a_panicking_job_finishes_with_an_error() {
+        let (woken, wakes) = mpsc::channel();
+        let mut jobs: Jobs<()> = Jobs::new(1, move || {
+            let _ = woken.send(());
+        });
+        let id = jobs
+            .spawn("measure", |_ctx, _out| panic!("index out of bounds"))
+            .expect("spawned");
+        let result = loop {
+            // A guard against a hang, not a timing: the job ends at once.
+            wakes
+                .recv_timeout(Duration::from_secs(60))
+                .expect("the job ends");
+            let finished = jobs.drain().into_iter().find_map(|e| match e {
+                JobEvent::Finished { job, result, .. } if job == id => Some(result),
+                _ => None,
+            });
+            if let Some(r) = finished {
+                break r;
+            }
+        };
+        assert_eq!(
+            result,
+            Err("measure: internal error: index out of bounds".to_owned())
+        );
+        assert!(jobs.running.is_empty());
     }
 }
