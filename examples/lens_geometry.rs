@@ -96,7 +96,7 @@ fn main() -> anyhow::Result<()> {
             focal_mm: f.focal_mm,
             f_number: lens.f_number_range[0],
         };
-        let g = lens.geometry.mapping_at(&lens, Channel::G, s, w, h);
+        let g = lens.sensor_mapping(Channel::G, s, w, h);
         // The truth's displacement at sensor point q: sensor radius − ideal radius.
         let truth_disp = |q: [f64; 2]| radius(q) - radius(g.ideal_from_sensor(q));
         let d = f.distortion_fit(c.distortion_model);
@@ -132,7 +132,7 @@ fn main() -> anyhow::Result<()> {
         println!("{line}");
     }
     for v in &c.vignetting {
-        let g = lens.geometry.mapping_at(&lens, Channel::G, v.setting, w, h);
+        let g = lens.sensor_mapping(Channel::G, v.setting, w, h);
         let truth_corner = -g.illumination(corner).log2();
         // At the chart's reach along the diagonal.
         let q = [

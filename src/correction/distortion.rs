@@ -6,7 +6,7 @@
 //! eight per shot), one round of outlier rejection, and the terms' standard errors
 //! from the final normal equations.
 
-use super::lensfun::LensfunFrame;
+use super::frame::LensfunFrame;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 

@@ -7,16 +7,18 @@
 //! jointly with each shot's chart pose ([`distortion`]), and lateral colour from the
 //! corners' per-channel registration ([`tca`]). Per focal length and aperture, the
 //! squares' white levels give the fall-off ([`vignetting`]) under the assumption that
-//! the chart was evenly lit, which is checked. [`lensfun`] owns the XML and the
-//! coordinate conventions the coefficients are in.
+//! the chart was evenly lit, which is checked. [`lensfun`] owns the XML, and [`frame`]
+//! the coordinate conventions the coefficients are in.
 
 pub mod distortion;
+pub mod frame;
 pub mod lensfun;
 pub mod tca;
 pub mod vignetting;
 
 pub use distortion::{DistortionFit, DistortionModel};
-pub use lensfun::{LensfunFrame, LensfunNames};
+pub use frame::LensfunFrame;
+pub use lensfun::LensfunNames;
 pub use tca::{TcaFit, TcaModel};
 pub use vignetting::{UNEVEN_LIGHT_STOPS, VignettingFit};
 

@@ -3,7 +3,7 @@
 //! lensfun's `tca` models (a radial scaling of red and of blue about the frame's
 //! centre, as a function of green's radius). Linear least squares.
 
-use super::lensfun::LensfunFrame;
+use super::frame::LensfunFrame;
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 

@@ -5,7 +5,7 @@
 //! per channel. Light that is not even shows as a gradient across the chart that no
 //! radial fall-off explains: fitted beside the model, and reported.
 
-use super::lensfun::LensfunFrame;
+use super::frame::LensfunFrame;
 use crate::plane::{Channel, LensSetting};
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;

@@ -8,7 +8,7 @@
 //! radius r lands on the sensor at c + (p − c) · (1 + k₁ r² + k₂ r⁴) · (1 + m_ch),
 //! where m_ch is the channel's relative magnification against green.
 
-use crate::plane::{Channel, LensSetting};
+use crate::plane::Channel;
 use serde::{Deserialize, Serialize};
 
 /// Distortion, lateral colour and vignetting; the default is an ideal lens (none).
@@ -137,7 +137,7 @@ impl LensGeometry {
 
     /// The mapping of one channel at one setting on a `width × height` sensor.
     /// `tf` and `ta` are the setting's normalised focal and aperture coordinates
-    /// ([`super::VirtualLens::setting_coords`]).
+    /// ([`VirtualLens::setting_coords`](super::VirtualLens::setting_coords)).
     #[must_use]
     pub fn mapping(
         &self,
@@ -157,20 +157,6 @@ impl LensGeometry {
             magnification: 1.0 + self.magnification(channel),
             falloff: 2f64.powf(stops / 2.0) - 1.0,
         }
-    }
-
-    /// [`Self::mapping`] for a lens setting of a lens with the given ranges.
-    #[must_use]
-    pub fn mapping_at(
-        &self,
-        lens: &super::VirtualLens,
-        channel: Channel,
-        s: LensSetting,
-        width: usize,
-        height: usize,
-    ) -> SensorMapping {
-        let (tf, ta) = lens.setting_coords(s);
-        self.mapping(channel, tf, ta, width, height)
     }
 }
 
@@ -240,28 +226,6 @@ impl SensorMapping {
             * (6.0 * self.k[0].abs() * rho / (big_r * big_r)
                 + 20.0 * self.k[1].abs() * rho.powi(3) / big_r.powi(4))
     }
-}
-
-/// A flat field at `setting`: an evenly lit white surface (a diffuser over the lens)
-/// as a `width × height` linear plane, 0.8 at the centre and falling off as the lens's
-/// vignetting does; no blur (a flat surface stays flat) and no noise.
-#[must_use]
-pub fn flat_field(
-    lens: &super::VirtualLens,
-    setting: LensSetting,
-    width: usize,
-    height: usize,
-) -> crate::plane::Plane {
-    let map = lens
-        .geometry
-        .mapping_at(lens, Channel::G, setting, width, height);
-    let mut plane = crate::plane::Plane::new(width, height);
-    for y in 0..height {
-        for x in 0..width {
-            plane.data[y * width + x] = (0.8 * map.illumination([x as f64, y as f64])) as f32;
-        }
-    }
-    plane
 }
 
 #[cfg(test)]

@@ -8,7 +8,7 @@
 //! v = 2y/(H−1) − 1, so a lens applies to any sensor size.
 
 pub use super::aberration::{Aberrations, Seidel, Wavefront};
-use super::distortion::LensGeometry;
+use super::distortion::{LensGeometry, SensorMapping};
 use crate::plane::{Channel, LensSetting};
 use crate::psf::{Gaussian2, Kernel};
 use serde::{Deserialize, Serialize};
@@ -238,6 +238,20 @@ impl VirtualLens {
         (tf, ta)
     }
 
+    /// The lens's geometry (distortion, lateral colour, vignetting) for one channel at
+    /// one setting on a `width × height` sensor.
+    #[must_use]
+    pub fn sensor_mapping(
+        &self,
+        channel: Channel,
+        s: LensSetting,
+        width: usize,
+        height: usize,
+    ) -> SensorMapping {
+        let (tf, ta) = self.setting_coords(s);
+        self.geometry.mapping(channel, tf, ta, width, height)
+    }
+
     /// The optical (pre-pixel) Gaussian of `channel` at normalised sensor position
     /// (u, v) ∈ [−1, 1]² for a setting. For [`PsfShape::Aberrated`] it is the second
     /// moments of the PSF itself (computed at 4×), not an analytic field.
@@ -422,6 +436,26 @@ impl VirtualLens {
             oversample,
         )
     }
+}
+
+/// A flat field at `setting`: an evenly lit white surface (a diffuser over the lens)
+/// as a `width × height` linear plane, 0.8 at the centre and falling off as the lens's
+/// vignetting does; no blur (a flat surface stays flat) and no noise.
+#[must_use]
+pub fn flat_field(
+    lens: &VirtualLens,
+    setting: LensSetting,
+    width: usize,
+    height: usize,
+) -> crate::plane::Plane {
+    let map = lens.sensor_mapping(Channel::G, setting, width, height);
+    let mut plane = crate::plane::Plane::new(width, height);
+    for y in 0..height {
+        for x in 0..width {
+            plane.data[y * width + x] = (0.8 * map.illumination([x as f64, y as f64])) as f32;
+        }
+    }
+    plane
 }
 
 #[cfg(test)]

@@ -15,8 +15,8 @@ pub use capture::{
     CaptureParams, NoiseModel, Pose, PsfField, ShotTruth, SimulateError, SimulatedShot,
     SquareTruth, capture_from_raw, simulate_shot,
 };
-pub use distortion::{LensGeometry, SensorMapping, flat_field};
+pub use distortion::{LensGeometry, SensorMapping};
 pub use files::{ShotFormat, write_shot, write_shot_as};
-pub use lens::{Aberrations, PsfShape, Seidel, VirtualLens};
+pub use lens::{Aberrations, PsfShape, Seidel, VirtualLens, flat_field};
 pub use scene::{blur_varying, dead_leaves, hard_edges};
 pub use session::{SampleNoise, SimulatedSession};

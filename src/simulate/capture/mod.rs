@@ -638,9 +638,7 @@ pub fn simulate_shot(
     }
     job.report("simulate", total_rows, total_rows);
     if lens.geometry.vignetting_stops != [0.0; 2] || params.light_gradient_stops != [0.0; 2] {
-        let map = lens
-            .geometry
-            .mapping_at(lens, Channel::G, params.setting, w, h);
+        let map = lens.sensor_mapping(Channel::G, params.setting, w, h);
         let (cx, cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
         let half_diagonal = cx.hypot(cy).max(1.0);
         let [gx, gy] = params.light_gradient_stops;
@@ -685,10 +683,7 @@ fn hat_weight_of(grid: &[f64], tile: f64, p: f64, node: usize) -> f64 {
 /// Each channel's ideal-to-sensor mapping, when the lens bends the image at all.
 fn channel_mappings(lens: &VirtualLens, params: &CaptureParams) -> Option<[SensorMapping; 3]> {
     lens.geometry.bends().then(|| {
-        CHANNELS.map(|ch| {
-            lens.geometry
-                .mapping_at(lens, ch, params.setting, params.width, params.height)
-        })
+        CHANNELS.map(|ch| lens.sensor_mapping(ch, params.setting, params.width, params.height))
     })
 }
 
