@@ -15,6 +15,9 @@ use rand_distr::{Distribution, Normal};
 /// own: every binary links the whole crate).
 #[path = "detect/geometry.rs"]
 mod geometry;
+/// Real photographs of a printed chessboard.
+#[path = "detect/real.rs"]
+mod real;
 
 fn blur(data: &[f64], w: usize, h: usize, sigma: f64) -> Vec<f64> {
     lensblur::detect::filter::gaussian_blur(data, w, h, sigma)
@@ -30,18 +33,43 @@ fn shot(
     sigma_px: f64,
     seed: u64,
 ) -> Plane {
+    shot_before(spec, image_from_chart, w, h, sigma_px, seed, None)
+}
+
+/// Reflectance (0 black, 1 white) of what lies behind the chart's paper at image
+/// point (x, y), sensor px.
+type Background<'a> = Option<&'a dyn Fn(f64, f64) -> f64>;
+
+/// [`shot`] with the chart's paper in front of `background` (a uniform mid grey where
+/// `None`).
+fn shot_before(
+    spec: &ChartSpec,
+    image_from_chart: &Homography,
+    w: usize,
+    h: usize,
+    sigma_px: f64,
+    seed: u64,
+    background: Background<'_>,
+) -> Plane {
     let s = 4usize;
     let off = (s as f64 - 1.0) / 2.0;
     let fine_from_image =
         Homography::translation(off, off).compose(&Homography::scaling(s as f64, s as f64));
-    let fine = rasterize(
-        spec,
-        &fine_from_image.compose(image_from_chart),
-        w * s,
-        h * s,
-        0.5,
-    );
-    let d: Vec<f64> = fine.data.iter().map(|&v| f64::from(v)).collect();
+    let fine_from_chart = fine_from_image.compose(image_from_chart);
+    let fine = rasterize(spec, &fine_from_chart, w * s, h * s, 0.5);
+    let mut d: Vec<f64> = fine.data.iter().map(|&v| f64::from(v)).collect();
+    if let Some(texture) = background {
+        // The area beyond the paper is what the rasteriser gives for a white
+        // background less what it gives for a black one.
+        let on_white = rasterize(spec, &fine_from_chart, w * s, h * s, 1.0);
+        let on_black = rasterize(spec, &fine_from_chart, w * s, h * s, 0.0);
+        for (k, v) in d.iter_mut().enumerate() {
+            let beyond = f64::from(on_white.data[k] - on_black.data[k]);
+            let (x, y) = ((k % (w * s)) as f64, (k / (w * s)) as f64);
+            let image = [(x - off) / s as f64, (y - off) / s as f64];
+            *v = f64::from(on_black.data[k]) + beyond * texture(image[0], image[1]);
+        }
+    }
     let d = blur(&d, w * s, h * s, sigma_px * s as f64);
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
     let (black, white) = (0.05, 0.8);
@@ -177,6 +205,41 @@ fn sharp_square_corners_within_three_hundredths() {
 #[test]
 fn blurred_square_corners_within_three_hundredths() {
     let e = run_case(3.0, -2.0, 2);
+    assert!(
+        e.refined_rms <= 0.03,
+        "refined corner RMS {} px",
+        e.refined_rms
+    );
+}
+
+/// A chessboard panel behind the chart, its squares a third of the chart's and turned
+/// against it: its junctions outnumber the chart's some ten to one and respond more
+/// strongly, and their lattice is larger than the chart's. The chart's size decides
+/// which lattice is the chart: every square in frame is aligned as on a plain
+/// background.
+#[test]
+fn chart_in_front_of_a_checkered_panel() {
+    let spec = small_chart();
+    let (w, h) = (480, 340);
+    let truth = pose(&spec, w, h, 26.0, 4.0);
+    let (c, s) = (20f64.to_radians().cos(), 20f64.to_radians().sin());
+    let panel = |x: f64, y: f64| {
+        let (u, v) = ((c * x + s * y) / 8.5, (-s * x + c * y) / 8.5);
+        if (u.floor() + v.floor()).rem_euclid(2.0) == 0.0 {
+            0.08
+        } else {
+            0.92
+        }
+    };
+    let cap = mono(shot_before(&spec, &truth, w, h, 0.9, 31, Some(&panel)));
+    let det = detect(&cap, &spec, &DetectParams::default(), &JobContext::silent())
+        .expect("the chart is found in front of the panel");
+    let e = corner_errors(&spec, &truth, &det);
+    eprintln!(
+        "checkered panel: ok {} bootstrap RMS {:.4} px, refined RMS {:.4} px",
+        e.ok, e.boot_rms, e.refined_rms
+    );
+    assert_eq!(e.ok, spec.cols * spec.rows, "every square is in frame");
     assert!(
         e.refined_rms <= 0.03,
         "refined corner RMS {} px",
