@@ -23,26 +23,14 @@ fn blur(data: &[f64], w: usize, h: usize, sigma: f64) -> Vec<f64> {
     lensblur::detect::filter::gaussian_blur(data, w, h, sigma)
 }
 
-/// Grey shot of `spec` under `image_from_chart`: optical Gaussian σ (sensor px), then
-/// pixel integration, black/white levels, noise.
-fn shot(
-    spec: &ChartSpec,
-    image_from_chart: &Homography,
-    w: usize,
-    h: usize,
-    sigma_px: f64,
-    seed: u64,
-) -> Plane {
-    shot_before(spec, image_from_chart, w, h, sigma_px, seed, None)
-}
-
 /// Reflectance (0 black, 1 white) of what lies behind the chart's paper at image
 /// point (x, y), sensor px.
 type Background<'a> = Option<&'a dyn Fn(f64, f64) -> f64>;
 
-/// [`shot`] with the chart's paper in front of `background` (a uniform mid grey where
-/// `None`).
-fn shot_before(
+/// Grey shot of `spec` under `image_from_chart`: optical Gaussian σ (sensor px), then
+/// pixel integration, black/white levels, noise; the paper in front of `background`
+/// (a uniform mid grey where `None`).
+fn shot(
     spec: &ChartSpec,
     image_from_chart: &Homography,
     w: usize,
@@ -169,7 +157,7 @@ fn run_case(sigma_px: f64, rot_deg: f64, seed: u64) -> Errors {
     let spec = small_chart();
     let (w, h) = (480, 340);
     let truth = pose(&spec, w, h, 34.0, rot_deg);
-    let cap = mono(shot(&spec, &truth, w, h, sigma_px, seed));
+    let cap = mono(shot(&spec, &truth, w, h, sigma_px, seed, None));
     let det =
         detect(&cap, &spec, &DetectParams::default(), &JobContext::silent()).expect("chart found");
     assert_eq!(det.squares.len(), spec.cols * spec.rows);
@@ -231,7 +219,7 @@ fn chart_in_front_of_a_checkered_panel() {
             0.92
         }
     };
-    let cap = mono(shot_before(&spec, &truth, w, h, 0.9, 31, Some(&panel)));
+    let cap = mono(shot(&spec, &truth, w, h, 0.9, 31, Some(&panel)));
     let det = detect(&cap, &spec, &DetectParams::default(), &JobContext::silent())
         .expect("the chart is found in front of the panel");
     let e = corner_errors(&spec, &truth, &det);
@@ -290,7 +278,7 @@ fn bayer(
     seed: u64,
 ) -> Capture {
     let chans: Vec<Plane> = (0..3)
-        .map(|c| shot(spec, truth, w, h, sigmas[c], seed + c as u64))
+        .map(|c| shot(spec, truth, w, h, sigmas[c], seed + c as u64, None))
         .collect();
     let layout = [
         (Channel::R, 0usize, 0usize, 0usize),
@@ -352,7 +340,7 @@ fn chart_partly_out_of_frame_gives_the_visible_squares() {
     let (w, h) = (480, 340);
     // Shifted left and down: the left three columns and the bottom row leave the frame.
     let truth = Homography::translation(-100.0, 40.0).compose(&pose(&spec, w, h, 34.0, 1.0));
-    let cap = mono(shot(&spec, &truth, w, h, 1.2, 21));
+    let cap = mono(shot(&spec, &truth, w, h, 1.2, 21, None));
     let det =
         detect(&cap, &spec, &DetectParams::default(), &JobContext::silent()).expect("chart found");
     assert_eq!(det.squares.len(), spec.cols * spec.rows);
@@ -409,7 +397,7 @@ fn detect_json_has_the_contract_fields() {
     };
     let (w, h) = (300, 220);
     let truth = pose(&spec, w, h, 36.0, 0.5);
-    let cap = mono(shot(&spec, &truth, w, h, 1.0, 31));
+    let cap = mono(shot(&spec, &truth, w, h, 1.0, 31, None));
     let det =
         detect(&cap, &spec, &DetectParams::default(), &JobContext::silent()).expect("chart found");
     let v = serde_json::to_value(det.to_file()).expect("serialisable");
@@ -456,7 +444,7 @@ fn cli_writes_detect_json_and_fails_without_a_chart() {
     let (w, h) = (300, 220);
     let truth = pose(&spec, w, h, 36.0, 0.5);
     let shot_path = dir.path().join("shot.png");
-    write_png16(&shot_path, &shot(&spec, &truth, w, h, 1.0, 41));
+    write_png16(&shot_path, &shot(&spec, &truth, w, h, 1.0, 41, None));
     let out = dir.path().join("detect.json");
     let st = std::process::Command::new(env!("CARGO_BIN_EXE_lensblur"))
         .args([

@@ -41,30 +41,20 @@ fn photo(file: &str) -> Capture {
     load_capture(&folder().join(file), &LoadOptions::default()).expect("photo loads")
 }
 
-/// Each plane turned clockwise by `quarters` quarter turns: an exact permutation of
-/// the pixels, as a camera held on its side would have taken them.
-fn turn_quarters(cap: &Capture, quarters: usize) -> Capture {
-    let q = quarters % 4;
-    let (w, h) = (cap.width, cap.height);
-    let (nw, nh) = if q % 2 == 1 { (h, w) } else { (w, h) };
+/// A `nw` × `nh` capture whose every plane is `value(plane, x, y)`.
+fn remap(
+    cap: &Capture,
+    nw: usize,
+    nh: usize,
+    value: impl Fn(&Plane, usize, usize) -> f32,
+) -> Capture {
     let planes = cap
         .planes
         .iter()
         .map(|cp| {
             assert_eq!(cp.step, 1, "a photo's planes are full resolution");
-            let p = &cp.plane;
-            let plane = Plane::from_fn(nw, nh, |x, y| {
-                // Where the turned pixel (x, y) came from.
-                let (sx, sy) = match q {
-                    0 => (x, y),
-                    1 => (y, h - 1 - x),
-                    2 => (w - 1 - x, h - 1 - y),
-                    _ => (w - 1 - y, x),
-                };
-                p.get(sx, sy)
-            });
             ChannelPlane {
-                plane,
+                plane: Plane::from_fn(nw, nh, |x, y| value(&cp.plane, x, y)),
                 ..cp.clone()
             }
         })
@@ -77,50 +67,56 @@ fn turn_quarters(cap: &Capture, quarters: usize) -> Capture {
     }
 }
 
+/// Each plane turned clockwise by `quarters` quarter turns: an exact permutation of
+/// the pixels, as a camera held on its side would have taken them.
+fn turn_quarters(cap: &Capture, quarters: usize) -> Capture {
+    let q = quarters % 4;
+    let (w, h) = (cap.width, cap.height);
+    let (nw, nh) = if q % 2 == 1 { (h, w) } else { (w, h) };
+    remap(cap, nw, nh, |p, x, y| {
+        // Where the turned pixel (x, y) came from.
+        let (sx, sy) = match q {
+            0 => (x, y),
+            1 => (y, h - 1 - x),
+            2 => (w - 1 - x, h - 1 - y),
+            _ => (w - 1 - y, x),
+        };
+        p.get(sx, sy)
+    })
+}
+
 /// Each plane turned clockwise by `degrees` about its centre into a frame large enough
-/// to hold it all, bilinear, the corners beyond the photo filled with its mean.
+/// to hold it all, bilinear, the corners beyond the photo filled with the photo's mean.
 fn turn_by(cap: &Capture, degrees: f64) -> Capture {
     let (c, s) = (degrees.to_radians().cos(), degrees.to_radians().sin());
     let (w, h) = (cap.width as f64, cap.height as f64);
     let nw = (w * c.abs() + h * s.abs()).ceil() as usize;
     let nh = (w * s.abs() + h * c.abs()).ceil() as usize;
-    let planes = cap
+    let means: Vec<f32> = cap
         .planes
         .iter()
         .map(|cp| {
-            let p = &cp.plane;
-            let mean = p.data.iter().map(|&v| f64::from(v)).sum::<f64>() / p.data.len() as f64;
-            let plane = Plane::from_fn(nw, nh, |x, y| {
-                let (dx, dy) = (
-                    x as f64 - (nw as f64 - 1.0) / 2.0,
-                    y as f64 - (nh as f64 - 1.0) / 2.0,
-                );
-                // Clockwise on screen (y down) by θ: the source is the destination
-                // turned back.
-                let sx = c * dx + s * dy + (w - 1.0) / 2.0;
-                let sy = -s * dx + c * dy + (h - 1.0) / 2.0;
-                if sx < 0.0 || sy < 0.0 || sx > w - 1.0 || sy > h - 1.0 {
-                    return mean as f32;
-                }
-                let (x0, y0) = (sx.floor() as usize, sy.floor() as usize);
-                let (x1, y1) = ((x0 + 1).min(p.width - 1), (y0 + 1).min(p.height - 1));
-                let (fx, fy) = ((sx - x0 as f64) as f32, (sy - y0 as f64) as f32);
-                let a = p.get(x0, y0) * (1.0 - fx) + p.get(x1, y0) * fx;
-                let b = p.get(x0, y1) * (1.0 - fx) + p.get(x1, y1) * fx;
-                a * (1.0 - fy) + b * fy
-            });
-            ChannelPlane {
-                plane,
-                ..cp.clone()
-            }
+            let d = &cp.plane.data;
+            (d.iter().map(|&v| f64::from(v)).sum::<f64>() / d.len() as f64) as f32
         })
         .collect();
-    Capture {
-        width: nw,
-        height: nh,
-        planes,
-        ..cap.clone()
-    }
+    let mean = means.iter().sum::<f32>() / means.len().max(1) as f32;
+    remap(cap, nw, nh, |p, x, y| {
+        let dx = x as f64 - (nw as f64 - 1.0) / 2.0;
+        let dy = y as f64 - (nh as f64 - 1.0) / 2.0;
+        // Clockwise on screen (y down) by θ: the source is the destination turned back.
+        let sx = c * dx + s * dy + (w - 1.0) / 2.0;
+        let sy = -s * dx + c * dy + (h - 1.0) / 2.0;
+        if sx < 0.0 || sy < 0.0 || sx > w - 1.0 || sy > h - 1.0 {
+            return mean;
+        }
+        let (x0, y0) = (sx.floor() as usize, sy.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(p.width - 1), (y0 + 1).min(p.height - 1));
+        let (fx, fy) = ((sx - x0 as f64) as f32, (sy - y0 as f64) as f32);
+        let a = p.get(x0, y0) * (1.0 - fx) + p.get(x1, y0) * fx;
+        let b = p.get(x0, y1) * (1.0 - fx) + p.get(x1, y1) * fx;
+        a * (1.0 - fy) + b * fy
+    })
 }
 
 /// Where a point of the photo turned by `quarters` quarter turns lies in the photo.
@@ -166,11 +162,7 @@ fn worst_disagreement(
         };
         n += 1;
         for (k, c) in spec.square_corners(s.col, s.row).iter().enumerate() {
-            let inner = c[0] >= 1.0
-                && c[1] >= 1.0
-                && c[0] <= (spec.cols - 1) as f64
-                && c[1] <= (spec.rows - 1) as f64;
-            if !inner {
+            if !is_inner_corner(spec, *c) {
                 continue;
             }
             let b = back(t.corners[k]);
@@ -178,6 +170,12 @@ fn worst_disagreement(
         }
     }
     (worst, n)
+}
+
+/// Whether chart point `c` is one of the board's inner corners (where four squares
+/// meet), which both detectors locate.
+fn is_inner_corner(spec: &ChartSpec, c: [f64; 2]) -> bool {
+    c[0] >= 1.0 && c[1] >= 1.0 && c[0] <= (spec.cols - 1) as f64 && c[1] <= (spec.rows - 1) as f64
 }
 
 fn run(cap: &Capture, spec: &ChartSpec) -> Option<Detection> {
@@ -207,11 +205,7 @@ fn agreement(det: &Detection, spec: &ChartSpec, cv: &[[f64; 2]]) -> (f64, f64, u
     for s in det.ok_squares() {
         let chart = spec.square_corners(s.col, s.row);
         for (k, c) in chart.iter().enumerate() {
-            let inner = c[0] >= 1.0
-                && c[1] >= 1.0
-                && c[0] <= (spec.cols - 1) as f64
-                && c[1] <= (spec.rows - 1) as f64;
-            if !inner {
+            if !is_inner_corner(spec, *c) {
                 continue;
             }
             let p = s.corners[k];
