@@ -511,6 +511,12 @@ pub fn align_square(
         }
     }
     let (cost, n, final_eval) = last_eval.ok_or("no alignment level ran")?;
+    // The fitted gain is free in sign: a square registered against a chart whose
+    // colours are swapped there (the board assigned the wrong way round) fits as well
+    // with white below black, and would be kept with corners from the wrong squares.
+    if st.b.iter().any(|&g| !(g > 0.0)) {
+        return Err("its colours are the opposite of the chart's there".into());
+    }
     if max_corner_shift(&st.h, bootstrap, &quad) > params.max_refine_shift_px {
         return Err(format!(
             "alignment moved a corner by more than {} px from its bootstrap",

@@ -7,7 +7,7 @@ use crate::chart::ChartSpec;
 use crate::geometry::Homography;
 use crate::plane::Plane;
 use rayon::prelude::*;
-use std::collections::{HashMap, VecDeque};
+use std::collections::{HashMap, HashSet, VecDeque};
 
 /// A refined X-junction in sensor pixels.
 #[derive(Clone, Copy, Debug)]
@@ -317,6 +317,9 @@ struct SeedLattice {
     best: HashMap<(i64, i64), usize>,
     score: f64,
     too_large: (usize, usize, usize),
+    /// The junctions of every lattice grown from this seed that is larger than the
+    /// chart: a periodic texture beside the chart, not the chart.
+    too_large_nodes: Vec<usize>,
 }
 
 /// Grows a lattice from `seed` with starting axes `ex`, `ey`: every node predicts its
@@ -328,6 +331,7 @@ fn grow(
     seed: usize,
     ex: [f64; 2],
     ey: [f64; 2],
+    excluded: &HashSet<usize>,
 ) -> HashMap<(i64, i64), usize> {
     let mut grid: HashMap<(i64, i64), usize> = HashMap::new();
     let mut taken: HashMap<usize, (i64, i64)> = HashMap::new();
@@ -350,7 +354,7 @@ fn grow(
             let Some(k) = buckets.nearest(pts, add(p, step), radius) else {
                 continue;
             };
-            if taken.contains_key(&k) {
+            if taken.contains_key(&k) || excluded.contains(&k) {
                 continue;
             }
             let found = sub(pts[k].pos, p);
@@ -368,30 +372,17 @@ fn grow(
     grid
 }
 
-/// Organises junctions into the chart's lattice of inner corners, fixing the chart
-/// column/row of each from the visible board edges and the square colours.
-///
-/// # Errors
-/// [`LatticeError`] when no lattice of at least 3 × 3 junctions is found, or it is
-/// larger than the chart.
-pub fn build_lattice(
+/// Lattices grown from the strongest of `order`'s junctions and others spread over it,
+/// one [`SeedLattice`] per seed.
+fn grow_from_seeds(
     pts: &[Junction],
+    order: &[usize],
+    buckets: &Buckets,
     smoothed: &Smoothed,
     spec: &ChartSpec,
-) -> Result<Lattice, LatticeError> {
-    if pts.len() < 9 {
-        return Err(LatticeError::NotFound);
-    }
-
-    // Bucket cells of about the search radius, so a neighbour query looks at a few
-    // cells whatever the square size: the median distance to the nearest junction
-    // estimates the corner spacing.
-    let buckets = Buckets::new(pts, (0.3 * nearest_spacing(pts)).max(4.0));
-    // Saddles also form between the circles and the square edges, in lattices of their
-    // own; grow lattices from several seeds and axis hypotheses and keep the one whose
-    // edges separate dark from light squares in the checkerboard's alternation.
-    let mut order: Vec<usize> = (0..pts.len()).collect();
-    order.sort_by(|&a, &b| pts[b].response.total_cmp(&pts[a].response));
+    excluded: &HashSet<usize>,
+) -> Vec<SeedLattice> {
+    let (inner_c, inner_r) = (spec.cols - 1, spec.rows - 1);
     let n_seeds = 24usize;
     let stride = (order.len() / n_seeds).max(1);
     // The strongest saddles are mostly true corners; the rest spread over the list in
@@ -405,7 +396,7 @@ pub fn build_lattice(
     let max_step = (smoothed.w.min(smoothed.h) as f64) / 3.0;
     // Seeds are independent: grown in parallel, then judged in seed order as a serial
     // search would (the first of equal scores wins).
-    let per_seed: Vec<SeedLattice> = seeds
+    seeds
         .par_iter()
         .map_init(HashMap::new, |contrasts, &seed| {
             let mut score = memo_score(contrasts, smoothed, pts);
@@ -439,8 +430,15 @@ pub fn build_lattice(
                     if !(0.6..=1.6).contains(&ratio) {
                         continue;
                     }
-                    let mut g = grow(pts, &buckets, seed, ex, ey);
-                    trim_border(&mut g, spec.cols - 1, spec.rows - 1, |g, axis, lo, hi| {
+                    let mut g = grow(pts, buckets, seed, ex, ey, excluded);
+                    let (imin, imax, jmin, jmax) = extent(&g);
+                    let (lim_i, lim_j) = lattice_limits(
+                        (imax - imin + 1) as usize,
+                        (jmax - jmin + 1) as usize,
+                        inner_c,
+                        inner_r,
+                    );
+                    trim_border(&mut g, lim_i, lim_j, |g, axis, lo, hi| {
                         worse_line(g, axis, lo, hi, &mut score)
                     });
                     if g.len() < 9 {
@@ -450,10 +448,11 @@ pub fn build_lattice(
                     // the chart has corners.
                     let (imin, imax, jmin, jmax) = extent(&g);
                     let (ni, nj) = ((imax - imin + 1) as usize, (jmax - jmin + 1) as usize);
-                    if ni > spec.cols - 1 || nj > spec.rows - 1 {
+                    if !fits(ni, nj, inner_c, inner_r) {
                         if g.len() > out.too_large.0 {
                             out.too_large = (g.len(), ni + 1, nj + 1);
                         }
+                        out.too_large_nodes.extend(g.values().copied());
                         continue;
                     }
                     let s = score(&g);
@@ -465,17 +464,64 @@ pub fn build_lattice(
             }
             out
         })
-        .collect();
+        .collect()
+}
+
+/// Organises junctions into the chart's lattice of inner corners, fixing the chart
+/// column/row of each from the visible board edges and the square colours.
+///
+/// # Errors
+/// [`LatticeError`] when no lattice of at least 3 × 3 junctions is found, or it is
+/// larger than the chart.
+pub fn build_lattice(
+    pts: &[Junction],
+    smoothed: &Smoothed,
+    spec: &ChartSpec,
+) -> Result<Lattice, LatticeError> {
+    if pts.len() < 9 {
+        return Err(LatticeError::NotFound);
+    }
+
+    // Bucket cells of about the search radius, so a neighbour query looks at a few
+    // cells whatever the square size: the median distance to the nearest junction
+    // estimates the corner spacing.
+    let buckets = Buckets::new(pts, (0.3 * nearest_spacing(pts)).max(4.0));
+    // Saddles also form between the circles and the square edges, in lattices of their
+    // own; grow lattices from several seeds and axis hypotheses and keep the one whose
+    // edges separate dark from light squares in the checkerboard's alternation.
+    let mut order: Vec<usize> = (0..pts.len()).collect();
+    order.sort_by(|&a, &b| pts[b].response.total_cmp(&pts[a].response));
+    let (inner_c, inner_r) = (spec.cols - 1, spec.rows - 1);
+    // A periodic texture beside the chart (a striped panel, tiles, another chessboard)
+    // can fill the seeds with junctions whose lattice is larger than the chart. Such a
+    // lattice is not the chart whatever its score: its junctions are set aside and the
+    // search seeded again from the rest, so the printed grid's size decides.
+    let mut excluded: HashSet<usize> = HashSet::new();
     let mut best: HashMap<(i64, i64), usize> = HashMap::new();
     let mut best_score = 0.0;
     let mut too_large = (0usize, 0usize, 0usize);
-    for r in per_seed {
-        if r.too_large.0 > too_large.0 {
-            too_large = r.too_large;
+    for _round in 0..4 {
+        let order: Vec<usize> = order
+            .iter()
+            .copied()
+            .filter(|k| !excluded.contains(k))
+            .collect();
+        let per_seed = grow_from_seeds(pts, &order, &buckets, smoothed, spec, &excluded);
+        let mut newly_excluded = Vec::new();
+        for r in per_seed {
+            if r.too_large.0 > too_large.0 {
+                too_large = r.too_large;
+            }
+            newly_excluded.extend(r.too_large_nodes);
+            if r.score > best_score {
+                best_score = r.score;
+                best = r.best;
+            }
         }
-        if r.score > best_score {
-            best_score = r.score;
-            best = r.best;
+        let before = excluded.len();
+        excluded.extend(newly_excluded);
+        if best.len() >= 9 || excluded.len() == before {
+            break;
         }
     }
     let mut contrasts = HashMap::new();
@@ -533,9 +579,12 @@ pub fn build_lattice(
             best.remove(&k);
         }
         let (imin, imax, jmin, jmax) = extent(&best);
-        let grow_i = i64::from(((imax - imin + 1) as usize) < spec.cols - 1);
-        let grow_j = i64::from(((jmax - jmin + 1) as usize) < spec.rows - 1);
-        let mut taken: std::collections::HashSet<usize> = best.values().copied().collect();
+        let (ni, nj) = ((imax - imin + 1) as usize, (jmax - jmin + 1) as usize);
+        let (lim_i, lim_j) = lattice_limits(ni, nj, inner_c, inner_r);
+        let grow_i = i64::from(ni < lim_i);
+        let grow_j = i64::from(nj < lim_j);
+        let mut taken: HashSet<usize> = best.values().copied().collect();
+        taken.extend(&excluded);
         for j in jmin - grow_j..=jmax + grow_j {
             for i in imin - grow_i..=imax + grow_i {
                 if best.contains_key(&(i, j)) {
@@ -551,12 +600,9 @@ pub fn build_lattice(
                 }
             }
         }
-        trim_border(
-            &mut best,
-            spec.cols - 1,
-            spec.rows - 1,
-            |g, axis, lo, hi| worse_line(g, axis, lo, hi, &mut score),
-        );
+        trim_border(&mut best, lim_i, lim_j, |g, axis, lo, hi| {
+            worse_line(g, axis, lo, hi, &mut score)
+        });
         match fit(&best) {
             Some(nh) => h = nh,
             None => return Err(LatticeError::NotFound),
@@ -567,14 +613,15 @@ pub fn build_lattice(
     if ni < 3 || nj < 3 || best.len() * 2 < ni * nj {
         return Err(LatticeError::NotFound);
     }
-    if ni > spec.cols - 1 || nj > spec.rows - 1 {
+    if !fits(ni, nj, inner_c, inner_r) {
         return Err(LatticeError::TooLarge {
             cols: ni + 1,
             rows: nj + 1,
         });
     }
-    // Which square colour sits below-right of lattice node (i, j): vote over nodes.
-    let mut parity_votes = [0usize; 2];
+    // Which colour each lattice cell is (cell (i, j) spans nodes (i, j) to
+    // (i + 1, j + 1)): a vote over nodes of whether the cells with i + j even are black.
+    let mut even_black_votes = [0usize; 2];
     for (&(i, j), &k) in &best {
         let p = pts[k].pos;
         let e_x = sub(h.apply([i as f64 + 1.0, j as f64]), p);
@@ -591,86 +638,91 @@ pub fn build_lattice(
             smoothed.sample(below[0], below[1]),
             smoothed.sample(above[0], above[1]),
         ) {
-            let below_black = b < a;
-            // Square (c, r) = (i + oi, j + oj) black ⇔ ((c + r) even) == black_top_left.
-            let even_needed = below_black == spec.black_top_left;
+            // `below` lies in cell (i, j).
+            let cell_black = b < a;
             let ij_even = (i + j).rem_euclid(2) == 0;
-            // offset parity: (oi + oj) even ⇔ ij_even == even_needed
-            parity_votes[usize::from(ij_even != even_needed)] += 1;
+            even_black_votes[usize::from(cell_black == ij_even)] += 1;
         }
     }
-    let offset_parity = i64::from(parity_votes[1] > parity_votes[0]);
+    let even_black = even_black_votes[1] > even_black_votes[0];
     let (w, hgt) = (smoothed.w as f64, smoothed.h as f64);
     let inside = |p: [f64; 2]| p[0] > 2.0 && p[1] > 2.0 && p[0] < w - 3.0 && p[1] < hgt - 3.0;
-    // A side of the board is visible when the lattice line beyond the last found one
-    // still falls inside the frame (there is no junction there: it is the board's edge).
-    let line_inside = |fixed_i: Option<i64>, fixed_j: Option<i64>| -> bool {
-        let mut n_in = 0;
-        let mut n = 0;
-        match (fixed_i, fixed_j) {
-            (Some(i), _) => {
-                for j in jmin..=jmax {
-                    n += 1;
-                    n_in += usize::from(inside(h.apply([i as f64, j as f64])));
+    // The spec describes the print, not the shot: the board may show at any rotation.
+    // Each quarter turn of the lattice onto the chart's axes (never a mirror image) is
+    // tried; the board's visible edges fix the offsets, the square colours rule out
+    // the turns that put black where the print has white, and of the turns left (a
+    // board as symmetric as its squares' colours allow, or seen in part) the one that
+    // turns the print least in the shot is taken.
+    let mut chosen: Option<(f64, usize, i64, i64)> = None;
+    for quarter in 0..4usize {
+        let turned: Vec<(i64, i64)> = best.keys().map(|&k| turn(quarter, k)).collect();
+        let amin = turned.iter().map(|k| k.0).min().unwrap_or(0);
+        let amax = turned.iter().map(|k| k.0).max().unwrap_or(0);
+        let bmin = turned.iter().map(|k| k.1).min().unwrap_or(0);
+        let bmax = turned.iter().map(|k| k.1).max().unwrap_or(0);
+        if (amax - amin + 1) as usize > inner_c || (bmax - bmin + 1) as usize > inner_r {
+            continue;
+        }
+        // Chart axes (a, b) back to the lattice's, then to the image.
+        let image_at = |a: i64, b: i64| -> [f64; 2] {
+            let (i, j) = turn((4 - quarter) % 4, (a, b));
+            h.apply([i as f64, j as f64])
+        };
+        // A side of the board is visible when the lattice line beyond the last found
+        // one still falls inside the frame (there is no junction there: it is the
+        // board's edge).
+        let line_inside = |line: &dyn Fn(i64) -> [f64; 2], lo: i64, hi: i64| -> bool {
+            let n_in = (lo..=hi).filter(|&t| inside(line(t))).count();
+            n_in * 2 > (hi - lo + 1) as usize
+        };
+        let ocs = allowed_offsets(
+            amin,
+            amax,
+            spec.cols as i64,
+            line_inside(&|b| image_at(amin - 1, b), bmin, bmax),
+            line_inside(&|b| image_at(amax + 1, b), bmin, bmax),
+        );
+        let ors = allowed_offsets(
+            bmin,
+            bmax,
+            spec.rows as i64,
+            line_inside(&|a| image_at(a, bmin - 1), amin, amax),
+            line_inside(&|a| image_at(a, bmax + 1), amin, amax),
+        );
+        // Lattice cell (i, j) lands on chart square (c, r) with c + r ≡ i + j + quarter
+        // + oc + or (mod 2) (an odd turn moves the cell's corner by one along one axis);
+        // square (c, r) is black ⇔ (c + r even) == black_top_left.
+        let offset_parity = (quarter as i64 + i64::from(even_black != spec.black_top_left)) % 2;
+        // Among the offsets the edges allow, those matching the colours, nearest the
+        // middle of the allowed range.
+        let (mc, mr) = (ocs[ocs.len() / 2] as f64, ors[ors.len() / 2] as f64);
+        let mut pick: Option<(i64, i64, f64)> = None;
+        for &oc in &ocs {
+            for &or in &ors {
+                if (oc + or).rem_euclid(2) != offset_parity {
+                    continue;
+                }
+                let d = (oc as f64 - mc).abs() + (or as f64 - mr).abs();
+                if pick.is_none_or(|(_, _, bd)| d < bd) {
+                    pick = Some((oc, or, d));
                 }
             }
-            (_, Some(j)) => {
-                for i in imin..=imax {
-                    n += 1;
-                    n_in += usize::from(inside(h.apply([i as f64, j as f64])));
-                }
-            }
-            _ => {}
         }
-        n_in * 2 > n
-    };
-    let choose = |lo: i64, hi: i64, n_chart: i64, lo_edge: bool, hi_edge: bool| -> Vec<i64> {
-        // Valid offsets o: lo + o ≥ 1 and hi + o ≤ n_chart − 1.
-        let (omin, omax) = (1 - lo, n_chart - 1 - hi);
-        if lo_edge {
-            vec![omin]
-        } else if hi_edge {
-            vec![omax]
-        } else {
-            (omin..=omax).collect()
-        }
-    };
-    let ois = choose(
-        imin,
-        imax,
-        spec.cols as i64,
-        line_inside(Some(imin - 1), None),
-        line_inside(Some(imax + 1), None),
-    );
-    let ojs = choose(
-        jmin,
-        jmax,
-        spec.rows as i64,
-        line_inside(None, Some(jmin - 1)),
-        line_inside(None, Some(jmax + 1)),
-    );
-    // Among the offsets the edges allow, keep those matching the colours, nearest the
-    // middle of the allowed range.
-    let mut pick: Option<(i64, i64, f64)> = None;
-    let (mi, mj) = (ois[ois.len() / 2] as f64, ojs[ojs.len() / 2] as f64);
-    for &oi in &ois {
-        for &oj in &ojs {
-            if (oi + oj).rem_euclid(2) != offset_parity {
-                continue;
-            }
-            let d = (oi as f64 - mi).abs() + (oj as f64 - mj).abs();
-            if pick.is_none_or(|(_, _, bd)| d < bd) {
-                pick = Some((oi, oj, d));
-            }
+        let Some((oc, or, _)) = pick else { continue };
+        let (am, bm) = ((amin + amax) / 2, (bmin + bmax) / 2);
+        let (p, q) = (image_at(am, bm), image_at(am + 1, bm));
+        let turn_in_shot = (q[1] - p[1]).atan2(q[0] - p[0]).abs();
+        if chosen.is_none_or(|(t, ..)| turn_in_shot < t - 1e-9) {
+            chosen = Some((turn_in_shot, quarter, oc, or));
         }
     }
-    let (oi, oj) = match pick {
-        Some((a, b, _)) => (a, b),
-        None => (ois[0], ojs[0]),
+    let Some((_, quarter, oc, or)) = chosen else {
+        return Err(LatticeError::NotFound);
     };
     let mut corners = HashMap::new();
-    for (&(i, j), &k) in &best {
-        let (c, r) = (i + oi, j + oj);
+    for (&key, &k) in &best {
+        let (a, b) = turn(quarter, key);
+        let (c, r) = (a + oc, b + or);
         if c >= 1 && r >= 1 && c < spec.cols as i64 && r < spec.rows as i64 {
             corners.insert((c as usize, r as usize), pts[k].pos);
         }
@@ -685,6 +737,50 @@ pub fn build_lattice(
         corners,
         image_from_chart,
     })
+}
+
+/// Lattice node (i, j) turned by `quarter` quarter turns (a rotation, never a mirror).
+fn turn(quarter: usize, (i, j): (i64, i64)) -> (i64, i64) {
+    match quarter % 4 {
+        0 => (i, j),
+        1 => (-j, i),
+        2 => (-i, -j),
+        _ => (j, -i),
+    }
+}
+
+/// Whether a lattice of `ni` × `nj` nodes fits inside the chart's `inner_c` × `inner_r`
+/// inner corners either way round.
+fn fits(ni: usize, nj: usize, inner_c: usize, inner_r: usize) -> bool {
+    (ni <= inner_c && nj <= inner_r) || (ni <= inner_r && nj <= inner_c)
+}
+
+/// How many lines the lattice may span along its i and j axes: the chart's inner
+/// corners the way round the lattice fits, else with its longer side along the
+/// chart's longer side.
+fn lattice_limits(ni: usize, nj: usize, inner_c: usize, inner_r: usize) -> (usize, usize) {
+    if ni <= inner_c && nj <= inner_r {
+        (inner_c, inner_r)
+    } else if ni <= inner_r && nj <= inner_c {
+        (inner_r, inner_c)
+    } else if (ni >= nj) == (inner_c >= inner_r) {
+        (inner_c, inner_r)
+    } else {
+        (inner_r, inner_c)
+    }
+}
+
+/// Offsets o that put lattice lines lo..=hi on chart lines 1..n_chart − 1: the one a
+/// visible board edge fixes, else every one that fits.
+fn allowed_offsets(lo: i64, hi: i64, n_chart: i64, lo_edge: bool, hi_edge: bool) -> Vec<i64> {
+    let (omin, omax) = (1 - lo, n_chart - 1 - hi);
+    if lo_edge {
+        vec![omin]
+    } else if hi_edge {
+        vec![omax]
+    } else {
+        (omin..=omax).collect()
+    }
 }
 
 /// Where lattice node `key` should lie, from a homography fitted to the other nodes

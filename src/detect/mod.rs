@@ -3,8 +3,10 @@
 //!
 //! Detection runs on the full-resolution grey image: X-junctions of the checkerboard
 //! (Hessian saddles that pass a four-sector ring test) are grown into a lattice whose
-//! chart column/row follow from the board's visible edges and the square colours (the
-//! chart is taken as roughly upright, rotated by less than 45°). Every square of the
+//! chart column/row follow from the board's visible edges and the square colours, at
+//! any rotation in the shot (the spec describes the print: of the quarter turns the
+//! spec and the colours allow, the one that turns the print least); lattices larger
+//! than the chart (a periodic texture beside it) are set aside. Every square of the
 //! chart is then predicted, bootstrapped from its four localised corners by a
 //! normalised DLT, and refined by registering the exactly rasterised, Gaussian-blurred
 //! chart to the observed pixels ([`align`]). Squares that cannot be used are reported
