@@ -177,6 +177,21 @@ pub fn run(args: Args) -> Result<()> {
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
+    // A JPEG is written only as its original JPEG was: 8-bit sRGB, its ICC and EXIF.
+    let photo_is_jpeg = {
+        use std::io::Read;
+        let mut magic = [0u8; 2];
+        std::fs::File::open(photo)
+            .and_then(|mut f| f.read_exact(&mut magic))
+            .is_ok()
+            && magic == [0xFF, 0xD8]
+    };
+    if is_jpeg(out) && !photo_is_jpeg {
+        bail!(
+            "{}: a .jpg output is for a JPEG photo; write .tiff, .png or (RAW) .dng",
+            out.display()
+        );
+    }
     if !output_supported(&ext) && !is_jpeg(out) {
         bail!(
             "{}: the output must be .tiff, .tif or .png (16-bit linear), .dng for a RAW photo, \
