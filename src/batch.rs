@@ -24,7 +24,7 @@
 //! 6. a best profile that does not cover the photo's setting skips it, unless
 //!    extrapolation is allowed.
 
-use crate::deblur::output::{deblur_and_write, deblurred_note};
+use crate::deblur::output::{deblur_and_write, deblur_and_write_like, deblurred_note};
 use crate::deblur::{DeblurOptions, KernelSource, ProfileKernels};
 use crate::job::JobContext;
 use crate::plane::{CameraIdentity, Capture, LensSetting};
@@ -66,8 +66,12 @@ pub const PHOTO_EXTENSIONS: &[&str] = &[
 /// The format a batch writes, by its extension.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum OutputFormat {
-    /// 16-bit linear TIFF.
+    /// Each photo as its own kind: a RAW photo's CFA as a DNG (the RAW editor develops
+    /// it as it did the original), an RGB photo in its own format and colour (a JPEG
+    /// in, a JPEG out, its ICC profile and EXIF kept).
     #[default]
+    Auto,
+    /// 16-bit linear TIFF (camera RGB for a RAW photo: for pipelines that want it).
     Tiff,
     /// 16-bit linear PNG.
     Png,
@@ -79,6 +83,7 @@ impl OutputFormat {
     #[must_use]
     pub fn extension(self) -> &'static str {
         match self {
+            Self::Auto => "auto",
             Self::Tiff => "tiff",
             Self::Png => "png",
             Self::Dng => "dng",
@@ -445,14 +450,23 @@ pub struct Planned {
     pub action: Action,
 }
 
-/// The output a photo gets: `<out_dir>/<stem>.<extension>`.
+/// The output a photo gets: `<out_dir>/<stem>.<extension>`; with
+/// [`OutputFormat::Auto`], `dng` for a RAW photo and the photo's own extension for
+/// the others.
 #[must_use]
-pub fn output_path(photo: &Path, opts: &BatchOptions) -> PathBuf {
+pub fn output_path(photo: &Path, opts: &BatchOptions, is_raw: bool) -> PathBuf {
     let stem = photo
         .file_stem()
         .map_or_else(|| "photo".into(), |s| s.to_string_lossy().into_owned());
-    opts.out_dir
-        .join(format!("{stem}.{}", opts.format.extension()))
+    let ext = match opts.format {
+        OutputFormat::Auto if is_raw => "dng".to_string(),
+        OutputFormat::Auto => photo.extension().map_or_else(
+            || "tiff".into(),
+            |e| e.to_string_lossy().to_ascii_lowercase(),
+        ),
+        f => f.extension().to_string(),
+    };
+    opts.out_dir.join(format!("{stem}.{ext}"))
 }
 
 /// Whether `output` is a finished output for a photo of `width × height`: its header
@@ -471,8 +485,9 @@ pub fn plan(photos: &[PathBuf], library: &ProfileLibrary, opts: &BatchOptions) -
     let mut planned: Vec<Planned> = photos
         .par_iter()
         .map(|photo| {
-            let output = output_path(photo, opts);
-            let action = match crate::raw::read_header(photo) {
+            let header = crate::raw::read_header(photo);
+            let output = output_path(photo, opts, header.as_ref().is_ok_and(|h| h.is_raw));
+            let action = match header {
                 Err(e) => Action::Skip(Skip::Unreadable(e.to_string())),
                 Ok(h) if opts.format == OutputFormat::Dng && !h.is_raw => {
                     Action::Skip(Skip::NotRaw)
@@ -610,11 +625,15 @@ pub fn deblur_photos(
         library,
         opts,
         job,
-        &|_, capture, source, out, described, job| {
+        &|photo, capture, source, out, described, job| {
             let note = deblurred_note(deblur.method, described);
-            deblur_and_write(capture, source, &deblur, out, None, &note, job)
-                .map(|_| ())
-                .map_err(|e| e.to_string())
+            if opts.format == OutputFormat::Auto {
+                deblur_and_write_like(capture, source, &deblur, out, photo, &note, job)
+            } else {
+                deblur_and_write(capture, source, &deblur, out, None, &note, job)
+            }
+            .map(|_| ())
+            .map_err(|e| e.to_string())
         },
     )
 }

@@ -25,6 +25,9 @@ enum Command {
     Chart(cli::chart::Args),
     /// Simulate calibration shots of a virtual lens, with a manifest and ground truth.
     Simulate(cli::simulate::Args),
+    /// What lensblur reads from a shot or photo: size, CFA, levels, camera, lens,
+    /// settings, focus distance and the decoder that read it.
+    Info(cli::info::Args),
     /// Find the chart's squares in a shot and align each to sub-pixel accuracy.
     Detect(cli::detect::Args),
     /// Estimate the blur kernel and its Gaussian fit at every square of a shot.
@@ -55,6 +58,7 @@ fn main() -> ExitCode {
         Some(Command::Studio(a)) => cli::studio::run(a),
         Some(Command::Chart(a)) => cli::chart::run(a),
         Some(Command::Simulate(a)) => cli::simulate::run(a),
+        Some(Command::Info(a)) => cli::info::run(a),
         Some(Command::Detect(a)) => cli::detect::run(a),
         Some(Command::Kernels(a)) => cli::kernels::run(a),
         Some(Command::Calibrate(a)) => cli::calibrate::run(a),

@@ -7,7 +7,7 @@
 use super::common::progress_job;
 use super::deblur_batch::{deblur_one, file_name};
 use anyhow::{Context, Result, bail};
-use lensblur::deblur::output::{output_supported, profile_described};
+use lensblur::deblur::output::{is_jpeg, output_supported, profile_described};
 use lensblur::deblur::source::{Prefer, ScatteredKernels, load_kernels};
 use lensblur::deblur::{Amount, DeblurOptions, Device, KernelSource, Method, ProfileKernels};
 use lensblur::model::{KernelModel, LateralColour};
@@ -177,9 +177,25 @@ pub fn run(args: Args) -> Result<()> {
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
-    if !output_supported(&ext) {
+    // A JPEG is written only as its original JPEG was: 8-bit sRGB, its ICC and EXIF.
+    let photo_is_jpeg = {
+        use std::io::Read;
+        let mut magic = [0u8; 2];
+        std::fs::File::open(photo)
+            .and_then(|mut f| f.read_exact(&mut magic))
+            .is_ok()
+            && magic == [0xFF, 0xD8]
+    };
+    if is_jpeg(out) && !photo_is_jpeg {
         bail!(
-            "{}: the output must be .tiff, .tif or .png (16-bit linear), or .dng for a RAW photo",
+            "{}: a .jpg output is for a JPEG photo; write .tiff, .png or (RAW) .dng",
+            out.display()
+        );
+    }
+    if !output_supported(&ext) && !is_jpeg(out) {
+        bail!(
+            "{}: the output must be .tiff, .tif or .png (16-bit linear), .dng for a RAW photo, \
+             or .jpg for a JPEG photo",
             out.display()
         );
     }
@@ -305,6 +321,8 @@ pub fn run(args: Args) -> Result<()> {
         &opts,
         out,
         &described,
+        // A JPEG is only ever written as its original is (8-bit sRGB, its ICC and EXIF).
+        is_jpeg(out),
         &job,
     )? {
         eprintln!("{}: preview {}", out.display(), preview.display());

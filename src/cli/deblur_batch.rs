@@ -10,7 +10,7 @@ use lensblur::batch::{
     BatchOptions, Outcome, OutputFormat, ProfileLibrary, collect_photos, plan, run as run_batch,
 };
 use lensblur::deblur::output::{
-    DeblurWriteError, deblur_and_write, deblurred_note, output_supported,
+    DeblurWriteError, deblur_and_write, deblur_and_write_like, deblurred_note, output_supported,
 };
 use lensblur::deblur::{DeblurOptions, KernelSource};
 use lensblur::job::JobContext;
@@ -32,9 +32,11 @@ pub struct BatchArgs {
         conflicts_with_all = ["out", "profile", "kernels", "focal", "aperture", "force"]
     )]
     pub profiles: Option<PathBuf>,
-    /// Batch: the output format (16-bit linear TIFF or PNG, or DNG: RAW photos only,
-    /// others skipped).
-    #[arg(long, value_enum, default_value = "tiff")]
+    /// Batch: the output format. auto: a RAW photo as DNG (its editor develops it as
+    /// before), an RGB photo in its own format and colour (JPEG in, JPEG out, ICC and
+    /// EXIF kept); tiff or png: 16-bit linear (camera RGB for a RAW photo); dng: RAW
+    /// photos only, others skipped.
+    #[arg(long, value_enum, default_value = "auto")]
     pub format: FormatArg,
     /// Batch: photos deblurred at once at most (default: one per core, as memory allows).
     #[arg(long)]
@@ -44,6 +46,7 @@ pub struct BatchArgs {
 #[derive(clap::ValueEnum, Clone, Copy, Default, PartialEq, Eq)]
 pub enum FormatArg {
     #[default]
+    Auto,
     Tiff,
     Png,
     Dng,
@@ -55,6 +58,7 @@ pub enum FormatArg {
 ///
 /// # Errors
 /// The deblurring failed, or the output cannot be written.
+#[allow(clippy::too_many_arguments)]
 pub fn deblur_one(
     photo: &Path,
     capture: &Capture,
@@ -62,18 +66,24 @@ pub fn deblur_one(
     opts: &DeblurOptions,
     out: &Path,
     described: &str,
+    like_original: bool,
     job: &JobContext,
 ) -> Result<Option<PathBuf>> {
     let note = deblurred_note(opts.method, described);
-    let written = match deblur_and_write(
-        capture,
-        source,
-        opts,
-        out,
-        Some(file_name(photo)),
-        &note,
-        job,
-    ) {
+    let written = if like_original {
+        deblur_and_write_like(capture, source, opts, out, photo, &note, job)
+    } else {
+        deblur_and_write(
+            capture,
+            source,
+            opts,
+            out,
+            Some(file_name(photo)),
+            &note,
+            job,
+        )
+    };
+    let written = match written {
         Ok(w) => w,
         Err(DeblurWriteError::Deblur(e)) => {
             return Err(e).with_context(|| photo.display().to_string());
@@ -107,11 +117,12 @@ pub fn run(
         bail!("a batch needs --out-dir and --profiles");
     };
     let format = match b.format {
+        FormatArg::Auto => OutputFormat::Auto,
         FormatArg::Tiff => OutputFormat::Tiff,
         FormatArg::Png => OutputFormat::Png,
         FormatArg::Dng => OutputFormat::Dng,
     };
-    debug_assert!(output_supported(format.extension()));
+    debug_assert!(format == OutputFormat::Auto || output_supported(format.extension()));
     if b.jobs == Some(0) {
         bail!("--jobs must be at least 1");
     }
@@ -142,7 +153,8 @@ pub fn run(
         &opts,
         &job,
         &|photo, capture, source, out, described, job| {
-            deblur_one(photo, capture, source, deblur, out, described, job)
+            let like = format == OutputFormat::Auto;
+            deblur_one(photo, capture, source, deblur, out, described, like, job)
                 .map(|_| ())
                 .map_err(|e| format!("{e:#}"))
         },

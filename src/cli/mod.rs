@@ -8,6 +8,7 @@ pub mod deblur;
 pub mod deblur_batch;
 pub mod detect;
 pub mod experiment;
+pub mod info;
 pub mod kernels;
 pub mod lensfun;
 pub mod predict;

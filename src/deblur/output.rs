@@ -52,6 +52,52 @@ pub fn deblur_and_write(
     Ok(write_deblurred(out, original_file_name, &deblurred, note)?)
 }
 
+/// Deblurs a capture and writes it as its original photo is: a RAW photo as
+/// [`write_deblurred`] does by `out`'s extension (a DNG, for the RAW editor), an RGB
+/// photo in its original's format, bit depth, encoding, ICC profile and EXIF
+/// ([`crate::raw::save_like_original`]): a JPEG in, a JPEG out that a viewer shows as
+/// it showed the original.
+///
+/// # Errors
+/// The deblurring failed or was cancelled, the original cannot be read again, or the
+/// output cannot be written.
+pub fn deblur_and_write_like(
+    capture: &Capture,
+    source: &dyn KernelSource,
+    opts: &DeblurOptions,
+    out: &Path,
+    original: &Path,
+    note: &str,
+    job: &JobContext,
+) -> Result<Written, DeblurWriteError> {
+    let deblurred = super::deblur_capture(capture, source, opts, job)?;
+    if deblurred.is_raw {
+        let name = original
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned());
+        return Ok(write_deblurred(out, name, &deblurred, note)?);
+    }
+    if is_dng(out) {
+        return Err(OutputError::Save(crate::raw::SaveError {
+            path: out.to_path_buf(),
+            reason: "a linear (demosaiced) RAW photo is not written back as a DNG: \
+                     ask for --format tiff"
+                .into(),
+        })
+        .into());
+    }
+    let bytes =
+        crate::io::read_limited(original, crate::limits::MAX_IMAGE_FILE_BYTES).map_err(|e| {
+            OutputError::Save(crate::raw::SaveError {
+                path: out.to_path_buf(),
+                reason: format!("reading the original again: {e}"),
+            })
+        })?;
+    crate::raw::save_like_original(out, &crate::raw::full_planes(&deblurred), &bytes)
+        .map_err(OutputError::Save)?;
+    Ok(Written::default())
+}
+
 /// A deblurred photo's note of what was done: the software, the method and what it was
 /// deblurred with (`described`, e.g. [`profile_described`]).
 #[must_use]
@@ -67,6 +113,14 @@ pub fn deblurred_note(method: Method, described: &str) -> String {
 #[must_use]
 pub fn output_supported(ext: &str) -> bool {
     matches!(ext, "png" | "tif" | "tiff" | "dng")
+}
+
+/// Whether `out` names a JPEG, which is only written as its original photo was
+/// ([`deblur_and_write_like`]): 8-bit sRGB has no linear form.
+#[must_use]
+pub fn is_jpeg(out: &Path) -> bool {
+    out.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("jpg") || e.eq_ignore_ascii_case("jpeg"))
 }
 
 /// Whether `out` names a DNG.

@@ -207,8 +207,10 @@ fn batch_picks_each_photos_profile_skips_with_reasons_and_resumes() {
     ] {
         assert!(err.lines().any(|l| l.trim() == summary), "{summary}: {err}");
     }
+    // By default each photo comes out in its own format and colour: a 16-bit TIFF in,
+    // a 16-bit TIFF out.
     for name in ["a", "b"] {
-        let out = image::open(d(&format!("out/{name}.tiff"))).expect("output");
+        let out = image::open(d(&format!("out/{name}.tif"))).expect("output");
         assert!(matches!(out, image::DynamicImage::ImageRgb16(_)));
         assert_eq!((out.width(), out.height()), (W as u32, H as u32));
     }
@@ -224,7 +226,7 @@ fn batch_picks_each_photos_profile_skips_with_reasons_and_resumes() {
     assert_eq!(snapshot(&d("out")), before, "a re-run rewrote an output");
 
     // A photo that cannot be written is a failure, and the exit status says so.
-    std::fs::create_dir_all(d("blocked/a.tiff")).expect("mkdir");
+    std::fs::create_dir_all(d("blocked/a.tif")).expect("mkdir");
     let (ok, err) = lensblur(&[
         Path::new("deblur"),
         &d("photos/a.tif"),
@@ -280,7 +282,8 @@ fn a_photos_header_says_what_its_decode_will() {
                 ..Default::default()
             },
         );
-        let cfa = vec![1000u16; W * H];
+        // Not one value throughout: that is a file without its picture, refused.
+        let cfa: Vec<u16> = (0..W * H).map(|k| 1000 + (k % 7) as u16).collect();
         lensblur::dng::write_dng(&dng, &cfa, W, H, &info).expect("dng");
         let h = lensblur::raw::read_header(&dng).expect("header");
         let c = lensblur::raw::load_capture(&dng, &Default::default()).expect("load");

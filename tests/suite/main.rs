@@ -16,4 +16,5 @@ mod load;
 mod model;
 mod pipeline;
 mod project;
+mod real_files;
 mod simulate;

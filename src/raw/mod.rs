@@ -10,12 +10,33 @@ use crate::limits;
 use crate::plane::{Capture, Channel, ChannelPlane, Plane, RawMeta, srgb_decode, srgb_encode};
 use std::path::{Path, PathBuf};
 
+mod damage;
+mod decoders;
+mod info;
+
+pub use decoders::{DecodedMeta, Decoder};
+pub use info::{FileInfo, FocusDistance, INFO_SCHEMA, inspect, inspect_bytes};
+
 #[derive(Debug, thiserror::Error)]
 pub enum LoadError {
     #[error("{}: cannot read: {reason}", path.display())]
     Unreadable { path: PathBuf, reason: String },
-    #[error("{}: unsupported or corrupt file: {reason}", path.display())]
+    /// Not an image we read, or one malformed in a way [`LoadError::Damaged`] does not
+    /// locate.
+    #[error("{}: unreadable image: {reason}", path.display())]
     Corrupt { path: PathBuf, reason: String },
+    /// The file ends before its own structure says it does, or a part of it points
+    /// past its end: a cut-short copy, not a camera we do not know.
+    #[error("{}: damaged file: {reason}", path.display())]
+    Damaged { path: PathBuf, reason: String },
+    /// A well-formed file of a camera or a layout no decoder reads; the reason says
+    /// what to do.
+    #[error("{}: {reason}", path.display())]
+    Unsupported { path: PathBuf, reason: String },
+    /// The file decodes, but to no picture: missing image data decoded as zeros, or
+    /// every sample the same.
+    #[error("{}: no image: {reason}", path.display())]
+    NoImage { path: PathBuf, reason: String },
     #[error("{}: {reason}", path.display())]
     TooLarge { path: PathBuf, reason: String },
 }
@@ -70,6 +91,15 @@ pub fn decode_capture(
     bytes: &[u8],
     options: &LoadOptions,
 ) -> Result<Capture, LoadError> {
+    decode_with_decoder(path, bytes, options).map(|(c, _, _)| c)
+}
+
+/// [`decode_capture`], and which decoder read the file, and what it and EXIF say.
+fn decode_with_decoder(
+    path: &Path,
+    bytes: &[u8],
+    options: &LoadOptions,
+) -> Result<(Capture, Decoder, ExifInfo), LoadError> {
     if bytes.is_empty() {
         return Err(LoadError::Corrupt {
             path: path.to_path_buf(),
@@ -78,25 +108,37 @@ pub fn decode_capture(
     }
     let is_png = bytes.starts_with(b"\x89PNG");
     let is_jpeg = bytes.starts_with(&[0xFF, 0xD8]);
-    let mut capture = if is_png || is_jpeg {
-        load_image(path, bytes, options)?
+    let image = |bytes| {
+        load_image(path, bytes, options).map(|c| (c, Decoder::Image, DecodedMeta::default()))
+    };
+    let (mut capture, decoder, meta) = if is_png || is_jpeg {
+        image(bytes)?
     } else if is_tiff(bytes) {
-        let ifd = tiff_ifd0(bytes).map_err(|reason| LoadError::Corrupt {
-            path: path.to_path_buf(),
-            reason,
-        })?;
+        let ifd = tiff_ifd0(bytes).map_err(|reason| damaged(path, bytes, reason))?;
         if is_raw_ifd(&ifd) {
             load_raw(path, bytes, Some(&ifd))?
+        } else if decoders::camera_raw(bytes) {
+            // A camera's TIFF-based RAW (CR2, NEF, ARW, PEF, ...): its first directory
+            // is a preview, the CFA is further in. Where the RAW decoders refuse it and
+            // that first directory is a full-size picture of its own (a TIFF an editor
+            // exported, which keeps the camera's Make), it is read as the picture.
+            match load_raw(path, bytes, None) {
+                Ok(found) => found,
+                Err(e) if image_in_ifd0(&ifd) => image(bytes).map_err(|_| e)?,
+                Err(e) => return Err(e),
+            }
         } else {
-            load_image(path, bytes, options)?
+            image(bytes)?
         }
     } else {
-        // Every other camera format goes to the RAW decoder, which names what it cannot
-        // read.
+        // Every other camera format goes to the RAW decoders, which name what they
+        // cannot read.
         load_raw(path, bytes, None)?
     };
-    read_exif(bytes).fill(&mut capture);
-    Ok(capture)
+    let mut exif = read_exif(bytes);
+    exif.take_decoded(&meta);
+    exif.clone().fill(&mut capture);
+    Ok((capture, decoder, exif))
 }
 
 /// What a photo's header says, read without decoding its image: enough to decide what
@@ -141,8 +183,16 @@ pub fn decode_header(path: &Path, bytes: &[u8]) -> Result<Header, LoadError> {
         if bytes.starts_with(b"\x89PNG") || bytes.starts_with(&[0xFF, 0xD8]) {
             (image_dimensions(path, bytes)?, false)
         } else if is_tiff(bytes) {
-            let ifd = tiff_ifd0(bytes).map_err(corrupt)?;
-            if !is_raw_ifd(&ifd) {
+            let ifd = tiff_ifd0(bytes).map_err(|reason| damaged(path, bytes, reason))?;
+            if !is_raw_ifd(&ifd) && decoders::camera_raw(bytes) {
+                match raw_dimensions(path, bytes, &mut exif) {
+                    Ok(size) => (size, true),
+                    Err(e) if image_in_ifd0(&ifd) => {
+                        (image_dimensions(path, bytes).map_err(|_| e)?, false)
+                    }
+                    Err(e) => return Err(e),
+                }
+            } else if !is_raw_ifd(&ifd) {
                 (image_dimensions(path, bytes)?, false)
             } else if needs_own_reader(&ifd) {
                 let one = |tag: u16| {
@@ -166,38 +216,44 @@ pub fn decode_header(path: &Path, bytes: &[u8]) -> Result<Header, LoadError> {
     })
 }
 
-/// The active area rawloader's header-only pass finds, and its camera names where EXIF
-/// gave none (as [`load_capture`] fills them).
+/// The active area the RAW decoders' header-only passes find (rawler's, else
+/// rawloader's), and the camera's names where EXIF gave none (as [`load_capture`]
+/// fills them).
 fn raw_dimensions(
     path: &Path,
     bytes: &[u8],
     exif: &mut ExifInfo,
 ) -> Result<(usize, usize), LoadError> {
     let _quiet = QuietPanics::new();
-    let head =
-        std::panic::catch_unwind(|| rawloader::decode_dummy(&mut std::io::Cursor::new(bytes)))
+    let (size, make, model) = match decoders::rawler_header(bytes) {
+        Some(found) => found,
+        None => {
+            let head = std::panic::catch_unwind(|| {
+                rawloader::decode_dummy(&mut std::io::Cursor::new(bytes))
+            })
             .map_err(|_| LoadError::Corrupt {
                 path: path.to_path_buf(),
-                reason: "the RAW decoder failed on this file".into(),
+                reason: "the RAW decoder stopped on malformed data".into(),
             })?
             .map_err(|e| LoadError::Corrupt {
                 path: path.to_path_buf(),
                 reason: format!("RAW decoder: {}", one_line(&e.to_string())),
             })?;
-    let [top, right, bottom, left] = head.crops;
+            let [top, right, bottom, left] = head.crops;
+            (
+                (
+                    head.width.saturating_sub(left + right),
+                    head.height.saturating_sub(top + bottom),
+                ),
+                head.clean_make,
+                head.clean_model,
+            )
+        }
+    };
     let id = &mut exif.identity;
-    id.make = id
-        .make
-        .take()
-        .or(Some(head.clean_make.clone()).filter(|s| !s.is_empty()));
-    id.model = id
-        .model
-        .take()
-        .or(Some(head.clean_model.clone()).filter(|s| !s.is_empty()));
-    Ok((
-        head.width.saturating_sub(left + right),
-        head.height.saturating_sub(top + bottom),
-    ))
+    id.make = id.make.take().or(Some(make).filter(|s| !s.is_empty()));
+    id.model = id.model.take().or(Some(model).filter(|s| !s.is_empty()));
+    Ok(size)
 }
 
 /// A RAW file's bytes (DNG or a camera's own format) into CFA planes, without EXIF:
@@ -206,15 +262,64 @@ fn raw_dimensions(
 /// # Errors
 /// As [`load_capture`].
 pub fn decode_raw(path: &Path, bytes: &[u8]) -> Result<Capture, LoadError> {
-    if is_tiff(bytes) {
-        let ifd = tiff_ifd0(bytes).map_err(|reason| LoadError::Corrupt {
-            path: path.to_path_buf(),
-            reason,
-        })?;
-        load_raw(path, bytes, Some(&ifd))
+    let ifd = if is_tiff(bytes) {
+        Some(tiff_ifd0(bytes).map_err(|reason| damaged(path, bytes, reason))?)
     } else {
-        load_raw(path, bytes, None)
+        None
+    };
+    load_raw(path, bytes, ifd.as_ref().filter(|i| is_raw_ifd(i))).map(|(c, _, _)| c)
+}
+
+/// A TIFF whose first directory does not parse: damaged, said where it can be.
+fn damaged(path: &Path, bytes: &[u8], reason: String) -> LoadError {
+    LoadError::Damaged {
+        path: path.to_path_buf(),
+        reason: damage::diagnose(bytes).unwrap_or(reason),
     }
+}
+
+/// Whether a TIFF's first directory is a full-size picture (not a camera's reduced
+/// preview, NewSubfileType 1, nor a JPEG-coded preview).
+fn image_in_ifd0(ifd: &Ifd) -> bool {
+    first_tag(ifd, 254).is_none_or(|t| t as u32 & 1 == 0)
+        && !matches!(first_tag(ifd, TAG_COMPRESSION), Some(6.0 | 7.0))
+}
+
+/// A RAW file's bytes through one decoder alone, without the others as fallbacks and
+/// without EXIF: how the decoders are compared (which reads what, and how fast).
+/// [`Decoder::Image`] is refused: it is not a RAW decoder.
+///
+/// # Errors
+/// As [`load_capture`], from that decoder alone.
+pub fn decode_raw_with(decoder: Decoder, path: &Path, bytes: &[u8]) -> Result<Capture, LoadError> {
+    let ifd = is_tiff(bytes).then(|| tiff_ifd0(bytes).ok()).flatten();
+    let refused = |reason: &str| LoadError::Unsupported {
+        path: path.to_path_buf(),
+        reason: reason.into(),
+    };
+    let capture = match decoder {
+        Decoder::Rawler => decoders::rawler_capture(path, bytes, ifd.as_ref())
+            .map(|(c, _)| c)
+            .map_err(|refusal| decoders::explain(path, bytes, refusal, None))?,
+        Decoder::Rawloader => rawloader_capture(path, bytes, ifd.as_ref())?,
+        Decoder::Lensblur => match &ifd {
+            Some(ifd) if is_raw_ifd(ifd) && first_tag(ifd, TAG_COMPRESSION) == Some(1.0) => {
+                read_uncompressed_dng(path, bytes, ifd)?
+            }
+            _ => {
+                return Err(refused(
+                    "not an uncompressed DNG (all our own reader reads)",
+                ));
+            }
+        },
+        Decoder::Image => return Err(refused("not a RAW decoder")),
+    };
+    refuse_blank(path, &capture)?;
+    Ok(capture)
+}
+
+fn first_tag(ifd: &Ifd, tag: u16) -> Option<f64> {
+    ifd.get(&tag).and_then(|v| v.first().copied())
 }
 
 fn is_tiff(bytes: &[u8]) -> bool {
@@ -308,26 +413,100 @@ fn tiff_ifd0(b: &[u8]) -> Result<Ifd, String> {
     Ok(out)
 }
 
-/// A RAW file: an uncompressed DNG that rawloader would misread by our own reader of its
-/// first directory, everything else through rawloader, whose declared size is checked
-/// against our limits before it allocates the image.
-fn load_raw(path: &Path, bytes: &[u8], ifd: Option<&Ifd>) -> Result<Capture, LoadError> {
-    if let Some(ifd) = ifd
-        && needs_own_reader(ifd)
-    {
-        return read_uncompressed_dng(path, bytes, ifd);
-    }
-    let decoder_error = |e: rawloader::RawLoaderError| LoadError::Corrupt {
-        path: path.to_path_buf(),
-        reason: format!("RAW decoder: {}", one_line(&e.to_string())),
+/// A RAW file through the first decoder that reads it (rawler, then our own reader
+/// for the uncompressed DNGs rawloader would misread, then rawloader), each one's
+/// declared size checked against our limits before it allocates the image; and an
+/// image of one value throughout (image data missing, decoded as zeros) refused.
+fn load_raw(
+    path: &Path,
+    bytes: &[u8],
+    ifd: Option<&Ifd>,
+) -> Result<(Capture, Decoder, DecodedMeta), LoadError> {
+    let (capture, decoder, meta) = match decoders::rawler_capture(path, bytes, ifd) {
+        Ok((c, meta)) => (c, Decoder::Rawler, meta),
+        Err(refusal) => {
+            if let decoders::RawlerRefusal::Ours(e) = refusal {
+                return Err(e);
+            }
+            let fallback = if let Some(ifd) = ifd
+                && needs_own_reader(ifd)
+            {
+                read_uncompressed_dng(path, bytes, ifd).map(|c| (c, Decoder::Lensblur))
+            } else {
+                rawloader_capture(path, bytes, ifd).map(|c| (c, Decoder::Rawloader))
+            };
+            match fallback {
+                Ok((c, d)) => (c, d, DecodedMeta::default()),
+                Err(LoadError::TooLarge { path, reason }) => {
+                    return Err(LoadError::TooLarge { path, reason });
+                }
+                Err(e) => {
+                    return Err(decoders::explain(path, bytes, refusal, Some(e)));
+                }
+            }
+        }
     };
+    refuse_blank(path, &capture)?;
+    Ok((capture, decoder, meta))
+}
+
+/// The reason inside a fallback decoder's error, for the message that explains why
+/// no decoder read a file.
+fn fallback_words(e: &LoadError) -> String {
+    match e {
+        LoadError::Unreadable { reason, .. }
+        | LoadError::Corrupt { reason, .. }
+        | LoadError::Damaged { reason, .. }
+        | LoadError::Unsupported { reason, .. }
+        | LoadError::NoImage { reason, .. }
+        | LoadError::TooLarge { reason, .. } => reason.clone(),
+    }
+}
+
+/// A decoded image whose every sample is the same is no picture: a file whose image
+/// data was stripped or never written decodes to zeros (or to its black level), and
+/// measuring or deblurring it would report a perfectly sharp, perfectly black lens.
+fn refuse_blank(path: &Path, capture: &Capture) -> Result<(), LoadError> {
+    let mut samples = capture.planes.iter().flat_map(|p| p.plane.data.iter());
+    let Some(&first) = samples.next() else {
+        return Err(LoadError::NoImage {
+            path: path.to_path_buf(),
+            reason: "the file holds no pixels".into(),
+        });
+    };
+    if samples.all(|&v| v == first) {
+        return Err(LoadError::NoImage {
+            path: path.to_path_buf(),
+            reason: format!(
+                "every one of its {} × {} pixels has the same value: its image data is \
+                 missing (a file cut short, or one with only its metadata kept)",
+                capture.width, capture.height
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// A RAW file through rawloader, whose header-only pass gives the declared size to
+/// check against our limits before the real decode allocates the image.
+fn rawloader_capture(path: &Path, bytes: &[u8], ifd: Option<&Ifd>) -> Result<Capture, LoadError> {
     let panicked = || LoadError::Corrupt {
         path: path.to_path_buf(),
-        reason: "the RAW decoder failed on this file".into(),
+        reason: "the RAW decoder stopped on malformed data".into(),
+    };
+    // rawloader reports its decoders' panics as errors: a panic is never the message.
+    let decoder_error = |e: rawloader::RawLoaderError| {
+        let m = one_line(&e.to_string());
+        if m.contains("panic") {
+            panicked()
+        } else {
+            LoadError::Corrupt {
+                path: path.to_path_buf(),
+                reason: format!("RAW decoder: {m}"),
+            }
+        }
     };
     let _quiet = QuietPanics::new();
-    // A first pass that parses the headers only (rawloader's "dummy" decode allocates
-    // no image), so the sizes are ours to refuse before the real decode allocates.
     let head =
         std::panic::catch_unwind(|| rawloader::decode_dummy(&mut std::io::Cursor::new(bytes)))
             .map_err(|_| panicked())?
@@ -341,13 +520,13 @@ fn load_raw(path: &Path, bytes: &[u8], ifd: Option<&Ifd>) -> Result<Capture, Loa
         .saturating_mul(head.height)
         .saturating_mul(head.cpp.max(1));
     if bytes.len().saturating_mul(8) < samples {
-        return Err(LoadError::Corrupt {
+        return Err(LoadError::Damaged {
             path: path.to_path_buf(),
             reason: format!(
-                "truncated: a {} × {} image cannot be coded in {} bytes",
+                "truncated at byte {}: a {} × {} image cannot be coded in so few bytes",
+                bytes.len(),
                 head.width,
                 head.height,
-                bytes.len()
             ),
         });
     }
@@ -735,9 +914,23 @@ pub struct ExifInfo {
     pub focal_35mm: Option<f64>,
     /// LensSpecification: shortest and longest focal length, widest aperture at each.
     pub lens_specification: Option<[f64; 4]>,
+    /// SubjectDistance, metres: where the camera focused (infinite where it says
+    /// infinity). Blur depends on it; a profile knows the range it was measured at.
+    pub subject_distance_m: Option<f64>,
 }
 
 impl ExifInfo {
+    /// Takes what the RAW decoder read where EXIF (as we parse it) has nothing: CR3
+    /// keeps its EXIF where a TIFF reader does not look, and lens names come from
+    /// maker notes.
+    fn take_decoded(&mut self, meta: &DecodedMeta) {
+        self.focal_mm = self.focal_mm.or(meta.focal_mm);
+        self.f_number = self.f_number.or(meta.f_number);
+        self.subject_distance_m = self.subject_distance_m.or(meta.subject_distance_m);
+        let lens = &mut self.identity.lens_model;
+        *lens = lens.take().or_else(|| meta.lens_model.clone());
+    }
+
     /// Fills what the capture does not already have (settings) or has less exactly
     /// (EXIF's make and model win over the RAW decoder's cleaned names).
     fn fill(self, capture: &mut Capture) {
@@ -798,6 +991,18 @@ pub fn read_exif(bytes: &[u8]) -> ExifInfo {
         let id = &mut info.identity;
         match number {
             37386 => info.focal_mm = info.focal_mm.or(rational),
+            37382 => {
+                // SubjectDistance: 0xFFFFFFFF is infinity, 0 unknown.
+                if let exif::Value::Rational(v) = &f.value
+                    && let Some(r) = v.first()
+                {
+                    info.subject_distance_m = info.subject_distance_m.or(if r.num == u32::MAX {
+                        Some(f64::INFINITY)
+                    } else {
+                        rational
+                    });
+                }
+            }
             33434 => info.exposure_s = info.exposure_s.or(rational),
             // ISOSpeedRatings; PhotographicSensitivity in EXIF 2.3.
             34855 => info.iso = info.iso.or(rational.map(|v| v.round() as u32)),
@@ -1068,18 +1273,7 @@ pub fn save_planes(path: &Path, planes: &[(Channel, Plane)], srgb: bool) -> Resu
             )));
         }
     };
-    let Some((_, first)) = planes.first() else {
-        return Err(err("no image planes".into()));
-    };
-    let (w, h) = (first.width, first.height);
-    if planes.iter().any(|(_, p)| p.width != w || p.height != h) {
-        return Err(err("planes differ in size".into()));
-    }
-    let get = |c: Channel| planes.iter().find(|(ch, _)| *ch == c).map(|(_, p)| p);
-    let rgb: Vec<&Plane> = match (get(Channel::R), get(Channel::G), get(Channel::B)) {
-        (Some(r), Some(g), Some(b)) => vec![r, g, b],
-        _ => vec![first],
-    };
+    let (w, h, rgb) = rgb_or_grey(planes).map_err(|r| err(r.into()))?;
     let encode = |v: f32| -> f32 {
         let v = v.clamp(0.0, 1.0);
         if srgb { srgb_encode(v) } else { v }
@@ -1120,5 +1314,142 @@ pub fn save_planes(path: &Path, planes: &[(Channel, Plane)], srgb: bool) -> Resu
     let mut bytes = Vec::new();
     img.write_to(&mut std::io::Cursor::new(&mut bytes), format)
         .map_err(|e| err(e.to_string()))?;
+    crate::io::write_atomic(path, &bytes).map_err(|e| err(e.source.to_string()))
+}
+
+/// The planes to write, all of one size: R, G, B where there are all three, else the
+/// first (a grey image).
+fn rgb_or_grey(planes: &[(Channel, Plane)]) -> Result<(usize, usize, Vec<&Plane>), &'static str> {
+    let Some((_, first)) = planes.first() else {
+        return Err("no image planes");
+    };
+    let (w, h) = (first.width, first.height);
+    if planes.iter().any(|(_, p)| p.width != w || p.height != h) {
+        return Err("planes differ in size");
+    }
+    let get = |c: Channel| planes.iter().find(|(ch, _)| *ch == c).map(|(_, p)| p);
+    let rgb: Vec<&Plane> = match (get(Channel::R), get(Channel::G), get(Channel::B)) {
+        (Some(r), Some(g), Some(b)) => vec![r, g, b],
+        _ => vec![first],
+    };
+    Ok((w, h, rgb))
+}
+
+/// Writes linear planes (black 0, white 1) as the photo they came from was written: its
+/// format (PNG, TIFF or JPEG), its bit depth and its encoding as [`load_capture`] read
+/// them (8-bit sRGB-encoded, 16-bit linear), its ICC profile and (JPEG, PNG) its EXIF.
+/// So a deblurred photo opens in a viewer looking as its original does.
+///
+/// # Errors
+/// The original is not a PNG, TIFF or JPEG we read, the planes are malformed, or an
+/// I/O failure.
+pub fn save_like_original(
+    path: &Path,
+    planes: &[(Channel, Plane)],
+    original: &[u8],
+) -> Result<(), SaveError> {
+    use image::ImageEncoder;
+    let err = |reason: String| SaveError {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let reader = image::ImageReader::new(std::io::Cursor::new(original))
+        .with_guessed_format()
+        .map_err(|e| err(e.to_string()))?;
+    let format = reader
+        .format()
+        .filter(|f| {
+            matches!(
+                f,
+                image::ImageFormat::Png | image::ImageFormat::Jpeg | image::ImageFormat::Tiff
+            )
+        })
+        .ok_or_else(|| err("the original is not a PNG, TIFF or JPEG".into()))?;
+    let mut decoder = reader.into_decoder().map_err(|e| err(e.to_string()))?;
+    let icc = image::ImageDecoder::icc_profile(&mut decoder)
+        .ok()
+        .flatten();
+    let exif = image::ImageDecoder::exif_metadata(&mut decoder)
+        .ok()
+        .flatten();
+    let color = image::ImageDecoder::color_type(&decoder);
+    let eight_bit = color.bytes_per_pixel() / color.channel_count() == 1;
+    let (w, h, rgb) = rgb_or_grey(planes).map_err(|r| err(r.into()))?;
+    let layout = if rgb.len() == 3 {
+        image::ExtendedColorType::from(if eight_bit {
+            image::ColorType::Rgb8
+        } else {
+            image::ColorType::Rgb16
+        })
+    } else {
+        image::ExtendedColorType::from(if eight_bit {
+            image::ColorType::L8
+        } else {
+            image::ColorType::L16
+        })
+    };
+    // JPEG has no 16-bit form: it is always 8-bit sRGB.
+    let eight_bit = eight_bit || format == image::ImageFormat::Jpeg;
+    let layout = if format == image::ImageFormat::Jpeg {
+        image::ExtendedColorType::from(if rgb.len() == 3 {
+            image::ColorType::Rgb8
+        } else {
+            image::ColorType::L8
+        })
+    } else {
+        layout
+    };
+    let data: Vec<u8> = if eight_bit {
+        (0..w * h)
+            .flat_map(|i| {
+                rgb.iter()
+                    .map(move |p| (srgb_encode(p.data[i].clamp(0.0, 1.0)) * 255.0).round() as u8)
+            })
+            .collect()
+    } else {
+        (0..w * h)
+            .flat_map(|i| {
+                rgb.iter().flat_map(move |p| {
+                    ((p.data[i].clamp(0.0, 1.0) * 65535.0).round() as u16).to_ne_bytes()
+                })
+            })
+            .collect()
+    };
+    let (w32, h32) = (
+        u32::try_from(w).map_err(|_| err("too wide".into()))?,
+        u32::try_from(h).map_err(|_| err("too tall".into()))?,
+    );
+    let mut bytes = Vec::new();
+    let sink = std::io::Cursor::new(&mut bytes);
+    let result = match format {
+        image::ImageFormat::Jpeg => {
+            let mut e = image::codecs::jpeg::JpegEncoder::new_with_quality(sink, 95);
+            if let Some(icc) = icc {
+                let _ = e.set_icc_profile(icc);
+            }
+            if let Some(exif) = exif {
+                let _ = e.set_exif_metadata(exif);
+            }
+            e.write_image(&data, w32, h32, layout)
+        }
+        image::ImageFormat::Png => {
+            let mut e = image::codecs::png::PngEncoder::new(sink);
+            if let Some(icc) = icc {
+                let _ = e.set_icc_profile(icc);
+            }
+            if let Some(exif) = exif {
+                let _ = e.set_exif_metadata(exif);
+            }
+            e.write_image(&data, w32, h32, layout)
+        }
+        _ => {
+            let mut e = image::codecs::tiff::TiffEncoder::new(sink);
+            if let Some(icc) = icc {
+                let _ = e.set_icc_profile(icc);
+            }
+            e.write_image(&data, w32, h32, layout)
+        }
+    };
+    result.map_err(|e| err(e.to_string()))?;
     crate::io::write_atomic(path, &bytes).map_err(|e| err(e.source.to_string()))
 }

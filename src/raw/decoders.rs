@@ -1,0 +1,446 @@
+//! The RAW decoders behind [`super::load_capture`], in the order they are tried:
+//! rawler (dnglab's library: the newest cameras, CR3, compressed RAF, lossy DNG), then
+//! rawloader where rawler refuses a file (it knows a few older bodies rawler does not),
+//! then our own reader for the uncompressed DNGs rawloader would misread. Each one's
+//! answer becomes the same normalised CFA planes; and where every one refuses, the
+//! refusal is explained in words a photographer can act on (see [`explain`]).
+
+use super::{
+    Ifd, LoadError, QuietPanics, cfa_capture, check_size, decoded_capture, dng_matrix, dng_neutral,
+    matrix_illuminant, one_line,
+};
+use crate::plane::{Capture, Channel, ChannelPlane, Plane, RawMeta};
+use std::path::Path;
+
+/// Which decoder read a file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Decoder {
+    /// The `rawler` crate.
+    Rawler,
+    /// The `rawloader` crate.
+    Rawloader,
+    /// lensblur's own reader of uncompressed DNGs.
+    Lensblur,
+    /// The `image` crate (PNG, TIFF, JPEG).
+    Image,
+}
+
+impl Decoder {
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Decoder::Rawler => "rawler",
+            Decoder::Rawloader => "rawloader",
+            Decoder::Lensblur => "lensblur",
+            Decoder::Image => "image",
+        }
+    }
+}
+
+/// What the camera's own metadata says beyond the planes, where the decoder reads it
+/// (rawler reads CR3's EXIF, which lives in boxes a TIFF-only EXIF reader never sees,
+/// and lens names from maker notes).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DecodedMeta {
+    pub focal_mm: Option<f64>,
+    pub f_number: Option<f64>,
+    pub lens_model: Option<String>,
+    /// EXIF SubjectDistance, metres (infinite where the file says infinity).
+    pub subject_distance_m: Option<f64>,
+}
+
+/// Why rawler did not give an image.
+pub(super) enum RawlerRefusal {
+    /// rawler's own error.
+    Refused(rawler::RawlerError),
+    /// rawler panicked on the file.
+    Panicked,
+    /// The file declared an image outside our limits, or shorter than its samples.
+    Ours(LoadError),
+}
+
+/// A RAW file through rawler: its header-only pass first, so the declared size is
+/// checked against [`crate::limits`] before the image is allocated.
+pub(super) fn rawler_capture(
+    path: &Path,
+    bytes: &[u8],
+    ifd: Option<&Ifd>,
+) -> Result<(Capture, DecodedMeta), RawlerRefusal> {
+    let _quiet = QuietPanics::new();
+    let source = rawler::rawsource::RawSource::new_from_slice(bytes);
+    let params = rawler::decoders::RawDecodeParams::default();
+    let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        let decoder = rawler::get_decoder(&source).map_err(RawlerRefusal::Refused)?;
+        let head = decoder
+            .raw_image(&source, &params, true)
+            .map_err(RawlerRefusal::Refused)?;
+        check_size(path, head.width, head.height).map_err(RawlerRefusal::Ours)?;
+        let samples = head
+            .width
+            .saturating_mul(head.height)
+            .saturating_mul(head.cpp.max(1));
+        // No lossless coding spends less than a bit on a sample (and a lossy one not
+        // less than a tenth of one): a file that claims far more samples than it has
+        // bits is truncated, and is refused before the decoder allocates its image.
+        if bytes.len().saturating_mul(80) < samples {
+            return Err(RawlerRefusal::Ours(LoadError::Damaged {
+                path: path.to_path_buf(),
+                reason: format!(
+                    "truncated at byte {}: a {} × {} image cannot be coded in so few bytes",
+                    bytes.len(),
+                    head.width,
+                    head.height
+                ),
+            }));
+        }
+        let image = decoder
+            .raw_image(&source, &params, false)
+            .map_err(RawlerRefusal::Refused)?;
+        let meta = decoder.raw_metadata(&source, &params).ok();
+        Ok((image, meta))
+    }))
+    .map_err(|_| RawlerRefusal::Panicked)??;
+    let (image, meta) = decoded;
+    let capture = from_rawler(path, &image, ifd).map_err(RawlerRefusal::Ours)?;
+    Ok((capture, decoded_meta(meta.as_ref())))
+}
+
+fn rational(r: Option<&rawler::formats::tiff::Rational>) -> Option<f64> {
+    r.filter(|r| r.d != 0)
+        .map(|r| f64::from(r.n) / f64::from(r.d))
+        .filter(|v| v.is_finite() && *v > 0.0)
+}
+
+fn decoded_meta(meta: Option<&rawler::decoders::RawMetadata>) -> DecodedMeta {
+    let Some(meta) = meta else {
+        return DecodedMeta::default();
+    };
+    let exif = &meta.exif;
+    let lens_model = meta
+        .lens
+        .as_ref()
+        .map(|l| {
+            format!("{} {}", l.lens_make, l.lens_model)
+                .trim()
+                .to_string()
+        })
+        .or_else(|| exif.lens_model.clone())
+        .map(|s| s.trim().chars().take(256).collect::<String>())
+        .filter(|s| !s.is_empty());
+    DecodedMeta {
+        focal_mm: rational(exif.focal_length.as_ref()),
+        f_number: rational(exif.fnumber.as_ref()),
+        lens_model,
+        subject_distance_m: exif.subject_distance.as_ref().and_then(|r| {
+            // EXIF writes infinity as 0xFFFFFFFF/1 and "unknown" as 0.
+            if r.n == u32::MAX {
+                Some(f64::INFINITY)
+            } else {
+                rational(Some(r))
+            }
+        }),
+    }
+}
+
+/// rawler's image as our planes: a 2 × 2 CFA mosaic as [`cfa_capture`] makes it (the
+/// active area, black per CFA site, white), linear (demosaiced) RGB data as three
+/// full-resolution linear planes.
+fn from_rawler(
+    path: &Path,
+    img: &rawler::RawImage,
+    ifd: Option<&Ifd>,
+) -> Result<Capture, LoadError> {
+    let corrupt = |reason: String| LoadError::Corrupt {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let rawler::RawImageData::Integer(data) = &img.data else {
+        return Err(corrupt(
+            "floating-point RAW data (an HDR merge) is not read".into(),
+        ));
+    };
+    let cpp = img.cpp.max(1);
+    if data.len() < img.width * img.height * cpp {
+        return Err(LoadError::Damaged {
+            path: path.to_path_buf(),
+            reason: "the decoder found fewer samples than the sensor has pixels".into(),
+        });
+    }
+    let (left, top, w, h) = match &img.active_area {
+        Some(r) if r.p.x + r.d.w <= img.width && r.p.y + r.d.h <= img.height => {
+            (r.p.x, r.p.y, r.d.w, r.d.h)
+        }
+        _ => (0, 0, img.width, img.height),
+    };
+    check_size(path, w, h)?;
+    let bl = &img.blacklevel;
+    let black_at = |x: usize, y: usize, c: usize| -> f32 {
+        let (bw, bh) = (bl.width.max(1), bl.height.max(1));
+        let k =
+            (((y + top) % bh) * bw + (x + left) % bw) * bl.cpp.max(1) + c.min(bl.cpp.max(1) - 1);
+        bl.levels.get(k).or(bl.levels.first()).map_or(0.0, |r| {
+            if r.d == 0 {
+                0.0
+            } else {
+                r.n as f32 / r.d as f32
+            }
+        })
+    };
+    let white_of = |c: usize| -> f32 {
+        img.whitelevel
+            .0
+            .get(c)
+            .or(img.whitelevel.0.first())
+            .map_or(65535.0, |&v| v.min(65535) as f32)
+    };
+    let matrix = rawler_matrix(img);
+    let wb = img.wb_coeffs;
+    let neutral = (wb[..3].iter().all(|v| v.is_normal() && *v > 0.0)).then(|| {
+        let g = f64::from(wb[1]);
+        [g / f64::from(wb[0]), 1.0, g / f64::from(wb[2])]
+    });
+    let mut capture = match (&img.photometric, cpp) {
+        (rawler::rawimage::RawPhotometricInterpretation::Cfa(config), 1) => {
+            let cfa = &config.cfa;
+            if (cfa.width, cfa.height) != (2, 2) {
+                return Err(LoadError::Unsupported {
+                    path: path.to_path_buf(),
+                    reason: format!(
+                        "its {} × {} colour filter (not a 2 × 2 Bayer pattern) is not measured",
+                        cfa.width, cfa.height
+                    ),
+                });
+            }
+            let mut values = Vec::with_capacity(w * h);
+            for y in 0..h {
+                let row = (y + top) * img.width + left;
+                values.extend_from_slice(&data[row..row + w]);
+            }
+            let color_at = |x: usize, y: usize| cfa.color_at(y + top, x + left);
+            let black = |x: usize, y: usize| black_at(x, y, 0);
+            let white = white_of(0);
+            let mut c = cfa_capture(path, &values, (w, h), &color_at, &black, white)?;
+            let sites = [(0, 0), (1, 0), (0, 1), (1, 1)];
+            c.raw = Some(RawMeta {
+                cfa: sites.map(|(x, y)| color_at(x, y).min(3) as u8),
+                black: sites.map(|(x, y)| black(x, y).clamp(0.0, 65535.0) as u16),
+                white: white.clamp(0.0, 65535.0) as u16,
+                // A DNG's own values where it has them (rawler keeps them as f32).
+                color_matrix: ifd.and_then(dng_matrix).or(matrix),
+                calibration_illuminant: ifd.map_or(21, matrix_illuminant),
+                as_shot_neutral: ifd.and_then(dng_neutral).or(neutral),
+                orientation: match img.orientation.to_u16() {
+                    0 => 1,
+                    o => o,
+                },
+                // The EXIF facts come with `ExifInfo::fill`.
+                ..RawMeta::default()
+            });
+            c
+        }
+        (_, 3) => {
+            // Linear (already demosaiced) camera RGB, as phones and Adobe's converter's
+            // lossy DNGs write: each channel a full-resolution linear plane, black
+            // subtracted and scaled by its own white.
+            let planes = [Channel::R, Channel::G, Channel::B]
+                .into_iter()
+                .enumerate()
+                .map(|(c, channel)| {
+                    let range_black = black_at(0, 0, c);
+                    let range = (white_of(c) - range_black).max(1.0);
+                    ChannelPlane {
+                        channel,
+                        plane: Plane::from_fn(w, h, |x, y| {
+                            (f32::from(data[((y + top) * img.width + x + left) * 3 + c])
+                                - black_at(x, y, c))
+                                / range
+                        }),
+                        step: 1,
+                        offset_x: 0,
+                        offset_y: 0,
+                    }
+                })
+                .collect();
+            decoded_capture(w, h, planes, false)
+        }
+        (_, 1) => {
+            let black = black_at(0, 0, 0);
+            let range = (white_of(0) - black).max(1.0);
+            let plane = Plane::from_fn(w, h, |x, y| {
+                (f32::from(data[(y + top) * img.width + x + left]) - black_at(x, y, 0)) / range
+            });
+            decoded_capture(
+                w,
+                h,
+                vec![ChannelPlane {
+                    channel: Channel::Y,
+                    plane,
+                    step: 1,
+                    offset_x: 0,
+                    offset_y: 0,
+                }],
+                false,
+            )
+        }
+        (_, n) => {
+            return Err(LoadError::Unsupported {
+                path: path.to_path_buf(),
+                reason: format!("{n} samples per pixel: neither a CFA mosaic nor RGB"),
+            });
+        }
+    };
+    capture.identity.make = Some(img.clean_make.clone()).filter(|s| !s.is_empty());
+    capture.identity.model = Some(img.clean_model.clone()).filter(|s| !s.is_empty());
+    Ok(capture)
+}
+
+/// rawler's XYZ → camera matrix for D65 (else the first it has), 3 × 3.
+fn rawler_matrix(img: &rawler::RawImage) -> Option<[[f64; 3]; 3]> {
+    use rawler::imgop::xyz::Illuminant;
+    let m = img
+        .color_matrix
+        .get(&Illuminant::D65)
+        .or_else(|| img.color_matrix.values().next())?;
+    (m.len() >= 9 && m.iter().take(9).all(|v| v.is_finite()) && m.iter().any(|v| *v != 0.0))
+        .then(|| std::array::from_fn(|r| std::array::from_fn(|k| f64::from(m[3 * r + k]))))
+}
+
+/// Every decoder refused the file: why, in words that say what to do. A camera the
+/// decoders do not know is named (convert it to DNG); a file that ends before its own
+/// directories or image data say it does is damaged, and where it was cut is said.
+pub(super) fn explain(
+    path: &Path,
+    bytes: &[u8],
+    rawler: RawlerRefusal,
+    fallback: Option<LoadError>,
+) -> LoadError {
+    let refusal = match rawler {
+        RawlerRefusal::Ours(e) => return e,
+        RawlerRefusal::Refused(e) => Some(e),
+        RawlerRefusal::Panicked => None,
+    };
+    // A camera no decoder knows is named first: the decoders stopped before its image
+    // data, so the cure is a converter that knows it, whatever else is wrong.
+    if let Some(rawler::RawlerError::Unsupported { make, model, .. }) = &refusal
+        && !(make.trim().is_empty() && model.trim().is_empty())
+    {
+        return LoadError::Unsupported {
+            path: path.to_path_buf(),
+            reason: format!(
+                "unsupported camera {} {}: no decoder here knows it; convert the file to DNG \
+                 with Adobe DNG Converter or `dnglab convert` and open the DNG",
+                make.trim(),
+                model.trim(),
+            ),
+        };
+    }
+    // The fallback decoder's own finding, where it located the damage or the missing
+    // picture (rawler may have stopped on the file before its checks).
+    let fallback = match fallback {
+        Some(e @ (LoadError::Damaged { .. } | LoadError::NoImage { .. })) => return e,
+        other => other,
+    };
+    if let Some(reason) = super::damage::diagnose(bytes) {
+        let path = path.to_path_buf();
+        return if reason.starts_with(super::damage::MISSING) {
+            LoadError::NoImage { path, reason }
+        } else {
+            LoadError::Damaged { path, reason }
+        };
+    }
+    let rawler_words = match &refusal {
+        Some(rawler::RawlerError::Unsupported { .. }) => {
+            "not a RAW format lensblur knows".to_string()
+        }
+        Some(rawler::RawlerError::DecoderFailed(m)) => {
+            let m = one_line(m);
+            // rawler's I/O failures are reads past the end of what it was given.
+            if m.contains("I/O") || m.contains("fill whole buffer") || m.contains("EOF") {
+                return LoadError::Damaged {
+                    path: path.to_path_buf(),
+                    reason: format!(
+                        "truncated at byte {}: the decoder needed data past the end",
+                        bytes.len()
+                    ),
+                };
+            }
+            m.split(". Please").next().unwrap_or_default().to_string()
+        }
+        None => "the decoder stopped on malformed data".to_string(),
+    };
+    LoadError::Corrupt {
+        path: path.to_path_buf(),
+        reason: match fallback {
+            Some(e) if rawler_words.starts_with("not a RAW") => {
+                format!("{rawler_words} ({})", super::fallback_words(&e))
+            }
+            _ => rawler_words,
+        },
+    }
+}
+
+/// rawler's header-only pass: the active area's size and the camera's names, or `None`
+/// where rawler does not read the file (or stops on it).
+pub(super) fn rawler_header(bytes: &[u8]) -> Option<((usize, usize), String, String)> {
+    let source = rawler::rawsource::RawSource::new_from_slice(bytes);
+    let params = rawler::decoders::RawDecodeParams::default();
+    let head = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        rawler::get_decoder(&source)?.raw_image(&source, &params, true)
+    }))
+    .ok()?
+    .ok()?;
+    let size = match &head.active_area {
+        Some(r) if r.p.x + r.d.w <= head.width && r.p.y + r.d.h <= head.height => (r.d.w, r.d.h),
+        _ => (head.width, head.height),
+    };
+    Some((size, head.clean_make, head.clean_model))
+}
+
+/// Whether a TIFF is a camera's own RAW (not a DNG): a CR2, or a TIFF whose first
+/// directory names one of the makers whose TIFF-based RAWs rawler reads by their
+/// Make (a NEF's first directory is a thumbnail, a CR2's a JPEG preview).
+pub(super) fn camera_raw(bytes: &[u8]) -> bool {
+    const MAKERS: &[&str] = &[
+        "Canon",
+        "PENTAX",
+        "PENTAX Corporation",
+        "RICOH IMAGING COMPANY, LTD.",
+        "Phase One",
+        "Phase One A/S",
+        "Leaf",
+        "Hasselblad",
+        "SONY",
+        "Mamiya-OP Co.,Ltd.",
+        "OLYMPUS IMAGING CORP.",
+        "OLYMPUS CORPORATION",
+        "OLYMPUS OPTICAL CO.,LTD",
+        "OM Digital Solutions",
+        "SAMSUNG",
+        "SEIKO EPSON CORP.",
+        "EASTMAN KODAK COMPANY",
+        "Eastman Kodak Company",
+        "KODAK",
+        "Kodak",
+        "Panasonic",
+        "LEICA",
+        "LEICA CAMERA AG",
+        "NIKON",
+        "Nikon",
+        "NIKON CORPORATION",
+    ];
+    if bytes.get(8..10) == Some(b"CR") {
+        return true;
+    }
+    let Ok(ifd) = super::tiff_ifd0(bytes) else {
+        return false;
+    };
+    ifd.get(&271).is_some_and(|v| {
+        let make: String = v
+            .iter()
+            .take_while(|&&c| c != 0.0)
+            .map(|&c| char::from(c as u8))
+            .collect();
+        MAKERS.contains(&make.trim_end())
+    })
+}
