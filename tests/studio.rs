@@ -8,10 +8,9 @@
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use lensblur::app::view_data::{ColourRange, FieldOptions};
 use lensblur::app::{
-    AppOptions, Command, FieldShow, FieldSource, PlotId, SharpnessChoice, StudioApp, SweepAxis,
-    View,
+    AppOptions, ColourRange, Command, FieldOptions, FieldShow, FieldSource, PlotId,
+    SharpnessChoice, StudioApp, SweepAxis, View,
 };
 use lensblur::job::JobContext;
 use lensblur::pipeline::ShotFile;
@@ -330,7 +329,7 @@ fn every_view_on_the_demo_session() {
     // Kernels on every detected shot by clicking.
     h.get_by_label("Kernels").click();
     step_until(&mut h, "kernels", |a| {
-        a.measured().count() == n_shots && a.dataset.is_some() && idle(a)
+        a.measured().count() == n_shots && a.dataset().is_some() && idle(a)
     });
     let session = h.state().session().cloned().expect("session");
     for (id, m) in h.state().measured() {
@@ -401,14 +400,14 @@ fn every_view_on_the_demo_session() {
     // Measured points appear in the sweeps before any model exists.
     h.get_by_label("Sweeps").click();
     h.run_steps(3);
-    assert!(h.state().profile.is_none());
+    assert!(h.state().profile().is_none());
 
     // Calibrate by clicking: cross-validation chooses α and β, the profile is written.
     h.get_by_label("Models").click();
     h.run_steps(2);
     h.get_by_label("Calibrate").click();
-    step_until(&mut h, "calibration", |a| a.profile.is_some() && idle(a));
-    assert!(h.state().cv.is_some(), "cross-validation ran");
+    step_until(&mut h, "calibration", |a| a.profile().is_some() && idle(a));
+    assert!(h.state().cv().is_some(), "cross-validation ran");
     assert!(
         demo_dir.join("profile.json").is_file() && demo_dir.join("crossval.json").is_file(),
         "profile and cross-validation saved in the session"
@@ -439,7 +438,7 @@ fn every_view_on_the_demo_session() {
     let cdf = (dir.path().join("cdf.csv"), dir.path().join("cdf.png"));
     save_plot(&mut h, PlotId::CvCdf, &cdf.0, &cdf.1);
     // A header naming the axes, then 101 percentiles of three parameters per family.
-    let families = h.state().cv.as_ref().map_or(0, |cv| {
+    let families = h.state().cv().map_or(0, |cv| {
         usize::from(cv.global.is_some()) + usize::from(cv.local.is_some())
     });
     assert_plot_csv(
@@ -486,7 +485,7 @@ fn every_view_on_the_demo_session() {
     // measured kernel there (shapes too where the profile holds them).
     {
         let app = h.state();
-        let profile = &app.profile.as_ref().expect("profile").1;
+        let profile = &app.profile().expect("profile").1;
         let atlas = app.views.kernel_atlas.as_ref().expect("predicted atlas");
         assert_eq!(atlas.model, Some(profile.kernel_model()));
         assert_eq!(atlas.no_shape.is_some(), profile.shape.is_none());
@@ -792,8 +791,8 @@ fn every_view_on_the_demo_session() {
     step_until(&mut again, "the reopened session's results", |a| {
         a.measured().count() == n_shots
             && a.detections().count() == n_shots
-            && a.profile.is_some()
-            && a.cv.is_some()
+            && a.profile().is_some()
+            && a.cv().is_some()
             && idle(a)
     });
 }
@@ -1294,7 +1293,7 @@ fn a_session_measured_on_the_command_line_calibrates_in_the_studio() {
         "results measured elsewhere count as done"
     );
     h.state_mut().commands.push(Command::RunCalibrate);
-    step_until(&mut h, "calibration", |a| a.profile.is_some() && idle(a));
+    step_until(&mut h, "calibration", |a| a.profile().is_some() && idle(a));
     assert_same_profile(&folder.join("profile.json"), &cli_profile);
 }
 
@@ -1402,7 +1401,7 @@ fn predicted_kernel_shapes_of_a_profile_with_a_shape_model() {
         path,
         compare: false,
     });
-    step_until(&mut h, "the profile", |a| a.profile.is_some() && idle(a));
+    step_until(&mut h, "the profile", |a| a.profile().is_some() && idle(a));
     let app = h.state_mut();
     app.commands.push(Command::SelectView(View::KernelField));
     app.commands
@@ -1545,7 +1544,7 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
     );
     step_until(&mut h, "calibrate all", |a| {
         a.jobs.is_running("calibrate all")
-            || a.profile.is_some()
+            || a.profile().is_some()
             || a.messages.iter().any(|m| m.is_error)
     });
     let job_ids: Vec<String> = h
@@ -1561,7 +1560,7 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
             .any(|j| ["detect", "kernels", "calibrate"].contains(&j.as_str())),
         "one job, not a stage each: {job_ids:?}"
     );
-    step_until(&mut h, "the profile", |a| a.profile.is_some() && idle(a));
+    step_until(&mut h, "the profile", |a| a.profile().is_some() && idle(a));
     let app = h.state();
     assert_eq!(app.measured().count(), n, "every shot measured");
     assert!(

@@ -2,7 +2,7 @@
 //! drawn), what the studio asks the user first ([`Confirm`]) and what jobs hand back
 //! ([`JobOutput`]).
 
-use super::view_data;
+use super::state::{FieldOptions, InspectKey, InspectedSquare};
 use super::{
     DeblurLayout, DeblurResult, DeblurZoom, FieldShow, FieldSource, PlotId, SharpnessChoice,
     SweepAxis, View, ViewerState,
@@ -152,7 +152,7 @@ pub enum Command {
     /// Show the demo lens's second unit beside the first.
     SetCompareUnits(bool),
     /// The Kernel field view's colour range and difference map.
-    SetFieldOptions(view_data::FieldOptions),
+    SetFieldOptions(FieldOptions),
     OpenSessionDialog,
     /// Opens (or creates) the session in a folder, or from a session file or manifest.
     OpenSession(PathBuf),
@@ -264,7 +264,7 @@ pub enum JobOutput {
     },
     /// The crops of an inspected square (`None`: the square has none in that channel).
     SquareInspected {
-        key: view_data::InspectKey,
-        result: Option<Box<view_data::InspectedSquare>>,
+        key: InspectKey,
+        result: Option<Box<InspectedSquare>>,
     },
 }

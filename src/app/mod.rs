@@ -20,9 +20,9 @@ pub mod view_data;
 pub use command::{Command, Confirm, JobOutput};
 pub(crate) use state::Tally;
 pub use state::{
-    AppOptions, ComparisonView, DeblurLayout, DeblurResult, DeblurState, DeblurZoom, FieldShow,
-    FieldSource, FrameLog, Message, PendingPlotPng, Photo, PlotId, SharpnessChoice, ShotPreview,
-    ShotView, SweepAxis, View, ViewerState, clock_now,
+    AppOptions, ColourRange, ComparisonView, DeblurLayout, DeblurResult, DeblurState, DeblurZoom,
+    Difference, FieldOptions, FieldShow, FieldSource, FrameLog, Message, PendingPlotPng, Photo,
+    PlotId, SharpnessChoice, ShotPreview, ShotView, SweepAxis, View, ViewerState, clock_now,
 };
 
 use crate::chart::ChartSpec;
@@ -80,16 +80,10 @@ pub struct StudioApp {
     pub compare_units: bool,
     /// The square clicked in the Shot view: (row, col).
     pub selected_square: Option<(usize, usize)>,
-    /// The session's measured Gaussians over every shot with kernels.
-    pub dataset: Option<Arc<Dataset>>,
-    /// The lens profile in use (calibrated here or loaded) and a second one to compare.
-    pub profile: Option<(PathBuf, Arc<Profile>)>,
-    compare_profile: Option<(PathBuf, Arc<Profile>)>,
-    pub cv: Option<Arc<CvReport>>,
     /// What the Kernel field view shows.
     pub field_source: FieldSource,
     field_show: FieldShow,
-    pub field_options: view_data::FieldOptions,
+    pub field_options: FieldOptions,
     pub sweep_axis: SweepAxis,
     /// What the Sharpness view maps.
     pub sharpness: SharpnessChoice,
@@ -166,13 +160,9 @@ impl StudioApp {
             field_f_number: 5.6,
             compare_units: false,
             selected_square: None,
-            dataset: None,
-            profile: None,
-            compare_profile: None,
-            cv: None,
             field_source: FieldSource::Measured,
             field_show: FieldShow::Ellipses,
-            field_options: view_data::FieldOptions::default(),
+            field_options: FieldOptions::default(),
             sweep_axis: SweepAxis::Sigma,
             sharpness: SharpnessChoice::default(),
             geometry_focal_mm: None,
@@ -229,6 +219,30 @@ impl StudioApp {
     /// project).
     pub(crate) fn session_mut(&mut self) -> Option<&mut Session> {
         self.project.as_mut().map(Project::session_mut)
+    }
+
+    /// The session's measured Gaussians over every shot with kernels and a setting.
+    #[must_use]
+    pub fn dataset(&self) -> Option<&Arc<Dataset>> {
+        self.project.as_ref()?.dataset()
+    }
+
+    /// The lens profile in use (calibrated here or loaded) and where it lies.
+    #[must_use]
+    pub fn profile(&self) -> Option<&(PathBuf, Arc<Profile>)> {
+        self.project.as_ref()?.profile()
+    }
+
+    /// A second profile shown beside the first (another unit of the lens).
+    #[must_use]
+    pub fn compare_profile(&self) -> Option<&(PathBuf, Arc<Profile>)> {
+        self.project.as_ref()?.compare_profile()
+    }
+
+    /// The cross-validation report of the profile's fit.
+    #[must_use]
+    pub fn cv(&self) -> Option<&Arc<CvReport>> {
+        self.project.as_ref()?.cv()
     }
 
     /// The shot's detection, this run's or read back from the session's results.

@@ -32,7 +32,7 @@ fn log_readiness(app: &mut StudioApp) {
     }
     // The first launch's end: the demo calibrated and its photo before and after.
     let shown = app.view == crate::app::View::Deblur
-        && app.profile.is_some()
+        && app.profile().is_some()
         && app
             .deblur
             .comparison

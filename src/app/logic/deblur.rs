@@ -272,7 +272,7 @@ type Sources = (
 fn photo_sources(app: &StudioApp, photo: &Photo) -> Sources {
     let cap = &photo.capture;
     let setting = photo.setting();
-    let predicted = match &app.profile {
+    let predicted = match app.profile() {
         Some((_, p)) => crate::review::profile_source(p, cap, setting)
             .map(|s| s.with_lateral(app.deblur.lateral)),
         None => Err("no profile yet: Calibrate (Ctrl+M) or load one in Models".into()),
@@ -371,7 +371,7 @@ pub(super) fn run_deblur_preview(app: &mut StudioApp, centre: [f64; 2]) {
 /// Deblurs a set of photos with the open profile, each at its own EXIF setting, as the
 /// command line's batch does (skips and failures reported photo by photo).
 fn run_export_photos(app: &mut StudioApp, photos: Vec<PathBuf>, out_dir: PathBuf, dng: bool) {
-    let Some((path, profile)) = &app.profile else {
+    let Some((path, profile)) = app.profile() else {
         app.error("calibrate or load a profile first: the photos are deblurred with it");
         return;
     };

@@ -161,7 +161,7 @@ fn load_profile_dialog(app: &mut StudioApp, compare: bool) {
 
 /// Where to save the profile in use.
 fn save_profile_dialog(app: &mut StudioApp) {
-    if app.profile.is_none() {
+    if app.profile().is_none() {
         app.error("no profile to save: calibrate first (Ctrl+M) or load one");
         return;
     }
@@ -181,7 +181,7 @@ fn save_profile_dialog(app: &mut StudioApp) {
 /// Where to save a plot, as a PNG of it on screen or as CSV of its data.
 fn save_plot_dialog(app: &mut StudioApp, plot: PlotId, png: bool) {
     let (what, ext) = if png { ("PNG", "png") } else { ("CSV", "csv") };
-    let name = format!("{}.{ext}", plot.file_stem(app.sweep_axis));
+    let name = format!("{}.{ext}", plot_file_stem(plot, app.sweep_axis));
     spawn_dialog(app, move || async move {
         answer(
             rfd::AsyncFileDialog::new()
@@ -295,4 +295,21 @@ fn answer(
         .map(|h| command(h.path().to_path_buf()))
         .into_iter()
         .collect()
+}
+
+/// A file name stem the save dialog proposes for a plot.
+fn plot_file_stem(plot: PlotId, axis: crate::app::SweepAxis) -> String {
+    match plot {
+        PlotId::Sweep { vs_aperture, param } => {
+            let name = crate::app::view_data::sweep_params(axis)
+                .get(param)
+                .map_or("sweep", |p| p.name)
+                .replace(' ', "-");
+            let against = if vs_aperture { "aperture" } else { "focal" };
+            format!("sweep-{name}-vs-{against}")
+        }
+        PlotId::CvAlpha => "cv-alpha".into(),
+        PlotId::CvBeta => "cv-beta".into(),
+        PlotId::CvCdf => "cv-error-cdf".into(),
+    }
 }

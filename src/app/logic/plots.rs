@@ -57,8 +57,7 @@ fn plot_table(app: &StudioApp, plot: PlotId) -> Result<PlotTable, String> {
         }
         PlotId::CvAlpha | PlotId::CvBeta | PlotId::CvCdf => {
             let cv = app
-                .cv
-                .as_ref()
+                .cv()
                 .ok_or("no cross-validation yet: calibrate first (Ctrl+M)")?;
             let families = [("global", cv.global.as_ref()), ("local", cv.local.as_ref())]
                 .into_iter()

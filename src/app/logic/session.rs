@@ -111,8 +111,8 @@ pub(super) fn session_output(app: &mut StudioApp, output: JobOutput) {
             for line in dropped {
                 app.info(line);
             }
-            if app.cv.is_none() {
-                app.cv = cv;
+            if let Some(p) = app.project.as_mut() {
+                p.read_cv(cv);
             }
             spawn_dataset(app);
             calibrate_demo(app);
@@ -220,9 +220,6 @@ pub(super) fn apply_settings(
     if chart_changed {
         app.selected_square = None;
     }
-    if kernels_changed {
-        app.dataset = None;
-    }
     app.settings_edit = None;
     app.info(match (chart_changed, kernels_changed) {
         (true, _) => "settings applied: detection and kernels run again with the new chart",
@@ -328,6 +325,9 @@ impl StudioApp {
         // Reopening the folder open now keeps its lock: a lock is per open file, so
         // taking it again would refuse itself. Another folder is locked before the old
         // one is let go, so a refusal keeps the session that was open.
+        // The profile compared with stays: it is another unit of the lens, not a
+        // result of the session.
+        let compare = self.compare_profile().cloned();
         let same_folder = self
             .project
             .as_ref()
@@ -337,7 +337,7 @@ impl StudioApp {
         } else {
             None
         };
-        let project = match Project::with_session(s, lock, "the lensblur studio") {
+        let mut project = match Project::with_session(s, lock, "the lensblur studio") {
             Ok((project, opened)) => {
                 if opened.swept > 0 {
                     self.info(format!(
@@ -357,15 +357,15 @@ impl StudioApp {
                 return false;
             }
         };
+        if let Some((path, profile)) = compare {
+            project.use_profile(path, profile, true);
+        }
         let s = project.session().clone();
         // Work on the session being closed stops, and what it still sends is dropped.
         self.jobs.cancel_session_jobs();
         self.session_generation += 1;
         self.shots.clear();
         self.views = view_data::ViewData::default();
-        self.dataset = None;
-        self.cv = None;
-        self.profile = None;
         self.settings_edit = None;
         self.deblur.comparison = None;
         if let Some(p) = &s.profile {

@@ -84,7 +84,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 (true, "a set of RAW photos (DNG)…"),
             ] {
                 if ui
-                    .add_enabled(app.profile.is_some(), egui::Button::new(label))
+                    .add_enabled(app.profile().is_some(), egui::Button::new(label))
                     .on_hover_text("Each photo deblurred with the profile at its own focal length and aperture (from EXIF); photos of another camera or lens, or outside the calibrated range, are skipped with the reason")
                     .clicked()
                 {
@@ -162,7 +162,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     });
     // Where the profile is less well trusted at this setting: the core's own words,
     // as `lensblur deblur` prints them.
-    if let Some((_, profile)) = &app.profile
+    if let Some((_, profile)) = app.profile()
         && f > 0.0
         && a > 0.0
         && let Some(line) = profile.trust_line(
@@ -313,8 +313,7 @@ fn advanced_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
         }
         let mut correct = app.deblur.lateral == crate::model::LateralColour::Correct;
         let has_place = app
-            .profile
-            .as_ref()
+            .profile()
             .is_some_and(|(_, p)| p.place.is_some());
         if ui
             .add_enabled(has_place, egui::Checkbox::new(&mut correct, "correct lateral colour"))

@@ -10,11 +10,10 @@
 //! Draws the panels `view_data` made (the fields, the kernel atlas, the colour scale)
 //! and the controls that choose them; computes nothing.
 
-use super::super::view_data::{
-    ColourRange, ColourScale, Difference, FieldOptions, FieldPanel, FieldPoint, PanelContent,
-    PanelOf,
+use super::super::view_data::{ColourScale, FieldPanel, FieldPoint, PanelContent, PanelOf};
+use super::super::{
+    ColourRange, Command, Difference, FieldOptions, FieldShow, FieldSource, StudioApp, View,
 };
-use super::super::{Command, FieldShow, FieldSource, StudioApp, View};
 use super::{TIP_CXX, TIP_CYY, ellipse_points, setting_sliders_ui};
 use crate::model::KernelModel;
 use crate::plane::LensSetting;
@@ -142,7 +141,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 });
             format!("measured on {name} — channel {ch}")
         }
-        PanelOf::Profile => match &app.profile {
+        PanelOf::Profile => match app.profile() {
             Some((path, _)) => {
                 let atlas = app.views.kernel_atlas.as_ref();
                 let shapes = match atlas.and_then(|a| a.model) {
@@ -167,7 +166,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             None => "predicted".into(),
         },
         PanelOf::NoProfile => "predicted".into(),
-        PanelOf::CompareProfile => match &app.compare_profile {
+        PanelOf::CompareProfile => match app.compare_profile() {
             Some((path, _)) => format!("{} — channel {ch}", app.shown_path(path)),
             None => String::new(),
         },

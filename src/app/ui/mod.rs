@@ -94,6 +94,7 @@ pub(super) fn root_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
 /// The menus: what a photographer looks for first (open, recent, export, quit), the
 /// views and panels, and help.
 fn menu_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    let has_profile = app.profile().is_some();
     let out = &mut app.commands;
     egui::MenuBar::new().ui(ui, |ui| {
         ui.menu_button("File", |ui| {
@@ -160,7 +161,7 @@ fn menu_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 {
                     out.push(Command::ExportDeblurDialog(DeblurResult::Measured));
                 }
-                let profile = app.profile.is_some();
+                let profile = has_profile;
                 if ui
                     .add_enabled(profile, egui::Button::new("Photos as TIFF…"))
                     .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")

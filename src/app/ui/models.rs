@@ -48,7 +48,7 @@ fn models_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, view_h: f32) {
             app.commands.push(Command::LoadProfileDialog);
         }
         if ui
-            .add_enabled(app.profile.is_some(), egui::Button::new("Save profile…"))
+            .add_enabled(app.profile().is_some(), egui::Button::new("Save profile…"))
             .on_hover_text("Write the profile in use to a file of your choice")
             .clicked()
         {
@@ -59,10 +59,10 @@ fn models_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, view_h: f32) {
     egui::CollapsingHeader::new("Shooting plan")
         // A header of its own once a profile exists, so it folds then (the plots take
         // the view) even where it was open before calibration.
-        .id_salt(("shooting plan", app.profile.is_some()))
-        .default_open(app.profile.is_none())
+        .id_salt(("shooting plan", app.profile().is_some()))
+        .default_open(app.profile().is_none())
         .show(ui, |ui| plan_ui(app, ui));
-    if let Some((path, p)) = &app.profile {
+    if let Some((path, p)) = app.profile() {
         let kind = format!("{:?}", p.preferred).to_lowercase();
         let orders = |g: Option<(usize, usize)>| {
             g.map_or("—".to_owned(), |(a, b)| format!("α {a}, β {b}"))
@@ -85,7 +85,7 @@ fn models_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, view_h: f32) {
     } else {
         ui.label("No profile yet — press Calibrate once kernels are measured on the shots, or load a profile.");
     }
-    let Some(cv) = app.cv.clone() else {
+    let Some(cv) = app.cv().cloned() else {
         ui.label("Cross-validation curves over α and β (paper Fig. 5) and the error distributions (Fig. 6) appear after a calibration that selects α and β.");
         return;
     };

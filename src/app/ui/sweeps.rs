@@ -31,7 +31,7 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ui.heading("Sweeps");
     let is_demo = app.session().is_some_and(|s| s.is_demo);
     let lens = VirtualLens::demo();
-    if app.dataset.is_none() && app.profile.is_none() && !is_demo {
+    if app.dataset().is_none() && app.profile().is_none() && !is_demo {
         ui.label("Measured points appear here after Kernels (Ctrl+K); model curves after Calibrate (Ctrl+M).");
         return;
     }
@@ -51,9 +51,9 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         } else {
             "Dots: measured at the square nearest each location. Solid: the profile's model at that square. Dotted verticals: settings with shots."
         });
-        if app.dataset.is_none() {
+        if app.dataset().is_none() {
             ui.weak("No measured points yet: run Kernels (Ctrl+K).");
-        } else if app.profile.is_none() {
+        } else if app.profile().is_none() {
             ui.weak("No model yet: run Calibrate (Ctrl+M).");
         }
     });

@@ -73,7 +73,7 @@ pub(super) fn refresh_kernel_atlas(app: &mut StudioApp) {
         .and_then(|i| app.project.as_ref()?.kernels(i));
     let key = match app.field_source {
         FieldSource::Predicted => {
-            let Some((_, profile)) = &app.profile else {
+            let Some((_, profile)) = app.profile() else {
                 app.views.kernel_atlas = None;
                 return;
             };
@@ -140,7 +140,7 @@ pub(super) fn refresh_kernel_atlas(app: &mut StudioApp) {
             (kernels, max_sigma, None, None)
         }
         AtlasKey::Predicted { size, .. } => {
-            let Some((_, profile)) = &app.profile else {
+            let Some((_, profile)) = app.profile() else {
                 return;
             };
             let model = profile.kernel_model();
@@ -180,8 +180,7 @@ pub(super) fn refresh_kernel_atlas(app: &mut StudioApp) {
     let mut atlas = pack_atlas(&app.ctx, key, &kernels, max_sigma, model, error);
     if model.is_some() {
         atlas.no_shape = app
-            .profile
-            .as_ref()
+            .profile()
             .and_then(|(_, p)| crate::review::no_shape_reason(p));
     }
     app.views.kernel_atlas = Some(atlas);

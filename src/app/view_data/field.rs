@@ -4,6 +4,7 @@
 use super::atlas::{AtlasCell, KernelAtlas};
 use super::sensor_size;
 use super::{FIELD_GRID, Same, is_demo};
+use crate::app::state::{ColourRange, Difference, FieldOptions};
 use crate::app::{FieldShow, FieldSource, StudioApp};
 use crate::kernel::file::KernelsFile;
 use crate::plane::{Channel, LensSetting};
@@ -13,47 +14,6 @@ use crate::review::{FieldDifference, KernelError};
 use crate::session::ShotId;
 use crate::simulate::VirtualLens;
 use std::sync::Arc;
-
-/// How the Kernel field view colours its squares.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum ColourRange {
-    /// From the smallest to the largest value shown (over every panel, so compared
-    /// fields share one scale).
-    Data,
-    /// A range the user set (σ, px), kept across shots and settings so that fields
-    /// compare by eye.
-    Fixed { min: f64, max: f64 },
-}
-
-/// The difference maps of the Kernel field view: σ(A) − σ(B) at each square.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Difference {
-    /// The selected shot's measured Gaussians − the profile's prediction there, at the
-    /// shot's setting.
-    MeasuredMinusPredicted,
-    /// Unit A − unit B: the profile − the second profile loaded, else the demo lens −
-    /// its second unit, at the sliders' setting.
-    UnitAMinusB,
-    /// Channel R − channel B of the source shown (lateral colour, in blur).
-    RedMinusBlue,
-}
-
-/// The Kernel field view's colouring choices.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct FieldOptions {
-    pub range: ColourRange,
-    /// A difference map instead of the fields, or `None`.
-    pub difference: Option<Difference>,
-}
-
-impl Default for FieldOptions {
-    fn default() -> Self {
-        Self {
-            range: ColourRange::Data,
-            difference: None,
-        }
-    }
-}
 
 /// The colour scale of the Kernel field view's panels: the value range the palette
 /// spans (values outside take its ends), whether it is the diverging one (blue, white
@@ -228,11 +188,11 @@ fn field_key(app: &StudioApp) -> FieldKey {
             size,
             chart_cols: app.session().map_or(10, |s| s.chart.cols),
             atlas: app.views.kernel_atlas.is_some(),
-            profile: Same::of(app.profile.as_ref().map(|p| &p.1)),
+            profile: Same::of(app.profile().map(|p| &p.1)),
         },
         FieldSource::Predicted => FieldKey::Predicted {
-            profile: Same::of(app.profile.as_ref().map(|p| &p.1)),
-            compare: Same::of(app.compare_profile.as_ref().map(|p| &p.1)),
+            profile: Same::of(app.profile().map(|p| &p.1)),
+            compare: Same::of(app.compare_profile().map(|p| &p.1)),
             channel,
             setting,
             size,
@@ -256,8 +216,8 @@ pub(super) fn refresh_field(app: &mut StudioApp) {
         field_key(app),
         FieldExtra {
             options: app.field_options,
-            compare: Same::of(app.compare_profile.as_ref().map(|p| &p.1)),
-            profile: Same::of(app.profile.as_ref().map(|p| &p.1)),
+            compare: Same::of(app.compare_profile().map(|p| &p.1)),
+            profile: Same::of(app.profile().map(|p| &p.1)),
             is_demo: is_demo(app),
             setting: [app.field_focal_mm, app.field_f_number],
         },
@@ -398,7 +358,7 @@ fn value_panels(
         samples: Vec::new(),
     };
     let mut panels = Vec::new();
-    let errors = match (&app.profile, file, app.field_show) {
+    let errors = match (app.profile(), file, app.field_show) {
         (Some((_, p)), Some(f), FieldShow::Kernels) => crate::review::kernel_errors(p, f, ch),
         _ => Vec::new(),
     };
@@ -448,7 +408,7 @@ fn value_panels(
                 crate::review::predicted_field(p, ch, size, FIELD_GRID, s)
                     .map(PanelContent::Ellipses)
             };
-            panels.push(match &app.profile {
+            panels.push(match app.profile() {
                 Some((_, p)) => panel(
                     PanelOf::Profile,
                     match (app.field_show, &app.views.kernel_atlas) {
@@ -466,7 +426,7 @@ fn value_panels(
                 ),
             });
             // The one atlas is the profile's: a second profile compares as ellipses.
-            if let Some((_, p)) = &app.compare_profile {
+            if let Some((_, p)) = app.compare_profile() {
                 panels.push(panel(PanelOf::CompareProfile, predicted(p), Vec::new()));
             }
         }
@@ -515,8 +475,7 @@ fn difference_panel(
         Difference::MeasuredMinusPredicted => (|| {
             let f = file.ok_or_else(no_kernels)?;
             let (_, p) = app
-                .profile
-                .as_ref()
+                .profile()
                 .ok_or("No profile yet: Calibrate (Ctrl+M) or load one in Models.")?;
             let shot_setting = match (f.focal_mm, f.f_number) {
                 (Some(focal_mm), Some(f_number)) => LensSetting { focal_mm, f_number },
@@ -533,7 +492,7 @@ fn difference_panel(
                 "the profile's prediction there".to_owned(),
             ))
         })(),
-        Difference::UnitAMinusB => match (&app.profile, &app.compare_profile) {
+        Difference::UnitAMinusB => match (app.profile(), app.compare_profile()) {
             (Some((pa, a)), Some((pb, b))) => (|| {
                 Ok((
                     crate::review::predicted_field(a, ch, size, FIELD_GRID, setting)?,
@@ -561,7 +520,7 @@ fn difference_panel(
                     FieldSource::Measured => file
                         .map(|f| measured_gaussians(f, c).0)
                         .ok_or_else(no_kernels),
-                    FieldSource::Predicted => match &app.profile {
+                    FieldSource::Predicted => match app.profile() {
                         Some((_, p)) => crate::review::predicted_field(p, c, size, FIELD_GRID, setting),
                         None => Err("No profile yet: Calibrate (Ctrl+M) or load one in Models.".into()),
                     },

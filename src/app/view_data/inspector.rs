@@ -3,8 +3,8 @@
 
 use super::{Same, is_demo};
 use crate::app::jobs::JobScope;
+use crate::app::state::{InspectKey, InspectedSquare};
 use crate::app::{JobOutput, StudioApp};
-use crate::detect::Detection;
 use crate::detect::inspect::SquareInspection;
 use crate::kernel::file::KernelsFile;
 use crate::plane::{Channel, LensSetting, Plane};
@@ -13,16 +13,6 @@ use crate::review::SquareFacts;
 use crate::session::ShotId;
 use crate::simulate::VirtualLens;
 use std::sync::Arc;
-
-/// Which square's inspection, of what: results for another key are stale.
-#[derive(Clone, Debug, PartialEq)]
-pub struct InspectKey {
-    pub session: u64,
-    pub shot: ShotId,
-    pub square: (usize, usize),
-    pub channel: Channel,
-    detection: Same<Detection>,
-}
 
 /// The inspector's state for the selected square.
 pub enum Inspecting {
@@ -41,14 +31,6 @@ impl Inspecting {
             Inspecting::Ready(i) => &i.key,
         }
     }
-}
-
-/// What an inspection job hands back: the crops, the square's numbers and the crops'
-/// grey images (textures are made from them on the UI thread).
-pub struct InspectedSquare {
-    pub crops: SquareInspection,
-    pub facts: Option<SquareFacts>,
-    pub images: [egui::ColorImage; 3],
 }
 
 /// What the kernel texture and the truth beside it depend on.

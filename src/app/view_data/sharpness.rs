@@ -48,7 +48,7 @@ fn key(app: &StudioApp) -> SharpnessKey {
                 .filter(|_| measured),
         ),
         profile: Same::of(
-            app.profile
+            app.profile()
                 .as_ref()
                 .map(|p| &p.1)
                 .filter(|_| choice.source == FieldSource::Predicted),

@@ -224,8 +224,8 @@ pub fn sweep_table(
 pub(super) fn refresh_sweeps(app: &mut StudioApp) {
     let lens = VirtualLens::demo();
     let key = SweepKey {
-        dataset: Same::of(app.dataset.as_ref()),
-        profile: Same::of(app.profile.as_ref().map(|p| &p.1)),
+        dataset: Same::of(app.dataset()),
+        profile: Same::of(app.profile().map(|p| &p.1)),
         is_demo: is_demo(app),
         channel: app.channel,
         setting: [app.field_focal_mm, app.field_f_number],
@@ -239,8 +239,7 @@ pub(super) fn refresh_sweeps(app: &mut StudioApp) {
     let (w, h) = key.size;
     let (f_range, a_range) = key.ranges;
     let (focals, apertures) = app
-        .dataset
-        .as_ref()
+        .dataset()
         .map(|d| d.distinct_settings())
         .unwrap_or_default();
     // Measured points only exist at shot settings: the sweep holds the other setting at
@@ -260,7 +259,7 @@ pub(super) fn refresh_sweeps(app: &mut StudioApp) {
             .iter()
             .map(|&(_, fx, fy)| {
                 let nominal = (fx * (w as f64 - 1.0), fy * (h as f64 - 1.0));
-                let measured = app.dataset.as_ref().map(|ds| {
+                let measured = app.dataset().map(|ds| {
                     crate::review::sweep_points(ds, ch, nominal, vs_aperture, fixed)
                         .into_iter()
                         .map(|p| {
@@ -277,8 +276,7 @@ pub(super) fn refresh_sweeps(app: &mut StudioApp) {
                     .map_or(nominal, |(p, _)| (p.x, p.y));
                 LocationSweep {
                     model: app
-                        .profile
-                        .as_ref()
+                        .profile()
                         .map(|(_, p)| with_mtf50(crate::review::model_curve(p, ch, at, &settings))),
                     truth: key.is_demo.then(|| {
                         with_mtf50(crate::review::truth_curve(&lens, ch, at, (w, h), &settings))
