@@ -102,7 +102,7 @@ fn step_until(h: &mut Harness<'_, StudioApp>, what: &str, done: impl Fn(&StudioA
                 .iter()
                 .map(|j| (&j.name, j.progress()))
                 .collect::<Vec<_>>(),
-            h.state().messages
+            h.state().window.messages
         );
         h.run_steps(1);
         std::thread::sleep(Duration::from_millis(20));
@@ -136,19 +136,21 @@ fn save_plot(h: &mut Harness<'_, StudioApp>, plot: PlotId, csv: &Path, png: &Pat
         .commands
         .push(Command::SavePlotPng { plot, path });
     step_until(h, "the plot's files", |a| {
-        csv.is_file() && png.is_file() && a.plot_png.is_none()
+        csv.is_file() && png.is_file() && a.window.plot_png.is_none()
     });
     assert!(
         h.state()
+            .window
             .messages
             .iter()
             .any(|m| m.text.contains("plot saved to")),
         "{:?}",
-        h.state().messages
+        h.state().window.messages
     );
     // The messages name the temporary folder, which differs between runs: off the
     // snapshots that follow.
     h.state_mut()
+        .window
         .messages
         .retain(|m| !m.text.contains(&*dir.to_string_lossy()));
     // The plot and its axes: a third of the window's width, less than half its height
@@ -211,7 +213,8 @@ fn dropped(p: &Path) -> egui::DroppedFileHandle {
 
 /// The predicted deblurred region's first plane, as the preview holds it.
 fn deblurred_region(app: &StudioApp) -> Vec<f32> {
-    app.deblur
+    app.views
+        .deblur
         .comparison
         .as_ref()
         .and_then(|c| c.comparison.predicted.as_ref().ok())
@@ -266,6 +269,7 @@ fn every_view_on_the_demo_session() {
     );
     assert!(
         h.state()
+            .window
             .messages
             .iter()
             .any(|m| m.text.contains("detect: cancelled"))
@@ -313,10 +317,10 @@ fn every_view_on_the_demo_session() {
         );
     click_at(&mut h, pos);
     // The crops are made on a job thread.
-    step_until(&mut h, "the inspector", |a| a.views.inspection().is_some());
+    step_until(&mut h, "the inspector", |a| a.data.inspection().is_some());
     let rms = h
         .state()
-        .views
+        .data
         .inspection()
         .filter(|i| i.square == (row, col))
         .map(|i| i.crops.residual_rms)
@@ -354,7 +358,7 @@ fn every_view_on_the_demo_session() {
     // The inspector now shows the square's kernel and its Gaussian's numbers.
     assert!(
         h.state()
-            .views
+            .data
             .inspection()
             .is_some_and(|i| i.kernel.is_some())
     );
@@ -367,7 +371,7 @@ fn every_view_on_the_demo_session() {
     snapshot(&mut h, "studio_kernel_field");
     // The colour range from the data spans the measured σ; fixed, it is what was set.
     {
-        let scale = h.state().views.field.as_ref().and_then(|f| f.scale.clone());
+        let scale = h.state().data.field.as_ref().and_then(|f| f.scale.clone());
         let [lo, hi] = scale.expect("a colour scale").range;
         assert!(0.3 < lo && lo < hi && hi < 3.0, "{lo}–{hi}");
     }
@@ -380,7 +384,7 @@ fn every_view_on_the_demo_session() {
     h.run_steps(2);
     assert_eq!(
         h.state()
-            .views
+            .data
             .field
             .as_ref()
             .and_then(|f| f.scale.as_ref())
@@ -393,7 +397,7 @@ fn every_view_on_the_demo_session() {
     h.run_steps(2);
     h.get_by_label("Kernel shapes").click();
     h.run_steps(3);
-    assert!(h.state().views.kernel_atlas.is_some());
+    assert!(h.state().data.kernel_atlas.is_some());
     snapshot(&mut h, "studio_kernel_field_kernels");
     noisy_kernel_is_hatched_and_a_click_inspects_it(&mut h, (row, col));
 
@@ -471,7 +475,7 @@ fn every_view_on_the_demo_session() {
     // The same sweeps as MTF50.
     h.get_by_label("MTF50").click();
     h.run_steps(3);
-    assert_eq!(h.state().sweep_axis, SweepAxis::Mtf50);
+    assert_eq!(h.state().views.sweeps.axis, SweepAxis::Mtf50);
     snapshot(&mut h, "studio_sweeps_mtf50");
 
     // Predict: the profile's field at the sliders' setting.
@@ -479,17 +483,17 @@ fn every_view_on_the_demo_session() {
     h.run_steps(2);
     h.get_by_label("Predicted").click();
     h.run_steps(3);
-    assert_eq!(h.state().field_source, FieldSource::Predicted);
+    assert_eq!(h.state().views.field.source, FieldSource::Predicted);
     // Kernel shapes stay chosen: the profile's predicted kernels, in its recommended
     // model, at the selected shot's measured squares, each with its error against the
     // measured kernel there (shapes too where the profile holds them).
     {
         let app = h.state();
         let profile = &app.profile().expect("profile").1;
-        let atlas = app.views.kernel_atlas.as_ref().expect("predicted atlas");
+        let atlas = app.data.kernel_atlas.as_ref().expect("predicted atlas");
         assert_eq!(atlas.model, Some(profile.kernel_model()));
         assert_eq!(atlas.no_shape.is_some(), profile.shape.is_none());
-        let field = app.views.field.as_ref().expect("field");
+        let field = app.data.field.as_ref().expect("field");
         let points = &field.panels[0].points;
         assert!(!points.is_empty());
         assert!(points.iter().all(|p| p.kernel_error.is_some_and(|e| {
@@ -505,7 +509,7 @@ fn every_view_on_the_demo_session() {
     h.get_by_label("measured − predicted").click();
     h.run_steps(3);
     {
-        let field = h.state().views.field.as_ref().expect("field");
+        let field = h.state().data.field.as_ref().expect("field");
         let scale = field.scale.as_ref().expect("a colour scale");
         assert!(scale.diverging && scale.range[0] == -scale.range[1]);
         assert!(scale.ticks.contains(&0.0), "{:?}", scale.ticks);
@@ -519,25 +523,25 @@ fn every_view_on_the_demo_session() {
     h.run_steps(3);
     assert!(
         h.state()
-            .views
+            .data
             .field
             .as_ref()
             .is_some_and(|f| !f.panels[0].points.is_empty())
     );
     h.get_by_label("σ").click();
     h.run_steps(2);
-    assert_eq!(h.state().field_options.difference, None);
+    assert_eq!(h.state().views.field.options.difference, None);
     h.get_by_label("Ground truth").click();
     h.run_steps(2);
     h.get_by_label("Compare with a second unit").click();
     h.run_steps(3);
-    assert!(h.state().compare_units);
+    assert!(h.state().views.field.compare_units);
     snapshot(&mut h, "studio_kernel_field_compare");
     // Unit A − unit B of the demo lens: one difference panel, each grid point paired.
     h.get_by_label("unit A − unit B").click();
     h.run_steps(3);
     {
-        let field = h.state().views.field.as_ref().expect("field");
+        let field = h.state().data.field.as_ref().expect("field");
         assert_eq!(field.panels.len(), 1);
         assert_eq!(field.panels[0].points.len(), 12 * 8);
         assert!(field.scale.as_ref().is_some_and(|s| s.diverging));
@@ -552,19 +556,24 @@ fn every_view_on_the_demo_session() {
     let shot_path = {
         let app = h.state();
         let s = app.session().expect("session");
-        let id = app.selected_shot.expect("a selected shot");
+        let id = app.views.shot.selected.expect("a selected shot");
         s.path_of(s.shot(id).expect("the shot"))
     };
     h.get_by_label("Deblur the selected shot").click();
     // The demo's photo is open with its own preview: wait for the shot's.
     step_until(&mut h, "the deblur preview", |a| {
-        a.deblur.photo.as_ref().is_some_and(|p| p.path == shot_path)
-            && a.deblur.comparison.is_some()
+        a.views
+            .deblur
+            .photo
+            .as_ref()
+            .is_some_and(|p| p.path == shot_path)
+            && a.views.deblur.comparison.is_some()
             && idle(a)
     });
     {
         let c = &h
             .state()
+            .views
             .deblur
             .comparison
             .as_ref()
@@ -593,7 +602,7 @@ fn every_view_on_the_demo_session() {
     h.state_mut().commands.push(Command::SetDeblurCrop(64));
     h.run_steps(2);
     step_until(&mut h, "the small region", |a| {
-        idle(a) && a.deblur.comparison.is_some()
+        idle(a) && a.views.deblur.comparison.is_some()
     });
     let before = deblurred_region(h.state());
     h.state_mut()
@@ -605,10 +614,16 @@ fn every_view_on_the_demo_session() {
         "a new device deblurs the region again"
     );
     step_until(&mut h, "the GPU preview", |a| {
-        idle(a) && a.deblur.comparison.is_some()
+        idle(a) && a.views.deblur.comparison.is_some()
     });
     {
-        let note = h.state().deblur.device_note.clone().unwrap_or_default();
+        let note = h
+            .state()
+            .views
+            .deblur
+            .device_note
+            .clone()
+            .unwrap_or_default();
         assert!(note.starts_with("GPU: "), "{note}");
         let on_gpu = deblurred_region(h.state());
         assert_eq!(on_gpu.len(), before.len());
@@ -632,9 +647,9 @@ fn every_view_on_the_demo_session() {
     h.get_by_label("100 %").click();
     let region_fills_viewport = |a: &StudioApp| {
         let (Some([vw, vh]), Some(c), Some(p)) = (
-            a.deblur.viewport,
-            a.deblur.comparison.as_ref(),
-            a.deblur.photo.as_ref(),
+            a.views.deblur.viewport,
+            a.views.deblur.comparison.as_ref(),
+            a.views.deblur.photo.as_ref(),
         ) else {
             return false;
         };
@@ -651,6 +666,7 @@ fn every_view_on_the_demo_session() {
     });
     assert!(
         h.state()
+            .views
             .deblur
             .device_note
             .as_deref()
@@ -674,7 +690,7 @@ fn every_view_on_the_demo_session() {
         "a new strength deblurs the region again"
     );
     step_until(&mut h, "the stronger preview", |a| {
-        idle(a) && a.deblur.comparison.is_some()
+        idle(a) && a.views.deblur.comparison.is_some()
     });
     let sharp = deblurred_region(h.state());
     assert_eq!(soft.len(), sharp.len(), "the region stays where it was");
@@ -682,19 +698,22 @@ fn every_view_on_the_demo_session() {
     h.get_by_label("200 %").click();
     h.run_steps(2);
     step_until(&mut h, "the 200 % preview", |a| {
-        idle(a) && a.deblur.zoom == lensblur::app::DeblurZoom::Times(2) && region_fills_viewport(a)
+        idle(a)
+            && a.views.deblur.zoom == lensblur::app::DeblurZoom::Times(2)
+            && region_fills_viewport(a)
     });
     {
         // Half the 100 % region's width: the same panes hold half as many pixels.
         let r = h
             .state()
+            .views
             .deblur
             .comparison
             .as_ref()
             .expect("comparison")
             .comparison
             .region;
-        let [vw, _] = h.state().deblur.viewport.expect("viewport");
+        let [vw, _] = h.state().views.deblur.viewport.expect("viewport");
         assert!(r.width <= vw && r.width < 200, "{r:?}");
     }
     snapshot(&mut h, "studio_deblur_200_strength");
@@ -702,7 +721,8 @@ fn every_view_on_the_demo_session() {
     h.run_steps(2);
     step_until(&mut h, "the fitted preview", |a| {
         idle(a)
-            && a.deblur
+            && a.views
+                .deblur
                 .comparison
                 .as_ref()
                 .is_some_and(|c| c.comparison.region.width == 160)
@@ -715,7 +735,8 @@ fn every_view_on_the_demo_session() {
     });
     step_until(&mut h, "the export", |a| {
         idle(a)
-            && a.messages
+            && a.window
+                .messages
                 .iter()
                 .any(|m| m.text.contains("deblurred photo written"))
     });
@@ -753,12 +774,14 @@ fn every_view_on_the_demo_session() {
     });
     step_until(&mut h, "the photos' export", |a| {
         idle(a)
-            && a.messages
+            && a.window
+                .messages
                 .iter()
                 .any(|m| m.text.contains("photos exported"))
     });
     let summary = h
         .state()
+        .window
         .messages
         .iter()
         .find(|m| m.text.contains("photos exported"))
@@ -770,6 +793,7 @@ fn every_view_on_the_demo_session() {
     );
     assert!(
         h.state()
+            .window
             .messages
             .iter()
             .any(|m| m.text.contains("skipped: not a RAW photo"))
@@ -805,8 +829,8 @@ fn noisy_kernel_is_hatched_and_a_click_inspects_it(
     h: &mut Harness<'_, StudioApp>,
     square: (usize, usize),
 ) {
-    let natural = h.state().views.field.as_ref().map_or(0, |f| f.noisy);
-    let shot = h.state().selected_shot.expect("a selected shot");
+    let natural = h.state().data.field.as_ref().map_or(0, |f| f.noisy);
+    let shot = h.state().views.shot.selected.expect("a selected shot");
     let original = std::sync::Arc::clone(h.state().kernels(shot).expect("kernels"));
     let total = original
         .samples
@@ -851,7 +875,7 @@ fn noisy_kernel_is_hatched_and_a_click_inspects_it(
         kernels: std::sync::Arc::new(striped),
     });
     h.run_steps(3);
-    let field = h.state().views.field.as_ref().expect("field");
+    let field = h.state().data.field.as_ref().expect("field");
     assert!(field.noisy > natural, "the striped kernel is flagged");
     let point = field.panels[0]
         .points
@@ -872,7 +896,7 @@ fn noisy_kernel_is_hatched_and_a_click_inspects_it(
     click_at(h, pos);
     h.run_steps(2);
     assert_eq!(h.state().view, View::Shot);
-    assert_eq!(h.state().selected_square, Some(square));
+    assert_eq!(h.state().views.shot.square, Some(square));
     h.state_mut().record_shot_event(ShotEvent::Measured {
         id: shot,
         file,
@@ -883,11 +907,11 @@ fn noisy_kernel_is_hatched_and_a_click_inspects_it(
         .push(Command::SelectView(View::KernelField));
     h.run_steps(3);
     assert_eq!(
-        h.state().views.field.as_ref().map(|f| f.noisy),
+        h.state().data.field.as_ref().map(|f| f.noisy),
         Some(natural)
     );
     step_until(h, "the inspector after the click", |a| {
-        idle(a) && a.views.inspection().is_some()
+        idle(a) && a.data.inspection().is_some()
     });
 }
 
@@ -945,12 +969,12 @@ fn raw_shots_and_photos_are_developed_and_export_as_dng() {
             "developed: {:?}",
             preview.developed.as_ref().map(|d| d.as_ref().err())
         );
-        assert!(app.viewer.developed);
+        assert!(app.views.shot.viewer.developed);
     }
     snapshot(&mut h, "studio_shot_raw_developed");
     h.get_by_label("developed").click();
     h.run_steps(2);
-    assert!(!h.state().viewer.developed);
+    assert!(!h.state().views.shot.viewer.developed);
     snapshot(&mut h, "studio_shot_raw_linear");
     h.get_by_label("developed").click();
     h.run_steps(2);
@@ -966,10 +990,16 @@ fn raw_shots_and_photos_are_developed_and_export_as_dng() {
     h.run_steps(2);
     h.get_by_label("Deblur the selected shot").click();
     step_until(&mut h, "the deblur preview", |a| {
-        a.deblur.comparison.is_some() && idle(a)
+        a.views.deblur.comparison.is_some() && idle(a)
     });
     {
-        let view = h.state().deblur.comparison.as_ref().expect("comparison");
+        let view = h
+            .state()
+            .views
+            .deblur
+            .comparison
+            .as_ref()
+            .expect("comparison");
         let c = &view.comparison;
         assert!(
             c.measured.is_ok(),
@@ -1000,12 +1030,20 @@ fn raw_shots_and_photos_are_developed_and_export_as_dng() {
     });
     step_until(&mut h, "the export", |a| {
         idle(a)
-            && a.messages
+            && a.window
+                .messages
                 .iter()
                 .any(|m| m.text.contains("deblurred photo written"))
     });
     let written = lensblur::raw::load_capture(&out, &Default::default()).expect("export readable");
-    let photo = &h.state().deblur.photo.as_ref().expect("photo").capture;
+    let photo = &h
+        .state()
+        .views
+        .deblur
+        .photo
+        .as_ref()
+        .expect("photo")
+        .capture;
     assert!(written.is_raw);
     assert_eq!((written.width, written.height), (photo.width, photo.height));
     assert_eq!(written.identity, photo.identity);
@@ -1059,7 +1097,7 @@ fn light_theme_and_user_session() {
     // The entry's label carries its shortcut.
     h.get_by_label_contains("Light theme").click();
     h.run_steps(2);
-    assert!(!h.state().dark);
+    assert!(!h.state().window.dark);
     // Drag and drop a file onto the window.
     h.input_mut().dropped_files.push(dropped(&shot));
     step_until(&mut h, "the dropped shot", |a| a.previews().count() == 1);
@@ -1097,6 +1135,7 @@ fn light_theme_and_user_session() {
     h.run_steps(2);
     assert!(
         h.state()
+            .window
             .messages
             .iter()
             .any(|m| m.is_error && m.text.contains("notes.txt"))
@@ -1110,6 +1149,7 @@ fn light_theme_and_user_session() {
     });
     assert!(
         h.state()
+            .window
             .messages
             .iter()
             .any(|m| m.is_error && m.text.starts_with("broken.png"))
@@ -1315,6 +1355,7 @@ fn a_second_studio_on_an_open_session_is_refused_and_the_command_line_too() {
     assert!(second.state().session().is_none());
     let refusal = second
         .state()
+        .window
         .messages
         .iter()
         .find(|m| m.is_error)
@@ -1323,7 +1364,7 @@ fn a_second_studio_on_an_open_session_is_refused_and_the_command_line_too() {
     assert!(
         refusal.contains("in use by the lensblur studio"),
         "{:?}",
-        second.state().messages
+        second.state().window.messages
     );
 
     // The command line too, in one line, and it writes nothing.
@@ -1348,7 +1389,7 @@ fn a_second_studio_on_an_open_session_is_refused_and_the_command_line_too() {
     assert!(
         third.state().session().is_some(),
         "{:?}",
-        third.state().messages
+        third.state().window.messages
     );
 }
 
@@ -1413,7 +1454,7 @@ fn predicted_kernel_shapes_of_a_profile_with_a_shape_model() {
     });
     h.run_steps(3);
     {
-        let atlas = h.state().views.kernel_atlas.as_ref().expect("atlas");
+        let atlas = h.state().data.kernel_atlas.as_ref().expect("atlas");
         assert_eq!(atlas.model, Some(lensblur::model::KernelModel::Shape));
         assert!(atlas.error.is_none(), "{:?}", atlas.error);
         assert_eq!(
@@ -1471,7 +1512,7 @@ fn models_warn_what_to_shoot_when_the_settings_cannot_determine_the_model() {
     h.run_steps(3);
     let advice = &h
         .state()
-        .views
+        .data
         .calibrated
         .as_ref()
         .expect("the session's settings")
@@ -1536,8 +1577,10 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
         calibrate_demo: true,
         ..options(dir.path(), None, spec.clone())
     });
-    step_until(&mut h, "the demo's photo", |a| a.deblur.photo.is_some());
-    let p = h.state().deblur.photo.as_ref().expect("photo");
+    step_until(&mut h, "the demo's photo", |a| {
+        a.views.deblur.photo.is_some()
+    });
+    let p = h.state().views.deblur.photo.as_ref().expect("photo");
     assert_eq!(
         (p.focal_mm, p.f_number),
         (Some(photo.focal_mm), Some(photo.f_number))
@@ -1545,7 +1588,7 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
     step_until(&mut h, "calibrate all", |a| {
         a.jobs.is_running("calibrate all")
             || a.profile().is_some()
-            || a.messages.iter().any(|m| m.is_error)
+            || a.window.messages.iter().any(|m| m.is_error)
     });
     let job_ids: Vec<String> = h
         .state()
@@ -1569,20 +1612,21 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
     );
     assert_eq!(app.view, View::Deblur, "the before/after opens by itself");
     assert!(
-        app.messages.iter().any(|m| m
+        app.window.messages.iter().any(|m| m
             .text
             .starts_with(&format!("Calibrate all: measured {n} shots"))),
         "{:?}",
-        app.messages
+        app.window.messages
     );
     assert!(
-        !app.messages.iter().any(|m| m.is_error),
+        !app.window.messages.iter().any(|m| m.is_error),
         "{:?}",
-        app.messages
+        app.window.messages
     );
     step_until(&mut h, "the photo's preview", |a| {
         idle(a)
-            && a.deblur
+            && a.views
+                .deblur
                 .comparison
                 .as_ref()
                 .is_some_and(|c| c.comparison.predicted.is_ok())
@@ -1592,10 +1636,14 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
     // Hovering the before/after: a loupe of the same pixels before and after, and their
     // values in both; the divider stays where it was.
     let divider = h.get_by_label("divider").rect();
-    let slider = h.state().deblur.slider;
+    let slider = h.state().views.deblur.slider;
     h.hover_at(divider.center() + egui::vec2(-120.0, -60.0));
     h.run_steps(2);
-    assert_eq!(h.state().deblur.slider, slider, "hovering moves nothing");
+    assert_eq!(
+        h.state().views.deblur.slider,
+        slider,
+        "hovering moves nothing"
+    );
     h.get_by_label_contains("before R ");
     // With the pointer: the loupe is drawn at once where it rests (no tooltip delay).
     h.snapshot("studio_deblur_demo_loupe");
@@ -1608,24 +1656,24 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
         .commands
         .push(Command::SelectView(View::Sharpness));
     let corners_fall = |a: &StudioApp| {
-        a.views.sharpness.as_ref().is_some_and(|d| {
+        a.data.sharpness.as_ref().is_some_and(|d| {
             d.summary
                 .is_some_and(|s| s.corners < s.centre && s.min > 0.0)
         })
     };
     step_until(&mut h, "the predicted sharpness map", |a| {
-        a.sharpness.source == FieldSource::Predicted && corners_fall(a)
+        a.views.sharpness.source == FieldSource::Predicted && corners_fall(a)
     });
     snapshot(&mut h, "studio_sharpness_demo");
     for source in [FieldSource::Measured, FieldSource::Truth] {
         let choice = SharpnessChoice {
             source,
-            ..h.state().sharpness
+            ..h.state().views.sharpness
         };
         h.state_mut().commands.push(Command::SetSharpness(choice));
         step_until(&mut h, "the sharpness map", |a| {
-            a.sharpness.source == source
-                && a.views.sharpness.as_ref().is_some_and(|d| d.map.is_ok())
+            a.views.sharpness.source == source
+                && a.data.sharpness.as_ref().is_some_and(|d| d.map.is_ok())
                 && corners_fall(a)
         });
     }
@@ -1670,9 +1718,9 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
         .commands
         .push(Command::SelectView(View::Geometry));
     step_until(&mut h, "the lens's geometry", |a| {
-        a.views.geometry.is_some() && idle(a)
+        a.data.geometry.is_some() && idle(a)
     });
-    let d = h.state().views.geometry.as_ref().expect("geometry");
+    let d = h.state().data.geometry.as_ref().expect("geometry");
     assert_eq!(d.focal, 24.0, "the widest focal length first");
     assert!(
         d.grid.corner_px < -1.0,
@@ -1691,12 +1739,12 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
         .commands
         .push(Command::ExportLensfun(xml_path.clone()));
     step_until(&mut h, "the lensfun entry", |a| {
-        idle(a) && (xml_path.is_file() || a.messages.iter().any(|m| m.is_error))
+        idle(a) && (xml_path.is_file() || a.window.messages.iter().any(|m| m.is_error))
     });
     assert!(
-        !h.state().messages.iter().any(|m| m.is_error),
+        !h.state().window.messages.iter().any(|m| m.is_error),
         "{:?}",
-        h.state().messages
+        h.state().window.messages
     );
     let xml = std::fs::read_to_string(&xml_path).expect("the lensfun entry");
     for f in [24, 50, 105] {
@@ -1743,7 +1791,7 @@ fn log_panel_confirmation_about_and_recent_sessions() {
     snapshot(&mut h, "studio_confirm_remove");
     h.get_by_label("Cancel").click();
     h.run_steps(2);
-    assert!(h.state().confirm.is_none());
+    assert!(h.state().window.confirm.is_none());
     assert_eq!(h.state().session().map(|s| s.shots.len()), Some(n));
     h.state_mut()
         .commands
@@ -1764,35 +1812,37 @@ fn log_panel_confirmation_about_and_recent_sessions() {
     let missing = folder.join("no such photo.png");
     h.state_mut().commands.push(Command::OpenPhoto(missing));
     step_until(&mut h, "the photo's error", |a| {
-        idle(a) && a.messages.iter().any(|m| m.is_error)
+        idle(a) && a.window.messages.iter().any(|m| m.is_error)
     });
     h.run_steps(3);
     assert!(
-        h.state().messages.iter().all(|m| m.is_error)
+        h.state().window.messages.iter().all(|m| m.is_error)
             && h.state()
+                .window
                 .messages
                 .iter()
                 .any(|m| m.text.contains("no such photo.png")),
         "notices gone from the status line, the error stays: {:?}",
-        h.state().messages
+        h.state().window.messages
     );
-    let said = h.state().log.iter().any(|m| {
+    let said = h.state().window.log.iter().any(|m| {
         m.text
             .starts_with(&format!("Detected the chart in {} shots", n - 1))
     });
-    assert!(said, "{:?}", h.state().log);
+    assert!(said, "{:?}", h.state().window.log);
     assert!(
         h.state()
+            .window
             .log
             .iter()
             .all(|m| !m.text.contains("{") && !m.text.contains("Some(")),
         "no debug dumps: {:?}",
-        h.state().log
+        h.state().window.log
     );
 
     // The log: every message with its time (fixed here, so the snapshot is stable).
-    h.state_mut().messages.clear();
-    for m in &mut h.state_mut().log {
+    h.state_mut().window.messages.clear();
+    for m in &mut h.state_mut().window.log {
         m.time = "12:00:00".into();
     }
     h.state_mut().commands.push(Command::SetLogOpen(true));

@@ -2,7 +2,7 @@
 //! drawn), what the studio asks the user first ([`Confirm`]) and what jobs hand back
 //! ([`JobOutput`]).
 
-use super::state::{FieldOptions, InspectKey, InspectedSquare};
+use super::state::{Confirm, FieldOptions, InspectKey, InspectedSquare};
 use super::{
     DeblurLayout, DeblurResult, DeblurZoom, FieldShow, FieldSource, PlotId, SharpnessChoice,
     SweepAxis, View, ViewerState,
@@ -184,19 +184,6 @@ pub enum Command {
     ShowAbout(bool),
     /// Closes the window (the session is saved on the way out).
     Quit,
-}
-
-/// What the studio asks before doing it, because it cannot be undone from the window.
-#[derive(Clone, Debug, PartialEq)]
-pub enum Confirm {
-    /// Remove a shot from the session (its file and cached results stay on disk).
-    RemoveShot(ShotId),
-    /// Apply a new chart: every detection and kernel measured with the old one is
-    /// discarded from the session's view and must be measured again.
-    ReplaceChart {
-        chart: ChartSpec,
-        settings: StageSettings,
-    },
 }
 
 /// What jobs hand back.

@@ -103,7 +103,7 @@ fn calibrated(
     }
     // The open photo's region, deblurred with the new profile.
     super::deblur::redeblur(app);
-    if std::mem::take(&mut app.deblur_when_calibrated) {
+    if std::mem::take(&mut app.autorun.deblur_when_calibrated) {
         // The photo before and after at 100 %, one pane as large as the window allows.
         app.commands.extend([
             Command::SelectView(crate::app::View::Deblur),
@@ -296,7 +296,7 @@ fn calibrate_all(app: &mut StudioApp, then_deblur: bool) {
             hand_over(cal, &folder, out)
         });
     match r {
-        Ok(_) => app.deblur_when_calibrated = then_deblur,
+        Ok(_) => app.autorun.deblur_when_calibrated = then_deblur,
         Err(e) => app.error(e),
     }
 }

@@ -12,9 +12,14 @@ use std::time::Instant;
 
 mod field;
 mod inspect;
+mod views;
 
 pub use field::{ColourRange, Difference, FieldOptions};
 pub use inspect::{InspectKey, InspectedSquare, Same};
+pub use views::{
+    Autorun, Confirm, FieldViewState, GeometryViewState, SessionPanelState, ShotViewState,
+    SweepsViewState, Trace, Views, Window,
+};
 
 /// The studio's views (ARCHITECTURE.md, Studio).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

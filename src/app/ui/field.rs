@@ -43,7 +43,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             ),
         ] {
             if ui
-                .selectable_label(app.field_source == src, label)
+                .selectable_label(app.views.field.source == src, label)
                 .on_hover_text(tip)
                 .clicked()
             {
@@ -51,8 +51,8 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
         }
         ui.separator();
-        if app.field_source != FieldSource::Truth {
-            let predicted = app.field_source == FieldSource::Predicted;
+        if app.views.field.source != FieldSource::Truth {
+            let predicted = app.views.field.source == FieldSource::Predicted;
             for (show, label, tip) in [
                 (
                     FieldShow::Ellipses,
@@ -74,7 +74,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 ),
             ] {
                 if ui
-                    .selectable_label(app.field_show == show, label)
+                    .selectable_label(app.views.field.show == show, label)
                     .on_hover_text(tip)
                     .clicked()
                 {
@@ -85,12 +85,12 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     });
     options_ui(app, ui);
     let s = LensSetting {
-        focal_mm: app.field_focal_mm,
-        f_number: app.field_f_number,
+        focal_mm: app.views.field.focal_mm,
+        f_number: app.views.field.f_number,
     };
     let size = super::sensor_size(app);
-    let ch = app.channel;
-    match app.field_source {
+    let ch = app.views.shot.channel;
+    match app.views.field.source {
         FieldSource::Measured => {}
         FieldSource::Predicted => {
             setting_sliders_ui(app, ui, &lens);
@@ -110,7 +110,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 return;
             }
             setting_sliders_ui(app, ui, &lens);
-            let mut compare = app.compare_units;
+            let mut compare = app.views.field.compare_units;
             if ui
                 .checkbox(&mut compare, "Compare with a second unit")
                 .on_hover_text("Two copies of one lens model blur differently (the paper's two 17–40 mm units).")
@@ -121,7 +121,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             ui.label("Ground truth of the demo's virtual lens: pixel-level Gaussians (optical blur plus the 1-px pixel integration).");
         }
     }
-    let Some(field) = &app.views.field else {
+    let Some(field) = &app.data.field else {
         ui.horizontal(|ui| {
             ui.spinner();
             ui.label("preparing the field…");
@@ -131,7 +131,9 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     let title = |p: &FieldPanel| match &p.of {
         PanelOf::Measured => {
             let name = app
-                .selected_shot
+                .views
+                .shot
+                .selected
                 .and_then(|id| app.session()?.shot(id))
                 .map_or_else(String::new, |s| {
                     let setting = s.setting().map_or_else(String::new, |v| {
@@ -143,12 +145,12 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         }
         PanelOf::Profile => match app.profile() {
             Some((path, _)) => {
-                let atlas = app.views.kernel_atlas.as_ref();
+                let atlas = app.data.kernel_atlas.as_ref();
                 let shapes = match atlas.and_then(|a| a.model) {
-                    Some(KernelModel::Shape) if app.field_show == FieldShow::Kernels => {
+                    Some(KernelModel::Shape) if app.views.field.show == FieldShow::Kernels => {
                         " — predicted kernel shapes (Gaussian + shape model)".to_owned()
                     }
-                    Some(KernelModel::Gaussian) if app.field_show == FieldShow::Kernels => {
+                    Some(KernelModel::Gaussian) if app.views.field.show == FieldShow::Kernels => {
                         format!(
                             " — predicted Gaussian kernels; no shape model: {}",
                             atlas.and_then(|a| a.no_shape.as_deref()).unwrap_or("")
@@ -204,7 +206,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     // One magnification for every panel so compared fields are comparable: the largest
     // 1-σ radius fills 45 % of a twelfth of the sensor width.
     let scale = 0.45 * (panel_size.x / 12.0) / field.max_sigma as f32;
-    let atlas = app.views.kernel_atlas.as_ref().map(|a| a.texture.id());
+    let atlas = app.data.kernel_atlas.as_ref().map(|a| a.texture.id());
     let mut clicked = None;
     ui.horizontal(|ui| {
         for p in panels {
@@ -242,7 +244,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
 /// The map and colour-range choices: the fields or a difference map, the colours from
 /// the data or a range the user fixes.
 fn options_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
-    let options = app.field_options;
+    let options = app.views.field.options;
     let mut set = |o: FieldOptions| app.commands.push(Command::SetFieldOptions(o));
     ui.horizontal_wrapped(|ui| {
         ui.label("Map:");

@@ -348,7 +348,7 @@ fn cdf_legend_ui(ui: &mut egui::Ui, families: &[(&str, &crate::crossval::Selecti
 /// What the session's settings allow the model: warnings where it cannot be
 /// determined, notes where it is limited, each saying what to shoot next.
 pub(super) fn advice_ui(app: &StudioApp, ui: &mut egui::Ui) {
-    let Some(c) = &app.views.calibrated else {
+    let Some(c) = &app.data.calibrated else {
         return;
     };
     for a in &c.advice {
@@ -435,7 +435,7 @@ fn shape_cv_ui(ui: &mut egui::Ui, p: &crate::profile::Profile) {
 /// The shooting plan: the lens's range (typed, or the session's), and every setting to
 /// shoot as a checklist of the shots the session has and those still missing.
 fn plan_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
-    let Some(c) = app.views.calibrated.as_ref() else {
+    let Some(c) = app.data.calibrated.as_ref() else {
         ui.label("Open a session to plan its shots.");
         return;
     };

@@ -57,14 +57,14 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             ui.weak("No model yet: run Calibrate (Ctrl+M).");
         }
     });
-    let Some(data) = &app.views.sweeps else {
+    let Some(data) = &app.data.sweeps else {
         ui.horizontal(|ui| {
             ui.spinner();
             ui.label("preparing the sweeps…");
         });
         return;
     };
-    let ch = app.channel;
+    let ch = app.views.shot.channel;
     let (fixed_f, fixed_a) = (data.fixed_f, data.fixed_a);
     ui.horizontal(|ui| {
         ui.label("Plot:");
@@ -77,7 +77,7 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             ),
         ] {
             if ui
-                .selectable_label(app.sweep_axis == axis, label)
+                .selectable_label(app.views.sweeps.axis == axis, label)
                 .on_hover_text(tip)
                 .clicked()
             {
@@ -85,8 +85,8 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
         }
     });
-    let params = sweep_params(app.sweep_axis);
-    let tips = match app.sweep_axis {
+    let params = sweep_params(app.views.sweeps.axis);
+    let tips = match app.views.sweeps.axis {
         SweepAxis::Sigma => [TIP_CXX, TIP_CYY, TIP_COR],
         SweepAxis::Mtf50 => [TIP_MTF50; 3],
     };
@@ -94,7 +94,7 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     // Vertical lines at the settings with shots: the model is measured there and
     // interpolates between them.
     let (shot_f, shot_a) = app
-        .views
+        .data
         .calibrated
         .as_ref()
         .map(|c| (c.focal_mm.clone(), c.f_number.clone()))

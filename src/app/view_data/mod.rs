@@ -114,7 +114,7 @@ pub(super) fn refresh(app: &mut StudioApp) {
 /// The sensor the views draw on: the selected shot's, else the measurements', else the
 /// demo's.
 pub(crate) fn sensor_size(app: &StudioApp) -> (usize, usize) {
-    if let Some(p) = app.selected_shot.and_then(|i| app.preview(i)) {
+    if let Some(p) = app.views.shot.selected.and_then(|i| app.preview(i)) {
         return (p.capture.width, p.capture.height);
     }
     if let Some(d) = app.dataset() {
@@ -144,10 +144,10 @@ pub(crate) fn setting_ranges(app: &StudioApp, lens: &VirtualLens) -> ([f64; 2], 
 /// The settings with shots and the core's advice on them: a few dozen values, cheaper
 /// to remake each frame than to key.
 pub(super) fn refresh_calibrated(app: &mut StudioApp) {
-    app.views.calibrated = app.session().map(|s| {
+    app.data.calibrated = app.session().map(|s| {
         let (focal_mm, f_number) = s.setting_grid();
         let advice = crate::review::shooting_advice(&focal_mm, &f_number, s.settings.beta);
-        let plan_range = app.plan_range.unwrap_or_else(|| {
+        let plan_range = app.views.session.plan_range.unwrap_or_else(|| {
             // The range the shots span, where they span one; else the demo lens's.
             match (
                 focal_mm.first(),

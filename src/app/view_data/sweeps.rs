@@ -227,12 +227,12 @@ pub(super) fn refresh_sweeps(app: &mut StudioApp) {
         dataset: Same::of(app.dataset()),
         profile: Same::of(app.profile().map(|p| &p.1)),
         is_demo: is_demo(app),
-        channel: app.channel,
-        setting: [app.field_focal_mm, app.field_f_number],
+        channel: app.views.shot.channel,
+        setting: [app.views.field.focal_mm, app.views.field.f_number],
         ranges: setting_ranges(app, &lens),
         size: sensor_size(app),
     };
-    if app.views.sweeps.as_ref().is_some_and(|s| s.key == key) {
+    if app.data.sweeps.as_ref().is_some_and(|s| s.key == key) {
         return;
     }
     let ch = key.channel;
@@ -244,10 +244,10 @@ pub(super) fn refresh_sweeps(app: &mut StudioApp) {
         .unwrap_or_default();
     // Measured points only exist at shot settings: the sweep holds the other setting at
     // the calibrated value nearest the slider.
-    let fixed_f =
-        crate::review::nearest_value(&focals, app.field_focal_mm).unwrap_or(app.field_focal_mm);
-    let fixed_a =
-        crate::review::nearest_value(&apertures, app.field_f_number).unwrap_or(app.field_f_number);
+    let fixed_f = crate::review::nearest_value(&focals, app.views.field.focal_mm)
+        .unwrap_or(app.views.field.focal_mm);
+    let fixed_a = crate::review::nearest_value(&apertures, app.views.field.f_number)
+        .unwrap_or(app.views.field.f_number);
     let sweep = |vs_aperture: bool| -> Vec<LocationSweep> {
         let settings = if vs_aperture {
             crate::review::sweep_settings(a_range, fixed_f, true, CURVE_STEPS)
@@ -287,7 +287,7 @@ pub(super) fn refresh_sweeps(app: &mut StudioApp) {
             .collect()
     };
     let sweeps = [sweep(true), sweep(false)];
-    app.views.sweeps = Some(SweepData {
+    app.data.sweeps = Some(SweepData {
         key,
         fixed_f,
         fixed_a,
