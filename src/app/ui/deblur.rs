@@ -514,7 +514,9 @@ fn side_by_side_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         for k in 0..3 {
             ui.vertical(|ui| {
                 ui.set_width(pane.x);
-                ui.add(egui::Label::new(&titles[k]).truncate());
+                // Whole, on a second line where the pane is narrow: a cut title hides which
+                // result the pane shows.
+                ui.add(egui::Label::new(&titles[k]).wrap());
                 match (&shown[k], &reasons[k]) {
                     (Some(t), _) => {
                         let hover = pane_ui(app, ui, t, pane, per_px, &titles[k]);

@@ -173,11 +173,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             None => String::new(),
         },
         PanelOf::Difference { of, a, b } => {
-            let what = match of {
-                Difference::MeasuredMinusPredicted => "measured − predicted",
-                Difference::UnitAMinusB => "unit A − unit B",
-                Difference::RedMinusBlue => "R − B",
-            };
+            let what = super::super::view_data::difference_words(*of);
             if a.is_empty() {
                 format!("{what}, σ")
             } else {
@@ -594,8 +590,8 @@ fn point_hover(q: &FieldPoint) -> String {
                 || "\nno MTF50 (degenerate Gaussian)".to_owned(),
                 |m| {
                     format!(
-                        "\nMTF50 {:.3} cycles/px ({:.0} lp/ph) in the worst direction ({:.0}°), {:.3} in the best, {:.3} isotropic",
-                        m.worst, m.worst_lp_ph, m.worst_deg, m.best, m.isotropic
+                        "\nMTF50 {:.0} lp/ph ({:.3} cycles/px) in the worst direction ({:.0}°), {:.0} lp/ph ({:.3}) in the best, {:.0} lp/ph ({:.3}) isotropic",
+                        m.worst_lp_ph, m.worst, m.worst_deg, m.best_lp_ph, m.best, m.isotropic_lp_ph, m.isotropic
                     )
                 },
             );

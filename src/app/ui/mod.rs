@@ -312,25 +312,6 @@ fn stops_grid() -> impl Fn(egui_plot::GridInput) -> Vec<egui_plot::GridMark> {
     egui_plot::uniform_grid_spacer(|_| [1.0 / 3.0, 1.0, 3.0])
 }
 
-/// What hovering an aperture plot names: the f-number, not the stops the plot is in.
-fn aperture_hover(pos: &egui_plot::HoverPosition<'_>) -> Option<String> {
-    let (name, p) = match pos {
-        egui_plot::HoverPosition::NearDataPoint {
-            plot_name,
-            position,
-            ..
-        } => (*plot_name, position),
-        egui_plot::HoverPosition::Elsewhere { position } => ("", position),
-    };
-    let f = crate::review::f_number_at_stops(p.x);
-    let head = if name.is_empty() {
-        String::new()
-    } else {
-        format!("{name}\n")
-    };
-    Some(format!("{head}f/{f:.1}: {:.3}", p.y))
-}
-
 /// A y axis whose tick labels may stand 16 points apart (egui_plot's default, 20, drops
 /// every label of a short plot whose range is just over a power of ten).
 fn y_axis<'a>(label: &str) -> egui_plot::AxisHints<'a> {

@@ -306,8 +306,8 @@ fn residual_color(rms: f64) -> Color32 {
 }
 
 fn residual_legend_ui(ui: &mut egui::Ui) {
-    ui.label("residual RMS")
-        .on_hover_text("RMS of observed − synthetic over the square after alignment, white = 1");
+    ui.label("alignment residual, % of white")
+        .on_hover_text("How well the square lines up with the chart after alignment: the RMS of the observed square minus the synthetic one (the chart through the square's homography, blurred), in percent of the chart's white. Green: to the noise level; red: misaligned, or a blur the Gaussian does not describe.");
     ui.label("0.5 %");
     let (rect, _) = ui.allocate_exact_size(Vec2::new(80.0, 10.0), Sense::hover());
     let p = ui.painter_at(rect);
@@ -492,8 +492,8 @@ fn inspector_ui(app: &StudioApp, ui: &mut egui::Ui) -> Option<Command> {
         ));
     }
     ui.label(format!(
-        "alignment residual RMS {:.4} (white = 1)",
-        ins.crops.residual_rms
+        "alignment residual {:.2} % of white (RMS)",
+        100.0 * ins.crops.residual_rms
     ))
     .on_hover_text("Observed minus the synthetic square (the chart through this square's refined homography, blurred by the detection's blur estimate). Structure here means misalignment or a non-Gaussian blur.");
     let w = ui.available_width();

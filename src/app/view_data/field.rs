@@ -293,8 +293,8 @@ pub(super) fn refresh_field(app: &mut StudioApp) {
     let scale = range.map(|range| ColourScale {
         range,
         diverging,
-        title: if diverging {
-            "Δσ, px (A − B)".to_owned()
+        title: if let Some(d) = app.views.field.options.difference {
+            format!("Δσ, px ({})", difference_words(d))
         } else {
             "σ = √(C_xx·C_yy), px".to_owned()
         },
@@ -571,5 +571,15 @@ fn difference_panel(
         failed: Vec::new(),
         errors: Vec::new(),
         samples: Vec::new(),
+    }
+}
+
+/// What a difference map subtracts from what, as its legend says it.
+#[must_use]
+pub fn difference_words(d: Difference) -> &'static str {
+    match d {
+        Difference::MeasuredMinusPredicted => "measured − predicted",
+        Difference::UnitAMinusB => "unit A − unit B",
+        Difference::RedMinusBlue => "red − blue",
     }
 }

@@ -34,7 +34,9 @@ mod sweeps;
 
 pub(crate) use super::state::Same;
 pub use atlas::{AtlasCell, KernelAtlas};
-pub use field::{ColourScale, FieldData, FieldPanel, FieldPoint, PanelContent, PanelOf};
+pub use field::{
+    ColourScale, FieldData, FieldPanel, FieldPoint, PanelContent, PanelOf, difference_words,
+};
 pub(super) use geometry::geometry_measured;
 pub use geometry::{
     ColourArrows, Falloff, GeometryData, GeometryMeasure, WarpedGrid, measured_geometry,
