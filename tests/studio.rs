@@ -14,7 +14,7 @@ use lensblur::app::{
 };
 use lensblur::job::JobContext;
 use lensblur::pipeline::ShotFile;
-use lensblur::project::ShotEvent;
+use lensblur::project::{Project, ShotEvent};
 use lensblur::session::{Session, ShotId, StageStatus};
 use lensblur::simulate::demo::{DemoSpec, make_demo};
 use std::path::Path;
@@ -230,7 +230,7 @@ fn demo_ready(app: &StudioApp) -> bool {
 }
 
 #[test]
-fn every_view_on_the_demo_session() {
+fn measuring_and_calibrating_the_demo_by_clicking() {
     let dir = tempfile::tempdir().expect("temp dir");
     let demo_dir = dir.path().join("demo");
     let spec = nine_shot_demo();
@@ -437,6 +437,81 @@ fn every_view_on_the_demo_session() {
         "{cli}"
     );
     assert_same_profile(&cli_profile, &demo_dir.join("profile.json"));
+}
+
+/// The nine-shot demo detected, measured and calibrated once per run of these tests,
+/// by the core alone as the studio's *Calibrate all* does it (same options, same
+/// files): the views' tests each open a copy of it, so each checks one thing and they
+/// run side by side, none waiting on another's failure.
+fn calibrated_demo() -> &'static Path {
+    static DEMO: std::sync::OnceLock<(tempfile::TempDir, std::path::PathBuf)> =
+        std::sync::OnceLock::new();
+    &DEMO
+        .get_or_init(|| {
+            let dir = tempfile::tempdir().expect("temp dir");
+            let folder = dir.path().join("demo");
+            let ctx = JobContext::silent();
+            lensblur::simulate::demo::make_demo_streaming(
+                &folder,
+                &nine_shot_demo(),
+                &ctx,
+                &mut |_| {},
+            )
+            .expect("demo");
+            let (mut project, _) = Project::open(&folder, "the studio tests").expect("open");
+            project.survey(&ctx).expect("survey");
+            let options = lensblur::calibrate::CalibrateOptions {
+                alpha: project.session().settings.alpha,
+                beta: project.session().settings.beta,
+                ..Default::default()
+            };
+            let mut events = Vec::new();
+            let cal = project
+                .calibrate_all_job(options)
+                .run(&ctx, &|_| Some(JobContext::silent()), &mut |e| {
+                    events.push(e)
+                })
+                .expect("calibrate");
+            for e in &events {
+                project.record(e);
+            }
+            let profile = folder.join(lensblur::project::PROFILE_FILE);
+            cal.write(&profile, Some(&folder.join(lensblur::project::CV_FILE)))
+                .expect("write the profile");
+            project.set_profile(&profile);
+            project.save().expect("save");
+            project.flush().expect("flush");
+            (dir, folder)
+        })
+        .1
+}
+
+/// The studio on a copy of [`calibrated_demo`] (in `dir`, as the demo folder), once it
+/// has read every result back: shots, detections, kernels, dataset, profile and
+/// cross-validation.
+fn calibrated_studio(dir: &Path) -> (std::path::PathBuf, Harness<'static, StudioApp>) {
+    let demo_dir = dir.join("demo");
+    copy_folder(calibrated_demo(), &demo_dir);
+    let spec = nine_shot_demo();
+    let n = spec.settings.len();
+    let mut h = new_harness_with(&demo_dir, None, spec);
+    step_until(&mut h, "the calibrated demo's results", |a| {
+        demo_ready(a)
+            && a.measured().count() == n
+            && a.dataset().is_some()
+            && a.profile().is_some()
+            && a.cv().is_some()
+    });
+    (demo_dir, h)
+}
+
+/// The Models view after calibration, and its error CDF saved as CSV and PNG.
+#[test]
+fn the_models_view_shows_the_fit_and_saves_its_plots() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (_, mut h) = calibrated_studio(dir.path());
+    h.get_by_label("Models").click();
+    h.run_steps(3);
     snapshot(&mut h, "studio_models");
     // Save the error CDF's data and picture without the dialogs.
     let cdf = (dir.path().join("cdf.csv"), dir.path().join("cdf.png"));
@@ -450,7 +525,13 @@ fn every_view_on_the_demo_session() {
         "series,error (% of range),held-out samples (%)",
         families * 3 * 101,
     );
+}
 
+/// The Sweeps of σ and of MTF50, and a sweep saved as CSV.
+#[test]
+fn the_sweeps_show_measured_points_the_model_and_the_truth() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (_, mut h) = calibrated_studio(dir.path());
     h.get_by_label("Sweeps").click();
     h.run_steps(3);
     snapshot(&mut h, "studio_sweeps");
@@ -477,7 +558,18 @@ fn every_view_on_the_demo_session() {
     h.run_steps(3);
     assert_eq!(h.state().views.sweeps.axis, SweepAxis::Mtf50);
     snapshot(&mut h, "studio_sweeps_mtf50");
+}
 
+/// The Kernel field's predicted kernels and ellipses, its difference maps and the
+/// demo lens's two units.
+#[test]
+fn the_kernel_field_predicts_and_subtracts() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (_, mut h) = calibrated_studio(dir.path());
+    h.get_by_label("Kernel field").click();
+    h.run_steps(2);
+    h.get_by_label("Kernel shapes").click();
+    h.run_steps(3);
     // Predict: the profile's field at the sliders' setting.
     h.get_by_label("Kernel field").click();
     h.run_steps(2);
@@ -548,7 +640,15 @@ fn every_view_on_the_demo_session() {
     }
     h.get_by_label("σ").click();
     h.run_steps(2);
+}
 
+/// The Deblur view's previews (side by side, slider, GPU, zoomed, stronger) and its
+/// exports, of one photo and of a set.
+#[test]
+fn the_deblur_view_compares_previews_and_exports() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (demo_dir, mut h) = calibrated_studio(dir.path());
+    let spec = nine_shot_demo();
     // Deblur preview: the selected shot as the photo, a region deblurred with the
     // predicted Gaussians and with the shot's own measured kernels.
     h.get_by_label("Deblur").click();
@@ -803,9 +903,16 @@ fn every_view_on_the_demo_session() {
     assert!(dng.is_raw);
     let note = dng.raw.and_then(|r| r.description).unwrap_or_default();
     assert!(note.contains("profile.json"), "{note}");
+}
 
-    // The cached demo opens at once on the next launch, with its results.
-    drop(h);
+/// The cached demo opens at once on the next launch, with its results.
+#[test]
+fn the_cached_demo_reopens_with_its_results() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let demo_dir = dir.path().join("demo");
+    copy_folder(calibrated_demo(), &demo_dir);
+    let spec = nine_shot_demo();
+    let n_shots = spec.settings.len();
     let mut again = new_harness_with(&demo_dir, None, spec);
     again.run_steps(1);
     assert!(

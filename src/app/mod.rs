@@ -1,13 +1,15 @@
 //! The studio: one window over the headless core (ARCHITECTURE.md, Studio).
 //!
-//! Split as `state` (the app's state types), `command` (what panels ask for and what
-//! jobs hand back), `logic` (apply [`Command`]s, drain finished jobs, keep the session
-//! saved), `view_data` (what the views show that takes computing: made when its inputs
-//! change, cached keyed by them, long work on a job thread), `textures` (images made
-//! into textures, for both `logic` and `view_data`) and `ui` (draw; every drawing
-//! function ends in `_ui`, only reads the app and emits commands, and shows a
-//! placeholder where view data is absent). Every computation is a call into the core;
-//! the app only shows and drives.
+//! `StudioApp` is plumbing: the core's `Project` (the session and every result made of
+//! it), the jobs, the command queue, each view's own state (`state::Views`) and the
+//! view data. Split as `state` (the types of what the app holds, importing nothing of
+//! the app), `command` (what panels ask for and what jobs hand back), `logic` (apply
+//! [`Command`]s, drain finished jobs, keep the session saved), `view_data` (what the
+//! views show that takes computing: made when its inputs change, cached keyed by them,
+//! long work on a job thread), `textures` (images made into textures, for both `logic`
+//! and `view_data`) and `ui` (draw; every drawing function ends in `_ui`, only reads
+//! and emits commands, and shows a placeholder where view data is absent). Every
+//! computation is a call into the core; the app only shows and drives.
 
 mod command;
 pub mod jobs;
