@@ -571,8 +571,6 @@ fn the_kernel_field_predicts_and_subtracts() {
     h.get_by_label("Kernel shapes").click();
     h.run_steps(3);
     // Predict: the profile's field at the sliders' setting.
-    h.get_by_label("Kernel field").click();
-    h.run_steps(2);
     h.get_by_label("Predicted").click();
     h.run_steps(3);
     assert_eq!(h.state().views.field.source, FieldSource::Predicted);

@@ -274,8 +274,10 @@ fn options_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
         }
         ui.separator();
-        if options.difference.is_some() {
-            ui.weak("Difference maps: blue where A is sharper, red where A is blurrier, white at 0; the range is symmetric about 0 and spans the largest difference.");
+        if let Some(d) = options.difference {
+            let words = super::super::view_data::difference_words(d);
+            let first = words.split(" − ").next().unwrap_or(words);
+            ui.weak(format!("{words}: blue where the {first} blur is smaller (sharper), red where it is larger, white at 0; the range is symmetric about 0 and spans the largest difference."));
             return;
         }
         ui.label("Colours:");
@@ -502,7 +504,7 @@ fn field_panel_ui(
                 painter.rect_filled(r, 2.0, scale_color(colours, q.value));
             }
             count = diffs.len();
-            what = "squares: σ(A) − σ(B)".to_owned();
+            what = "squares: Δσ, as the colour bar says".to_owned();
         }
     }
     for q in points.iter().filter(|q| q.noisy.is_some()) {
