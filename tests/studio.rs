@@ -8,14 +8,13 @@
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use lensblur::app::view_data::{ColourRange, FieldOptions};
 use lensblur::app::{
-    AppOptions, Command, FieldShow, FieldSource, PlotId, SharpnessChoice, StudioApp, SweepAxis,
-    View,
+    AppOptions, ColourRange, Command, FieldOptions, FieldShow, FieldSource, PlotId,
+    SharpnessChoice, StudioApp, SweepAxis, View,
 };
 use lensblur::job::JobContext;
 use lensblur::pipeline::ShotFile;
-use lensblur::project::ShotEvent;
+use lensblur::project::{Project, ShotEvent};
 use lensblur::session::{Session, ShotId, StageStatus};
 use lensblur::simulate::demo::{DemoSpec, make_demo};
 use std::path::Path;
@@ -103,7 +102,7 @@ fn step_until(h: &mut Harness<'_, StudioApp>, what: &str, done: impl Fn(&StudioA
                 .iter()
                 .map(|j| (&j.name, j.progress()))
                 .collect::<Vec<_>>(),
-            h.state().messages
+            h.state().window.messages
         );
         h.run_steps(1);
         std::thread::sleep(Duration::from_millis(20));
@@ -137,19 +136,21 @@ fn save_plot(h: &mut Harness<'_, StudioApp>, plot: PlotId, csv: &Path, png: &Pat
         .commands
         .push(Command::SavePlotPng { plot, path });
     step_until(h, "the plot's files", |a| {
-        csv.is_file() && png.is_file() && a.plot_png.is_none()
+        csv.is_file() && png.is_file() && a.window.plot_png.is_none()
     });
     assert!(
         h.state()
+            .window
             .messages
             .iter()
             .any(|m| m.text.contains("plot saved to")),
         "{:?}",
-        h.state().messages
+        h.state().window.messages
     );
     // The messages name the temporary folder, which differs between runs: off the
     // snapshots that follow.
     h.state_mut()
+        .window
         .messages
         .retain(|m| !m.text.contains(&*dir.to_string_lossy()));
     // The plot and its axes: a third of the window's width, less than half its height
@@ -212,7 +213,8 @@ fn dropped(p: &Path) -> egui::DroppedFileHandle {
 
 /// The predicted deblurred region's first plane, as the preview holds it.
 fn deblurred_region(app: &StudioApp) -> Vec<f32> {
-    app.deblur
+    app.views
+        .deblur
         .comparison
         .as_ref()
         .and_then(|c| c.comparison.predicted.as_ref().ok())
@@ -228,7 +230,7 @@ fn demo_ready(app: &StudioApp) -> bool {
 }
 
 #[test]
-fn every_view_on_the_demo_session() {
+fn measuring_and_calibrating_the_demo_by_clicking() {
     let dir = tempfile::tempdir().expect("temp dir");
     let demo_dir = dir.path().join("demo");
     let spec = nine_shot_demo();
@@ -267,6 +269,7 @@ fn every_view_on_the_demo_session() {
     );
     assert!(
         h.state()
+            .window
             .messages
             .iter()
             .any(|m| m.text.contains("detect: cancelled"))
@@ -314,10 +317,10 @@ fn every_view_on_the_demo_session() {
         );
     click_at(&mut h, pos);
     // The crops are made on a job thread.
-    step_until(&mut h, "the inspector", |a| a.views.inspection().is_some());
+    step_until(&mut h, "the inspector", |a| a.data.inspection().is_some());
     let rms = h
         .state()
-        .views
+        .data
         .inspection()
         .filter(|i| i.square == (row, col))
         .map(|i| i.crops.residual_rms)
@@ -330,7 +333,7 @@ fn every_view_on_the_demo_session() {
     // Kernels on every detected shot by clicking.
     h.get_by_label("Kernels").click();
     step_until(&mut h, "kernels", |a| {
-        a.measured().count() == n_shots && a.dataset.is_some() && idle(a)
+        a.measured().count() == n_shots && a.dataset().is_some() && idle(a)
     });
     let session = h.state().session().cloned().expect("session");
     for (id, m) in h.state().measured() {
@@ -355,7 +358,7 @@ fn every_view_on_the_demo_session() {
     // The inspector now shows the square's kernel and its Gaussian's numbers.
     assert!(
         h.state()
-            .views
+            .data
             .inspection()
             .is_some_and(|i| i.kernel.is_some())
     );
@@ -368,7 +371,7 @@ fn every_view_on_the_demo_session() {
     snapshot(&mut h, "studio_kernel_field");
     // The colour range from the data spans the measured σ; fixed, it is what was set.
     {
-        let scale = h.state().views.field.as_ref().and_then(|f| f.scale.clone());
+        let scale = h.state().data.field.as_ref().and_then(|f| f.scale.clone());
         let [lo, hi] = scale.expect("a colour scale").range;
         assert!(0.3 < lo && lo < hi && hi < 3.0, "{lo}–{hi}");
     }
@@ -381,7 +384,7 @@ fn every_view_on_the_demo_session() {
     h.run_steps(2);
     assert_eq!(
         h.state()
-            .views
+            .data
             .field
             .as_ref()
             .and_then(|f| f.scale.as_ref())
@@ -394,21 +397,21 @@ fn every_view_on_the_demo_session() {
     h.run_steps(2);
     h.get_by_label("Kernel shapes").click();
     h.run_steps(3);
-    assert!(h.state().views.kernel_atlas.is_some());
+    assert!(h.state().data.kernel_atlas.is_some());
     snapshot(&mut h, "studio_kernel_field_kernels");
     noisy_kernel_is_hatched_and_a_click_inspects_it(&mut h, (row, col));
 
     // Measured points appear in the sweeps before any model exists.
     h.get_by_label("Sweeps").click();
     h.run_steps(3);
-    assert!(h.state().profile.is_none());
+    assert!(h.state().profile().is_none());
 
     // Calibrate by clicking: cross-validation chooses α and β, the profile is written.
     h.get_by_label("Models").click();
     h.run_steps(2);
     h.get_by_label("Calibrate").click();
-    step_until(&mut h, "calibration", |a| a.profile.is_some() && idle(a));
-    assert!(h.state().cv.is_some(), "cross-validation ran");
+    step_until(&mut h, "calibration", |a| a.profile().is_some() && idle(a));
+    assert!(h.state().cv().is_some(), "cross-validation ran");
     assert!(
         demo_dir.join("profile.json").is_file() && demo_dir.join("crossval.json").is_file(),
         "profile and cross-validation saved in the session"
@@ -434,12 +437,87 @@ fn every_view_on_the_demo_session() {
         "{cli}"
     );
     assert_same_profile(&cli_profile, &demo_dir.join("profile.json"));
+}
+
+/// The nine-shot demo detected, measured and calibrated once per run of these tests,
+/// by the core alone as the studio's *Calibrate all* does it (same options, same
+/// files): the views' tests each open a copy of it, so each checks one thing and they
+/// run side by side, none waiting on another's failure.
+fn calibrated_demo() -> &'static Path {
+    static DEMO: std::sync::OnceLock<(tempfile::TempDir, std::path::PathBuf)> =
+        std::sync::OnceLock::new();
+    &DEMO
+        .get_or_init(|| {
+            let dir = tempfile::tempdir().expect("temp dir");
+            let folder = dir.path().join("demo");
+            let ctx = JobContext::silent();
+            lensblur::simulate::demo::make_demo_streaming(
+                &folder,
+                &nine_shot_demo(),
+                &ctx,
+                &mut |_| {},
+            )
+            .expect("demo");
+            let (mut project, _) = Project::open(&folder, "the studio tests").expect("open");
+            project.survey(&ctx).expect("survey");
+            let options = lensblur::calibrate::CalibrateOptions {
+                alpha: project.session().settings.alpha,
+                beta: project.session().settings.beta,
+                ..Default::default()
+            };
+            let mut events = Vec::new();
+            let cal = project
+                .calibrate_all_job(options)
+                .run(&ctx, &|_| Some(JobContext::silent()), &mut |e| {
+                    events.push(e)
+                })
+                .expect("calibrate");
+            for e in &events {
+                project.record(e);
+            }
+            let profile = folder.join(lensblur::project::PROFILE_FILE);
+            cal.write(&profile, Some(&folder.join(lensblur::project::CV_FILE)))
+                .expect("write the profile");
+            project.set_profile(&profile);
+            project.save().expect("save");
+            project.flush().expect("flush");
+            (dir, folder)
+        })
+        .1
+}
+
+/// The studio on a copy of [`calibrated_demo`] (in `dir`, as the demo folder), once it
+/// has read every result back: shots, detections, kernels, dataset, profile and
+/// cross-validation.
+fn calibrated_studio(dir: &Path) -> (std::path::PathBuf, Harness<'static, StudioApp>) {
+    let demo_dir = dir.join("demo");
+    copy_folder(calibrated_demo(), &demo_dir);
+    let spec = nine_shot_demo();
+    let n = spec.settings.len();
+    let mut h = new_harness_with(&demo_dir, None, spec);
+    step_until(&mut h, "the calibrated demo's results", |a| {
+        demo_ready(a)
+            && a.measured().count() == n
+            && a.dataset().is_some()
+            && a.profile().is_some()
+            && a.cv().is_some()
+    });
+    (demo_dir, h)
+}
+
+/// The Models view after calibration, and its error CDF saved as CSV and PNG.
+#[test]
+fn the_models_view_shows_the_fit_and_saves_its_plots() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (_, mut h) = calibrated_studio(dir.path());
+    h.get_by_label("Models").click();
+    h.run_steps(3);
     snapshot(&mut h, "studio_models");
     // Save the error CDF's data and picture without the dialogs.
     let cdf = (dir.path().join("cdf.csv"), dir.path().join("cdf.png"));
     save_plot(&mut h, PlotId::CvCdf, &cdf.0, &cdf.1);
     // A header naming the axes, then 101 percentiles of three parameters per family.
-    let families = h.state().cv.as_ref().map_or(0, |cv| {
+    let families = h.state().cv().map_or(0, |cv| {
         usize::from(cv.global.is_some()) + usize::from(cv.local.is_some())
     });
     assert_plot_csv(
@@ -447,7 +525,13 @@ fn every_view_on_the_demo_session() {
         "series,error (% of range),held-out samples (%)",
         families * 3 * 101,
     );
+}
 
+/// The Sweeps of σ and of MTF50, and a sweep saved as CSV.
+#[test]
+fn the_sweeps_show_measured_points_the_model_and_the_truth() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (_, mut h) = calibrated_studio(dir.path());
     h.get_by_label("Sweeps").click();
     h.run_steps(3);
     snapshot(&mut h, "studio_sweeps");
@@ -472,25 +556,34 @@ fn every_view_on_the_demo_session() {
     // The same sweeps as MTF50.
     h.get_by_label("MTF50").click();
     h.run_steps(3);
-    assert_eq!(h.state().sweep_axis, SweepAxis::Mtf50);
+    assert_eq!(h.state().views.sweeps.axis, SweepAxis::Mtf50);
     snapshot(&mut h, "studio_sweeps_mtf50");
+}
 
-    // Predict: the profile's field at the sliders' setting.
+/// The Kernel field's predicted kernels and ellipses, its difference maps and the
+/// demo lens's two units.
+#[test]
+fn the_kernel_field_predicts_and_subtracts() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (_, mut h) = calibrated_studio(dir.path());
     h.get_by_label("Kernel field").click();
     h.run_steps(2);
+    h.get_by_label("Kernel shapes").click();
+    h.run_steps(3);
+    // Predict: the profile's field at the sliders' setting.
     h.get_by_label("Predicted").click();
     h.run_steps(3);
-    assert_eq!(h.state().field_source, FieldSource::Predicted);
+    assert_eq!(h.state().views.field.source, FieldSource::Predicted);
     // Kernel shapes stay chosen: the profile's predicted kernels, in its recommended
     // model, at the selected shot's measured squares, each with its error against the
     // measured kernel there (shapes too where the profile holds them).
     {
         let app = h.state();
-        let profile = &app.profile.as_ref().expect("profile").1;
-        let atlas = app.views.kernel_atlas.as_ref().expect("predicted atlas");
+        let profile = &app.profile().expect("profile").1;
+        let atlas = app.data.kernel_atlas.as_ref().expect("predicted atlas");
         assert_eq!(atlas.model, Some(profile.kernel_model()));
         assert_eq!(atlas.no_shape.is_some(), profile.shape.is_none());
-        let field = app.views.field.as_ref().expect("field");
+        let field = app.data.field.as_ref().expect("field");
         let points = &field.panels[0].points;
         assert!(!points.is_empty());
         assert!(points.iter().all(|p| p.kernel_error.is_some_and(|e| {
@@ -506,7 +599,7 @@ fn every_view_on_the_demo_session() {
     h.get_by_label("measured − predicted").click();
     h.run_steps(3);
     {
-        let field = h.state().views.field.as_ref().expect("field");
+        let field = h.state().data.field.as_ref().expect("field");
         let scale = field.scale.as_ref().expect("a colour scale");
         assert!(scale.diverging && scale.range[0] == -scale.range[1]);
         assert!(scale.ticks.contains(&0.0), "{:?}", scale.ticks);
@@ -520,32 +613,40 @@ fn every_view_on_the_demo_session() {
     h.run_steps(3);
     assert!(
         h.state()
-            .views
+            .data
             .field
             .as_ref()
             .is_some_and(|f| !f.panels[0].points.is_empty())
     );
     h.get_by_label("σ").click();
     h.run_steps(2);
-    assert_eq!(h.state().field_options.difference, None);
+    assert_eq!(h.state().views.field.options.difference, None);
     h.get_by_label("Ground truth").click();
     h.run_steps(2);
     h.get_by_label("Compare with a second unit").click();
     h.run_steps(3);
-    assert!(h.state().compare_units);
+    assert!(h.state().views.field.compare_units);
     snapshot(&mut h, "studio_kernel_field_compare");
     // Unit A − unit B of the demo lens: one difference panel, each grid point paired.
     h.get_by_label("unit A − unit B").click();
     h.run_steps(3);
     {
-        let field = h.state().views.field.as_ref().expect("field");
+        let field = h.state().data.field.as_ref().expect("field");
         assert_eq!(field.panels.len(), 1);
         assert_eq!(field.panels[0].points.len(), 12 * 8);
         assert!(field.scale.as_ref().is_some_and(|s| s.diverging));
     }
     h.get_by_label("σ").click();
     h.run_steps(2);
+}
 
+/// The Deblur view's previews (side by side, slider, GPU, zoomed, stronger) and its
+/// exports, of one photo and of a set.
+#[test]
+fn the_deblur_view_compares_previews_and_exports() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (demo_dir, mut h) = calibrated_studio(dir.path());
+    let spec = nine_shot_demo();
     // Deblur preview: the selected shot as the photo, a region deblurred with the
     // predicted Gaussians and with the shot's own measured kernels.
     h.get_by_label("Deblur").click();
@@ -553,19 +654,24 @@ fn every_view_on_the_demo_session() {
     let shot_path = {
         let app = h.state();
         let s = app.session().expect("session");
-        let id = app.selected_shot.expect("a selected shot");
+        let id = app.views.shot.selected.expect("a selected shot");
         s.path_of(s.shot(id).expect("the shot"))
     };
     h.get_by_label("Deblur the selected shot").click();
     // The demo's photo is open with its own preview: wait for the shot's.
     step_until(&mut h, "the deblur preview", |a| {
-        a.deblur.photo.as_ref().is_some_and(|p| p.path == shot_path)
-            && a.deblur.comparison.is_some()
+        a.views
+            .deblur
+            .photo
+            .as_ref()
+            .is_some_and(|p| p.path == shot_path)
+            && a.views.deblur.comparison.is_some()
             && idle(a)
     });
     {
         let c = &h
             .state()
+            .views
             .deblur
             .comparison
             .as_ref()
@@ -594,7 +700,7 @@ fn every_view_on_the_demo_session() {
     h.state_mut().commands.push(Command::SetDeblurCrop(64));
     h.run_steps(2);
     step_until(&mut h, "the small region", |a| {
-        idle(a) && a.deblur.comparison.is_some()
+        idle(a) && a.views.deblur.comparison.is_some()
     });
     let before = deblurred_region(h.state());
     h.state_mut()
@@ -606,10 +712,16 @@ fn every_view_on_the_demo_session() {
         "a new device deblurs the region again"
     );
     step_until(&mut h, "the GPU preview", |a| {
-        idle(a) && a.deblur.comparison.is_some()
+        idle(a) && a.views.deblur.comparison.is_some()
     });
     {
-        let note = h.state().deblur.device_note.clone().unwrap_or_default();
+        let note = h
+            .state()
+            .views
+            .deblur
+            .device_note
+            .clone()
+            .unwrap_or_default();
         assert!(note.starts_with("GPU: "), "{note}");
         let on_gpu = deblurred_region(h.state());
         assert_eq!(on_gpu.len(), before.len());
@@ -633,9 +745,9 @@ fn every_view_on_the_demo_session() {
     h.get_by_label("100 %").click();
     let region_fills_viewport = |a: &StudioApp| {
         let (Some([vw, vh]), Some(c), Some(p)) = (
-            a.deblur.viewport,
-            a.deblur.comparison.as_ref(),
-            a.deblur.photo.as_ref(),
+            a.views.deblur.viewport,
+            a.views.deblur.comparison.as_ref(),
+            a.views.deblur.photo.as_ref(),
         ) else {
             return false;
         };
@@ -652,6 +764,7 @@ fn every_view_on_the_demo_session() {
     });
     assert!(
         h.state()
+            .views
             .deblur
             .device_note
             .as_deref()
@@ -675,7 +788,7 @@ fn every_view_on_the_demo_session() {
         "a new strength deblurs the region again"
     );
     step_until(&mut h, "the stronger preview", |a| {
-        idle(a) && a.deblur.comparison.is_some()
+        idle(a) && a.views.deblur.comparison.is_some()
     });
     let sharp = deblurred_region(h.state());
     assert_eq!(soft.len(), sharp.len(), "the region stays where it was");
@@ -683,19 +796,22 @@ fn every_view_on_the_demo_session() {
     h.get_by_label("200 %").click();
     h.run_steps(2);
     step_until(&mut h, "the 200 % preview", |a| {
-        idle(a) && a.deblur.zoom == lensblur::app::DeblurZoom::Times(2) && region_fills_viewport(a)
+        idle(a)
+            && a.views.deblur.zoom == lensblur::app::DeblurZoom::Times(2)
+            && region_fills_viewport(a)
     });
     {
         // Half the 100 % region's width: the same panes hold half as many pixels.
         let r = h
             .state()
+            .views
             .deblur
             .comparison
             .as_ref()
             .expect("comparison")
             .comparison
             .region;
-        let [vw, _] = h.state().deblur.viewport.expect("viewport");
+        let [vw, _] = h.state().views.deblur.viewport.expect("viewport");
         assert!(r.width <= vw && r.width < 200, "{r:?}");
     }
     snapshot(&mut h, "studio_deblur_200_strength");
@@ -703,7 +819,8 @@ fn every_view_on_the_demo_session() {
     h.run_steps(2);
     step_until(&mut h, "the fitted preview", |a| {
         idle(a)
-            && a.deblur
+            && a.views
+                .deblur
                 .comparison
                 .as_ref()
                 .is_some_and(|c| c.comparison.region.width == 160)
@@ -716,7 +833,8 @@ fn every_view_on_the_demo_session() {
     });
     step_until(&mut h, "the export", |a| {
         idle(a)
-            && a.messages
+            && a.window
+                .messages
                 .iter()
                 .any(|m| m.text.contains("deblurred photo written"))
     });
@@ -754,12 +872,14 @@ fn every_view_on_the_demo_session() {
     });
     step_until(&mut h, "the photos' export", |a| {
         idle(a)
-            && a.messages
+            && a.window
+                .messages
                 .iter()
                 .any(|m| m.text.contains("photos exported"))
     });
     let summary = h
         .state()
+        .window
         .messages
         .iter()
         .find(|m| m.text.contains("photos exported"))
@@ -771,6 +891,7 @@ fn every_view_on_the_demo_session() {
     );
     assert!(
         h.state()
+            .window
             .messages
             .iter()
             .any(|m| m.text.contains("skipped: not a RAW photo"))
@@ -780,9 +901,16 @@ fn every_view_on_the_demo_session() {
     assert!(dng.is_raw);
     let note = dng.raw.and_then(|r| r.description).unwrap_or_default();
     assert!(note.contains("profile.json"), "{note}");
+}
 
-    // The cached demo opens at once on the next launch, with its results.
-    drop(h);
+/// The cached demo opens at once on the next launch, with its results.
+#[test]
+fn the_cached_demo_reopens_with_its_results() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let demo_dir = dir.path().join("demo");
+    copy_folder(calibrated_demo(), &demo_dir);
+    let spec = nine_shot_demo();
+    let n_shots = spec.settings.len();
     let mut again = new_harness_with(&demo_dir, None, spec);
     again.run_steps(1);
     assert!(
@@ -792,8 +920,8 @@ fn every_view_on_the_demo_session() {
     step_until(&mut again, "the reopened session's results", |a| {
         a.measured().count() == n_shots
             && a.detections().count() == n_shots
-            && a.profile.is_some()
-            && a.cv.is_some()
+            && a.profile().is_some()
+            && a.cv().is_some()
             && idle(a)
     });
 }
@@ -806,8 +934,8 @@ fn noisy_kernel_is_hatched_and_a_click_inspects_it(
     h: &mut Harness<'_, StudioApp>,
     square: (usize, usize),
 ) {
-    let natural = h.state().views.field.as_ref().map_or(0, |f| f.noisy);
-    let shot = h.state().selected_shot.expect("a selected shot");
+    let natural = h.state().data.field.as_ref().map_or(0, |f| f.noisy);
+    let shot = h.state().views.shot.selected.expect("a selected shot");
     let original = std::sync::Arc::clone(h.state().kernels(shot).expect("kernels"));
     let total = original
         .samples
@@ -852,7 +980,7 @@ fn noisy_kernel_is_hatched_and_a_click_inspects_it(
         kernels: std::sync::Arc::new(striped),
     });
     h.run_steps(3);
-    let field = h.state().views.field.as_ref().expect("field");
+    let field = h.state().data.field.as_ref().expect("field");
     assert!(field.noisy > natural, "the striped kernel is flagged");
     let point = field.panels[0]
         .points
@@ -873,7 +1001,7 @@ fn noisy_kernel_is_hatched_and_a_click_inspects_it(
     click_at(h, pos);
     h.run_steps(2);
     assert_eq!(h.state().view, View::Shot);
-    assert_eq!(h.state().selected_square, Some(square));
+    assert_eq!(h.state().views.shot.square, Some(square));
     h.state_mut().record_shot_event(ShotEvent::Measured {
         id: shot,
         file,
@@ -884,11 +1012,11 @@ fn noisy_kernel_is_hatched_and_a_click_inspects_it(
         .push(Command::SelectView(View::KernelField));
     h.run_steps(3);
     assert_eq!(
-        h.state().views.field.as_ref().map(|f| f.noisy),
+        h.state().data.field.as_ref().map(|f| f.noisy),
         Some(natural)
     );
     step_until(h, "the inspector after the click", |a| {
-        idle(a) && a.views.inspection().is_some()
+        idle(a) && a.data.inspection().is_some()
     });
 }
 
@@ -946,12 +1074,12 @@ fn raw_shots_and_photos_are_developed_and_export_as_dng() {
             "developed: {:?}",
             preview.developed.as_ref().map(|d| d.as_ref().err())
         );
-        assert!(app.viewer.developed);
+        assert!(app.views.shot.viewer.developed);
     }
     snapshot(&mut h, "studio_shot_raw_developed");
     h.get_by_label("developed").click();
     h.run_steps(2);
-    assert!(!h.state().viewer.developed);
+    assert!(!h.state().views.shot.viewer.developed);
     snapshot(&mut h, "studio_shot_raw_linear");
     h.get_by_label("developed").click();
     h.run_steps(2);
@@ -967,10 +1095,16 @@ fn raw_shots_and_photos_are_developed_and_export_as_dng() {
     h.run_steps(2);
     h.get_by_label("Deblur the selected shot").click();
     step_until(&mut h, "the deblur preview", |a| {
-        a.deblur.comparison.is_some() && idle(a)
+        a.views.deblur.comparison.is_some() && idle(a)
     });
     {
-        let view = h.state().deblur.comparison.as_ref().expect("comparison");
+        let view = h
+            .state()
+            .views
+            .deblur
+            .comparison
+            .as_ref()
+            .expect("comparison");
         let c = &view.comparison;
         assert!(
             c.measured.is_ok(),
@@ -1001,12 +1135,20 @@ fn raw_shots_and_photos_are_developed_and_export_as_dng() {
     });
     step_until(&mut h, "the export", |a| {
         idle(a)
-            && a.messages
+            && a.window
+                .messages
                 .iter()
                 .any(|m| m.text.contains("deblurred photo written"))
     });
     let written = lensblur::raw::load_capture(&out, &Default::default()).expect("export readable");
-    let photo = &h.state().deblur.photo.as_ref().expect("photo").capture;
+    let photo = &h
+        .state()
+        .views
+        .deblur
+        .photo
+        .as_ref()
+        .expect("photo")
+        .capture;
     assert!(written.is_raw);
     assert_eq!((written.width, written.height), (photo.width, photo.height));
     assert_eq!(written.identity, photo.identity);
@@ -1060,7 +1202,7 @@ fn light_theme_and_user_session() {
     // The entry's label carries its shortcut.
     h.get_by_label_contains("Light theme").click();
     h.run_steps(2);
-    assert!(!h.state().dark);
+    assert!(!h.state().window.dark);
     // Drag and drop a file onto the window.
     h.input_mut().dropped_files.push(dropped(&shot));
     step_until(&mut h, "the dropped shot", |a| a.previews().count() == 1);
@@ -1098,6 +1240,7 @@ fn light_theme_and_user_session() {
     h.run_steps(2);
     assert!(
         h.state()
+            .window
             .messages
             .iter()
             .any(|m| m.is_error && m.text.contains("notes.txt"))
@@ -1111,6 +1254,7 @@ fn light_theme_and_user_session() {
     });
     assert!(
         h.state()
+            .window
             .messages
             .iter()
             .any(|m| m.is_error && m.text.starts_with("broken.png"))
@@ -1294,7 +1438,7 @@ fn a_session_measured_on_the_command_line_calibrates_in_the_studio() {
         "results measured elsewhere count as done"
     );
     h.state_mut().commands.push(Command::RunCalibrate);
-    step_until(&mut h, "calibration", |a| a.profile.is_some() && idle(a));
+    step_until(&mut h, "calibration", |a| a.profile().is_some() && idle(a));
     assert_same_profile(&folder.join("profile.json"), &cli_profile);
 }
 
@@ -1316,6 +1460,7 @@ fn a_second_studio_on_an_open_session_is_refused_and_the_command_line_too() {
     assert!(second.state().session().is_none());
     let refusal = second
         .state()
+        .window
         .messages
         .iter()
         .find(|m| m.is_error)
@@ -1324,7 +1469,7 @@ fn a_second_studio_on_an_open_session_is_refused_and_the_command_line_too() {
     assert!(
         refusal.contains("in use by the lensblur studio"),
         "{:?}",
-        second.state().messages
+        second.state().window.messages
     );
 
     // The command line too, in one line, and it writes nothing.
@@ -1349,7 +1494,7 @@ fn a_second_studio_on_an_open_session_is_refused_and_the_command_line_too() {
     assert!(
         third.state().session().is_some(),
         "{:?}",
-        third.state().messages
+        third.state().window.messages
     );
 }
 
@@ -1402,7 +1547,7 @@ fn predicted_kernel_shapes_of_a_profile_with_a_shape_model() {
         path,
         compare: false,
     });
-    step_until(&mut h, "the profile", |a| a.profile.is_some() && idle(a));
+    step_until(&mut h, "the profile", |a| a.profile().is_some() && idle(a));
     let app = h.state_mut();
     app.commands.push(Command::SelectView(View::KernelField));
     app.commands
@@ -1414,7 +1559,7 @@ fn predicted_kernel_shapes_of_a_profile_with_a_shape_model() {
     });
     h.run_steps(3);
     {
-        let atlas = h.state().views.kernel_atlas.as_ref().expect("atlas");
+        let atlas = h.state().data.kernel_atlas.as_ref().expect("atlas");
         assert_eq!(atlas.model, Some(lensblur::model::KernelModel::Shape));
         assert!(atlas.error.is_none(), "{:?}", atlas.error);
         assert_eq!(
@@ -1472,7 +1617,7 @@ fn models_warn_what_to_shoot_when_the_settings_cannot_determine_the_model() {
     h.run_steps(3);
     let advice = &h
         .state()
-        .views
+        .data
         .calibrated
         .as_ref()
         .expect("the session's settings")
@@ -1537,16 +1682,18 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
         calibrate_demo: true,
         ..options(dir.path(), None, spec.clone())
     });
-    step_until(&mut h, "the demo's photo", |a| a.deblur.photo.is_some());
-    let p = h.state().deblur.photo.as_ref().expect("photo");
+    step_until(&mut h, "the demo's photo", |a| {
+        a.views.deblur.photo.is_some()
+    });
+    let p = h.state().views.deblur.photo.as_ref().expect("photo");
     assert_eq!(
         (p.focal_mm, p.f_number),
         (Some(photo.focal_mm), Some(photo.f_number))
     );
     step_until(&mut h, "calibrate all", |a| {
         a.jobs.is_running("calibrate all")
-            || a.profile.is_some()
-            || a.messages.iter().any(|m| m.is_error)
+            || a.profile().is_some()
+            || a.window.messages.iter().any(|m| m.is_error)
     });
     let job_ids: Vec<String> = h
         .state()
@@ -1561,7 +1708,7 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
             .any(|j| ["detect", "kernels", "calibrate"].contains(&j.as_str())),
         "one job, not a stage each: {job_ids:?}"
     );
-    step_until(&mut h, "the profile", |a| a.profile.is_some() && idle(a));
+    step_until(&mut h, "the profile", |a| a.profile().is_some() && idle(a));
     let app = h.state();
     assert_eq!(app.measured().count(), n, "every shot measured");
     assert!(
@@ -1570,20 +1717,21 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
     );
     assert_eq!(app.view, View::Deblur, "the before/after opens by itself");
     assert!(
-        app.messages.iter().any(|m| m
+        app.window.messages.iter().any(|m| m
             .text
             .starts_with(&format!("Calibrate all: measured {n} shots"))),
         "{:?}",
-        app.messages
+        app.window.messages
     );
     assert!(
-        !app.messages.iter().any(|m| m.is_error),
+        !app.window.messages.iter().any(|m| m.is_error),
         "{:?}",
-        app.messages
+        app.window.messages
     );
     step_until(&mut h, "the photo's preview", |a| {
         idle(a)
-            && a.deblur
+            && a.views
+                .deblur
                 .comparison
                 .as_ref()
                 .is_some_and(|c| c.comparison.predicted.is_ok())
@@ -1593,10 +1741,14 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
     // Hovering the before/after: a loupe of the same pixels before and after, and their
     // values in both; the divider stays where it was.
     let divider = h.get_by_label("divider").rect();
-    let slider = h.state().deblur.slider;
+    let slider = h.state().views.deblur.slider;
     h.hover_at(divider.center() + egui::vec2(-120.0, -60.0));
     h.run_steps(2);
-    assert_eq!(h.state().deblur.slider, slider, "hovering moves nothing");
+    assert_eq!(
+        h.state().views.deblur.slider,
+        slider,
+        "hovering moves nothing"
+    );
     h.get_by_label_contains("before R ");
     // With the pointer: the loupe is drawn at once where it rests (no tooltip delay).
     h.snapshot("studio_deblur_demo_loupe");
@@ -1609,24 +1761,24 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
         .commands
         .push(Command::SelectView(View::Sharpness));
     let corners_fall = |a: &StudioApp| {
-        a.views.sharpness.as_ref().is_some_and(|d| {
+        a.data.sharpness.as_ref().is_some_and(|d| {
             d.summary
                 .is_some_and(|s| s.corners < s.centre && s.min > 0.0)
         })
     };
     step_until(&mut h, "the predicted sharpness map", |a| {
-        a.sharpness.source == FieldSource::Predicted && corners_fall(a)
+        a.views.sharpness.source == FieldSource::Predicted && corners_fall(a)
     });
     snapshot(&mut h, "studio_sharpness_demo");
     for source in [FieldSource::Measured, FieldSource::Truth] {
         let choice = SharpnessChoice {
             source,
-            ..h.state().sharpness
+            ..h.state().views.sharpness
         };
         h.state_mut().commands.push(Command::SetSharpness(choice));
         step_until(&mut h, "the sharpness map", |a| {
-            a.sharpness.source == source
-                && a.views.sharpness.as_ref().is_some_and(|d| d.map.is_ok())
+            a.views.sharpness.source == source
+                && a.data.sharpness.as_ref().is_some_and(|d| d.map.is_ok())
                 && corners_fall(a)
         });
     }
@@ -1639,7 +1791,8 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
     h.run_steps(2);
     h.get_by_label("Shooting plan").click();
     h.run_steps(2);
-    h.get_by_label_contains("settings shot, ");
+    // Every setting the demo holds counts, those off the plan's grid (f/10) too.
+    h.get_by_label_contains(&format!("{} settings shot: ", spec.settings.len()));
     snapshot(&mut h, "studio_models_demo_plan");
 
     // The map shown last, saved as the dialog's answer would save it: the PNG, and
@@ -1671,9 +1824,9 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
         .commands
         .push(Command::SelectView(View::Geometry));
     step_until(&mut h, "the lens's geometry", |a| {
-        a.views.geometry.is_some() && idle(a)
+        a.data.geometry.is_some() && idle(a)
     });
-    let d = h.state().views.geometry.as_ref().expect("geometry");
+    let d = h.state().data.geometry.as_ref().expect("geometry");
     assert_eq!(d.focal, 24.0, "the widest focal length first");
     assert!(
         d.grid.corner_px < -1.0,
@@ -1692,12 +1845,12 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
         .commands
         .push(Command::ExportLensfun(xml_path.clone()));
     step_until(&mut h, "the lensfun entry", |a| {
-        idle(a) && (xml_path.is_file() || a.messages.iter().any(|m| m.is_error))
+        idle(a) && (xml_path.is_file() || a.window.messages.iter().any(|m| m.is_error))
     });
     assert!(
-        !h.state().messages.iter().any(|m| m.is_error),
+        !h.state().window.messages.iter().any(|m| m.is_error),
         "{:?}",
-        h.state().messages
+        h.state().window.messages
     );
     let xml = std::fs::read_to_string(&xml_path).expect("the lensfun entry");
     for f in [24, 50, 105] {
@@ -1744,7 +1897,7 @@ fn log_panel_confirmation_about_and_recent_sessions() {
     snapshot(&mut h, "studio_confirm_remove");
     h.get_by_label("Cancel").click();
     h.run_steps(2);
-    assert!(h.state().confirm.is_none());
+    assert!(h.state().window.confirm.is_none());
     assert_eq!(h.state().session().map(|s| s.shots.len()), Some(n));
     h.state_mut()
         .commands
@@ -1765,35 +1918,37 @@ fn log_panel_confirmation_about_and_recent_sessions() {
     let missing = folder.join("no such photo.png");
     h.state_mut().commands.push(Command::OpenPhoto(missing));
     step_until(&mut h, "the photo's error", |a| {
-        idle(a) && a.messages.iter().any(|m| m.is_error)
+        idle(a) && a.window.messages.iter().any(|m| m.is_error)
     });
     h.run_steps(3);
     assert!(
-        h.state().messages.iter().all(|m| m.is_error)
+        h.state().window.messages.iter().all(|m| m.is_error)
             && h.state()
+                .window
                 .messages
                 .iter()
                 .any(|m| m.text.contains("no such photo.png")),
         "notices gone from the status line, the error stays: {:?}",
-        h.state().messages
+        h.state().window.messages
     );
-    let said = h.state().log.iter().any(|m| {
+    let said = h.state().window.log.iter().any(|m| {
         m.text
             .starts_with(&format!("Detected the chart in {} shots", n - 1))
     });
-    assert!(said, "{:?}", h.state().log);
+    assert!(said, "{:?}", h.state().window.log);
     assert!(
         h.state()
+            .window
             .log
             .iter()
             .all(|m| !m.text.contains("{") && !m.text.contains("Some(")),
         "no debug dumps: {:?}",
-        h.state().log
+        h.state().window.log
     );
 
     // The log: every message with its time (fixed here, so the snapshot is stable).
-    h.state_mut().messages.clear();
-    for m in &mut h.state_mut().log {
+    h.state_mut().window.messages.clear();
+    for m in &mut h.state_mut().window.log {
         m.time = "12:00:00".into();
     }
     h.state_mut().commands.push(Command::SetLogOpen(true));

@@ -2,7 +2,7 @@
 //! drawn), what the studio asks the user first ([`Confirm`]) and what jobs hand back
 //! ([`JobOutput`]).
 
-use super::view_data;
+use super::state::{Confirm, FieldOptions, InspectKey, InspectedSquare};
 use super::{
     DeblurLayout, DeblurResult, DeblurZoom, FieldShow, FieldSource, PlotId, SharpnessChoice,
     SweepAxis, View, ViewerState,
@@ -152,7 +152,7 @@ pub enum Command {
     /// Show the demo lens's second unit beside the first.
     SetCompareUnits(bool),
     /// The Kernel field view's colour range and difference map.
-    SetFieldOptions(view_data::FieldOptions),
+    SetFieldOptions(FieldOptions),
     OpenSessionDialog,
     /// Opens (or creates) the session in a folder, or from a session file or manifest.
     OpenSession(PathBuf),
@@ -184,19 +184,6 @@ pub enum Command {
     ShowAbout(bool),
     /// Closes the window (the session is saved on the way out).
     Quit,
-}
-
-/// What the studio asks before doing it, because it cannot be undone from the window.
-#[derive(Clone, Debug, PartialEq)]
-pub enum Confirm {
-    /// Remove a shot from the session (its file and cached results stay on disk).
-    RemoveShot(ShotId),
-    /// Apply a new chart: every detection and kernel measured with the old one is
-    /// discarded from the session's view and must be measured again.
-    ReplaceChart {
-        chart: ChartSpec,
-        settings: StageSettings,
-    },
 }
 
 /// What jobs hand back.
@@ -264,7 +251,7 @@ pub enum JobOutput {
     },
     /// The crops of an inspected square (`None`: the square has none in that channel).
     SquareInspected {
-        key: view_data::InspectKey,
-        result: Option<Box<view_data::InspectedSquare>>,
+        key: InspectKey,
+        result: Option<Box<InspectedSquare>>,
     },
 }

@@ -1,13 +1,15 @@
 //! The studio: one window over the headless core (ARCHITECTURE.md, Studio).
 //!
-//! Split as `state` (the app's state types), `command` (what panels ask for and what
-//! jobs hand back), `logic` (apply [`Command`]s, drain finished jobs, keep the session
-//! saved), `view_data` (what the views show that takes computing: made when its inputs
-//! change, cached keyed by them, long work on a job thread), `textures` (images made
-//! into textures, for both `logic` and `view_data`) and `ui` (draw; every drawing
-//! function ends in `_ui`, only reads the app and emits commands, and shows a
-//! placeholder where view data is absent). Every computation is a call into the core;
-//! the app only shows and drives.
+//! `StudioApp` is plumbing: the core's `Project` (the session and every result made of
+//! it), the jobs, the command queue, each view's own state (`state::Views`) and the
+//! view data. Split as `state` (the types of what the app holds, importing nothing of
+//! the app), `command` (what panels ask for and what jobs hand back), `logic` (apply
+//! [`Command`]s, drain finished jobs, keep the session saved), `view_data` (what the
+//! views show that takes computing: made when its inputs change, cached keyed by them,
+//! long work on a job thread), `textures` (images made into textures, for both `logic`
+//! and `view_data`) and `ui` (draw; every drawing function ends in `_ui`, only reads
+//! and emits commands, and shows a placeholder where view data is absent). Every
+//! computation is a call into the core; the app only shows and drives.
 
 mod command;
 pub mod jobs;
@@ -17,23 +19,23 @@ mod textures;
 mod ui;
 pub mod view_data;
 
-pub use command::{Command, Confirm, JobOutput};
+pub use command::{Command, JobOutput};
 pub(crate) use state::Tally;
 pub use state::{
-    AppOptions, ComparisonView, DeblurLayout, DeblurResult, DeblurState, DeblurZoom, FieldShow,
-    FieldSource, FrameLog, Message, PendingPlotPng, Photo, PlotId, SharpnessChoice, ShotPreview,
-    ShotView, SweepAxis, View, ViewerState, clock_now,
+    AppOptions, Autorun, ColourRange, ComparisonView, Confirm, DeblurLayout, DeblurResult,
+    DeblurState, DeblurZoom, Difference, FieldOptions, FieldShow, FieldSource, FieldViewState,
+    FrameLog, GeometryViewState, Message, PendingPlotPng, Photo, PlotId, SessionPanelState,
+    SharpnessChoice, ShotPreview, ShotView, ShotViewState, SweepAxis, SweepsViewState, Trace, View,
+    ViewerState, Views, Window, clock_now,
 };
 
-use crate::chart::ChartSpec;
 use crate::crossval::CvReport;
 use crate::detect::Detection;
 use crate::kernel::file::KernelsFile;
 use crate::model::Dataset;
-use crate::plane::Channel;
 use crate::profile::Profile;
 use crate::project::Project;
-use crate::session::{Session, ShotId, StageSettings};
+use crate::session::{Session, ShotId};
 use jobs::Jobs;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -46,88 +48,37 @@ const NOTICE_FADE: std::time::Duration = std::time::Duration::from_secs(1);
 /// How often the window repaints while only a job's progress changes.
 const PROGRESS_REPAINT: std::time::Duration = std::time::Duration::from_millis(250);
 
-/// The studio app.
+/// The studio app: plumbing only. The project owns the session and its results, each
+/// view its own state (`views`), `data` what the views show that takes computing; the
+/// app holds them, the jobs and the command queue, and applies commands between frames.
 pub struct StudioApp {
-    /// The open calibration project: the session, its folder's lock, and each shot's
-    /// record (file, settings, status, detection, kernels).
+    /// The open calibration project: the session, its folder's lock, each shot's
+    /// record (file, settings, status, detection, kernels) and the results made of them
+    /// (dataset, profile, cross-validation).
     project: Option<Project>,
     pub jobs: Jobs<JobOutput>,
-    pub view: View,
-    pub selected_shot: Option<ShotId>,
-    channel: Channel,
-    /// The session's shots as the window has them: loading, loaded, or unreadable (a
-    /// shot has an entry once its loading has started).
-    shots: BTreeMap<ShotId, ShotView>,
-    /// The status line's messages (dismissable), newest last.
-    pub messages: Vec<Message>,
-    /// Every message of this run, newest last: the log panel.
-    pub log: Vec<Message>,
-    log_open: bool,
-    /// The session panel on the left; folded, the views have the whole width.
-    session_panel_open: bool,
-    /// The question being asked, in a modal dialog.
-    pub confirm: Option<Confirm>,
-    show_help: bool,
-    show_guide: bool,
-    show_about: bool,
-    /// Recently opened session folders, most recent first.
-    recent: Vec<PathBuf>,
-    pub commands: Vec<Command>,
-    pub viewer: ViewerState,
-    /// Setting for the predicted / ground-truth field and the sweeps.
-    field_focal_mm: f64,
-    field_f_number: f64,
-    pub compare_units: bool,
-    /// The square clicked in the Shot view: (row, col).
-    pub selected_square: Option<(usize, usize)>,
-    /// The session's measured Gaussians over every shot with kernels.
-    pub dataset: Option<Arc<Dataset>>,
-    /// The lens profile in use (calibrated here or loaded) and a second one to compare.
-    pub profile: Option<(PathBuf, Arc<Profile>)>,
-    compare_profile: Option<(PathBuf, Arc<Profile>)>,
-    pub cv: Option<Arc<CvReport>>,
-    /// What the Kernel field view shows.
-    pub field_source: FieldSource,
-    field_show: FieldShow,
-    pub field_options: view_data::FieldOptions,
-    pub sweep_axis: SweepAxis,
-    /// What the Sharpness view maps.
-    pub sharpness: SharpnessChoice,
-    /// The Geometry view's focal length and aperture; `None`: the session's first.
-    pub geometry_focal_mm: Option<f64>,
-    pub geometry_f_number: Option<f64>,
-    pub plot_png: Option<PendingPlotPng>,
-    /// What the views show that takes computing, cached by what it depends on.
-    pub views: view_data::ViewData,
-    pub deblur: DeblurState,
-    /// Settings being edited in the session panel, applied by its Apply button.
-    settings_edit: Option<(ChartSpec, StageSettings)>,
-    pub dark: bool,
-    frames: FrameLog,
-    options: AppOptions,
-    ctx: egui::Context,
+    /// Per running detect or kernels job (by id): how its shots went so far.
+    tallies: BTreeMap<u64, Tally>,
     /// Counts the sessions opened: results of jobs started for an earlier one are
     /// dropped when they arrive.
     session_generation: u64,
-    first_frame_logged: bool,
-    /// Frames left of the autorun's strength drag.
-    drag_frames: usize,
-    first_shot_logged: bool,
-    before_after_logged: bool,
-    ready_logged: bool,
-    /// File dialogs run on their own threads (a portal dialog's future, blocked on
-    /// there) and send back the commands their answer makes; the window never waits.
-    dialog_tx: std::sync::mpsc::Sender<Vec<Command>>,
-    dialog_rx: std::sync::mpsc::Receiver<Vec<Command>>,
-    /// One file dialog at a time: a second would stack on the first.
-    dialog_open: bool,
-    /// Per running detect or kernels job (by id): how its shots went so far.
-    tallies: BTreeMap<u64, Tally>,
-    /// The lens's range typed for the shooting plan; `None`: the session's.
-    plan_range: Option<crate::review::LensRange>,
-    /// A running *Calibrate all* opens the Deblur view on the photo once it ends (the
-    /// first launch's demo).
-    deblur_when_calibrated: bool,
+    /// The session's shots as the window has them: loading, loaded, or unreadable (a
+    /// shot has an entry once its loading has started).
+    shots: BTreeMap<ShotId, ShotView>,
+    pub commands: Vec<Command>,
+    /// The view shown.
+    pub view: View,
+    /// Each view's own state: what it shows and how.
+    pub views: Views,
+    /// What the views show that takes computing, cached by what it depends on.
+    pub data: view_data::ViewData,
+    /// The window around the views: messages, log, dialogs shown, theme.
+    pub window: Window,
+    dialogs: logic::Dialogs,
+    trace: Trace,
+    autorun: Autorun,
+    options: AppOptions,
+    ctx: egui::Context,
 }
 
 impl StudioApp {
@@ -137,7 +88,6 @@ impl StudioApp {
     pub fn new(ctx: &egui::Context, options: AppOptions) -> Self {
         let wake_ctx = ctx.clone();
         let progress_ctx = ctx.clone();
-        let (dialog_tx, dialog_rx) = std::sync::mpsc::channel();
         let recent = options
             .recent_file
             .as_deref()
@@ -147,56 +97,19 @@ impl StudioApp {
             project: None,
             jobs: Jobs::new(options.job_threads, move || wake_ctx.request_repaint())
                 .with_progress_wake(move || progress_ctx.request_repaint_after(PROGRESS_REPAINT)),
-            view: View::Shot,
-            selected_shot: None,
-            channel: Channel::G,
+            tallies: BTreeMap::new(),
+            session_generation: 0,
             shots: BTreeMap::new(),
-            messages: Vec::new(),
-            log: Vec::new(),
-            log_open: false,
-            session_panel_open: true,
-            confirm: None,
-            show_help: false,
-            show_guide: false,
-            show_about: false,
-            recent,
             commands: Vec::new(),
-            viewer: ViewerState::fitted(),
-            field_focal_mm: 50.0,
-            field_f_number: 5.6,
-            compare_units: false,
-            selected_square: None,
-            dataset: None,
-            profile: None,
-            compare_profile: None,
-            cv: None,
-            field_source: FieldSource::Measured,
-            field_show: FieldShow::Ellipses,
-            field_options: view_data::FieldOptions::default(),
-            sweep_axis: SweepAxis::Sigma,
-            sharpness: SharpnessChoice::default(),
-            geometry_focal_mm: None,
-            geometry_f_number: None,
-            plot_png: None,
-            views: view_data::ViewData::default(),
-            deblur: DeblurState::default(),
-            settings_edit: None,
-            dark: true,
-            frames: FrameLog::default(),
+            view: View::Shot,
+            views: Views::default(),
+            data: view_data::ViewData::default(),
+            window: Window::new(recent),
+            dialogs: logic::Dialogs::new(),
+            trace: Trace::default(),
+            autorun: Autorun::default(),
             options: options.clone(),
             ctx: ctx.clone(),
-            session_generation: 0,
-            first_frame_logged: false,
-            drag_frames: 0,
-            first_shot_logged: false,
-            before_after_logged: false,
-            ready_logged: false,
-            dialog_tx,
-            dialog_rx,
-            dialog_open: false,
-            tallies: BTreeMap::new(),
-            deblur_when_calibrated: false,
-            plan_range: None,
         };
         ctx.set_theme(egui::Theme::Dark);
         match &options.session {
@@ -229,6 +142,30 @@ impl StudioApp {
     /// project).
     pub(crate) fn session_mut(&mut self) -> Option<&mut Session> {
         self.project.as_mut().map(Project::session_mut)
+    }
+
+    /// The session's measured Gaussians over every shot with kernels and a setting.
+    #[must_use]
+    pub fn dataset(&self) -> Option<&Arc<Dataset>> {
+        self.project.as_ref()?.dataset()
+    }
+
+    /// The lens profile in use (calibrated here or loaded) and where it lies.
+    #[must_use]
+    pub fn profile(&self) -> Option<&(PathBuf, Arc<Profile>)> {
+        self.project.as_ref()?.profile()
+    }
+
+    /// A second profile shown beside the first (another unit of the lens).
+    #[must_use]
+    pub fn compare_profile(&self) -> Option<&(PathBuf, Arc<Profile>)> {
+        self.project.as_ref()?.compare_profile()
+    }
+
+    /// The cross-validation report of the profile's fit.
+    #[must_use]
+    pub fn cv(&self) -> Option<&Arc<CvReport>> {
+        self.project.as_ref()?.cv()
     }
 
     /// The shot's detection, this run's or read back from the session's results.
@@ -325,8 +262,8 @@ impl StudioApp {
             time: clock_now(),
             said: Instant::now(),
         };
-        self.log.push(m.clone());
-        self.messages.push(m);
+        self.window.log.push(m.clone());
+        self.window.messages.push(m);
     }
 
     /// A path as the UI shows it: relative to the session folder when it lies inside,
@@ -380,12 +317,12 @@ impl StudioApp {
 impl eframe::App for StudioApp {
     fn logic(&mut self, ctx: &egui::Context, _frame: &mut eframe::Frame) {
         self.logic_step();
-        if self.drag_frames > 0 {
+        if self.autorun.drag_frames > 0 {
             ctx.request_repaint();
         }
         // A notice fades out over its last second: frames until it has gone.
         if let Some(life) = self.options.notice_lifetime
-            && let Some(m) = self.messages.iter().find(|m| !m.is_error)
+            && let Some(m) = self.window.messages.iter().find(|m| !m.is_error)
         {
             let left = life.saturating_sub(m.said.elapsed());
             ctx.request_repaint_after(left.min(NOTICE_FADE / 10));
@@ -394,8 +331,8 @@ impl eframe::App for StudioApp {
 
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         let now = Instant::now();
-        if !self.first_frame_logged {
-            self.first_frame_logged = true;
+        if !self.trace.first_frame_logged {
+            self.trace.first_frame_logged = true;
             if self.options.log_frame_times {
                 eprintln!(
                     "studio: first frame after {:.2} s",
@@ -405,20 +342,21 @@ impl eframe::App for StudioApp {
         }
         if !self.jobs.running.is_empty() {
             for j in &self.jobs.running {
-                self.frames.busy_jobs.insert(j.name.clone());
+                self.trace.frames.busy_jobs.insert(j.name.clone());
             }
-            if let Some(last) = self.frames.last {
-                self.frames
+            if let Some(last) = self.trace.frames.last {
+                self.trace
+                    .frames
                     .busy_intervals_ms
                     .push(now.duration_since(last).as_secs_f32() * 1000.0);
             }
-            self.frames.last = Some(now);
+            self.trace.frames.last = Some(now);
             // A running figure every 10 s, so a long job can be measured without
             // waiting for its end.
-            let since = *self.frames.last_report.get_or_insert(now);
+            let since = *self.trace.frames.last_report.get_or_insert(now);
             let due = now.duration_since(since).as_secs_f32() >= 10.0;
             if self.options.log_frame_times && due {
-                if let Some((n, med, p95, max)) = self.frames.stats() {
+                if let Some((n, med, p95, max)) = self.trace.frames.stats() {
                     let progress: Vec<String> = self
                         .jobs
                         .running
@@ -431,35 +369,37 @@ impl eframe::App for StudioApp {
                     eprintln!(
                         "frame times so far while jobs run ({}): {n} frames, median {med:.1} ms, p95 {p95:.1} ms, max {max:.1} ms; the app's own drawing median {:.1} ms",
                         progress.join("; "),
-                        self.frames.app_median_ms().unwrap_or(0.0)
+                        self.trace.frames.app_median_ms().unwrap_or(0.0)
                     );
                 }
-                self.frames.last_report = Some(now);
+                self.trace.frames.last_report = Some(now);
             }
         } else {
-            if self.options.log_frame_times && !self.frames.busy_intervals_ms.is_empty() {
-                if let Some((n, med, p95, max)) = self.frames.stats() {
+            if self.options.log_frame_times && !self.trace.frames.busy_intervals_ms.is_empty() {
+                if let Some((n, med, p95, max)) = self.trace.frames.stats() {
                     eprintln!(
                         "frame times while jobs ran ({}): {n} frames, median {med:.1} ms, p95 {p95:.1} ms, max {max:.1} ms; the app's own drawing median {:.1} ms",
-                        self.frames
+                        self.trace
+                            .frames
                             .busy_jobs
                             .iter()
                             .cloned()
                             .collect::<Vec<_>>()
                             .join(", "),
-                        self.frames.app_median_ms().unwrap_or(0.0)
+                        self.trace.frames.app_median_ms().unwrap_or(0.0)
                     );
                 }
-                self.frames.busy_intervals_ms.clear();
-                self.frames.busy_app_ms.clear();
-                self.frames.busy_jobs.clear();
+                self.trace.frames.busy_intervals_ms.clear();
+                self.trace.frames.busy_app_ms.clear();
+                self.trace.frames.busy_jobs.clear();
             }
-            self.frames.last = None;
-            self.frames.last_report = None;
+            self.trace.frames.last = None;
+            self.trace.frames.last_report = None;
         }
         let busy = !self.jobs.running.is_empty();
         ui::root_ui(self, ui);
-        self.frames
+        self.trace
+            .frames
             .record_app_time(busy, now.elapsed().as_secs_f32() * 1000.0);
         if !self.jobs.running.is_empty() {
             // The progress line moves a few times a second; results wake the window

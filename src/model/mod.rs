@@ -137,6 +137,45 @@ impl ModelKind {
         };
         format!("{letter}_{{{alpha},{beta}}}")
     }
+
+    /// The model's symbol as the studio prints it, with subscripts: `G₄,₂`.
+    #[must_use]
+    pub fn symbol(self, alpha: usize, beta: usize) -> String {
+        let sub = |n: usize| -> String {
+            n.to_string()
+                .chars()
+                .map(|c| char::from_u32(0x2080 + c.to_digit(10).unwrap_or(0)).unwrap_or(c))
+                .collect()
+        };
+        let letter = match self {
+            Self::Global => 'G',
+            Self::Local => 'L',
+        };
+        format!("{letter}{},{}", sub(alpha), sub(beta))
+    }
+
+    /// The model in words: "polynomial, order 4 in position, 2 in focal length and
+    /// aperture" (the local one: "local polynomials, …").
+    #[must_use]
+    pub fn in_words(self, alpha: usize, beta: usize) -> String {
+        let what = match self {
+            Self::Global => "polynomial",
+            Self::Local => "local polynomials",
+        };
+        format!("{what}, order {alpha} in position, {beta} in focal length and aperture")
+    }
+
+    /// A name [`Self::model_name`] made (`G_{4,2}`), read back: the family, α and β.
+    #[must_use]
+    pub fn parse_name(name: &str) -> Option<(Self, usize, usize)> {
+        let kind = match name.get(..3)? {
+            "G_{" => Self::Global,
+            "L_{" => Self::Local,
+            _ => return None,
+        };
+        let (a, b) = name.get(3..)?.strip_suffix('}')?.split_once(',')?;
+        Some((kind, a.trim().parse().ok()?, b.trim().parse().ok()?))
+    }
 }
 
 /// A fitted model of either family. Profiles, cross-validation, test-set evaluation and
@@ -312,3 +351,30 @@ pub fn to_gaussian(p: [f64; 3]) -> Gaussian2 {
 }
 
 pub use crate::plane::spaced;
+
+#[cfg(test)]
+mod tests {
+    use super::ModelKind;
+
+    #[test]
+    fn a_model_name_reads_back_and_reads_in_words() {
+        let name = ModelKind::Global.model_name(4, 2);
+        assert_eq!(name, "G_{4,2}");
+        assert_eq!(
+            ModelKind::parse_name(&name),
+            Some((ModelKind::Global, 4, 2))
+        );
+        assert_eq!(
+            ModelKind::parse_name("L_{10,3}"),
+            Some((ModelKind::Local, 10, 3))
+        );
+        assert_eq!(ModelKind::parse_name("G_{4}"), None);
+        assert_eq!(ModelKind::parse_name("X_{4,2}"), None);
+        assert_eq!(ModelKind::Global.symbol(4, 2), "G₄,₂");
+        assert_eq!(ModelKind::Local.symbol(12, 0), "L₁₂,₀");
+        assert_eq!(
+            ModelKind::Global.in_words(4, 2),
+            "polynomial, order 4 in position, 2 in focal length and aperture"
+        );
+    }
+}

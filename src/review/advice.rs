@@ -116,6 +116,37 @@ pub struct PlannedSetting {
     pub setting: LensSetting,
     pub wanted: usize,
     pub shot: usize,
+    /// On the plan's grid; `false`: a setting the session has shots at that the plan
+    /// does not list (it counts all the same: the model is fitted to every shot).
+    pub on_plan: bool,
+}
+
+/// How far a shooting plan has got, counted over every setting it lists, those the
+/// session holds off its grid included.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PlanProgress {
+    /// Settings with at least one shot.
+    pub settings_shot: usize,
+    /// Settings with the shots wanted ([`SHOTS_PER_SETTING`]).
+    pub complete: usize,
+    /// Settings on the plan's grid, and how many of those have a shot.
+    pub planned: usize,
+    pub planned_shot: usize,
+    /// Settings the session has shots at off the plan's grid.
+    pub off_plan: usize,
+}
+
+/// Counts what a [`shooting_plan`] says was shot.
+#[must_use]
+pub fn plan_progress(plan: &[PlannedSetting]) -> PlanProgress {
+    let on: Vec<&PlannedSetting> = plan.iter().filter(|p| p.on_plan).collect();
+    PlanProgress {
+        settings_shot: plan.iter().filter(|p| p.shot > 0).count(),
+        complete: plan.iter().filter(|p| p.shot >= p.wanted).count(),
+        planned: on.len(),
+        planned_shot: on.iter().filter(|p| p.shot > 0).count(),
+        off_plan: plan.iter().filter(|p| !p.on_plan).count(),
+    }
 }
 
 /// Shots wanted at each planned setting: two, so cross-validation can hold one out
@@ -133,8 +164,9 @@ const SMALLEST_USEFUL_APERTURE: f64 = 11.0;
 /// 2× or more, three on a shorter one, one on a prime), rounded to whole millimetres;
 /// f-numbers wide open, then the whole stops more than half a stop above it up to f/11
 /// (or the range's end), five at most. A shot counts at a setting within 4 % of its focal length and a sixth
-/// of a stop of its f-number (cameras round both). Sorted by focal length, then
-/// f-number.
+/// of a stop of its f-number (cameras round both). The settings shot that lie off
+/// that grid are listed too (`on_plan: false`), so that the plan accounts for every
+/// shot. Sorted by focal length, then f-number.
 #[must_use]
 pub fn shooting_plan(range: &LensRange, shots: &[LensSetting]) -> Vec<PlannedSetting> {
     let [f0, f1] = sorted(range.focal_mm);
@@ -165,7 +197,7 @@ pub fn shooting_plan(range: &LensRange, shots: &[LensSetting]) -> Vec<PlannedSet
     let near = |s: &LensSetting, f: f64, a: f64| {
         (s.focal_mm / f - 1.0).abs() <= 0.04 && (s.f_number / a).log2().abs() * 2.0 <= 1.0 / 6.0
     };
-    focals
+    let mut plan: Vec<PlannedSetting> = focals
         .iter()
         .flat_map(|&f| apertures.iter().map(move |&a| (f, a)))
         .map(|(f, a)| PlannedSetting {
@@ -175,8 +207,34 @@ pub fn shooting_plan(range: &LensRange, shots: &[LensSetting]) -> Vec<PlannedSet
             },
             wanted: SHOTS_PER_SETTING,
             shot: shots.iter().filter(|s| near(s, f, a)).count(),
+            on_plan: true,
         })
-        .collect()
+        .collect();
+    // Each shot off the grid joins the first off-grid setting it is near, or starts one.
+    let planned = plan.len();
+    for s in shots {
+        let at = |p: &PlannedSetting| near(s, p.setting.focal_mm, p.setting.f_number);
+        if plan[..planned].iter().any(at) {
+            continue;
+        }
+        if let Some(p) = plan[planned..].iter_mut().find(|p| at(p)) {
+            p.shot += 1;
+            continue;
+        }
+        plan.push(PlannedSetting {
+            setting: *s,
+            wanted: SHOTS_PER_SETTING,
+            shot: 1,
+            on_plan: false,
+        });
+    }
+    plan.sort_by(|a, b| {
+        a.setting
+            .focal_mm
+            .total_cmp(&b.setting.focal_mm)
+            .then(a.setting.f_number.total_cmp(&b.setting.f_number))
+    });
+    plan
 }
 
 fn sorted([a, b]: [f64; 2]) -> [f64; 2] {

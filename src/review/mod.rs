@@ -26,8 +26,8 @@ pub mod sharpness;
 pub mod sweeps;
 
 pub use advice::{
-    AdviceLevel, LensRange, PlannedSetting, SHOTS_PER_SETTING, ShootingAdvice, shooting_advice,
-    shooting_plan,
+    AdviceLevel, LensRange, PlanProgress, PlannedSetting, SHOTS_PER_SETTING, ShootingAdvice,
+    plan_progress, shooting_advice, shooting_plan,
 };
 pub use crops::{
     DeblurComparison, Region, compare_deblur, crop_capture, deblur_region, display_whites,

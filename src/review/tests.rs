@@ -393,7 +393,27 @@ fn the_shooting_plan_spans_the_lens_and_ticks_what_was_shot() {
             f_number: 16.0,
         },
     ];
-    let plan = shooting_plan(&zoom, &shots);
+    let all = shooting_plan(&zoom, &shots);
+    // The setting off the grid is listed, and counts as shot.
+    let off: Vec<&PlannedSetting> = all.iter().filter(|p| !p.on_plan).collect();
+    assert_eq!(off.len(), 1);
+    assert_eq!(
+        (off[0].setting.focal_mm, off[0].setting.f_number),
+        (105.0, 16.0)
+    );
+    assert_eq!(off[0].shot, 1);
+    let progress = plan_progress(&all);
+    assert_eq!(
+        progress,
+        PlanProgress {
+            settings_shot: 3,
+            complete: 1,
+            planned: 20,
+            planned_shot: 2,
+            off_plan: 1,
+        }
+    );
+    let plan: Vec<PlannedSetting> = all.into_iter().filter(|p| p.on_plan).collect();
     let mut focals: Vec<f64> = plan.iter().map(|p| p.setting.focal_mm).collect();
     focals.dedup();
     assert_eq!(focals, vec![24.0, 35.0, 50.0, 73.0, 105.0]);

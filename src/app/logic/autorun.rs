@@ -9,7 +9,7 @@ use std::path::PathBuf;
 /// once the previous job ended, and moves the autorun's strength drag on.
 pub(in crate::app) fn autorun_step(app: &mut StudioApp) {
     log_readiness(app);
-    if app.ready_logged && app.jobs.running.is_empty() && !app.options.autorun.is_empty() {
+    if app.trace.ready_logged && app.jobs.running.is_empty() && !app.options.autorun.is_empty() {
         next_stage(app);
     }
     drag_strength(app);
@@ -21,8 +21,8 @@ fn log_readiness(app: &mut StudioApp) {
         && app
             .session()
             .is_some_and(|s| !s.shots.is_empty() && app.shots_shown() == s.shots.len());
-    if !app.first_shot_logged && app.previews().next().is_some() {
-        app.first_shot_logged = true;
+    if !app.trace.first_shot_logged && app.previews().next().is_some() {
+        app.trace.first_shot_logged = true;
         if app.options.log_frame_times {
             eprintln!(
                 "studio: first shot shown after {:.2} s",
@@ -32,14 +32,15 @@ fn log_readiness(app: &mut StudioApp) {
     }
     // The first launch's end: the demo calibrated and its photo before and after.
     let shown = app.view == crate::app::View::Deblur
-        && app.profile.is_some()
+        && app.profile().is_some()
         && app
+            .views
             .deblur
             .comparison
             .as_ref()
             .is_some_and(|c| c.comparison.predicted.is_ok());
-    if shown && !app.before_after_logged {
-        app.before_after_logged = true;
+    if shown && !app.trace.before_after_logged {
+        app.trace.before_after_logged = true;
         if app.options.log_frame_times {
             eprintln!(
                 "studio: before/after shown after {:.2} s",
@@ -47,8 +48,8 @@ fn log_readiness(app: &mut StudioApp) {
             );
         }
     }
-    if ready && !app.ready_logged {
-        app.ready_logged = true;
+    if ready && !app.trace.ready_logged {
+        app.trace.ready_logged = true;
         if app.options.log_frame_times {
             let n = app.session().map_or(0, |s| s.shots.len());
             eprintln!(
@@ -88,8 +89,8 @@ fn next_stage(app: &mut StudioApp) {
         // times are then those of a live control.
         "drag-strength" => {
             // Once the region fills the panes at 100 % (else next frame).
-            let filled = match (&app.deblur.comparison, &app.deblur.photo) {
-                (Some(c), Some(p)) => app.deblur.viewport.is_some_and(|[w, h]| {
+            let filled = match (&app.views.deblur.comparison, &app.views.deblur.photo) {
+                (Some(c), Some(p)) => app.views.deblur.viewport.is_some_and(|[w, h]| {
                     let r = c.comparison.region;
                     r.width == w.min(p.capture.width) & !1
                         && r.height == h.min(p.capture.height) & !1
@@ -97,9 +98,9 @@ fn next_stage(app: &mut StudioApp) {
                 _ => false,
             };
             if filled {
-                app.frames = FrameLog::default();
-                app.drag_frames = 300;
-                if let Some(c) = &app.deblur.comparison {
+                app.trace.frames = FrameLog::default();
+                app.autorun.drag_frames = 300;
+                if let Some(c) = &app.views.deblur.comparison {
                     let r = c.comparison.region;
                     eprintln!(
                         "studio: dragging the strength on a {} × {} region",
@@ -116,9 +117,9 @@ fn next_stage(app: &mut StudioApp) {
 
 /// The strength slider dragged for 300 frames, as a hand would.
 fn drag_strength(app: &mut StudioApp) {
-    if app.drag_frames > 0 {
-        app.drag_frames -= 1;
-        let k = app.drag_frames as f64;
+    if app.autorun.drag_frames > 0 {
+        app.autorun.drag_frames -= 1;
+        let k = app.autorun.drag_frames as f64;
         let lambda = 3000.0 * 10f64.powf((k / 25.0).sin());
         app.commands
             .push(Command::SetDeblurMethod(crate::deblur::Method::Hqs(

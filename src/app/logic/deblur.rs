@@ -32,72 +32,72 @@ pub(super) fn apply_deblur(app: &mut StudioApp, command: Command) {
             }
         }
         Command::SetPhotoSetting { focal_mm, f_number } => {
-            if let Some(p) = app.deblur.photo.as_mut() {
+            if let Some(p) = app.views.deblur.photo.as_mut() {
                 p.focal_mm = focal_mm;
                 p.f_number = f_number;
             }
         }
         Command::DeblurAt(centre) => run_deblur_preview(app, centre),
         Command::SetDeblurLayout(l) => {
-            app.deblur.layout = l;
-            app.deblur.viewport = None;
+            app.views.deblur.layout = l;
+            app.views.deblur.viewport = None;
         }
         Command::SetDeblurZoom(z) => {
-            app.deblur.zoom = z;
-            app.deblur.viewport = None;
+            app.views.deblur.zoom = z;
+            app.views.deblur.viewport = None;
             if z == DeblurZoom::Fit {
                 redeblur(app);
             }
         }
         Command::SetDeblurViewport(v) => {
-            if app.deblur.viewport != Some(v) {
-                app.deblur.viewport = Some(v);
+            if app.views.deblur.viewport != Some(v) {
+                app.views.deblur.viewport = Some(v);
                 redeblur(app);
             }
         }
         Command::SetDeblurCrop(px) => {
-            app.deblur.crop_px = px.clamp(32, 4096);
+            app.views.deblur.crop_px = px.clamp(32, 4096);
             redeblur(app);
         }
         Command::SetDeblurMethod(m) => {
-            app.deblur.method = Some(m);
+            app.views.deblur.method = Some(m);
             redeblur(app);
         }
         Command::SetDeblurOverview(open) => {
-            app.deblur.overview_open = open;
+            app.views.deblur.overview_open = open;
             // The panes' size changes: at 100 % and more, the region follows it.
-            app.deblur.viewport = None;
+            app.views.deblur.viewport = None;
         }
         Command::SetDeblurAmount(percent) => {
-            app.deblur.amount = crate::deblur::Amount::percent(percent);
+            app.views.deblur.amount = crate::deblur::Amount::percent(percent);
             redeblur(app);
         }
         Command::SetDeblurFringes(f) => {
-            app.deblur.fringes = f;
+            app.views.deblur.fringes = f;
             redeblur(app);
         }
         Command::SetDeblurLateral(l) => {
-            app.deblur.lateral = l;
+            app.views.deblur.lateral = l;
             redeblur(app);
         }
         Command::SetDeblurDevice(d) => {
-            app.deblur.device = d;
-            app.deblur.device_note = None;
+            app.views.deblur.device = d;
+            app.views.deblur.device_note = None;
             redeblur(app);
         }
         Command::DragDeblur(d) => {
-            app.deblur.drag[0] += d[0];
-            app.deblur.drag[1] += d[1];
+            app.views.deblur.drag[0] += d[0];
+            app.views.deblur.drag[1] += d[1];
         }
         Command::EndDragDeblur => {
-            let d = std::mem::take(&mut app.deblur.drag);
-            if let Some(c) = app.deblur.comparison.as_ref() {
+            let d = std::mem::take(&mut app.views.deblur.drag);
+            if let Some(c) = app.views.deblur.comparison.as_ref() {
                 let [cx, cy] = c.comparison.region.centre();
                 run_deblur_preview(app, [cx - f64::from(d[0]), cy - f64::from(d[1])]);
             }
         }
-        Command::SetSliderResult(r) => app.deblur.slider_result = r,
-        Command::SetSlider(t) => app.deblur.slider = t.clamp(0.0, 1.0),
+        Command::SetSliderResult(r) => app.views.deblur.slider_result = r,
+        Command::SetSlider(t) => app.views.deblur.slider = t.clamp(0.0, 1.0),
         Command::ExportDeblur { path, result } => run_export(app, path, result),
         Command::ExportPhotos {
             photos,
@@ -176,7 +176,7 @@ fn deblur_compared(
         }),
         _ => [None, None, None],
     };
-    app.deblur.comparison = Some(ComparisonView {
+    app.views.deblur.comparison = Some(ComparisonView {
         comparison,
         measured_from,
         textures,
@@ -219,7 +219,7 @@ fn photo_loaded(
         (capture.width as f64 - 1.0) / 2.0,
         (capture.height as f64 - 1.0) / 2.0,
     ];
-    app.deblur.photo = Some(Photo {
+    app.views.deblur.photo = Some(Photo {
         path,
         focal_mm: capture.setting_focal_mm.or(rf),
         f_number: capture.setting_f_number.or(ra),
@@ -227,13 +227,13 @@ fn photo_loaded(
         texture,
         developed,
     });
-    app.deblur.comparison = None;
+    app.views.deblur.comparison = None;
     apply(app, Command::DeblurAt(centre));
 }
 
 /// The method the Deblur view uses: its own once changed there, else the session's.
 pub(crate) fn deblur_method(app: &StudioApp) -> Method {
-    app.deblur.method.unwrap_or_else(|| {
+    app.views.deblur.method.unwrap_or_else(|| {
         app.session()
             .and_then(|s| Method::from_name(&s.settings.deblur_method))
             .unwrap_or_default()
@@ -243,16 +243,16 @@ pub(crate) fn deblur_method(app: &StudioApp) -> Method {
 fn deblur_options(app: &StudioApp) -> DeblurOptions {
     DeblurOptions {
         method: deblur_method(app),
-        device: app.deblur.device,
-        amount: app.deblur.amount,
-        fringes: app.deblur.fringes,
+        device: app.views.deblur.device,
+        amount: app.views.deblur.amount,
+        fringes: app.views.deblur.fringes,
         ..DeblurOptions::default()
     }
 }
 
 /// Deblurs the region again where it is (after a control or the profile changed).
 pub(super) fn redeblur(app: &mut StudioApp) {
-    let centre = match (&app.deblur.comparison, &app.deblur.photo) {
+    let centre = match (&app.views.deblur.comparison, &app.views.deblur.photo) {
         (Some(c), _) => c.comparison.region.centre(),
         (None, Some(p)) => [p.capture.width as f64 / 2.0, p.capture.height as f64 / 2.0],
         (None, None) => return,
@@ -272,9 +272,9 @@ type Sources = (
 fn photo_sources(app: &StudioApp, photo: &Photo) -> Sources {
     let cap = &photo.capture;
     let setting = photo.setting();
-    let predicted = match &app.profile {
+    let predicted = match app.profile() {
         Some((_, p)) => crate::review::profile_source(p, cap, setting)
-            .map(|s| s.with_lateral(app.deblur.lateral)),
+            .map(|s| s.with_lateral(app.views.deblur.lateral)),
         None => Err("no profile yet: Calibrate (Ctrl+M) or load one in Models".into()),
     };
     let found = match (app.session(), setting) {
@@ -304,7 +304,7 @@ fn photo_sources(app: &StudioApp, photo: &Photo) -> Sources {
 
 /// Deblurs a crop of the open photo around `centre` with both sources.
 pub(super) fn run_deblur_preview(app: &mut StudioApp, centre: [f64; 2]) {
-    let Some(photo) = &app.deblur.photo else {
+    let Some(photo) = &app.views.deblur.photo else {
         return;
     };
     // A newer preview replaces one still running: that one is cancelled and this one
@@ -318,28 +318,28 @@ pub(super) fn run_deblur_preview(app: &mut StudioApp, centre: [f64; 2]) {
         }
     }
     if busy {
-        app.deblur.pending = Some(centre);
+        app.views.deblur.pending = Some(centre);
         return;
     }
     let cap = Arc::clone(&photo.capture);
-    let region = match (app.deblur.zoom, app.deblur.viewport) {
+    let region = match (app.views.deblur.zoom, app.views.deblur.viewport) {
         (DeblurZoom::Times(_), Some([w, h])) => {
             crate::review::Region::around_size(centre[0], centre[1], w, h, cap.width, cap.height)
         }
         _ => crate::review::Region::around(
             centre[0],
             centre[1],
-            app.deblur.crop_px,
+            app.views.deblur.crop_px,
             cap.width,
             cap.height,
         ),
     };
     let (predicted, measured, from) = photo_sources(app, photo);
     let opts = deblur_options(app);
-    if app.deblur.device_note.is_none() {
+    if app.views.deblur.device_note.is_none() {
         // Where the preview runs, said once per choice (opening a device is the core's).
         let note = crate::deblur::gpu::describe(opts.device, &opts.method);
-        app.deblur.device_note = Some(note);
+        app.views.deblur.device_note = Some(note);
     }
     let r = app.jobs.spawn("deblur preview", move |ctx, out| {
         let comparison = crate::review::compare_deblur(
@@ -371,7 +371,7 @@ pub(super) fn run_deblur_preview(app: &mut StudioApp, centre: [f64; 2]) {
 /// Deblurs a set of photos with the open profile, each at its own EXIF setting, as the
 /// command line's batch does (skips and failures reported photo by photo).
 fn run_export_photos(app: &mut StudioApp, photos: Vec<PathBuf>, out_dir: PathBuf, dng: bool) {
-    let Some((path, profile)) = &app.profile else {
+    let Some((path, profile)) = app.profile() else {
         app.error("calibrate or load a profile first: the photos are deblurred with it");
         return;
     };
@@ -386,7 +386,7 @@ fn run_export_photos(app: &mut StudioApp, photos: Vec<PathBuf>, out_dir: PathBuf
         allow_extrapolation: false,
         deblur: deblur_options(app),
         kernel_model: None,
-        lateral_colour: app.deblur.lateral,
+        lateral_colour: app.views.deblur.lateral,
         memory_budget: None,
         max_parallel: None,
     };
@@ -402,7 +402,7 @@ fn run_export_photos(app: &mut StudioApp, photos: Vec<PathBuf>, out_dir: PathBuf
 
 /// Deblurs the whole open photo with one source and writes it.
 fn run_export(app: &mut StudioApp, path: PathBuf, result: DeblurResult) {
-    let Some(photo) = &app.deblur.photo else {
+    let Some(photo) = &app.views.deblur.photo else {
         app.error("open a photo first");
         return;
     };

@@ -57,8 +57,8 @@ pub(super) fn apply_dialog(app: &mut StudioApp, command: Command) {
                 Command::OpenSession,
             )
         }),
-        Command::AskConfirm(c) => app.confirm = Some(c),
-        Command::ConfirmAnswer(yes) => match app.confirm.take() {
+        Command::AskConfirm(c) => app.window.confirm = Some(c),
+        Command::ConfirmAnswer(yes) => match app.window.confirm.take() {
             Some(Confirm::RemoveShot(id)) if yes => remove_shot(app, id),
             Some(Confirm::ReplaceChart { chart, settings }) if yes => {
                 apply_settings(app, chart, settings);
@@ -72,7 +72,7 @@ pub(super) fn apply_dialog(app: &mut StudioApp, command: Command) {
 
 /// Where to write the open photo deblurred: a DNG for a RAW photo, TIFF or PNG.
 fn export_deblur_dialog(app: &mut StudioApp, result: DeblurResult) {
-    let Some(photo) = &app.deblur.photo else {
+    let Some(photo) = &app.views.deblur.photo else {
         app.error("open a photo first");
         return;
     };
@@ -161,7 +161,7 @@ fn load_profile_dialog(app: &mut StudioApp, compare: bool) {
 
 /// Where to save the profile in use.
 fn save_profile_dialog(app: &mut StudioApp) {
-    if app.profile.is_none() {
+    if app.profile().is_none() {
         app.error("no profile to save: calibrate first (Ctrl+M) or load one");
         return;
     }
@@ -181,7 +181,7 @@ fn save_profile_dialog(app: &mut StudioApp) {
 /// Where to save a plot, as a PNG of it on screen or as CSV of its data.
 fn save_plot_dialog(app: &mut StudioApp, plot: PlotId, png: bool) {
     let (what, ext) = if png { ("PNG", "png") } else { ("CSV", "csv") };
-    let name = format!("{}.{ext}", plot.file_stem(app.sweep_axis));
+    let name = format!("{}.{ext}", plot_file_stem(plot, app.views.sweeps.axis));
     spawn_dialog(app, move || async move {
         answer(
             rfd::AsyncFileDialog::new()
@@ -204,7 +204,7 @@ fn save_plot_dialog(app: &mut StudioApp, plot: PlotId, png: bool) {
 /// Where to save the sharpness map shown, as a PNG or as CSV.
 fn save_sharpness_dialog(app: &mut StudioApp, png: bool) {
     let (what, ext) = if png { ("PNG", "png") } else { ("CSV", "csv") };
-    let choice = app.sharpness;
+    let choice = app.views.sharpness;
     let name = format!(
         "sharpness-{}-{}.{ext}",
         match choice.source {
@@ -253,8 +253,8 @@ fn export_lensfun_dialog(app: &mut StudioApp) {
 
 /// Commands made by the answers of file dialogs that have closed.
 pub(in crate::app) fn drain_dialogs(app: &mut StudioApp) {
-    while let Ok(commands) = app.dialog_rx.try_recv() {
-        app.dialog_open = false;
+    while let Ok(commands) = app.dialogs.rx.try_recv() {
+        app.dialogs.open = false;
         app.commands.extend(commands);
     }
 }
@@ -266,11 +266,11 @@ fn spawn_dialog<F>(app: &mut StudioApp, dialog: impl FnOnce() -> F + Send + 'sta
 where
     F: std::future::Future<Output = Vec<Command>>,
 {
-    if app.dialog_open {
+    if app.dialogs.open {
         app.info("a file dialog is already open: answer it first");
         return;
     }
-    let tx = app.dialog_tx.clone();
+    let tx = app.dialogs.tx.clone();
     let ctx = app.ctx.clone();
     let started = std::thread::Builder::new()
         .name("file dialog".into())
@@ -281,7 +281,7 @@ where
             ctx.request_repaint();
         });
     match started {
-        Ok(_) => app.dialog_open = true,
+        Ok(_) => app.dialogs.open = true,
         Err(e) => app.error(format!("cannot open the file dialog: {e}")),
     }
 }
@@ -295,4 +295,41 @@ fn answer(
         .map(|h| command(h.path().to_path_buf()))
         .into_iter()
         .collect()
+}
+
+/// A file name stem the save dialog proposes for a plot.
+fn plot_file_stem(plot: PlotId, axis: crate::app::SweepAxis) -> String {
+    match plot {
+        PlotId::Sweep { vs_aperture, param } => {
+            let name = crate::app::view_data::sweep_params(axis)
+                .get(param)
+                .map_or("sweep", |p| p.name)
+                .replace(' ', "-");
+            let against = if vs_aperture { "aperture" } else { "focal" };
+            format!("sweep-{name}-vs-{against}")
+        }
+        PlotId::CvAlpha => "cv-alpha".into(),
+        PlotId::CvBeta => "cv-beta".into(),
+        PlotId::CvCdf => "cv-error-cdf".into(),
+    }
+}
+
+/// File dialogs run on their own threads (a portal dialog's future, blocked on there)
+/// and send back the commands their answer makes; the window never waits.
+pub(in crate::app) struct Dialogs {
+    pub(in crate::app) tx: std::sync::mpsc::Sender<Vec<Command>>,
+    pub(in crate::app) rx: std::sync::mpsc::Receiver<Vec<Command>>,
+    /// One file dialog at a time: a second would stack on the first.
+    pub(in crate::app) open: bool,
+}
+
+impl Dialogs {
+    pub(in crate::app) fn new() -> Self {
+        let (tx, rx) = std::sync::mpsc::channel();
+        Self {
+            tx,
+            rx,
+            open: false,
+        }
+    }
 }

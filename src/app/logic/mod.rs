@@ -27,7 +27,7 @@ use stages::spawn_dataset;
 
 pub(super) use autorun::autorun_step;
 pub(crate) use deblur::deblur_method;
-pub(super) use dialogs::drain_dialogs;
+pub(super) use dialogs::{Dialogs, drain_dialogs};
 pub(super) use plots::finish_plot_png;
 pub(super) use shots::ensure_preview;
 pub(super) use stages::shot_event;
@@ -183,7 +183,7 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                     session::calibrate_demo(app);
                 }
                 if name == "deblur preview"
-                    && let Some(centre) = app.deblur.pending.take()
+                    && let Some(centre) = app.views.deblur.pending.take()
                 {
                     run_deblur_preview(app, centre);
                 }

@@ -20,9 +20,9 @@ pub(super) fn apply_plot(app: &mut StudioApp, command: Command) {
         }
         Command::SavePlotPng { plot, path } => request_plot_png(app, plot, path),
         Command::SaveSharpness { path, png } => {
-            let written = match app.views.sharpness.as_ref().map(|d| &d.map) {
+            let written = match app.data.sharpness.as_ref().map(|d| &d.map) {
                 Some(Ok(map)) if png => {
-                    map.write_png(&path, app.sharpness.unit, SHARPNESS_PNG_WIDTH)
+                    map.write_png(&path, app.views.sharpness.unit, SHARPNESS_PNG_WIDTH)
                 }
                 Some(Ok(map)) => {
                     crate::io::write_atomic(&path, map.csv().as_bytes()).map_err(|e| e.to_string())
@@ -48,17 +48,16 @@ fn plot_table(app: &StudioApp, plot: PlotId) -> Result<PlotTable, String> {
     match plot {
         PlotId::Sweep { vs_aperture, param } => {
             let data = app
-                .views
+                .data
                 .sweeps
                 .as_ref()
                 .ok_or("the sweeps are not prepared yet: open the Sweeps view")?;
-            view_data::sweep_table(data, app.sweep_axis, vs_aperture, param)
+            view_data::sweep_table(data, app.views.sweeps.axis, vs_aperture, param)
                 .ok_or_else(|| format!("the sweeps have no plot {param}"))
         }
         PlotId::CvAlpha | PlotId::CvBeta | PlotId::CvCdf => {
             let cv = app
-                .cv
-                .as_ref()
+                .cv()
                 .ok_or("no cross-validation yet: calibrate first (Ctrl+M)")?;
             let families = [("global", cv.global.as_ref()), ("local", cv.local.as_ref())]
                 .into_iter()
@@ -112,7 +111,7 @@ fn request_plot_png(app: &mut StudioApp, plot: PlotId, path: PathBuf) {
         app.error("cannot save the plot: it is not on screen; open its view first");
         return;
     };
-    if app.plot_png.is_some() {
+    if app.window.plot_png.is_some() {
         app.error("cannot save the plot: another plot is being saved");
         return;
     }
@@ -123,7 +122,7 @@ fn request_plot_png(app: &mut StudioApp, plot: PlotId, path: PathBuf) {
         let _ = tx.send(image);
         wake.request_repaint();
     });
-    app.plot_png = Some(PendingPlotPng {
+    app.window.plot_png = Some(PendingPlotPng {
         path,
         rect,
         image: rx,
@@ -132,7 +131,7 @@ fn request_plot_png(app: &mut StudioApp, plot: PlotId, path: PathBuf) {
 
 /// Writes the pending plot PNG once its screenshot has arrived.
 pub(in crate::app) fn finish_plot_png(app: &mut StudioApp) {
-    let Some(pending) = &app.plot_png else {
+    let Some(pending) = &app.window.plot_png else {
         return;
     };
     let image = match pending.image.try_recv() {
@@ -142,7 +141,7 @@ pub(in crate::app) fn finish_plot_png(app: &mut StudioApp) {
             Err("the window gave no screenshot".to_owned())
         }
     };
-    let Some(pending) = app.plot_png.take() else {
+    let Some(pending) = app.window.plot_png.take() else {
         return;
     };
     let ppp = app.ctx.pixels_per_point();

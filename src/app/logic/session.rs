@@ -35,7 +35,7 @@ pub(super) fn apply_session(app: &mut StudioApp, command: Command) {
             let has_results = app.detections().next().is_some() || app.measured().next().is_some();
             let chart_changed = app.session().is_some_and(|s| s.chart != chart);
             if chart_changed && has_results {
-                app.confirm = Some(Confirm::ReplaceChart { chart, settings });
+                app.window.confirm = Some(Confirm::ReplaceChart { chart, settings });
             } else {
                 apply_settings(app, chart, settings);
             }
@@ -43,12 +43,14 @@ pub(super) fn apply_session(app: &mut StudioApp, command: Command) {
         Command::LoadChart(path) => match crate::chart::ChartSpec::load(&path) {
             Ok(spec) => {
                 let settings = app
+                    .views
+                    .session
                     .settings_edit
                     .as_ref()
                     .map(|e| e.1.clone())
                     .or_else(|| app.session().map(|s| s.settings.clone()))
                     .unwrap_or_default();
-                app.settings_edit = Some((spec, settings));
+                app.views.session.settings_edit = Some((spec, settings));
                 app.info(format!(
                     "chart spec {} read: press Apply to use it",
                     app.shown_path(&path)
@@ -56,7 +58,7 @@ pub(super) fn apply_session(app: &mut StudioApp, command: Command) {
             }
             Err(e) => app.error(e.to_string()),
         },
-        Command::EditSettings(edit) => app.settings_edit = edit,
+        Command::EditSettings(edit) => app.views.session.settings_edit = edit,
         Command::OpenSession(path) => match crate::session::Session::open(&path) {
             Ok(s) => {
                 if app.set_session(s) {
@@ -111,8 +113,8 @@ pub(super) fn session_output(app: &mut StudioApp, output: JobOutput) {
             for line in dropped {
                 app.info(line);
             }
-            if app.cv.is_none() {
-                app.cv = cv;
+            if let Some(p) = app.project.as_mut() {
+                p.read_cv(cv);
             }
             spawn_dataset(app);
             calibrate_demo(app);
@@ -166,8 +168,8 @@ fn add_shots(app: &mut StudioApp, files: &[PathBuf]) {
         app.error(e);
     }
     if let Some(id) = added {
-        app.selected_shot = Some(id);
-        app.viewer.sensor_px_per_point = None;
+        app.views.shot.selected = Some(id);
+        app.views.shot.viewer.sensor_px_per_point = None;
         save(app);
     }
 }
@@ -186,9 +188,9 @@ pub(super) fn remove_shot(app: &mut StudioApp, id: ShotId) {
     let shots = &p.session().shots;
     let next = shots.get(i).or_else(|| shots.last()).map(|shot| shot.id);
     app.shots.remove(&id);
-    if app.selected_shot == Some(id) {
-        app.selected_shot = next;
-        app.selected_square = None;
+    if app.views.shot.selected == Some(id) {
+        app.views.shot.selected = next;
+        app.views.shot.square = None;
     }
     save(app);
     spawn_dataset(app);
@@ -218,12 +220,9 @@ pub(super) fn apply_settings(
     s.settings = settings;
     p.forget_results(chart_changed, kernels_changed);
     if chart_changed {
-        app.selected_square = None;
+        app.views.shot.square = None;
     }
-    if kernels_changed {
-        app.dataset = None;
-    }
-    app.settings_edit = None;
+    app.views.session.settings_edit = None;
     app.info(match (chart_changed, kernels_changed) {
         (true, _) => "settings applied: detection and kernels run again with the new chart",
         (false, true) => "settings applied: kernels run again with the new settings",
@@ -328,6 +327,9 @@ impl StudioApp {
         // Reopening the folder open now keeps its lock: a lock is per open file, so
         // taking it again would refuse itself. Another folder is locked before the old
         // one is let go, so a refusal keeps the session that was open.
+        // The profile compared with stays: it is another unit of the lens, not a
+        // result of the session.
+        let compare = self.compare_profile().cloned();
         let same_folder = self
             .project
             .as_ref()
@@ -337,7 +339,7 @@ impl StudioApp {
         } else {
             None
         };
-        let project = match Project::with_session(s, lock, "the lensblur studio") {
+        let mut project = match Project::with_session(s, lock, "the lensblur studio") {
             Ok((project, opened)) => {
                 if opened.swept > 0 {
                     self.info(format!(
@@ -357,17 +359,17 @@ impl StudioApp {
                 return false;
             }
         };
+        if let Some((path, profile)) = compare {
+            project.use_profile(path, profile, true);
+        }
         let s = project.session().clone();
         // Work on the session being closed stops, and what it still sends is dropped.
         self.jobs.cancel_session_jobs();
         self.session_generation += 1;
         self.shots.clear();
-        self.views = view_data::ViewData::default();
-        self.dataset = None;
-        self.cv = None;
-        self.profile = None;
-        self.settings_edit = None;
-        self.deblur.comparison = None;
+        self.data = view_data::ViewData::default();
+        self.views.session.settings_edit = None;
+        self.views.deblur.comparison = None;
         if let Some(p) = &s.profile {
             let path = if p.is_absolute() {
                 p.clone()
@@ -381,12 +383,12 @@ impl StudioApp {
                 });
             }
         }
-        self.selected_square = None;
-        self.selected_shot = s.shots.first().map(|shot| shot.id);
-        self.viewer.sensor_px_per_point = None;
+        self.views.shot.square = None;
+        self.views.shot.selected = s.shots.first().map(|shot| shot.id);
+        self.views.shot.viewer.sensor_px_per_point = None;
         if let Some((f, a)) = middle_setting(&s) {
-            self.field_focal_mm = f;
-            self.field_f_number = a;
+            self.views.field.focal_mm = f;
+            self.views.field.f_number = a;
         }
         self.project = Some(project);
         read_results(self);
@@ -399,7 +401,7 @@ impl StudioApp {
             && let Some(file) = self.options.recent_file.clone()
         {
             match crate::recent::remember_recent(&file, s.folder()) {
-                Ok(list) => self.recent = list,
+                Ok(list) => self.window.recent = list,
                 Err(e) => self.error(format!("cannot remember the session as recent: {e}")),
             }
         }
@@ -409,7 +411,7 @@ impl StudioApp {
     /// Opens the demo's photo in the Deblur view, unless a photo is open already.
     pub(in crate::app) fn open_demo_photo(&mut self, s: &Session) {
         if let Some(p) = &s.demo_photo
-            && self.deblur.photo.is_none()
+            && self.views.deblur.photo.is_none()
         {
             let path = s.folder().join(&p.path);
             if path.is_file() {

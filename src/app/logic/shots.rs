@@ -58,7 +58,9 @@ pub(in crate::app) fn ensure_preview(app: &mut StudioApp) {
         return;
     }
     let order = app
-        .selected_shot
+        .views
+        .shot
+        .selected
         .into_iter()
         .chain(s.shots.iter().map(|shot| shot.id));
     let Some(id) = order

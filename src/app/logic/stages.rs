@@ -4,8 +4,7 @@
 use super::save;
 use crate::app::jobs::JobScope;
 use crate::app::{Command, JobOutput, StudioApp};
-use crate::pipeline::{self, MeasuredShot};
-use crate::project::{CV_FILE, MeasurePlan, PROFILE_FILE, ShotEvent, Stages};
+use crate::project::{CV_FILE, MeasurePlan, PROFILE_FILE, Project, ShotEvent, Stages};
 use crate::session::ShotId;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -32,7 +31,7 @@ pub(super) fn apply_stage(app: &mut StudioApp, command: Command) {
             }
         }
         Command::SaveProfile(path) => {
-            let Some((_, profile)) = app.profile.clone() else {
+            let Some((_, profile)) = app.profile().cloned() else {
                 app.error("no profile to save: calibrate first (Ctrl+M) or load one");
                 return;
             };
@@ -50,7 +49,11 @@ pub(super) fn apply_stage(app: &mut StudioApp, command: Command) {
 pub(super) fn stage_output(app: &mut StudioApp, output: JobOutput) {
     match output {
         JobOutput::Shot(event) => shot_event(app, &event),
-        JobOutput::DatasetReady(ds) => app.dataset = ds,
+        JobOutput::DatasetReady(ds) => {
+            if let Some(p) = app.project.as_mut() {
+                p.set_dataset(ds);
+            }
+        }
         JobOutput::Calibrated {
             dataset,
             profile,
@@ -62,11 +65,13 @@ pub(super) fn stage_output(app: &mut StudioApp, output: JobOutput) {
             path,
             compare,
         } => {
-            app.info(format!("profile {} loaded", app.shown_path(&path)));
-            if compare {
-                app.compare_profile = Some((path, profile));
-            } else {
-                app.profile = Some((path, profile));
+            let shown = app.shown_path(&path);
+            let Some(p) = app.project.as_mut() else {
+                return;
+            };
+            p.use_profile(path, profile, compare);
+            app.info(format!("profile {shown} loaded"));
+            if !compare {
                 super::deblur::redeblur(app);
             }
         }
@@ -94,14 +99,11 @@ fn calibrated(
         app.shown_path(&path)
     ));
     if let Some(p) = app.project.as_mut() {
-        p.set_profile(&path);
+        p.use_calibration(path, dataset, profile, cv);
     }
-    app.dataset = Some(dataset);
-    app.profile = Some((path, profile));
-    app.cv = cv;
     // The open photo's region, deblurred with the new profile.
     super::deblur::redeblur(app);
-    if std::mem::take(&mut app.deblur_when_calibrated) {
+    if std::mem::take(&mut app.autorun.deblur_when_calibrated) {
         // The photo before and after at 100 %, one pane as large as the window allows.
         app.commands.extend([
             Command::SelectView(crate::app::View::Deblur),
@@ -181,19 +183,14 @@ fn run_detect(app: &mut StudioApp, which: Option<ShotId>) {
 /// The session's measured Gaussians over every shot with kernels and known settings,
 /// for the sweeps (rebuilt when kernels or settings change).
 pub(super) fn spawn_dataset(app: &mut StudioApp) {
-    let Some(p) = app.project.as_ref() else {
+    let Some(job) = app.project.as_mut().and_then(Project::dataset_job) else {
         return;
     };
-    let shots: Vec<MeasuredShot> = p.shots_with_settings();
-    if shots.is_empty() {
-        app.dataset = None;
-        return;
-    }
     let scope = JobScope::session(app.session_generation);
     let r = app
         .jobs
         .spawn_scoped("gather measurements", scope, move |_ctx, out| {
-            match pipeline::dataset(&shots) {
+            match job.run() {
                 Ok(ds) => out.emit(JobOutput::DatasetReady(Some(Arc::new(ds)))),
                 Err(e) => {
                     out.emit(JobOutput::DatasetReady(None));
@@ -299,7 +296,7 @@ fn calibrate_all(app: &mut StudioApp, then_deblur: bool) {
             hand_over(cal, &folder, out)
         });
     match r {
-        Ok(_) => app.deblur_when_calibrated = then_deblur,
+        Ok(_) => app.autorun.deblur_when_calibrated = then_deblur,
         Err(e) => app.error(e),
     }
 }

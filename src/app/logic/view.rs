@@ -7,30 +7,30 @@ pub(super) fn apply_view(app: &mut StudioApp, command: Command) {
     match command {
         Command::SelectView(v) => app.view = v,
         Command::SelectShot(i) => {
-            app.selected_shot = Some(i);
-            app.selected_square = None;
-            app.viewer.sensor_px_per_point = None;
+            app.views.shot.selected = Some(i);
+            app.views.shot.square = None;
+            app.views.shot.viewer.sensor_px_per_point = None;
         }
-        Command::SelectChannel(c) => app.channel = c,
-        Command::ClearSquare => app.selected_square = None,
-        Command::SelectSquare(sq) => app.selected_square = Some(sq),
-        Command::SetFieldSource(f) => app.field_source = f,
-        Command::SetFieldShow(f) => app.field_show = f,
-        Command::SetSweepAxis(a) => app.sweep_axis = a,
-        Command::SetSharpness(s) => app.sharpness = s,
-        Command::SetPlanRange(r) => app.plan_range = Some(r),
+        Command::SelectChannel(c) => app.views.shot.channel = c,
+        Command::ClearSquare => app.views.shot.square = None,
+        Command::SelectSquare(sq) => app.views.shot.square = Some(sq),
+        Command::SetFieldSource(f) => app.views.field.source = f,
+        Command::SetFieldShow(f) => app.views.field.show = f,
+        Command::SetSweepAxis(a) => app.views.sweeps.axis = a,
+        Command::SetSharpness(s) => app.views.sharpness = s,
+        Command::SetPlanRange(r) => app.views.session.plan_range = Some(r),
         Command::SetFieldSetting { focal_mm, f_number } => {
-            app.field_focal_mm = focal_mm;
-            app.field_f_number = f_number;
+            app.views.field.focal_mm = focal_mm;
+            app.views.field.f_number = f_number;
         }
-        Command::SetCompareUnits(on) => app.compare_units = on,
-        Command::SetFieldOptions(o) => app.field_options = o,
-        Command::SetViewer(v) => app.viewer = v,
+        Command::SetCompareUnits(on) => app.views.field.compare_units = on,
+        Command::SetFieldOptions(o) => app.views.field.options = o,
+        Command::SetViewer(v) => app.views.shot.viewer = v,
         Command::SetGeometryFocal(f) => {
-            app.geometry_focal_mm = Some(f);
-            app.geometry_f_number = None;
+            app.views.geometry.focal_mm = Some(f);
+            app.views.geometry.f_number = None;
         }
-        Command::SetGeometryAperture(a) => app.geometry_f_number = Some(a),
+        Command::SetGeometryAperture(a) => app.views.geometry.f_number = Some(a),
         // `apply` routes only this group's commands here.
         other => unreachable!("not routed to apply_view: {other:?}"),
     }
@@ -46,7 +46,7 @@ pub(super) fn apply_window(app: &mut StudioApp, command: Command) {
             }
         }
         Command::SetDark(dark) => {
-            app.dark = dark;
+            app.window.dark = dark;
             app.ctx.set_theme(if dark {
                 egui::Theme::Dark
             } else {
@@ -54,15 +54,15 @@ pub(super) fn apply_window(app: &mut StudioApp, command: Command) {
             });
         }
         Command::DismissMessage(i) => {
-            if i < app.messages.len() {
-                app.messages.remove(i);
+            if i < app.window.messages.len() {
+                app.window.messages.remove(i);
             }
         }
-        Command::SetLogOpen(open) => app.log_open = open,
-        Command::SetSessionPanel(open) => app.session_panel_open = open,
-        Command::ShowHelp(open) => app.show_help = open,
-        Command::ShowGuide(open) => app.show_guide = open,
-        Command::ShowAbout(open) => app.show_about = open,
+        Command::SetLogOpen(open) => app.window.log_open = open,
+        Command::SetSessionPanel(open) => app.views.session.open = open,
+        Command::ShowHelp(open) => app.window.show_help = open,
+        Command::ShowGuide(open) => app.window.show_guide = open,
+        Command::ShowAbout(open) => app.window.show_about = open,
         Command::Quit => app.ctx.send_viewport_cmd(egui::ViewportCommand::Close),
         // `apply` routes only this group's commands here.
         other => unreachable!("not routed to apply_window: {other:?}"),
@@ -73,7 +73,8 @@ pub(super) fn apply_window(app: &mut StudioApp, command: Command) {
 /// dismissed, and the log keeps both.
 pub(in crate::app) fn expire_notices(app: &mut StudioApp) {
     if let Some(life) = app.options.notice_lifetime {
-        app.messages
+        app.window
+            .messages
             .retain(|m| m.is_error || m.said.elapsed() < life);
     }
 }

@@ -5,7 +5,6 @@
 //! values in both.
 
 use super::super::{Command, DeblurLayout, DeblurResult, DeblurZoom, StudioApp, ViewerState};
-use crate::deblur::{Device, HqsParams, IrlsParams, Method, WienerParams};
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
 
 pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
@@ -19,7 +18,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             app.commands.push(Command::OpenPhotoDialog);
         }
         let shot = app
-            .selected_shot
+            .views.shot.selected
             .and_then(|id| {
                 let s = app.session()?;
                 Some((id, s.path_of(s.shot(id)?)))
@@ -38,20 +37,20 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             (DeblurLayout::Slider, "Slider"),
         ] {
             if ui
-                .selectable_label(app.deblur.layout == layout, label)
+                .selectable_label(app.views.deblur.layout == layout, label)
                 .clicked()
             {
                 app.commands.push(Command::SetDeblurLayout(layout));
             }
         }
         if app
-            .deblur
+            .views.deblur
             .photo
             .as_ref()
             .is_some_and(|p| p.developed.is_some())
         {
             ui.separator();
-            let mut developed = app.viewer.developed;
+            let mut developed = app.views.shot.viewer.developed;
             if ui
                 .checkbox(&mut developed, "developed")
                 .on_hover_text("The RAW photo and its crops as a RAW editor shows them (imagepipe); off: linear camera RGB, as deblurred")
@@ -59,7 +58,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             {
                 app.commands.push(Command::SetViewer(ViewerState {
                     developed,
-                    ..app.viewer
+                    ..app.views.shot.viewer
                 }));
             }
         }
@@ -68,7 +67,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             for r in [DeblurResult::Predicted, DeblurResult::Measured] {
                 if ui
                     .add_enabled(
-                        app.deblur.photo.is_some(),
+                        app.views.deblur.photo.is_some(),
                         egui::Button::new(format!("whole photo deblurred with {}", r.label())),
                     )
                     .on_hover_text("Deblur the open photo and write it: a RAW photo as a DNG with its metadata (or TIFF/PNG), others as 16-bit linear TIFF or PNG (Ctrl+E: predicted)")
@@ -84,7 +83,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 (true, "a set of RAW photos (DNG)…"),
             ] {
                 if ui
-                    .add_enabled(app.profile.is_some(), egui::Button::new(label))
+                    .add_enabled(app.profile().is_some(), egui::Button::new(label))
                     .on_hover_text("Each photo deblurred with the profile at its own focal length and aperture (from EXIF); photos of another camera or lens, or outside the calibrated range, are skipped with the reason")
                     .clicked()
                 {
@@ -96,8 +95,8 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         .response
         .on_hover_text("Write the open photo deblurred, or a set of photos");
     });
-    controls_ui(app, ui);
-    let Some(photo) = &app.deblur.photo else {
+    super::deblur_controls::controls_ui(app, ui);
+    let Some(photo) = &app.views.deblur.photo else {
         ui.label("No photo open. Open one, drop one on this view, or deblur the selected shot of the session.");
         return;
     };
@@ -142,6 +141,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             .labelled_by(la.id);
         if rf.drag_stopped() || ra.drag_stopped() || rf.lost_focus() || ra.lost_focus() {
             let centre = app
+                .views
                 .deblur
                 .comparison
                 .as_ref()
@@ -162,7 +162,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     });
     // Where the profile is less well trusted at this setting: the core's own words,
     // as `lensblur deblur` prints them.
-    if let Some((_, profile)) = &app.profile
+    if let Some((_, profile)) = app.profile()
         && f > 0.0
         && a > 0.0
         && let Some(line) = profile.trust_line(
@@ -175,7 +175,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     {
         ui.colored_label(ui.visuals().warn_fg_color, line);
     }
-    let overview_open = app.deblur.overview_open;
+    let overview_open = app.views.deblur.overview_open;
     let header = egui::CollapsingHeader::new("The whole photo (click it to choose the region)")
         .id_salt("deblur overview")
         .open(Some(overview_open))
@@ -185,7 +185,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             .push(Command::SetDeblurOverview(!overview_open));
     }
     ui.separator();
-    match (&app.deblur.comparison, app.deblur.layout) {
+    match (&app.views.deblur.comparison, app.views.deblur.layout) {
         (None, _) => {
             ui.label("Click the photo to deblur a region.");
         }
@@ -204,7 +204,7 @@ fn overview_and_notes_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         });
         ui.vertical(|ui| {
             ui.label("Click the photo to choose the region compared below (outlined).");
-            if let Some(c) = &app.deblur.comparison {
+            if let Some(c) = &app.views.deblur.comparison {
                 let r = c.comparison.region;
                 ui.label(format!(
                     "Region x {}–{}, y {}–{} px.",
@@ -223,168 +223,10 @@ fn overview_and_notes_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     });
 }
 
-/// Zoom, region size and the amount, with the method, its strength and the device
-/// under *Advanced*: each change deblurs the region again (a newer preview replaces one
-/// still running), so dragging a control updates the region live.
-fn controls_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
-    let method = super::super::logic::deblur_method(app);
-    ui.horizontal_wrapped(|ui| {
-        ui.label("zoom");
-        for z in DeblurZoom::ALL {
-            if ui
-                .selectable_label(app.deblur.zoom == z, z.label())
-                .on_hover_text("Fit: the region scaled into the panes; 100–400 %: one photo pixel on 1, 2 or 4 screen pixels, the region as large as the panes (drag a pane to pan; all panes move together)")
-                .clicked()
-            {
-                app.commands.push(Command::SetDeblurZoom(z));
-            }
-        }
-        if app.deblur.zoom == DeblurZoom::Fit {
-            let mut side = app.deblur.crop_px as f64;
-            let r = ui
-                .add(
-                    egui::Slider::new(&mut side, 64.0..=1024.0)
-                        .logarithmic(true)
-                        .suffix(" px")
-                        .text("region"),
-                )
-                .on_hover_text("Side of the compared region, photo pixels");
-            if r.drag_stopped() || (r.changed() && !r.dragged()) {
-                app.commands.push(Command::SetDeblurCrop(side.round() as usize));
-            }
-        }
-        ui.separator();
-        let mut amount = app.deblur.amount.as_percent();
-        let r = ui
-            .add(
-                egui::Slider::new(&mut amount, 0.0..=crate::deblur::Amount::MAX_PERCENT)
-                    .step_by(5.0)
-                    .suffix(" %")
-                    .text("amount"),
-            )
-            .on_hover_text("How strongly to deblur: 0 % is the photo as it is, 100 % the method at its tuned strength, more carries it further (and sharpens noise)");
-        if r.changed() {
-            app.commands.push(Command::SetDeblurAmount(amount));
-        }
-    });
-    egui::CollapsingHeader::new("Advanced: method and device")
-        .id_salt("deblur advanced")
-        .show(ui, |ui| advanced_ui(app, ui, method));
-    // Always one line, so the panes below keep their size when the note arrives.
-    let note = app.deblur.device_note.as_ref().map_or_else(
-        || " ".to_owned(),
-        |n| format!("The preview runs on the {n}."),
-    );
-    ui.label(egui::RichText::new(note).weak());
-}
-
-/// The method, its regularisation and where it runs: for those who know them.
-fn advanced_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
-    ui.horizontal_wrapped(|ui| {
-        ui.label("method");
-        let choices = [
-            ("HQS", matches!(method, Method::Hqs(_)), Method::Hqs(HqsParams::default())),
-            ("Wiener", matches!(method, Method::Wiener(_)), Method::Wiener(WienerParams::default())),
-            ("IRLS", matches!(method, Method::Irls(_)), Method::Irls(IrlsParams::default())),
-        ];
-        for (label, on, m) in choices {
-            if ui
-                .selectable_label(on, label)
-                .on_hover_text("HQS: hyper-Laplacian prior, fast (the default); Wiener: quadratic prior, fastest, rings more; IRLS: the paper's solver, slow, CPU only")
-                .clicked()
-                && !on
-            {
-                app.commands.push(Command::SetDeblurMethod(m));
-            }
-        }
-        strength_ui(app, ui, method);
-        ui.separator();
-        let mut suppress = app.deblur.fringes == crate::deblur::Fringes::Suppress;
-        if ui
-            .checkbox(&mut suppress, "no colour fringes")
-            .on_hover_text("Hold each deblurred pixel's colour inside the colours the photo has around it: the channels' deconvolutions ring a little differently, and at strong neutral edges that shows as fringes the scene never had (RGB photos; a RAW photo's Bayer planes are left as they are)")
-            .changed()
-        {
-            app.commands.push(Command::SetDeblurFringes(if suppress {
-                crate::deblur::Fringes::Suppress
-            } else {
-                crate::deblur::Fringes::Keep
-            }));
-        }
-        let mut correct = app.deblur.lateral == crate::model::LateralColour::Correct;
-        let has_place = app
-            .profile
-            .as_ref()
-            .is_some_and(|(_, p)| p.place.is_some());
-        if ui
-            .add_enabled(has_place, egui::Checkbox::new(&mut correct, "correct lateral colour"))
-            .on_hover_text("Move red and blue back onto green as the blur is removed, where the profile measured how far the lens moves them. Leave it off when darktable or RawTherapee corrects lateral colour with the lens's lensfun entry, or the channels move twice")
-            .on_disabled_hover_text("This profile does not record where each channel's kernels sit (it was calibrated before profile version 4, or from shots whose kernels were not kept): calibrate again to correct lateral colour")
-            .changed()
-        {
-            app.commands.push(Command::SetDeblurLateral(if correct {
-                crate::model::LateralColour::Correct
-            } else {
-                crate::model::LateralColour::Keep
-            }));
-        }
-        ui.separator();
-        ui.label("device");
-        for (d, label, tip) in [
-            (Device::Auto, "Auto", "The GPU the window draws with when it is a hardware one, else the CPU"),
-            (Device::Gpu, "GPU", "The window's GPU whatever it is (a software rasteriser is slow)"),
-            (Device::Cpu, "CPU", "The reference path"),
-        ] {
-            if ui
-                .selectable_label(app.deblur.device == d, label)
-                .on_hover_text(tip)
-                .clicked()
-            {
-                app.commands.push(Command::SetDeblurDevice(d));
-            }
-        }
-    });
-}
-
-/// The regularisation strength of the method: the data weight λ of HQS and IRLS (more:
-/// sharper and noisier), the noise-to-signal ratio of Wiener (more: smoother).
-fn strength_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
-    let (mut v, range, text, tip) = match method {
-        Method::Hqs(p) => (
-            p.lambda,
-            100.0..=100_000.0,
-            "λ",
-            "Data weight: higher sharpens more and keeps more noise",
-        ),
-        Method::Irls(p) => (
-            p.lambda,
-            100.0..=100_000.0,
-            "λ",
-            "Data weight: higher sharpens more and keeps more noise",
-        ),
-        Method::Wiener(p) => (p.nsr, 1e-5..=0.1, "noise/signal", "Higher smooths more"),
-    };
-    let r = ui
-        .add(
-            egui::Slider::new(&mut v, range)
-                .logarithmic(true)
-                .text(text),
-        )
-        .on_hover_text(tip);
-    if r.changed() {
-        let m = match method {
-            Method::Hqs(p) => Method::Hqs(HqsParams { lambda: v, ..p }),
-            Method::Irls(p) => Method::Irls(IrlsParams { lambda: v, ..p }),
-            Method::Wiener(_) => Method::Wiener(WienerParams { nsr: v }),
-        };
-        app.commands.push(Command::SetDeblurMethod(m));
-    }
-}
-
 /// The whole photo at a small scale with the compared region outlined: the navigator;
 /// a click moves the region there.
 fn overview_ui(app: &mut StudioApp, ui: &mut egui::Ui, width: f32) {
-    let Some(photo) = &app.deblur.photo else {
+    let Some(photo) = &app.views.deblur.photo else {
         return;
     };
     let cap = &photo.capture;
@@ -393,7 +235,7 @@ fn overview_ui(app: &mut StudioApp, ui: &mut egui::Ui, width: f32) {
     let (rect, response) = ui.allocate_exact_size(size, Sense::click());
     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, "photo overview"));
     let painter = ui.painter_at(rect);
-    match photo.shown(app.viewer.developed) {
+    match photo.shown(app.views.shot.viewer.developed) {
         Some(t) => {
             painter.image(
                 t.id(),
@@ -406,7 +248,7 @@ fn overview_ui(app: &mut StudioApp, ui: &mut egui::Ui, width: f32) {
             painter.rect_filled(rect, 0.0, super::image_backdrop(ui));
         }
     }
-    if let Some(c) = &app.deblur.comparison {
+    if let Some(c) = &app.views.deblur.comparison {
         let r = c.comparison.region;
         let min = rect.min + Vec2::new(r.x0 as f32, r.y0 as f32) * scale;
         let region = Rect::from_min_size(min, Vec2::new(r.width as f32, r.height as f32) * scale);
@@ -428,6 +270,7 @@ fn overview_ui(app: &mut StudioApp, ui: &mut egui::Ui, width: f32) {
 
 fn titles(app: &StudioApp) -> [String; 3] {
     let setting = app
+        .views
         .deblur
         .photo
         .as_ref()
@@ -436,6 +279,7 @@ fn titles(app: &StudioApp) -> [String; 3] {
             format!(" at {:.0} mm f/{:.1}", s.focal_mm, s.f_number)
         });
     let from = app
+        .views
         .deblur
         .comparison
         .as_ref()
@@ -458,7 +302,7 @@ fn visible_size(ui: &egui::Ui) -> Vec2 {
 
 /// How many screen points one region pixel takes in the panes: `None` at Fit.
 fn points_per_pixel(app: &StudioApp, ui: &egui::Ui) -> Option<f32> {
-    match app.deblur.zoom {
+    match app.views.deblur.zoom {
         DeblurZoom::Fit => None,
         DeblurZoom::Times(z) => Some(f32::from(z) / ui.ctx().pixels_per_point()),
     }
@@ -475,7 +319,7 @@ fn request_viewport(app: &mut StudioApp, ui: &egui::Ui, pane: Vec2, per_px: Opti
             ((pane.x / pp) as usize).max(16),
             ((tall / pp) as usize).max(16),
         ];
-        if app.deblur.viewport != Some(v) {
+        if app.views.deblur.viewport != Some(v) {
             app.commands.push(Command::SetDeblurViewport(v));
         }
     }
@@ -497,7 +341,7 @@ fn pane_ui(
     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, label));
     let tex = texture.size_vec2();
     let scale = per_px.unwrap_or_else(|| (size.x / tex.x).min(size.y / tex.y));
-    let shift = Vec2::new(app.deblur.drag[0], app.deblur.drag[1]) * scale;
+    let shift = Vec2::new(app.views.deblur.drag[0], app.views.deblur.drag[1]) * scale;
     let shown = Rect::from_center_size(rect.center() + shift, tex * scale);
     let painter = ui.painter_at(rect);
     painter.image(
@@ -645,7 +489,7 @@ fn loupe_ui(
 }
 
 fn side_by_side_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
-    let Some(view) = &app.deblur.comparison else {
+    let Some(view) = &app.views.deblur.comparison else {
         return;
     };
     let c = view.comparison.clone();
@@ -654,7 +498,7 @@ fn side_by_side_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         c.predicted.as_ref().err().cloned(),
         c.measured.as_ref().err().cloned(),
     ];
-    let shown = view.shown(app.viewer.developed).clone();
+    let shown = view.shown(app.views.shot.viewer.developed).clone();
     let titles = titles(app);
     let avail = visible_size(ui);
     let per_px = points_per_pixel(app, ui);
@@ -670,7 +514,9 @@ fn side_by_side_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         for k in 0..3 {
             ui.vertical(|ui| {
                 ui.set_width(pane.x);
-                ui.add(egui::Label::new(&titles[k]).truncate());
+                // Whole, on a second line where the pane is narrow: a cut title hides which
+                // result the pane shows.
+                ui.add(egui::Label::new(&titles[k]).wrap());
                 match (&shown[k], &reasons[k]) {
                     (Some(t), _) => {
                         let hover = pane_ui(app, ui, t, pane, per_px, &titles[k]);
@@ -718,30 +564,30 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     let per_px = points_per_pixel(app, ui);
     let early = (visible_size(ui) - Vec2::new(8.0, 40.0)).max(Vec2::splat(64.0));
     request_viewport(app, ui, early, per_px);
-    let Some(view) = &app.deblur.comparison else {
+    let Some(view) = &app.views.deblur.comparison else {
         return;
     };
     ui.horizontal(|ui| {
         ui.label("right of the divider (pan: click the overview):");
         for (r, k) in [(DeblurResult::Predicted, 1), (DeblurResult::Measured, 2)] {
             if ui
-                .selectable_label(app.deblur.slider_result == r, &titles[k])
+                .selectable_label(app.views.deblur.slider_result == r, &titles[k])
                 .clicked()
             {
                 app.commands.push(Command::SetSliderResult(r));
             }
         }
     });
-    let k = match app.deblur.slider_result {
+    let k = match app.views.deblur.slider_result {
         DeblurResult::Predicted => 1,
         DeblurResult::Measured => 2,
     };
-    let shown = view.shown(app.viewer.developed);
+    let shown = view.shown(app.views.shot.viewer.developed);
     let (Some(original), result) = (&shown[0], &shown[k]) else {
         return;
     };
     let Some(result) = result else {
-        let reason = match app.deblur.slider_result {
+        let reason = match app.views.deblur.slider_result {
             DeblurResult::Predicted => view.comparison.predicted.as_ref().err(),
             DeblurResult::Measured => view.comparison.measured.as_ref().err(),
         };
@@ -766,7 +612,7 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     let comparison = view.comparison.clone();
     let (rect, response) = ui.allocate_exact_size(pane, Sense::click_and_drag());
     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Slider, true, "divider"));
-    let mut t = app.deblur.slider;
+    let mut t = app.views.deblur.slider;
     if (response.dragged() || response.clicked())
         && let Some(p) = response.interact_pointer_pos()
     {
@@ -804,7 +650,7 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         &painter,
         rect.right_top() + Vec2::new(-6.0, 6.0),
         egui::Align2::RIGHT_TOP,
-        app.deblur.slider_result.label().into(),
+        app.views.deblur.slider_result.label().into(),
     );
     if let Some((pointer, uv, scale)) = hovered_texel(&response, shown, scale) {
         let c = &comparison;

@@ -10,11 +10,10 @@
 //! Draws the panels `view_data` made (the fields, the kernel atlas, the colour scale)
 //! and the controls that choose them; computes nothing.
 
-use super::super::view_data::{
-    ColourRange, ColourScale, Difference, FieldOptions, FieldPanel, FieldPoint, PanelContent,
-    PanelOf,
+use super::super::view_data::{ColourScale, FieldPanel, FieldPoint, PanelContent, PanelOf};
+use super::super::{
+    ColourRange, Command, Difference, FieldOptions, FieldShow, FieldSource, StudioApp, View,
 };
-use super::super::{Command, FieldShow, FieldSource, StudioApp, View};
 use super::{TIP_CXX, TIP_CYY, ellipse_points, setting_sliders_ui};
 use crate::model::KernelModel;
 use crate::plane::LensSetting;
@@ -44,7 +43,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             ),
         ] {
             if ui
-                .selectable_label(app.field_source == src, label)
+                .selectable_label(app.views.field.source == src, label)
                 .on_hover_text(tip)
                 .clicked()
             {
@@ -52,8 +51,8 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
         }
         ui.separator();
-        if app.field_source != FieldSource::Truth {
-            let predicted = app.field_source == FieldSource::Predicted;
+        if app.views.field.source != FieldSource::Truth {
+            let predicted = app.views.field.source == FieldSource::Predicted;
             for (show, label, tip) in [
                 (
                     FieldShow::Ellipses,
@@ -75,7 +74,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 ),
             ] {
                 if ui
-                    .selectable_label(app.field_show == show, label)
+                    .selectable_label(app.views.field.show == show, label)
                     .on_hover_text(tip)
                     .clicked()
                 {
@@ -86,12 +85,12 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     });
     options_ui(app, ui);
     let s = LensSetting {
-        focal_mm: app.field_focal_mm,
-        f_number: app.field_f_number,
+        focal_mm: app.views.field.focal_mm,
+        f_number: app.views.field.f_number,
     };
     let size = super::sensor_size(app);
-    let ch = app.channel;
-    match app.field_source {
+    let ch = app.views.shot.channel;
+    match app.views.field.source {
         FieldSource::Measured => {}
         FieldSource::Predicted => {
             setting_sliders_ui(app, ui, &lens);
@@ -111,7 +110,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 return;
             }
             setting_sliders_ui(app, ui, &lens);
-            let mut compare = app.compare_units;
+            let mut compare = app.views.field.compare_units;
             if ui
                 .checkbox(&mut compare, "Compare with a second unit")
                 .on_hover_text("Two copies of one lens model blur differently (the paper's two 17–40 mm units).")
@@ -122,7 +121,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             ui.label("Ground truth of the demo's virtual lens: pixel-level Gaussians (optical blur plus the 1-px pixel integration).");
         }
     }
-    let Some(field) = &app.views.field else {
+    let Some(field) = &app.data.field else {
         ui.horizontal(|ui| {
             ui.spinner();
             ui.label("preparing the field…");
@@ -132,7 +131,9 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     let title = |p: &FieldPanel| match &p.of {
         PanelOf::Measured => {
             let name = app
-                .selected_shot
+                .views
+                .shot
+                .selected
                 .and_then(|id| app.session()?.shot(id))
                 .map_or_else(String::new, |s| {
                     let setting = s.setting().map_or_else(String::new, |v| {
@@ -142,14 +143,14 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 });
             format!("measured on {name} — channel {ch}")
         }
-        PanelOf::Profile => match &app.profile {
+        PanelOf::Profile => match app.profile() {
             Some((path, _)) => {
-                let atlas = app.views.kernel_atlas.as_ref();
+                let atlas = app.data.kernel_atlas.as_ref();
                 let shapes = match atlas.and_then(|a| a.model) {
-                    Some(KernelModel::Shape) if app.field_show == FieldShow::Kernels => {
+                    Some(KernelModel::Shape) if app.views.field.show == FieldShow::Kernels => {
                         " — predicted kernel shapes (Gaussian + shape model)".to_owned()
                     }
-                    Some(KernelModel::Gaussian) if app.field_show == FieldShow::Kernels => {
+                    Some(KernelModel::Gaussian) if app.views.field.show == FieldShow::Kernels => {
                         format!(
                             " — predicted Gaussian kernels; no shape model: {}",
                             atlas.and_then(|a| a.no_shape.as_deref()).unwrap_or("")
@@ -167,16 +168,12 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             None => "predicted".into(),
         },
         PanelOf::NoProfile => "predicted".into(),
-        PanelOf::CompareProfile => match &app.compare_profile {
+        PanelOf::CompareProfile => match app.compare_profile() {
             Some((path, _)) => format!("{} — channel {ch}", app.shown_path(path)),
             None => String::new(),
         },
         PanelOf::Difference { of, a, b } => {
-            let what = match of {
-                Difference::MeasuredMinusPredicted => "measured − predicted",
-                Difference::UnitAMinusB => "unit A − unit B",
-                Difference::RedMinusBlue => "R − B",
-            };
+            let what = super::super::view_data::difference_words(*of);
             if a.is_empty() {
                 format!("{what}, σ")
             } else {
@@ -205,7 +202,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     // One magnification for every panel so compared fields are comparable: the largest
     // 1-σ radius fills 45 % of a twelfth of the sensor width.
     let scale = 0.45 * (panel_size.x / 12.0) / field.max_sigma as f32;
-    let atlas = app.views.kernel_atlas.as_ref().map(|a| a.texture.id());
+    let atlas = app.data.kernel_atlas.as_ref().map(|a| a.texture.id());
     let mut clicked = None;
     ui.horizontal(|ui| {
         for p in panels {
@@ -243,7 +240,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
 /// The map and colour-range choices: the fields or a difference map, the colours from
 /// the data or a range the user fixes.
 fn options_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
-    let options = app.field_options;
+    let options = app.views.field.options;
     let mut set = |o: FieldOptions| app.commands.push(Command::SetFieldOptions(o));
     ui.horizontal_wrapped(|ui| {
         ui.label("Map:");
@@ -277,8 +274,10 @@ fn options_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
         }
         ui.separator();
-        if options.difference.is_some() {
-            ui.weak("Difference maps: blue where A is sharper, red where A is blurrier, white at 0; the range is symmetric about 0 and spans the largest difference.");
+        if let Some(d) = options.difference {
+            let words = super::super::view_data::difference_words(d);
+            let first = words.split(" − ").next().unwrap_or(words);
+            ui.weak(format!("{words}: blue where the {first} blur is smaller (sharper), red where it is larger, white at 0; the range is symmetric about 0 and spans the largest difference."));
             return;
         }
         ui.label("Colours:");
@@ -505,7 +504,7 @@ fn field_panel_ui(
                 painter.rect_filled(r, 2.0, scale_color(colours, q.value));
             }
             count = diffs.len();
-            what = "squares: σ(A) − σ(B)".to_owned();
+            what = "squares: Δσ, as the colour bar says".to_owned();
         }
     }
     for q in points.iter().filter(|q| q.noisy.is_some()) {
@@ -593,8 +592,8 @@ fn point_hover(q: &FieldPoint) -> String {
                 || "\nno MTF50 (degenerate Gaussian)".to_owned(),
                 |m| {
                     format!(
-                        "\nMTF50 {:.3} cycles/px ({:.0} lp/ph) in the worst direction ({:.0}°), {:.3} in the best, {:.3} isotropic",
-                        m.worst, m.worst_lp_ph, m.worst_deg, m.best, m.isotropic
+                        "\nMTF50 {:.0} lp/ph ({:.3} cycles/px) in the worst direction ({:.0}°), {:.0} lp/ph ({:.3}) in the best, {:.0} lp/ph ({:.3}) isotropic",
+                        m.worst_lp_ph, m.worst, m.worst_deg, m.best_lp_ph, m.best, m.isotropic_lp_ph, m.isotropic
                     )
                 },
             );

@@ -19,11 +19,11 @@ const TIP_MAP: &str = "The light the lens loses toward the corners at this apert
 pub(super) fn geometry_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ui.heading("Lens geometry");
     let measuring = app
-        .views
+        .data
         .geometry_measure
         .as_ref()
         .is_some_and(|m| m.result.is_none());
-    let why = match app.views.geometry_measure.as_ref() {
+    let why = match app.data.geometry_measure.as_ref() {
         None => Some(
             "The Geometry view measures distortion, lateral colour and fall-off from the chart's corners and white squares: it needs the chart detected (Detect, Ctrl+D) in shots whose focal length and aperture are known — ideally at several focal lengths, under even light.".to_owned(),
         ),
@@ -33,7 +33,7 @@ pub(super) fn geometry_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             Some(Ok(_)) => None,
         },
     };
-    let Some(data) = app.views.geometry.as_ref().filter(|_| why.is_none()) else {
+    let Some(data) = app.data.geometry.as_ref().filter(|_| why.is_none()) else {
         ui.add_space(24.0);
         ui.vertical_centered(|ui| ui.weak(why.unwrap_or_else(|| "preparing the view…".to_owned())));
         return;

@@ -28,7 +28,7 @@ const HELP: &[(&str, &str)] = &[
 ];
 
 pub(super) fn help_ui(app: &mut StudioApp, ctx: &egui::Context) {
-    let mut open = app.show_help;
+    let mut open = app.window.show_help;
     egui::Window::new("How the studio works")
         .open(&mut open)
         .collapsible(false)
@@ -65,7 +65,7 @@ const CRATES: &[&str] = &[
 ];
 
 pub(super) fn about_ui(app: &mut StudioApp, ctx: &egui::Context) {
-    let mut open = app.show_about;
+    let mut open = app.window.show_about;
     egui::Window::new("About lensblur")
         .open(&mut open)
         .collapsible(false)
@@ -97,7 +97,7 @@ const GUIDE: &str = include_str!("../../../docs/guide.md");
 /// The guide in a window: its Markdown drawn plainly (headings, lists, code blocks and
 /// tables in monospace), so what the studio shows is the file the repository holds.
 pub(super) fn guide_ui(app: &mut StudioApp, ctx: &egui::Context) {
-    let mut open = app.show_guide;
+    let mut open = app.window.show_guide;
     egui::Window::new("Calibrate your own lens")
         .open(&mut open)
         .pivot(egui::Align2::CENTER_CENTER)

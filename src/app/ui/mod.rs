@@ -3,9 +3,11 @@
 //! shows: where its view data is absent they show a placeholder.
 
 mod deblur;
+mod deblur_controls;
 mod field;
 mod geometry;
 mod help;
+mod menu;
 mod models;
 mod session_panel;
 mod sharpness;
@@ -13,11 +15,11 @@ mod shot;
 mod sweeps;
 
 use super::view_data::{sensor_size, setting_ranges};
-use super::{Command, DeblurResult, PlotId, StudioApp, View};
+use super::{Command, PlotId, StudioApp, View};
 use crate::plane::Channel;
 use crate::psf::Gaussian2;
 use crate::simulate::VirtualLens;
-use egui::{Color32, Key, KeyboardShortcut, Modifiers, Pos2, Rect, Vec2};
+use egui::{Color32, Pos2, Rect, Vec2};
 
 pub const TIP_CXX: &str = "C_xx: standard deviation σx of the Gaussian blur along the sensor's x axis, in full-resolution sensor pixels (includes the pixel's own 1-px integration).";
 pub const TIP_CYY: &str = "C_yy: standard deviation σy of the Gaussian blur along the sensor's y axis, in full-resolution sensor pixels.";
@@ -25,48 +27,19 @@ pub const TIP_COR: &str = "C_or: correlation ρ = C_xy / (C_xx·C_yy) of the Gau
 pub const TIP_ALPHA: &str = "α: polynomial order of the model over the sensor position (x, y). Higher α follows finer variation across the frame but needs more squares.";
 pub const TIP_BETA: &str = "β: polynomial order of the model over focal length f and aperture a; it must stay below the number of distinct settings shot (N = min(N_f, N_a)).";
 
-/// Every keyboard shortcut, as the Shortcuts menu lists it.
-const SHORTCUTS: &[(&str, &str)] = &[
-    ("Ctrl+O", "open or create a session folder"),
-    ("Ctrl+Shift+A", "add shots"),
-    ("Ctrl+D", "detect the chart in every shot"),
-    ("Ctrl+K", "estimate kernels on every detected shot"),
-    ("Ctrl+M", "calibrate: cross-validate and fit the models"),
-    (
-        "Ctrl+Enter",
-        "calibrate all: detect, kernels and calibrate whatever is missing",
-    ),
-    ("Ctrl+P", "open a photo to deblur"),
-    (
-        "Ctrl+E",
-        "export the photo deblurred with the predicted Gaussians",
-    ),
-    (
-        "Alt+1 … Alt+7",
-        "Shot, Kernel field, Sharpness, Sweeps, Models, Deblur, Geometry",
-    ),
-    ("Page Up / Page Down", "previous / next shot"),
-    ("Alt+R, Alt+G, Alt+B", "red, green, blue channel"),
-    ("Ctrl+T", "light or dark theme"),
-    ("Ctrl+L", "show or hide the log"),
-    ("Ctrl+B", "show or fold the session panel"),
-    ("Ctrl+Q", "quit"),
-    ("Esc", "cancel every running job"),
-];
-
 pub(super) fn root_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
-    shortcuts(app, ui.ctx());
+    menu::shortcuts(app, ui.ctx());
     dropped_files(app, ui.ctx());
-    egui::Panel::top("menu").show(ui, |ui| menu_bar_ui(app, ui));
+    egui::Panel::top("menu").show(ui, |ui| menu::menu_bar_ui(app, ui));
     egui::Panel::top("top").show(ui, |ui| top_bar_ui(app, ui));
     egui::Panel::bottom("status").show(ui, |ui| status_ui(app, ui));
-    if app.log_open {
+    if app.window.log_open {
         egui::Panel::bottom("log")
             .resizable(true)
             .default_size(180.0)
             .show(ui, |ui| log_ui(app, ui));
     }
-    if app.session_panel_open {
+    if app.views.session.open {
         egui::Panel::left("session")
             .default_size(300.0)
             .resizable(true)
@@ -91,177 +64,9 @@ pub(super) fn root_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     help::guide_ui(app, &ctx);
 }
 
-/// The menus: what a photographer looks for first (open, recent, export, quit), the
-/// views and panels, and help.
-fn menu_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
-    let out = &mut app.commands;
-    egui::MenuBar::new().ui(ui, |ui| {
-        ui.menu_button("File", |ui| {
-            if ui
-                .add(egui::Button::new("Open session…").shortcut_text("Ctrl+O"))
-                .on_hover_text("Open or create a session folder")
-                .clicked()
-            {
-                out.push(Command::OpenSessionDialog);
-            }
-            ui.add_enabled_ui(!app.recent.is_empty(), |ui| {
-                ui.menu_button("Recent sessions", |ui| {
-                    for path in &app.recent {
-                        let name = path.file_name().map_or_else(
-                            || path.display().to_string(),
-                            |n| n.to_string_lossy().into_owned(),
-                        );
-                        if ui
-                            .button(name)
-                            .on_hover_text(path.display().to_string())
-                            .clicked()
-                        {
-                            out.push(Command::OpenSession(path.clone()));
-                        }
-                    }
-                });
-            })
-            .response
-            .on_disabled_hover_text("Sessions you open are listed here");
-            if ui
-                .add(egui::Button::new("Add shots…").shortcut_text("Ctrl+Shift+A"))
-                .clicked()
-            {
-                out.push(Command::AddShotsDialog);
-            }
-            ui.separator();
-            if ui
-                .add(egui::Button::new("Open photo…").shortcut_text("Ctrl+P"))
-                .on_hover_text("Open a photo to deblur in the Deblur view")
-                .clicked()
-            {
-                out.push(Command::SelectView(View::Deblur));
-                out.push(Command::OpenPhotoDialog);
-            }
-            ui.menu_button("Export", |ui| {
-                let photo = app.deblur.photo.is_some();
-                if ui
-                    .add_enabled(
-                        photo,
-                        egui::Button::new("Photo deblurred (predicted)…").shortcut_text("Ctrl+E"),
-                    )
-                    .on_disabled_hover_text("Open a photo first (Ctrl+P)")
-                    .clicked()
-                {
-                    out.push(Command::ExportDeblurDialog(DeblurResult::Predicted));
-                }
-                if ui
-                    .add_enabled(
-                        photo,
-                        egui::Button::new("Photo deblurred (measured kernels)…"),
-                    )
-                    .on_disabled_hover_text("Open a photo first (Ctrl+P)")
-                    .clicked()
-                {
-                    out.push(Command::ExportDeblurDialog(DeblurResult::Measured));
-                }
-                let profile = app.profile.is_some();
-                if ui
-                    .add_enabled(profile, egui::Button::new("Photos as TIFF…"))
-                    .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
-                    .clicked()
-                {
-                    out.push(Command::ExportPhotosDialog { dng: false });
-                }
-                if ui
-                    .add_enabled(profile, egui::Button::new("RAW photos as DNG…"))
-                    .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
-                    .clicked()
-                {
-                    out.push(Command::ExportPhotosDialog { dng: true });
-                }
-                if ui
-                    .add_enabled(profile, egui::Button::new("Lens profile…"))
-                    .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
-                    .clicked()
-                {
-                    out.push(Command::SaveProfileDialog);
-                }
-            });
-            if ui.button("Load lens profile…").clicked() {
-                out.push(Command::LoadProfileDialog);
-            }
-            ui.separator();
-            if ui
-                .add(egui::Button::new("Quit").shortcut_text("Ctrl+Q"))
-                .clicked()
-            {
-                out.push(Command::Quit);
-            }
-        });
-        ui.menu_button("View", |ui| {
-            for (k, v) in View::ALL.into_iter().enumerate() {
-                if ui
-                    .add(
-                        egui::Button::selectable(app.view == v, v.label())
-                            .shortcut_text(format!("Alt+{}", k + 1)),
-                    )
-                    .clicked()
-                {
-                    out.push(Command::SelectView(v));
-                }
-            }
-            ui.separator();
-            if ui
-                .add(
-                    egui::Button::selectable(app.session_panel_open, "Session panel")
-                        .shortcut_text("Ctrl+B"),
-                )
-                .on_hover_text(
-                    "The shots and their stages on the left; folded, the view has the whole width",
-                )
-                .clicked()
-            {
-                out.push(Command::SetSessionPanel(!app.session_panel_open));
-            }
-            if ui
-                .add(egui::Button::selectable(app.log_open, "Log").shortcut_text("Ctrl+L"))
-                .on_hover_text("Every message of this run, with its time")
-                .clicked()
-            {
-                out.push(Command::SetLogOpen(!app.log_open));
-            }
-            ui.separator();
-            for (dark, label) in [(true, "Dark theme"), (false, "Light theme")] {
-                if ui
-                    .add(egui::Button::selectable(app.dark == dark, label).shortcut_text("Ctrl+T"))
-                    .clicked()
-                {
-                    out.push(Command::SetDark(dark));
-                }
-            }
-        });
-        ui.menu_button("Help", |ui| {
-            if ui.button("How it works…").clicked() {
-                out.push(Command::ShowHelp(true));
-            }
-            if ui.button("Calibrate your own lens (guide)…").clicked() {
-                out.push(Command::ShowGuide(true));
-            }
-            ui.menu_button("Shortcuts", |ui| {
-                egui::Grid::new("shortcuts").striped(true).show(ui, |ui| {
-                    for (keys, what) in SHORTCUTS {
-                        ui.monospace(*keys);
-                        ui.label(*what);
-                        ui.end_row();
-                    }
-                });
-            });
-            if ui.button("About lensblur…").clicked() {
-                out.push(Command::ShowAbout(true));
-            }
-        });
-    });
-}
-
 /// The question asked before losing work, over a dimmed window.
 fn confirm_ui(app: &mut StudioApp, ctx: &egui::Context) {
-    let Some(confirm) = &app.confirm else {
+    let Some(confirm) = &app.window.confirm else {
         return;
     };
     let (title, text, yes) = match confirm {
@@ -315,7 +120,7 @@ fn confirm_ui(app: &mut StudioApp, ctx: &egui::Context) {
 fn log_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         ui.strong("Log");
-        ui.label(match app.log.len() {
+        ui.label(match app.window.log.len() {
             1 => "1 message".to_owned(),
             n => format!("{n} messages"),
         });
@@ -330,10 +135,10 @@ fn log_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         .auto_shrink([false, false])
         .stick_to_bottom(true)
         .show(ui, |ui| {
-            if app.log.is_empty() {
+            if app.window.log.is_empty() {
                 ui.label(egui::RichText::new("Nothing yet.").weak());
             }
-            for m in &app.log {
+            for m in &app.window.log {
                 ui.horizontal_wrapped(|ui| {
                     ui.monospace(&m.time);
                     let text = egui::RichText::new(&m.text);
@@ -345,94 +150,6 @@ fn log_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 });
             }
         });
-}
-
-fn shortcuts(app: &mut StudioApp, ctx: &egui::Context) {
-    let cmd = |k| KeyboardShortcut::new(Modifiers::COMMAND, k);
-    let alt = |k| KeyboardShortcut::new(Modifiers::ALT, k);
-    let n_shots = app.session().map_or(0, |s| s.shots.len());
-    let mut out = Vec::new();
-    ctx.input_mut(|i| {
-        if i.consume_shortcut(&cmd(Key::O)) {
-            out.push(Command::OpenSessionDialog);
-        }
-        if i.consume_shortcut(&KeyboardShortcut::new(
-            Modifiers::COMMAND | Modifiers::SHIFT,
-            Key::A,
-        )) {
-            out.push(Command::AddShotsDialog);
-        }
-        if i.consume_shortcut(&cmd(Key::D)) {
-            out.push(Command::RunDetect(None));
-        }
-        if i.consume_shortcut(&cmd(Key::K)) {
-            out.push(Command::RunKernels(None));
-        }
-        if i.consume_shortcut(&cmd(Key::M)) {
-            out.push(Command::RunCalibrate);
-        }
-        if i.consume_shortcut(&cmd(Key::Enter)) {
-            out.push(Command::CalibrateAll { then_deblur: false });
-        }
-        if i.consume_shortcut(&cmd(Key::P)) {
-            out.push(Command::SelectView(View::Deblur));
-            out.push(Command::OpenPhotoDialog);
-        }
-        if i.consume_shortcut(&cmd(Key::E)) {
-            out.push(Command::ExportDeblurDialog(DeblurResult::Predicted));
-        }
-        if i.consume_shortcut(&cmd(Key::T)) {
-            out.push(Command::SetDark(!app.dark));
-        }
-        if i.consume_shortcut(&cmd(Key::L)) {
-            out.push(Command::SetLogOpen(!app.log_open));
-        }
-        if i.consume_shortcut(&cmd(Key::B)) {
-            out.push(Command::SetSessionPanel(!app.session_panel_open));
-        }
-        if i.consume_shortcut(&cmd(Key::Q)) {
-            out.push(Command::Quit);
-        }
-        if i.consume_key(Modifiers::NONE, Key::Escape) {
-            out.push(Command::CancelAll);
-        }
-        for (k, v) in [
-            Key::Num1,
-            Key::Num2,
-            Key::Num3,
-            Key::Num4,
-            Key::Num5,
-            Key::Num6,
-            Key::Num7,
-        ]
-        .into_iter()
-        .zip(View::ALL)
-        {
-            if i.consume_shortcut(&alt(k)) {
-                out.push(Command::SelectView(v));
-            }
-        }
-        for (k, c) in [
-            (Key::R, Channel::R),
-            (Key::G, Channel::G),
-            (Key::B, Channel::B),
-        ] {
-            if i.consume_shortcut(&alt(k)) {
-                out.push(Command::SelectChannel(c));
-            }
-        }
-        if let Some(s) = app.session().filter(|_| n_shots > 0) {
-            let current = app.selected_shot.and_then(|id| s.index_of(id)).unwrap_or(0);
-            let at = |i: usize| s.shots[i.min(n_shots - 1)].id;
-            if i.consume_key(Modifiers::NONE, Key::PageDown) {
-                out.push(Command::SelectShot(at(current + 1)));
-            }
-            if i.consume_key(Modifiers::NONE, Key::PageUp) {
-                out.push(Command::SelectShot(at(current.saturating_sub(1))));
-            }
-        }
-    });
-    app.commands.extend(out);
 }
 
 fn dropped_files(app: &mut StudioApp, ctx: &egui::Context) {
@@ -460,12 +177,12 @@ fn dropped_files(app: &mut StudioApp, ctx: &egui::Context) {
 fn top_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         if ui
-            .selectable_label(app.session_panel_open, "Session")
+            .selectable_label(app.views.session.open, "Session")
             .on_hover_text("Show or fold the session panel (Ctrl+B)")
             .clicked()
         {
             app.commands
-                .push(Command::SetSessionPanel(!app.session_panel_open));
+                .push(Command::SetSessionPanel(!app.views.session.open));
         }
         ui.strong("lensblur studio");
         ui.separator();
@@ -482,7 +199,7 @@ fn top_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         ui.label("Channel");
         for c in [Channel::R, Channel::G, Channel::B] {
             if ui
-                .selectable_label(app.channel == c, c.name())
+                .selectable_label(app.views.shot.channel == c, c.name())
                 .on_hover_text(format!("Alt+{}", c.name()))
                 .clicked()
             {
@@ -526,7 +243,7 @@ fn status_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         });
     }
     let mut dismiss = None;
-    for (i, m) in app.messages.iter().enumerate().rev().take(4) {
+    for (i, m) in app.window.messages.iter().enumerate().rev().take(4) {
         ui.horizontal(|ui| {
             let color = if m.is_error {
                 ui.visuals().error_fg_color
@@ -554,22 +271,22 @@ fn status_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         app.commands.push(Command::DismissMessage(i));
     }
     ui.horizontal(|ui| {
-        if app.jobs.running.is_empty() && app.messages.is_empty() {
+        if app.jobs.running.is_empty() && app.window.messages.is_empty() {
             ui.label("Ready.");
         }
         ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
-            let errors = app.log.iter().filter(|m| m.is_error).count();
+            let errors = app.window.log.iter().filter(|m| m.is_error).count();
             let label = match errors {
-                0 => format!("Log ({})", app.log.len()),
-                1 => format!("Log ({}, 1 error)", app.log.len()),
-                e => format!("Log ({}, {e} errors)", app.log.len()),
+                0 => format!("Log ({})", app.window.log.len()),
+                1 => format!("Log ({}, 1 error)", app.window.log.len()),
+                e => format!("Log ({}, {e} errors)", app.window.log.len()),
             };
             if ui
-                .selectable_label(app.log_open, label)
+                .selectable_label(app.window.log_open, label)
                 .on_hover_text("Every message of this run, with its time (Ctrl+L)")
                 .clicked()
             {
-                app.commands.push(Command::SetLogOpen(!app.log_open));
+                app.commands.push(Command::SetLogOpen(!app.window.log_open));
             }
         });
     });
@@ -593,25 +310,6 @@ fn aperture_axis<'a>(label: &str) -> egui_plot::AxisHints<'a> {
 /// three stops.
 fn stops_grid() -> impl Fn(egui_plot::GridInput) -> Vec<egui_plot::GridMark> {
     egui_plot::uniform_grid_spacer(|_| [1.0 / 3.0, 1.0, 3.0])
-}
-
-/// What hovering an aperture plot names: the f-number, not the stops the plot is in.
-fn aperture_hover(pos: &egui_plot::HoverPosition<'_>) -> Option<String> {
-    let (name, p) = match pos {
-        egui_plot::HoverPosition::NearDataPoint {
-            plot_name,
-            position,
-            ..
-        } => (*plot_name, position),
-        egui_plot::HoverPosition::Elsewhere { position } => ("", position),
-    };
-    let f = crate::review::f_number_at_stops(p.x);
-    let head = if name.is_empty() {
-        String::new()
-    } else {
-        format!("{name}\n")
-    };
-    Some(format!("{head}f/{f:.1}: {:.3}", p.y))
 }
 
 /// A y axis whose tick labels may stand 16 points apart (egui_plot's default, 20, drops
@@ -702,10 +400,10 @@ fn ellipse_points(centre: Pos2, g: &Gaussian2, scale: f32) -> Vec<Pos2> {
 /// tick under each rail at every setting the session has shots at.
 fn setting_sliders_ui(app: &mut StudioApp, ui: &mut egui::Ui, lens: &VirtualLens) {
     let (f_range, a_range) = setting_ranges(app, lens);
-    let (mut focal_mm, mut f_number) = (app.field_focal_mm, app.field_f_number);
+    let (mut focal_mm, mut f_number) = (app.views.field.focal_mm, app.views.field.f_number);
     let mut changed = false;
     let shot_at = app
-        .views
+        .data
         .calibrated
         .as_ref()
         .filter(|c| !c.focal_mm.is_empty() || !c.f_number.is_empty())

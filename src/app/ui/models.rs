@@ -48,7 +48,7 @@ fn models_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, view_h: f32) {
             app.commands.push(Command::LoadProfileDialog);
         }
         if ui
-            .add_enabled(app.profile.is_some(), egui::Button::new("Save profile…"))
+            .add_enabled(app.profile().is_some(), egui::Button::new("Save profile…"))
             .on_hover_text("Write the profile in use to a file of your choice")
             .clicked()
         {
@@ -59,33 +59,36 @@ fn models_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, view_h: f32) {
     egui::CollapsingHeader::new("Shooting plan")
         // A header of its own once a profile exists, so it folds then (the plots take
         // the view) even where it was open before calibration.
-        .id_salt(("shooting plan", app.profile.is_some()))
-        .default_open(app.profile.is_none())
+        .id_salt(("shooting plan", app.profile().is_some()))
+        .default_open(app.profile().is_none())
         .show(ui, |ui| plan_ui(app, ui));
-    if let Some((path, p)) = &app.profile {
+    if let Some((path, p)) = app.profile() {
         let kind = format!("{:?}", p.preferred).to_lowercase();
-        let orders = |g: Option<(usize, usize)>| {
-            g.map_or("—".to_owned(), |(a, b)| format!("α {a}, β {b}"))
+        let orders = |k: crate::model::ModelKind, g: Option<(usize, usize)>| {
+            g.map_or("—".to_owned(), |(a, b)| {
+                format!("{} ({})", k.in_words(a, b), k.symbol(a, b))
+            })
         };
         ui.horizontal_wrapped(|ui| {
             ui.strong(format!("Profile {}:", app.shown_path(path)));
             ui.label(format!(
-                "uses the {kind} model; global {}; local {}; calibrated {:.0}–{:.0} mm, f/{:.1}–f/{:.1}, sensor {} × {} px",
-                orders(p.global.as_ref().map(|g| (g.alpha, g.beta))),
-                orders(p.local.as_ref().map(|l| (l.alpha, l.beta))),
+                "uses the {kind} model; global: {}; local: {}; calibrated {:.0}–{:.0} mm, f/{:.1}–f/{:.1}, sensor {} × {} px",
+                orders(crate::model::ModelKind::Global, p.global.as_ref().map(|g| (g.alpha, g.beta))),
+                orders(crate::model::ModelKind::Local, p.local.as_ref().map(|l| (l.alpha, l.beta))),
                 p.norm.focal_range_mm[0],
                 p.norm.focal_range_mm[1],
                 p.norm.f_number_range[0],
                 p.norm.f_number_range[1],
                 p.norm.width,
                 p.norm.height,
-            ));
+            ))
+            .on_hover_text(format!("{TIP_ALPHA}\n{TIP_BETA}"));
         });
         shape_cv_ui(ui, p);
     } else {
         ui.label("No profile yet — press Calibrate once kernels are measured on the shots, or load a profile.");
     }
-    let Some(cv) = app.cv.clone() else {
+    let Some(cv) = app.cv().cloned() else {
         ui.label("Cross-validation curves over α and β (paper Fig. 5) and the error distributions (Fig. 6) appear after a calibration that selects α and β.");
         return;
     };
@@ -348,7 +351,7 @@ fn cdf_legend_ui(ui: &mut egui::Ui, families: &[(&str, &crate::crossval::Selecti
 /// What the session's settings allow the model: warnings where it cannot be
 /// determined, notes where it is limited, each saying what to shoot next.
 pub(super) fn advice_ui(app: &StudioApp, ui: &mut egui::Ui) {
-    let Some(c) = &app.views.calibrated else {
+    let Some(c) = &app.data.calibrated else {
         return;
     };
     for a in &c.advice {
@@ -381,13 +384,17 @@ fn shape_cv_ui(ui: &mut egui::Ui, p: &crate::profile::Profile) {
         ),
         _ => "cross-validation kept the Gaussians".to_owned(),
     };
+    let around = match crate::model::ModelKind::parse_name(&cv.gaussian_model) {
+        Some((k, a, b)) => format!("the {} ({})", k.in_words(a, b), k.symbol(a, b)),
+        None => cv.gaussian_model.clone(),
+    };
     ui.label(format!(
-        "Kernel shapes: {} held-out kernels in {} folds, predicted around {}; chosen by {}: {verdict}. Held-out error of predicted against measured kernels (relative L2; restoration: the RMS error left in a deblurred photo):",
+        "Kernel shapes: {} held-out kernels in {} folds, predicted around {around}; chosen by {}: {verdict}. Held-out error of predicted against measured kernels:",
         cv.kernels,
         cv.folds,
-        cv.gaussian_model,
         cv.criterion.name()
-    ));
+    ))
+    .on_hover_text(format!("{TIP_REL_L2}\n{TIP_RESTORATION}"));
     egui::Grid::new("shape-cv")
         .striped(true)
         .spacing([18.0, 2.0])
@@ -398,32 +405,49 @@ fn shape_cv_ui(ui: &mut egui::Ui, p: &crate::profile::Profile) {
                 ui.label(format!("f/{:.1}", a.f_number));
             }
             ui.end_row();
+            // Both errors are fractions; shown in percent, as the Gaussian models' are.
             let row = |ui: &mut egui::Ui,
                        name: &str,
+                       tip: &str,
                        all: f64,
                        per: &dyn Fn(&crate::crossval::ApertureError) -> f64| {
-                ui.label(name);
-                ui.monospace(format!("{all:.3}"));
+                ui.label(name).on_hover_text(tip);
+                ui.monospace(format!("{:.1} %", 100.0 * all));
                 for a in &cv.per_aperture {
-                    ui.monospace(format!("{:.3}", per(a)));
+                    ui.monospace(format!("{:.1} %", 100.0 * per(a)));
                 }
                 ui.end_row();
             };
-            row(ui, "Gaussian, L2", cv.gaussian.mean_rel_l2, &|a| {
-                a.gaussian_mean_rel_l2
-            });
+            row(
+                ui,
+                "Gaussian, kernel error (relative L2)",
+                TIP_REL_L2,
+                cv.gaussian.mean_rel_l2,
+                &|a| a.gaussian_mean_rel_l2,
+            );
             if let Some(b) = &cv.best_shape {
-                row(ui, "shapes, L2", b.mean_rel_l2, &|a| a.shape_mean_rel_l2);
+                row(
+                    ui,
+                    "shapes, kernel error (relative L2)",
+                    TIP_REL_L2,
+                    b.mean_rel_l2,
+                    &|a| a.shape_mean_rel_l2,
+                );
             }
             let restoration = |v: Option<f64>| v.unwrap_or(f64::NAN);
             if let Some(g) = cv.gaussian.restoration_rms {
-                row(ui, "Gaussian, restoration", g, &|a| {
-                    restoration(a.gaussian_restoration_rms)
-                });
+                row(
+                    ui,
+                    "Gaussian, error left in a deblurred photo",
+                    TIP_RESTORATION,
+                    g,
+                    &|a| restoration(a.gaussian_restoration_rms),
+                );
                 if let Some(b) = &cv.best_shape {
                     row(
                         ui,
-                        "shapes, restoration",
+                        "shapes, error left in a deblurred photo",
+                        TIP_RESTORATION,
                         restoration(b.restoration_rms),
                         &|a| restoration(a.shape_restoration_rms),
                     );
@@ -435,7 +459,7 @@ fn shape_cv_ui(ui: &mut egui::Ui, p: &crate::profile::Profile) {
 /// The shooting plan: the lens's range (typed, or the session's), and every setting to
 /// shoot as a checklist of the shots the session has and those still missing.
 fn plan_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
-    let Some(c) = app.views.calibrated.as_ref() else {
+    let Some(c) = app.data.calibrated.as_ref() else {
         ui.label("Open a session to plan its shots.");
         return;
     };
@@ -460,13 +484,22 @@ fn plan_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             app.commands.push(Command::SetPlanRange(r));
         }
     });
-    let done = c.plan.iter().filter(|p| p.shot >= p.wanted).count();
+    let progress = crate::review::plan_progress(&c.plan);
+    let off = match progress.off_plan {
+        0 => String::new(),
+        n => format!(" and {n} off it"),
+    };
     ui.label(format!(
-        "{done} of {} settings shot, {} shots each (on a tripod, RAW, base ISO, focused on the chart, the chart filling the frame):",
-        c.plan.len(),
+        "{} settings shot: {} of the plan's {}{off}; {} with the {} shots each recommended (on a tripod, RAW, base ISO, focused on the chart, the chart filling the frame):",
+        progress.settings_shot,
+        progress.planned_shot,
+        progress.planned,
+        progress.complete,
         crate::review::SHOTS_PER_SETTING
-    ));
+    ))
+    .on_hover_text("A setting counts once it has a shot; a second shot there lets cross-validation hold one out and still fit the setting. Settings off the plan's grid count too: the model is fitted to every shot.");
     let mut focals: Vec<f64> = c.plan.iter().map(|p| p.setting.focal_mm).collect();
+    focals.sort_by(f64::total_cmp);
     focals.dedup();
     let mut apertures: Vec<f64> = c.plan.iter().map(|p| p.setting.f_number).collect();
     apertures.sort_by(f64::total_cmp);
@@ -488,11 +521,29 @@ fn plan_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                         .iter()
                         .find(|p| p.setting.focal_mm == *f && p.setting.f_number == *a)
                     {
-                        Some(p) if p.shot >= p.wanted => {
-                            ui.colored_label(ok, format!("shot ({})", p.shot));
-                        }
                         Some(p) => {
-                            ui.colored_label(missing, format!("{} of {}", p.shot, p.wanted));
+                            let colour = if p.shot >= p.wanted { ok } else { missing };
+                            let text = match p.shot {
+                                0 => format!("0 of {}", p.wanted),
+                                n => format!("{n} shot{}", if n == 1 { "" } else { "s" }),
+                            };
+                            let text = if p.on_plan {
+                                text
+                            } else {
+                                format!("{text} (off plan)")
+                            };
+                            ui.colored_label(colour, text).on_hover_text(format!(
+                                "{} of the {} shots recommended at {:.0} mm f/{:.1}{}",
+                                p.shot,
+                                p.wanted,
+                                p.setting.focal_mm,
+                                p.setting.f_number,
+                                if p.on_plan {
+                                    ""
+                                } else {
+                                    ", a setting off the plan's grid"
+                                }
+                            ));
                         }
                         None => {
                             ui.label("");
@@ -503,3 +554,9 @@ fn plan_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
         });
 }
+
+/// What relative L2 is, for a photographer.
+const TIP_REL_L2: &str = "Kernel error (relative L2): how far the predicted kernel is from the one measured on a held-out shot, as the size of their difference over the size of the measured kernel (‖predicted − measured‖ / ‖measured‖). 0 % is a perfect prediction; 100 % an error as large as the kernel itself.";
+
+/// What the restoration error is, for a photographer.
+const TIP_RESTORATION: &str = "Error left in a deblurred photo: deblurring a held-out shot with the predicted kernel instead of the measured one leaves this RMS error, in percent of the photo's edge contrast (the RMS of its gradient). Lower is better; it is what the shape model is chosen by.";

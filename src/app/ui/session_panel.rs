@@ -87,7 +87,7 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     let mut out = Vec::new();
     for shot in &session.shots {
         let id = shot.id;
-        let selected = app.selected_shot == Some(id);
+        let selected = app.views.shot.selected == Some(id);
         let frame = egui::Frame::group(ui.style()).fill(if selected {
             ui.visuals().selection.bg_fill.gamma_multiply(0.35)
         } else {
@@ -252,7 +252,7 @@ fn settings_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         .default_open(false)
         .show(ui, |ui| {
             // The draft is edited here and handed back as a command; the app keeps it.
-            let before = app.settings_edit.clone().unwrap_or_else(|| current.clone());
+            let before = app.views.session.settings_edit.clone().unwrap_or_else(|| current.clone());
             let mut draft = before.clone();
             let (chart, s) = (&mut draft.0, &mut draft.1);
             ui.strong("Chart");

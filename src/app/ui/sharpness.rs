@@ -17,7 +17,7 @@ const TIP_MAP: &str = "MTF50: the spatial frequency at which the lens keeps half
 
 pub(super) fn sharpness_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ui.heading("Sharpness map");
-    let choice = app.sharpness;
+    let choice = app.views.sharpness;
     let mut next = choice;
     ui.horizontal_wrapped(|ui| {
         for (src, label, tip) in [
@@ -76,7 +76,7 @@ pub(super) fn sharpness_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         }
         ui.separator();
         let ready = app
-            .views
+            .data
             .sharpness
             .as_ref()
             .is_some_and(|d| d.map.is_ok());
@@ -107,7 +107,7 @@ pub(super) fn sharpness_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     if choice.source != FieldSource::Measured {
         setting_sliders_ui(app, ui, &VirtualLens::demo());
     }
-    let Some(data) = app.views.sharpness.as_ref() else {
+    let Some(data) = app.data.sharpness.as_ref() else {
         ui.weak("preparing the map…");
         return;
     };

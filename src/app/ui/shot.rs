@@ -38,9 +38,9 @@ const INSPECTOR_W: f32 = 270.0;
 
 pub(super) fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     // Zoom, pan and overlays change on a copy, handed back as one command.
-    let mut viewer = app.viewer;
+    let mut viewer = app.views.shot.viewer;
     shot_body_ui(app, ui, &mut viewer);
-    if viewer != app.viewer {
+    if viewer != app.views.shot.viewer {
         app.commands.push(Command::SetViewer(viewer));
     }
 }
@@ -50,7 +50,7 @@ fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState
         ui.label("No session yet.");
         return;
     };
-    let Some(shot) = app.selected_shot.and_then(|id| session.shot(id)) else {
+    let Some(shot) = app.views.shot.selected.and_then(|id| session.shot(id)) else {
         ui.label("No shots in this session: add shots (Ctrl+Shift+A) or drop files on the window.");
         return;
     };
@@ -136,14 +136,14 @@ fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState
     let Some(texture) = developed.or_else(|| {
         preview
             .textures
-            .get(&app.channel)
+            .get(&app.views.shot.channel)
             .or_else(|| preview.textures.values().next())
     }) else {
         ui.label("this shot has no image planes");
         return;
     };
     let cap = &preview.capture;
-    let Some(shot_plane) = app.views.shot_plane.as_ref().filter(|p| p.shot() == index) else {
+    let Some(shot_plane) = app.data.shot_plane.as_ref().filter(|p| p.shot() == index) else {
         ui.horizontal(|ui| {
             ui.spinner();
             ui.label("preparing the shot…");
@@ -159,7 +159,7 @@ fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState
 
     // The inspector stands beside the viewer while its crops are made, so the viewer
     // keeps its size when they arrive.
-    let inspecting = match &app.views.inspection {
+    let inspecting = match &app.data.inspection {
         Some(Inspecting::Running(k)) => k.shot == index,
         Some(Inspecting::Ready(i)) => i.shot == index,
         Some(Inspecting::Empty(_)) | None => false,
@@ -263,7 +263,7 @@ fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState
             det,
             &session.chart,
             overlay,
-            app.selected_square,
+            app.views.shot.square,
             clicked,
         ) {
             app.commands.push(Command::SelectSquare(sq));
@@ -276,7 +276,7 @@ fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState
             cp.plane.get_checked(i.round() as i64, j.round() as i64)
         });
         let text = match v {
-            Some(v) => format!("x {x:.1}  y {y:.1}  {} {v:.4}", app.channel),
+            Some(v) => format!("x {x:.1}  y {y:.1}  {} {v:.4}", app.views.shot.channel),
             None => format!("x {x:.1}  y {y:.1}"),
         };
         caption(
@@ -292,7 +292,7 @@ fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState
         egui::Align2::RIGHT_TOP,
         format!(
             "{}  {:.0}%  (scroll: zoom, drag: pan, double-click: fit, click a square: inspect)",
-            app.channel,
+            app.views.shot.channel,
             view.points_per_px * 100.0
         ),
     );
@@ -306,8 +306,8 @@ fn residual_color(rms: f64) -> Color32 {
 }
 
 fn residual_legend_ui(ui: &mut egui::Ui) {
-    ui.label("residual RMS")
-        .on_hover_text("RMS of observed − synthetic over the square after alignment, white = 1");
+    ui.label("alignment residual, % of white")
+        .on_hover_text("How well the square lines up with the chart after alignment: the RMS of the observed square minus the synthetic one (the chart through the square's homography, blurred), in percent of the chart's white. Green: to the noise level; red: misaligned, or a blur the Gaussian does not describe.");
     ui.label("0.5 %");
     let (rect, _) = ui.allocate_exact_size(Vec2::new(80.0, 10.0), Sense::hover());
     let p = ui.painter_at(rect);
@@ -446,7 +446,7 @@ fn point_in_quad(p: [f64; 2], q: &[[f64; 2]; 4]) -> bool {
 /// their difference; its measured 3× kernel with the fitted Gaussian's ellipse; the
 /// numbers behind them.
 fn inspector_ui(app: &StudioApp, ui: &mut egui::Ui) -> Option<Command> {
-    let ins = match app.views.inspection.as_ref()? {
+    let ins = match app.data.inspection.as_ref()? {
         Inspecting::Ready(ins) => ins,
         Inspecting::Running(key) => {
             let mut out = None;
@@ -492,8 +492,8 @@ fn inspector_ui(app: &StudioApp, ui: &mut egui::Ui) -> Option<Command> {
         ));
     }
     ui.label(format!(
-        "alignment residual RMS {:.4} (white = 1)",
-        ins.crops.residual_rms
+        "alignment residual {:.2} % of white (RMS)",
+        100.0 * ins.crops.residual_rms
     ))
     .on_hover_text("Observed minus the synthetic square (the chart through this square's refined homography, blurred by the detection's blur estimate). Structure here means misalignment or a non-Gaussian blur.");
     let w = ui.available_width();

@@ -15,7 +15,7 @@ use super::{TIP_COR, TIP_CXX, TIP_CYY, setting_sliders_ui};
 use crate::simulate::VirtualLens;
 use egui::Color32;
 
-const TIP_MTF50: &str = "MTF50 in cycles per sensor pixel, from the Gaussian: the frequency at which its contrast falls to one half, √(ln 2 / (2π² uᵀCu)) along a direction u. The Gaussian is the pixel-level PSF, so the pixel's aperture is in it; sampling and demosaicing are not.";
+const TIP_MTF50: &str = "MTF50 in line pairs per picture height (lp/ph: cycles per sensor pixel times the sensor's height in pixels, as the Sharpness view maps it), from the Gaussian: the frequency at which its contrast falls to one half, √(ln 2 / (2π² uᵀCu)) along a direction u. The Gaussian is the pixel-level PSF, so the pixel's aperture is in it; sampling and demosaicing are not.";
 
 /// Each location's colour, in the order of [`SWEEP_LOCATIONS`].
 const LOCATION_COLORS: [Color32; 5] = [
@@ -31,7 +31,7 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     ui.heading("Sweeps");
     let is_demo = app.session().is_some_and(|s| s.is_demo);
     let lens = VirtualLens::demo();
-    if app.dataset.is_none() && app.profile.is_none() && !is_demo {
+    if app.dataset().is_none() && app.profile().is_none() && !is_demo {
         ui.label("Measured points appear here after Kernels (Ctrl+K); model curves after Calibrate (Ctrl+M).");
         return;
     }
@@ -51,20 +51,20 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         } else {
             "Dots: measured at the square nearest each location. Solid: the profile's model at that square. Dotted verticals: settings with shots."
         });
-        if app.dataset.is_none() {
+        if app.dataset().is_none() {
             ui.weak("No measured points yet: run Kernels (Ctrl+K).");
-        } else if app.profile.is_none() {
+        } else if app.profile().is_none() {
             ui.weak("No model yet: run Calibrate (Ctrl+M).");
         }
     });
-    let Some(data) = &app.views.sweeps else {
+    let Some(data) = &app.data.sweeps else {
         ui.horizontal(|ui| {
             ui.spinner();
             ui.label("preparing the sweeps…");
         });
         return;
     };
-    let ch = app.channel;
+    let ch = app.views.shot.channel;
     let (fixed_f, fixed_a) = (data.fixed_f, data.fixed_a);
     ui.horizontal(|ui| {
         ui.label("Plot:");
@@ -77,7 +77,7 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             ),
         ] {
             if ui
-                .selectable_label(app.sweep_axis == axis, label)
+                .selectable_label(app.views.sweeps.axis == axis, label)
                 .on_hover_text(tip)
                 .clicked()
             {
@@ -85,16 +85,17 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
         }
     });
-    let params = sweep_params(app.sweep_axis);
-    let tips = match app.sweep_axis {
+    let params = sweep_params(app.views.sweeps.axis);
+    let tips = match app.views.sweeps.axis {
         SweepAxis::Sigma => [TIP_CXX, TIP_CYY, TIP_COR],
         SweepAxis::Mtf50 => [TIP_MTF50; 3],
     };
+    let height_px = data.sensor_height_px();
 
     // Vertical lines at the settings with shots: the model is measured there and
     // interpolates between them.
     let (shot_f, shot_a) = app
-        .views
+        .data
         .calibrated
         .as_ref()
         .map(|c| (c.focal_mm.clone(), c.f_number.clone()))
@@ -131,9 +132,11 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                         }])
                         .custom_y_axes(vec![super::y_axis(&sweep_y_label(p))])
                         .allow_scroll(false);
+                    let per_ph = p.per_picture_height.then_some(height_px);
+                    let plot =
+                        plot.label_formatter(move |pos| sweep_hover(pos, vs_aperture, per_ph));
                     let plot = if vs_aperture {
                         plot.x_grid_spacer(super::stops_grid())
-                            .label_formatter(super::aperture_hover)
                     } else {
                         plot
                     };
@@ -179,4 +182,37 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             }
         });
     }
+}
+
+/// What hovering a sweep plot names: the f-number (not the plot's stops) or the focal
+/// length, and the value; an MTF50 also in cycles per pixel (`per_ph`: the sensor's
+/// height that turned it into lp/ph).
+fn sweep_hover(
+    pos: &egui_plot::HoverPosition<'_>,
+    vs_aperture: bool,
+    per_ph: Option<usize>,
+) -> Option<String> {
+    let (name, p) = match pos {
+        egui_plot::HoverPosition::NearDataPoint {
+            plot_name,
+            position,
+            ..
+        } => (*plot_name, position),
+        egui_plot::HoverPosition::Elsewhere { position } => ("", position),
+    };
+    let head = if name.is_empty() {
+        String::new()
+    } else {
+        format!("{name}\n")
+    };
+    let at = if vs_aperture {
+        format!("f/{:.1}", crate::review::f_number_at_stops(p.x))
+    } else {
+        format!("{:.0} mm", p.x)
+    };
+    let value = match per_ph {
+        Some(h) if h > 0 => format!("{:.0} lp/ph ({:.3} cycles/px)", p.y, p.y / h as f64),
+        _ => format!("{:.3}", p.y),
+    };
+    Some(format!("{head}{at}: {value}"))
 }

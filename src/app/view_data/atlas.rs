@@ -64,30 +64,32 @@ enum AtlasKey {
 /// model at that shot's measured squares (else on the field grid), so the two compare
 /// cell for cell.
 pub(super) fn refresh_kernel_atlas(app: &mut StudioApp) {
-    if app.field_show != FieldShow::Kernels || app.field_source == FieldSource::Truth {
+    if app.views.field.show != FieldShow::Kernels || app.views.field.source == FieldSource::Truth {
         return;
     }
-    let channel = app.channel;
+    let channel = app.views.shot.channel;
     let file = app
-        .selected_shot
+        .views
+        .shot
+        .selected
         .and_then(|i| app.project.as_ref()?.kernels(i));
-    let key = match app.field_source {
+    let key = match app.views.field.source {
         FieldSource::Predicted => {
-            let Some((_, profile)) = &app.profile else {
-                app.views.kernel_atlas = None;
+            let Some((_, profile)) = app.profile() else {
+                app.data.kernel_atlas = None;
                 return;
             };
             AtlasKey::Predicted {
                 profile: Same::of(Some(profile)),
                 file: Same::of(file),
                 channel,
-                setting: [app.field_focal_mm, app.field_f_number],
+                setting: [app.views.field.focal_mm, app.views.field.f_number],
                 size: sensor_size(app),
             }
         }
         _ => {
-            let Some(shot) = app.selected_shot else {
-                app.views.kernel_atlas = None;
+            let Some(shot) = app.views.shot.selected else {
+                app.data.kernel_atlas = None;
                 return;
             };
             AtlasKey::Measured {
@@ -97,15 +99,10 @@ pub(super) fn refresh_kernel_atlas(app: &mut StudioApp) {
             }
         }
     };
-    if app
-        .views
-        .kernel_atlas
-        .as_ref()
-        .is_some_and(|a| a.key == key)
-    {
+    if app.data.kernel_atlas.as_ref().is_some_and(|a| a.key == key) {
         return;
     }
-    app.views.kernel_atlas = None;
+    app.data.kernel_atlas = None;
     fn channel_samples(f: &KernelsFile, channel: Channel) -> Vec<(usize, &KernelSample)> {
         f.samples
             .iter()
@@ -140,7 +137,7 @@ pub(super) fn refresh_kernel_atlas(app: &mut StudioApp) {
             (kernels, max_sigma, None, None)
         }
         AtlasKey::Predicted { size, .. } => {
-            let Some((_, profile)) = &app.profile else {
+            let Some((_, profile)) = app.profile() else {
                 return;
             };
             let model = profile.kernel_model();
@@ -157,8 +154,8 @@ pub(super) fn refresh_kernel_atlas(app: &mut StudioApp) {
                     .unzip(),
             };
             let setting = LensSetting {
-                focal_mm: app.field_focal_mm,
-                f_number: app.field_f_number,
+                focal_mm: app.views.field.focal_mm,
+                f_number: app.views.field.f_number,
             };
             match crate::review::predicted_kernels(profile, model, channel, &points, setting) {
                 Ok(predicted) => {
@@ -180,11 +177,10 @@ pub(super) fn refresh_kernel_atlas(app: &mut StudioApp) {
     let mut atlas = pack_atlas(&app.ctx, key, &kernels, max_sigma, model, error);
     if model.is_some() {
         atlas.no_shape = app
-            .profile
-            .as_ref()
+            .profile()
             .and_then(|(_, p)| crate::review::no_shape_reason(p));
     }
-    app.views.kernel_atlas = Some(atlas);
+    app.data.kernel_atlas = Some(atlas);
 }
 
 /// Packs kernels into one texture: the central ±R px of each (R = 2.5 × `max_sigma`,

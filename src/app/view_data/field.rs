@@ -4,6 +4,7 @@
 use super::atlas::{AtlasCell, KernelAtlas};
 use super::sensor_size;
 use super::{FIELD_GRID, Same, is_demo};
+use crate::app::state::{ColourRange, Difference, FieldOptions};
 use crate::app::{FieldShow, FieldSource, StudioApp};
 use crate::kernel::file::KernelsFile;
 use crate::plane::{Channel, LensSetting};
@@ -13,47 +14,6 @@ use crate::review::{FieldDifference, KernelError};
 use crate::session::ShotId;
 use crate::simulate::VirtualLens;
 use std::sync::Arc;
-
-/// How the Kernel field view colours its squares.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum ColourRange {
-    /// From the smallest to the largest value shown (over every panel, so compared
-    /// fields share one scale).
-    Data,
-    /// A range the user set (σ, px), kept across shots and settings so that fields
-    /// compare by eye.
-    Fixed { min: f64, max: f64 },
-}
-
-/// The difference maps of the Kernel field view: σ(A) − σ(B) at each square.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Difference {
-    /// The selected shot's measured Gaussians − the profile's prediction there, at the
-    /// shot's setting.
-    MeasuredMinusPredicted,
-    /// Unit A − unit B: the profile − the second profile loaded, else the demo lens −
-    /// its second unit, at the sliders' setting.
-    UnitAMinusB,
-    /// Channel R − channel B of the source shown (lateral colour, in blur).
-    RedMinusBlue,
-}
-
-/// The Kernel field view's colouring choices.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct FieldOptions {
-    pub range: ColourRange,
-    /// A difference map instead of the fields, or `None`.
-    pub difference: Option<Difference>,
-}
-
-impl Default for FieldOptions {
-    fn default() -> Self {
-        Self {
-            range: ColourRange::Data,
-            difference: None,
-        }
-    }
-}
 
 /// The colour scale of the Kernel field view's panels: the value range the palette
 /// spans (values outside take its ends), whether it is the diverging one (blue, white
@@ -216,34 +176,34 @@ struct FieldExtra {
 }
 
 fn field_key(app: &StudioApp) -> FieldKey {
-    let channel = app.channel;
+    let channel = app.views.shot.channel;
     let size = sensor_size(app);
-    let setting = [app.field_focal_mm, app.field_f_number];
-    match app.field_source {
+    let setting = [app.views.field.focal_mm, app.views.field.f_number];
+    match app.views.field.source {
         FieldSource::Measured => FieldKey::Measured {
-            shot: app.selected_shot,
-            file: Same::of(app.selected_shot.and_then(|i| app.kernels(i))),
+            shot: app.views.shot.selected,
+            file: Same::of(app.views.shot.selected.and_then(|i| app.kernels(i))),
             channel,
-            show: app.field_show,
+            show: app.views.field.show,
             size,
             chart_cols: app.session().map_or(10, |s| s.chart.cols),
-            atlas: app.views.kernel_atlas.is_some(),
-            profile: Same::of(app.profile.as_ref().map(|p| &p.1)),
+            atlas: app.data.kernel_atlas.is_some(),
+            profile: Same::of(app.profile().map(|p| &p.1)),
         },
         FieldSource::Predicted => FieldKey::Predicted {
-            profile: Same::of(app.profile.as_ref().map(|p| &p.1)),
-            compare: Same::of(app.compare_profile.as_ref().map(|p| &p.1)),
+            profile: Same::of(app.profile().map(|p| &p.1)),
+            compare: Same::of(app.compare_profile().map(|p| &p.1)),
             channel,
             setting,
             size,
-            show: app.field_show,
-            file: Same::of(app.selected_shot.and_then(|i| app.kernels(i))),
+            show: app.views.field.show,
+            file: Same::of(app.views.shot.selected.and_then(|i| app.kernels(i))),
             chart_cols: app.session().map_or(10, |s| s.chart.cols),
-            atlas: app.views.kernel_atlas.is_some(),
+            atlas: app.data.kernel_atlas.is_some(),
         },
         FieldSource::Truth => FieldKey::Truth {
             is_demo: is_demo(app),
-            compare_units: app.compare_units,
+            compare_units: app.views.field.compare_units,
             channel,
             setting,
             size,
@@ -255,21 +215,21 @@ pub(super) fn refresh_field(app: &mut StudioApp) {
     let key = (
         field_key(app),
         FieldExtra {
-            options: app.field_options,
-            compare: Same::of(app.compare_profile.as_ref().map(|p| &p.1)),
-            profile: Same::of(app.profile.as_ref().map(|p| &p.1)),
+            options: app.views.field.options,
+            compare: Same::of(app.compare_profile().map(|p| &p.1)),
+            profile: Same::of(app.profile().map(|p| &p.1)),
             is_demo: is_demo(app),
-            setting: [app.field_focal_mm, app.field_f_number],
+            setting: [app.views.field.focal_mm, app.views.field.f_number],
         },
     );
-    if app.views.field.as_ref().is_some_and(|f| f.key == key) {
+    if app.data.field.as_ref().is_some_and(|f| f.key == key) {
         return;
     }
     let size = sensor_size(app);
-    let file = app.selected_shot.and_then(|i| app.kernels(i));
+    let file = app.views.shot.selected.and_then(|i| app.kernels(i));
     // Squares of the chart are about this far apart on the sensor.
     let pitch_px = size.0 as f64 / app.session().map_or(12, |s| s.chart.cols + 2) as f64;
-    let mut panels = match app.field_options.difference {
+    let mut panels = match app.views.field.options.difference {
         Some(d) => vec![difference_panel(app, d, file, size, pitch_px)],
         None => value_panels(app, file, size, pitch_px),
     };
@@ -322,8 +282,8 @@ pub(super) fn refresh_field(app: &mut StudioApp) {
         .flat_map(|p| &p.points)
         .map(|q| q.gaussian.sigma_x.max(q.gaussian.sigma_y))
         .fold(1e-6, f64::max);
-    let diverging = app.field_options.difference.is_some();
-    let range = match (app.field_options.range, diverging) {
+    let diverging = app.views.field.options.difference.is_some();
+    let range = match (app.views.field.options.range, diverging) {
         (ColourRange::Fixed { min, max }, false) if max > min => Some([min, max]),
         _ => crate::review::colour_range(
             panels.iter().flat_map(|p| &p.points).map(|q| q.value),
@@ -333,8 +293,8 @@ pub(super) fn refresh_field(app: &mut StudioApp) {
     let scale = range.map(|range| ColourScale {
         range,
         diverging,
-        title: if diverging {
-            "Δσ, px (A − B)".to_owned()
+        title: if let Some(d) = app.views.field.options.difference {
+            format!("Δσ, px ({})", difference_words(d))
         } else {
             "σ = √(C_xx·C_yy), px".to_owned()
         },
@@ -345,7 +305,7 @@ pub(super) fn refresh_field(app: &mut StudioApp) {
         .flat_map(|p| &p.points)
         .filter(|q| q.noisy.is_some())
         .count();
-    app.views.field = Some(FieldData {
+    app.data.field = Some(FieldData {
         key,
         panels,
         max_sigma,
@@ -384,10 +344,10 @@ fn value_panels(
     size: (usize, usize),
     pitch_px: f64,
 ) -> Vec<FieldPanel> {
-    let ch = app.channel;
+    let ch = app.views.shot.channel;
     let s = LensSetting {
-        focal_mm: app.field_focal_mm,
-        f_number: app.field_f_number,
+        focal_mm: app.views.field.focal_mm,
+        f_number: app.views.field.f_number,
     };
     let panel = |of, content, errors| FieldPanel {
         of,
@@ -398,7 +358,7 @@ fn value_panels(
         samples: Vec::new(),
     };
     let mut panels = Vec::new();
-    let errors = match (&app.profile, file, app.field_show) {
+    let errors = match (app.profile(), file, app.views.field.show) {
         (Some((_, p)), Some(f), FieldShow::Kernels) => crate::review::kernel_errors(p, f, ch),
         _ => Vec::new(),
     };
@@ -412,10 +372,10 @@ fn value_panels(
             }),
         }
     };
-    match app.field_source {
+    match app.views.field.source {
         FieldSource::Measured => {
             let mut samples = Vec::new();
-            let content = match (file, app.field_show) {
+            let content = match (file, app.views.field.show) {
                 (None, _) => Err(
                     "No kernels measured on this shot yet — press Kernels (Ctrl+K) after Detect."
                         .to_owned(),
@@ -425,7 +385,7 @@ fn value_panels(
                     samples = i.into_iter().map(Some).collect();
                     Ok(PanelContent::Ellipses(g))
                 }
-                (Some(_), FieldShow::Kernels) => match &app.views.kernel_atlas {
+                (Some(_), FieldShow::Kernels) => match &app.data.kernel_atlas {
                     Some(atlas) if atlas.model.is_none() => atlas_cells(atlas),
                     _ => Err("This kernels file holds Gaussians only, no kernel arrays.".into()),
                 },
@@ -448,10 +408,10 @@ fn value_panels(
                 crate::review::predicted_field(p, ch, size, FIELD_GRID, s)
                     .map(PanelContent::Ellipses)
             };
-            panels.push(match &app.profile {
+            panels.push(match app.profile() {
                 Some((_, p)) => panel(
                     PanelOf::Profile,
-                    match (app.field_show, &app.views.kernel_atlas) {
+                    match (app.views.field.show, &app.data.kernel_atlas) {
                         (FieldShow::Kernels, Some(atlas)) if atlas.model.is_some() => {
                             atlas_cells(atlas)
                         }
@@ -466,14 +426,14 @@ fn value_panels(
                 ),
             });
             // The one atlas is the profile's: a second profile compares as ellipses.
-            if let Some((_, p)) = &app.compare_profile {
+            if let Some((_, p)) = app.compare_profile() {
                 panels.push(panel(PanelOf::CompareProfile, predicted(p), Vec::new()));
             }
         }
         FieldSource::Truth => {
             if is_demo(app) {
                 let mut units = vec![(false, VirtualLens::demo())];
-                if app.compare_units {
+                if app.views.field.compare_units {
                     units.push((true, VirtualLens::demo_second_unit()));
                 }
                 for (second_unit, lens) in units {
@@ -500,10 +460,10 @@ fn difference_panel(
     size: (usize, usize),
     pitch_px: f64,
 ) -> FieldPanel {
-    let ch = app.channel;
+    let ch = app.views.shot.channel;
     let setting = LensSetting {
-        focal_mm: app.field_focal_mm,
-        f_number: app.field_f_number,
+        focal_mm: app.views.field.focal_mm,
+        f_number: app.views.field.f_number,
     };
     let grid_pitch = size.0 as f64 / FIELD_GRID.0 as f64;
     let no_kernels = || {
@@ -515,8 +475,7 @@ fn difference_panel(
         Difference::MeasuredMinusPredicted => (|| {
             let f = file.ok_or_else(no_kernels)?;
             let (_, p) = app
-                .profile
-                .as_ref()
+                .profile()
                 .ok_or("No profile yet: Calibrate (Ctrl+M) or load one in Models.")?;
             let shot_setting = match (f.focal_mm, f.f_number) {
                 (Some(focal_mm), Some(f_number)) => LensSetting { focal_mm, f_number },
@@ -533,7 +492,7 @@ fn difference_panel(
                 "the profile's prediction there".to_owned(),
             ))
         })(),
-        Difference::UnitAMinusB => match (&app.profile, &app.compare_profile) {
+        Difference::UnitAMinusB => match (app.profile(), app.compare_profile()) {
             (Some((pa, a)), Some((pb, b))) => (|| {
                 Ok((
                     crate::review::predicted_field(a, ch, size, FIELD_GRID, setting)?,
@@ -557,11 +516,11 @@ fn difference_panel(
         },
         Difference::RedMinusBlue => {
             let of = |c: Channel| -> Result<Field, String> {
-                match app.field_source {
+                match app.views.field.source {
                     FieldSource::Measured => file
                         .map(|f| measured_gaussians(f, c).0)
                         .ok_or_else(no_kernels),
-                    FieldSource::Predicted => match &app.profile {
+                    FieldSource::Predicted => match app.profile() {
                         Some((_, p)) => crate::review::predicted_field(p, c, size, FIELD_GRID, setting),
                         None => Err("No profile yet: Calibrate (Ctrl+M) or load one in Models.".into()),
                     },
@@ -575,7 +534,7 @@ fn difference_panel(
                     FieldSource::Truth => Err("Ground truth exists only for the demo session's simulated lens.".into()),
                 }
             };
-            let pitch = if app.field_source == FieldSource::Measured {
+            let pitch = if app.views.field.source == FieldSource::Measured {
                 pitch_px
             } else {
                 grid_pitch
@@ -612,5 +571,15 @@ fn difference_panel(
         failed: Vec::new(),
         errors: Vec::new(),
         samples: Vec::new(),
+    }
+}
+
+/// What a difference map subtracts from what, as its legend says it.
+#[must_use]
+pub fn difference_words(d: Difference) -> &'static str {
+    match d {
+        Difference::MeasuredMinusPredicted => "measured − predicted",
+        Difference::UnitAMinusB => "unit A − unit B",
+        Difference::RedMinusBlue => "red − blue",
     }
 }

@@ -88,7 +88,7 @@ struct DisplayKey {
 /// The measured geometry, once there is one.
 #[must_use]
 pub fn measured_geometry(app: &StudioApp) -> Option<Arc<LensCorrection>> {
-    match app.views.geometry_measure.as_ref()?.result.as_ref()? {
+    match app.data.geometry_measure.as_ref()?.result.as_ref()? {
         Ok(c) => Some(Arc::clone(c)),
         Err(_) => None,
     }
@@ -120,16 +120,16 @@ fn measure_key(app: &StudioApp) -> Option<MeasureKey> {
 /// then prepares the drawing at the chosen focal length and aperture.
 pub(super) fn refresh_geometry(app: &mut StudioApp) {
     let key = measure_key(app);
-    let current = app.views.geometry_measure.as_ref().map(|m| &m.key);
+    let current = app.data.geometry_measure.as_ref().map(|m| &m.key);
     if key.as_ref() != current {
-        app.views.geometry_measure = key.map(|key| spawn_measure(app, key));
+        app.data.geometry_measure = key.map(|key| spawn_measure(app, key));
     }
     refresh_display(app);
 }
 
 fn spawn_measure(app: &mut StudioApp, key: MeasureKey) -> GeometryMeasure {
-    app.views.geometry_requests += 1;
-    let request = app.views.geometry_requests;
+    app.data.geometry_requests += 1;
+    let request = app.data.geometry_requests;
     let shots: Vec<(String, LensSetting, Arc<Detection>)> = key
         .shots
         .iter()
@@ -180,7 +180,7 @@ pub(in crate::app) fn geometry_measured(
     request: u64,
     result: Result<Arc<LensCorrection>, String>,
 ) {
-    if let Some(m) = app.views.geometry_measure.as_mut()
+    if let Some(m) = app.data.geometry_measure.as_mut()
         && m.request == request
     {
         m.result = Some(result);
@@ -189,15 +189,15 @@ pub(in crate::app) fn geometry_measured(
 
 fn refresh_display(app: &mut StudioApp) {
     let Some(correction) = measured_geometry(app) else {
-        app.views.geometry = None;
+        app.data.geometry = None;
         return;
     };
     let key = DisplayKey {
         correction: Same::of(Some(&correction)),
-        focal: app.geometry_focal_mm,
-        f_number: app.geometry_f_number,
+        focal: app.views.geometry.focal_mm,
+        f_number: app.views.geometry.f_number,
     };
-    if app.views.geometry.as_ref().is_some_and(|d| d.key == key) {
+    if app.data.geometry.as_ref().is_some_and(|d| d.key == key) {
         return;
     }
     let Some(focal) = key
@@ -205,7 +205,7 @@ fn refresh_display(app: &mut StudioApp) {
         .and_then(|f| correction.at_focal(f))
         .or_else(|| correction.focal.first())
     else {
-        app.views.geometry = None;
+        app.data.geometry = None;
         return;
     };
     let frame = correction.frame;
@@ -249,7 +249,7 @@ fn refresh_display(app: &mut StudioApp) {
         warning,
         key,
     };
-    app.views.geometry = Some(data);
+    app.data.geometry = Some(data);
 }
 
 /// The largest of 1, 2, 5 × 10ⁿ at most `x` (at least 1).

@@ -3,8 +3,8 @@
 
 use super::{Same, is_demo};
 use crate::app::jobs::JobScope;
+use crate::app::state::{InspectKey, InspectedSquare};
 use crate::app::{JobOutput, StudioApp};
-use crate::detect::Detection;
 use crate::detect::inspect::SquareInspection;
 use crate::kernel::file::KernelsFile;
 use crate::plane::{Channel, LensSetting, Plane};
@@ -13,16 +13,6 @@ use crate::review::SquareFacts;
 use crate::session::ShotId;
 use crate::simulate::VirtualLens;
 use std::sync::Arc;
-
-/// Which square's inspection, of what: results for another key are stale.
-#[derive(Clone, Debug, PartialEq)]
-pub struct InspectKey {
-    pub session: u64,
-    pub shot: ShotId,
-    pub square: (usize, usize),
-    pub channel: Channel,
-    detection: Same<Detection>,
-}
 
 /// The inspector's state for the selected square.
 pub enum Inspecting {
@@ -41,14 +31,6 @@ impl Inspecting {
             Inspecting::Ready(i) => &i.key,
         }
     }
-}
-
-/// What an inspection job hands back: the crops, the square's numbers and the crops'
-/// grey images (textures are made from them on the UI thread).
-pub struct InspectedSquare {
-    pub crops: SquareInspection,
-    pub facts: Option<SquareFacts>,
-    pub images: [egui::ColorImage; 3],
 }
 
 /// What the kernel texture and the truth beside it depend on.
@@ -78,7 +60,7 @@ pub struct Inspection {
 /// The inspection the selection asks for, if the shot is loaded and detected and has
 /// that square: in the selected channel, else the capture's first.
 fn wanted_inspection(app: &StudioApp) -> Option<InspectKey> {
-    let (shot, square) = (app.selected_shot?, app.selected_square?);
+    let (shot, square) = (app.views.shot.selected?, app.views.shot.square?);
     let preview = app.preview(shot)?;
     let det = app.detection(shot)?;
     app.session()?;
@@ -86,8 +68,8 @@ fn wanted_inspection(app: &StudioApp) -> Option<InspectKey> {
         return None;
     }
     let planes = &preview.capture.planes;
-    let channel = if planes.iter().any(|p| p.channel == app.channel) {
-        app.channel
+    let channel = if planes.iter().any(|p| p.channel == app.views.shot.channel) {
+        app.views.shot.channel
     } else {
         planes.first()?.channel
     };
@@ -102,9 +84,9 @@ fn wanted_inspection(app: &StudioApp) -> Option<InspectKey> {
 
 pub(super) fn refresh_inspection(app: &mut StudioApp) {
     let wanted = wanted_inspection(app);
-    let current = app.views.inspection.as_ref().map(Inspecting::key);
+    let current = app.data.inspection.as_ref().map(Inspecting::key);
     if wanted.as_ref() != current {
-        app.views.inspection = wanted.map(|key| spawn_inspection(app, key));
+        app.data.inspection = wanted.map(|key| spawn_inspection(app, key));
     }
     refresh_inspection_details(app);
 }
@@ -198,12 +180,12 @@ pub(in crate::app) fn inspected(
     key: InspectKey,
     result: Option<Box<InspectedSquare>>,
 ) {
-    let running = matches!(&app.views.inspection, Some(Inspecting::Running(k)) if *k == key);
+    let running = matches!(&app.data.inspection, Some(Inspecting::Running(k)) if *k == key);
     if !running {
         return;
     }
     let Some(done) = result else {
-        app.views.inspection = Some(Inspecting::Empty(key));
+        app.data.inspection = Some(Inspecting::Empty(key));
         return;
     };
     let InspectedSquare {
@@ -221,7 +203,7 @@ pub(in crate::app) fn inspected(
         tex("inspect-synthetic", synthetic),
         tex("inspect-residual", residual),
     ];
-    app.views.inspection = Some(Inspecting::Ready(Box::new(Inspection {
+    app.data.inspection = Some(Inspecting::Ready(Box::new(Inspection {
         shot: key.shot,
         square: key.square,
         channel: key.channel,
@@ -240,7 +222,7 @@ pub(in crate::app) fn inspected(
 /// demo session, the lens's true Gaussian at the square's centre: remade when the
 /// shot's kernels or setting change.
 pub(super) fn refresh_inspection_details(app: &mut StudioApp) {
-    let Some(Inspecting::Ready(ins)) = &app.views.inspection else {
+    let Some(Inspecting::Ready(ins)) = &app.data.inspection else {
         return;
     };
     let shot = app.session().and_then(|s| s.shot(ins.shot));
@@ -288,7 +270,7 @@ pub(super) fn refresh_inspection_details(app: &mut StudioApp) {
                 setting,
             )
         });
-    if let Some(Inspecting::Ready(ins)) = &mut app.views.inspection {
+    if let Some(Inspecting::Ready(ins)) = &mut app.data.inspection {
         ins.kernel = kernel;
         ins.truth = truth;
         ins.details = Some(key);

@@ -22,7 +22,6 @@ use geometry::refresh_geometry;
 use inspector::refresh_inspection;
 use sharpness::refresh_sharpness;
 use shot_plane::refresh_shot_plane;
-use std::sync::Arc;
 use sweeps::refresh_sweeps;
 
 mod atlas;
@@ -33,17 +32,17 @@ mod sharpness;
 mod shot_plane;
 mod sweeps;
 
+pub(crate) use super::state::Same;
 pub use atlas::{AtlasCell, KernelAtlas};
 pub use field::{
-    ColourRange, ColourScale, Difference, FieldData, FieldOptions, FieldPanel, FieldPoint,
-    PanelContent, PanelOf,
+    ColourScale, FieldData, FieldPanel, FieldPoint, PanelContent, PanelOf, difference_words,
 };
 pub(super) use geometry::geometry_measured;
 pub use geometry::{
     ColourArrows, Falloff, GeometryData, GeometryMeasure, WarpedGrid, measured_geometry,
 };
 pub(super) use inspector::inspected;
-pub use inspector::{InspectKey, InspectedSquare, Inspecting, Inspection};
+pub use inspector::{Inspecting, Inspection};
 pub use sharpness::SharpnessData;
 pub use shot_plane::ShotPlane;
 pub use sweeps::{
@@ -53,41 +52,6 @@ pub use sweeps::{
 
 /// Grid of the predicted and true fields.
 const FIELD_GRID: (usize, usize) = (12, 8);
-
-/// An `Arc`'s identity as part of a cache key. The key holds the `Arc`, so the value
-/// stays alive and an equal pointer always means the same value.
-pub struct Same<T>(Option<Arc<T>>);
-
-impl<T> Same<T> {
-    fn of(v: Option<&Arc<T>>) -> Self {
-        Self(v.cloned())
-    }
-}
-
-impl<T> Clone for Same<T> {
-    fn clone(&self) -> Self {
-        Self(self.0.clone())
-    }
-}
-
-impl<T> PartialEq for Same<T> {
-    fn eq(&self, other: &Self) -> bool {
-        match (&self.0, &other.0) {
-            (Some(a), Some(b)) => Arc::ptr_eq(a, b),
-            (None, None) => true,
-            _ => false,
-        }
-    }
-}
-
-impl<T> std::fmt::Debug for Same<T> {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match &self.0 {
-            Some(a) => write!(f, "Same({:p})", Arc::as_ptr(a)),
-            None => write!(f, "Same(none)"),
-        }
-    }
-}
 
 /// Every view's cached data.
 #[derive(Default)]
@@ -152,10 +116,10 @@ pub(super) fn refresh(app: &mut StudioApp) {
 /// The sensor the views draw on: the selected shot's, else the measurements', else the
 /// demo's.
 pub(crate) fn sensor_size(app: &StudioApp) -> (usize, usize) {
-    if let Some(p) = app.selected_shot.and_then(|i| app.preview(i)) {
+    if let Some(p) = app.views.shot.selected.and_then(|i| app.preview(i)) {
         return (p.capture.width, p.capture.height);
     }
-    if let Some(d) = app.dataset.as_ref() {
+    if let Some(d) = app.dataset() {
         return (d.width, d.height);
     }
     (app.options.demo_spec.width, app.options.demo_spec.height)
@@ -164,7 +128,7 @@ pub(crate) fn sensor_size(app: &StudioApp) -> (usize, usize) {
 /// Focal length and aperture ranges the sliders span: the profile's calibrated ones,
 /// else the session's, else the demo lens's.
 pub(crate) fn setting_ranges(app: &StudioApp, lens: &VirtualLens) -> ([f64; 2], [f64; 2]) {
-    if let Some((_, p)) = &app.profile {
+    if let Some((_, p)) = app.profile() {
         return (p.norm.focal_range_mm, p.norm.f_number_range);
     }
     if let Some(s) = app.session() {
@@ -182,10 +146,10 @@ pub(crate) fn setting_ranges(app: &StudioApp, lens: &VirtualLens) -> ([f64; 2], 
 /// The settings with shots and the core's advice on them: a few dozen values, cheaper
 /// to remake each frame than to key.
 pub(super) fn refresh_calibrated(app: &mut StudioApp) {
-    app.views.calibrated = app.session().map(|s| {
+    app.data.calibrated = app.session().map(|s| {
         let (focal_mm, f_number) = s.setting_grid();
         let advice = crate::review::shooting_advice(&focal_mm, &f_number, s.settings.beta);
-        let plan_range = app.plan_range.unwrap_or_else(|| {
+        let plan_range = app.views.session.plan_range.unwrap_or_else(|| {
             // The range the shots span, where they span one; else the demo lens's.
             match (
                 focal_mm.first(),

@@ -35,26 +35,28 @@ pub struct SharpnessData {
 }
 
 fn key(app: &StudioApp) -> SharpnessKey {
-    let choice = app.sharpness;
+    let choice = app.views.sharpness;
     let measured = choice.source == FieldSource::Measured;
     let at_setting = choice.source != FieldSource::Measured;
     SharpnessKey {
         choice,
-        channel: app.channel,
-        shot: app.selected_shot.filter(|_| measured),
+        channel: app.views.shot.channel,
+        shot: app.views.shot.selected.filter(|_| measured),
         file: Same::of(
-            app.selected_shot
+            app.views
+                .shot
+                .selected
                 .and_then(|i| app.kernels(i))
                 .filter(|_| measured),
         ),
         profile: Same::of(
-            app.profile
+            app.profile()
                 .as_ref()
                 .map(|p| &p.1)
                 .filter(|_| choice.source == FieldSource::Predicted),
         ),
         setting: if at_setting {
-            [app.field_focal_mm, app.field_f_number]
+            [app.views.field.focal_mm, app.views.field.f_number]
         } else {
             [0.0; 2]
         },
@@ -65,7 +67,7 @@ fn key(app: &StudioApp) -> SharpnessKey {
 
 pub(super) fn refresh_sharpness(app: &mut StudioApp) {
     let key = key(app);
-    if app.views.sharpness.as_ref().is_some_and(|d| d.key == key) {
+    if app.data.sharpness.as_ref().is_some_and(|d| d.key == key) {
         return;
     }
     let choice = key.choice;
@@ -138,7 +140,7 @@ pub(super) fn refresh_sharpness(app: &mut StudioApp) {
         }
         _ => None,
     };
-    app.views.sharpness = Some(SharpnessData {
+    app.data.sharpness = Some(SharpnessData {
         key,
         map,
         scale,

@@ -23,20 +23,26 @@ impl ShotPlane {
 
 pub(super) fn refresh_shot_plane(app: &mut StudioApp) {
     let Some((shot, preview)) = app
-        .selected_shot
+        .views
+        .shot
+        .selected
         .and_then(|id| Some((id, app.preview(id)?)))
     else {
-        app.views.shot_plane = None;
+        app.data.shot_plane = None;
         return;
     };
-    let key = (shot, app.channel, Same::of(Some(&preview.capture)));
-    if app.views.shot_plane.as_ref().is_some_and(|p| p.key == key) {
+    let key = (
+        shot,
+        app.views.shot.channel,
+        Same::of(Some(&preview.capture)),
+    );
+    if app.data.shot_plane.as_ref().is_some_and(|p| p.key == key) {
         return;
     }
     let planes = &preview.capture.planes;
     let index = planes
         .iter()
-        .position(|p| p.channel == app.channel)
+        .position(|p| p.channel == app.views.shot.channel)
         .or_else(|| (!planes.is_empty()).then_some(0));
-    app.views.shot_plane = Some(ShotPlane { key, index });
+    app.data.shot_plane = Some(ShotPlane { key, index });
 }

@@ -8,6 +8,7 @@ use crate::model::Dataset;
 use crate::plane::{Channel, LensSetting};
 use crate::profile::Profile;
 use crate::psf::{Gaussian2, Mtf50};
+use crate::review::SharpnessUnit;
 use crate::review::{PlotTable, SweepPoint};
 use crate::simulate::VirtualLens;
 
@@ -72,13 +73,22 @@ pub struct SweepData {
 pub struct SweepParam {
     pub name: &'static str,
     pub unit: &'static str,
+    /// The parameter, an MTF50 in cycles per pixel.
     pub get: fn(&Gaussian2, Option<&Mtf50>) -> f64,
+    /// An MTF50, plotted in line pairs per picture height (what [`Self::get`] gives
+    /// times the sensor's height), as the Sharpness view maps it.
+    pub per_picture_height: bool,
 }
 
 /// The three plots of each sweep for an axis choice, in the view's order.
 #[must_use]
 pub fn sweep_params(axis: SweepAxis) -> [SweepParam; 3] {
-    let p = |name, unit, get| SweepParam { name, unit, get };
+    let p = |name, unit, get| SweepParam {
+        name,
+        unit,
+        get,
+        per_picture_height: unit == SharpnessUnit::LpPerPictureHeight.label(),
+    };
     match axis {
         SweepAxis::Sigma => [
             p("C_xx", "σ, px", |g, _| g.sigma_x),
@@ -86,13 +96,11 @@ pub fn sweep_params(axis: SweepAxis) -> [SweepParam; 3] {
             p("C_or", "ρ", |g, _| g.rho),
         ],
         SweepAxis::Mtf50 => [
-            p("MTF50 worst", "cycles/px", |_, m| {
+            p("MTF50 worst", "lp/ph", |_, m| {
                 m.map_or(f64::NAN, |m| m.worst)
             }),
-            p("MTF50 best", "cycles/px", |_, m| {
-                m.map_or(f64::NAN, |m| m.best)
-            }),
-            p("MTF50 isotropic", "cycles/px", |_, m| {
+            p("MTF50 best", "lp/ph", |_, m| m.map_or(f64::NAN, |m| m.best)),
+            p("MTF50 isotropic", "lp/ph", |_, m| {
                 m.map_or(f64::NAN, |m| m.isotropic)
             }),
         ],
@@ -125,6 +133,15 @@ pub fn sweep_x_label(vs_aperture: bool) -> &'static str {
     }
 }
 
+impl SweepData {
+    /// The height of the sensor the sweeps are for, px: what turns cycles per pixel
+    /// into line pairs per picture height.
+    #[must_use]
+    pub fn sensor_height_px(&self) -> usize {
+        self.key.size.1
+    }
+}
+
 /// The y axis's title of a sweep plot.
 #[must_use]
 pub fn sweep_y_label(param: &SweepParam) -> String {
@@ -144,7 +161,15 @@ pub fn sweep_series(data: &SweepData, vs_aperture: bool, param: &SweepParam) -> 
             s.focal_mm
         }
     };
-    let get = param.get;
+    let (get, per_ph, height) = (param.get, param.per_picture_height, data.key.size.1);
+    let get = move |g: &Gaussian2, m: Option<&Mtf50>| {
+        let v = get(g, m);
+        if per_ph {
+            SharpnessUnit::LpPerPictureHeight.from_cycles_per_px(v, height)
+        } else {
+            v
+        }
+    };
     let curve = |c: &[CurvePoint]| -> Vec<[f64; 2]> {
         c.iter()
             .map(|(s, g, m)| [abscissa(*s), get(g, m.as_ref())])
@@ -224,31 +249,30 @@ pub fn sweep_table(
 pub(super) fn refresh_sweeps(app: &mut StudioApp) {
     let lens = VirtualLens::demo();
     let key = SweepKey {
-        dataset: Same::of(app.dataset.as_ref()),
-        profile: Same::of(app.profile.as_ref().map(|p| &p.1)),
+        dataset: Same::of(app.dataset()),
+        profile: Same::of(app.profile().map(|p| &p.1)),
         is_demo: is_demo(app),
-        channel: app.channel,
-        setting: [app.field_focal_mm, app.field_f_number],
+        channel: app.views.shot.channel,
+        setting: [app.views.field.focal_mm, app.views.field.f_number],
         ranges: setting_ranges(app, &lens),
         size: sensor_size(app),
     };
-    if app.views.sweeps.as_ref().is_some_and(|s| s.key == key) {
+    if app.data.sweeps.as_ref().is_some_and(|s| s.key == key) {
         return;
     }
     let ch = key.channel;
     let (w, h) = key.size;
     let (f_range, a_range) = key.ranges;
     let (focals, apertures) = app
-        .dataset
-        .as_ref()
+        .dataset()
         .map(|d| d.distinct_settings())
         .unwrap_or_default();
     // Measured points only exist at shot settings: the sweep holds the other setting at
     // the calibrated value nearest the slider.
-    let fixed_f =
-        crate::review::nearest_value(&focals, app.field_focal_mm).unwrap_or(app.field_focal_mm);
-    let fixed_a =
-        crate::review::nearest_value(&apertures, app.field_f_number).unwrap_or(app.field_f_number);
+    let fixed_f = crate::review::nearest_value(&focals, app.views.field.focal_mm)
+        .unwrap_or(app.views.field.focal_mm);
+    let fixed_a = crate::review::nearest_value(&apertures, app.views.field.f_number)
+        .unwrap_or(app.views.field.f_number);
     let sweep = |vs_aperture: bool| -> Vec<LocationSweep> {
         let settings = if vs_aperture {
             crate::review::sweep_settings(a_range, fixed_f, true, CURVE_STEPS)
@@ -260,7 +284,7 @@ pub(super) fn refresh_sweeps(app: &mut StudioApp) {
             .iter()
             .map(|&(_, fx, fy)| {
                 let nominal = (fx * (w as f64 - 1.0), fy * (h as f64 - 1.0));
-                let measured = app.dataset.as_ref().map(|ds| {
+                let measured = app.dataset().map(|ds| {
                     crate::review::sweep_points(ds, ch, nominal, vs_aperture, fixed)
                         .into_iter()
                         .map(|p| {
@@ -277,8 +301,7 @@ pub(super) fn refresh_sweeps(app: &mut StudioApp) {
                     .map_or(nominal, |(p, _)| (p.x, p.y));
                 LocationSweep {
                     model: app
-                        .profile
-                        .as_ref()
+                        .profile()
                         .map(|(_, p)| with_mtf50(crate::review::model_curve(p, ch, at, &settings))),
                     truth: key.is_demo.then(|| {
                         with_mtf50(crate::review::truth_curve(&lens, ch, at, (w, h), &settings))
@@ -289,7 +312,7 @@ pub(super) fn refresh_sweeps(app: &mut StudioApp) {
             .collect()
     };
     let sweeps = [sweep(true), sweep(false)];
-    app.views.sweeps = Some(SweepData {
+    app.data.sweeps = Some(SweepData {
         key,
         fixed_f,
         fixed_a,

@@ -2,7 +2,6 @@
 //! viewer, the Deblur view and the frame-time log. `StudioApp` (in the parent module)
 //! holds them.
 
-use super::view_data;
 use crate::plane::{Capture, Channel};
 use crate::review::DeblurComparison;
 use crate::simulate::demo::DemoSpec;
@@ -10,6 +9,17 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
+
+mod field;
+mod inspect;
+mod views;
+
+pub use field::{ColourRange, Difference, FieldOptions};
+pub use inspect::{InspectKey, InspectedSquare, Same};
+pub use views::{
+    Autorun, Confirm, FieldViewState, GeometryViewState, SessionPanelState, ShotViewState,
+    SweepsViewState, Trace, Views, Window,
+};
 
 /// The studio's views (ARCHITECTURE.md, Studio).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -220,7 +230,7 @@ pub enum FieldShow {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum PlotId {
     /// A Sweeps plot: against aperture or focal length; the index of its parameter in
-    /// [`view_data::sweep_params`] (for the axis shown).
+    /// the sweeps' parameters of the axis shown.
     Sweep {
         vs_aperture: bool,
         param: usize,
@@ -238,24 +248,6 @@ impl PlotId {
         match self {
             Self::Sweep { .. } => View::Sweeps,
             Self::CvAlpha | Self::CvBeta | Self::CvCdf => View::Models,
-        }
-    }
-
-    /// A file name stem the save dialog proposes.
-    #[must_use]
-    pub fn file_stem(self, axis: SweepAxis) -> String {
-        match self {
-            Self::Sweep { vs_aperture, param } => {
-                let name = view_data::sweep_params(axis)
-                    .get(param)
-                    .map_or("sweep", |p| p.name)
-                    .replace(' ', "-");
-                let against = if vs_aperture { "aperture" } else { "focal" };
-                format!("sweep-{name}-vs-{against}")
-            }
-            Self::CvAlpha => "cv-alpha".into(),
-            Self::CvBeta => "cv-beta".into(),
-            Self::CvCdf => "cv-error-cdf".into(),
         }
     }
 

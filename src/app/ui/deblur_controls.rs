@@ -1,0 +1,162 @@
+//! The Deblur view's controls: zoom, region, amount, and under *Advanced* the method,
+//! its strength and the device.
+
+use super::super::{Command, DeblurZoom, StudioApp};
+use crate::deblur::{Device, HqsParams, IrlsParams, Method, WienerParams};
+
+/// Zoom, region size and the amount, with the method, its strength and the device
+/// under *Advanced*: each change deblurs the region again (a newer preview replaces one
+/// still running), so dragging a control updates the region live.
+pub(super) fn controls_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+    let method = super::super::logic::deblur_method(app);
+    ui.horizontal_wrapped(|ui| {
+        ui.label("zoom");
+        for z in DeblurZoom::ALL {
+            if ui
+                .selectable_label(app.views.deblur.zoom == z, z.label())
+                .on_hover_text("Fit: the region scaled into the panes; 100–400 %: one photo pixel on 1, 2 or 4 screen pixels, the region as large as the panes (drag a pane to pan; all panes move together)")
+                .clicked()
+            {
+                app.commands.push(Command::SetDeblurZoom(z));
+            }
+        }
+        if app.views.deblur.zoom == DeblurZoom::Fit {
+            let mut side = app.views.deblur.crop_px as f64;
+            let r = ui
+                .add(
+                    egui::Slider::new(&mut side, 64.0..=1024.0)
+                        .logarithmic(true)
+                        .suffix(" px")
+                        .text("region"),
+                )
+                .on_hover_text("Side of the compared region, photo pixels");
+            if r.drag_stopped() || (r.changed() && !r.dragged()) {
+                app.commands.push(Command::SetDeblurCrop(side.round() as usize));
+            }
+        }
+        ui.separator();
+        let mut amount = app.views.deblur.amount.as_percent();
+        let r = ui
+            .add(
+                egui::Slider::new(&mut amount, 0.0..=crate::deblur::Amount::MAX_PERCENT)
+                    .step_by(5.0)
+                    .suffix(" %")
+                    .text("amount"),
+            )
+            .on_hover_text("How strongly to deblur: 0 % is the photo as it is, 100 % the method at its tuned strength, more carries it further (and sharpens noise)");
+        if r.changed() {
+            app.commands.push(Command::SetDeblurAmount(amount));
+        }
+    });
+    egui::CollapsingHeader::new("Advanced: method and device")
+        .id_salt("deblur advanced")
+        .show(ui, |ui| advanced_ui(app, ui, method));
+    // Always one line, so the panes below keep their size when the note arrives.
+    let note = app.views.deblur.device_note.as_ref().map_or_else(
+        || " ".to_owned(),
+        |n| format!("The preview runs on the {n}."),
+    );
+    ui.label(egui::RichText::new(note).weak());
+}
+
+/// The method, its regularisation and where it runs: for those who know them.
+fn advanced_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
+    ui.horizontal_wrapped(|ui| {
+        ui.label("method");
+        let choices = [
+            ("HQS", matches!(method, Method::Hqs(_)), Method::Hqs(HqsParams::default())),
+            ("Wiener", matches!(method, Method::Wiener(_)), Method::Wiener(WienerParams::default())),
+            ("IRLS", matches!(method, Method::Irls(_)), Method::Irls(IrlsParams::default())),
+        ];
+        for (label, on, m) in choices {
+            if ui
+                .selectable_label(on, label)
+                .on_hover_text("HQS: hyper-Laplacian prior, fast (the default); Wiener: quadratic prior, fastest, rings more; IRLS: the paper's solver, slow, CPU only")
+                .clicked()
+                && !on
+            {
+                app.commands.push(Command::SetDeblurMethod(m));
+            }
+        }
+        strength_ui(app, ui, method);
+        ui.separator();
+        let mut suppress = app.views.deblur.fringes == crate::deblur::Fringes::Suppress;
+        if ui
+            .checkbox(&mut suppress, "no colour fringes")
+            .on_hover_text("Hold each deblurred pixel's colour inside the colours the photo has around it: the channels' deconvolutions ring a little differently, and at strong neutral edges that shows as fringes the scene never had (RGB photos; a RAW photo's Bayer planes are left as they are)")
+            .changed()
+        {
+            app.commands.push(Command::SetDeblurFringes(if suppress {
+                crate::deblur::Fringes::Suppress
+            } else {
+                crate::deblur::Fringes::Keep
+            }));
+        }
+        let mut correct = app.views.deblur.lateral == crate::model::LateralColour::Correct;
+        let has_place = app
+            .profile()
+            .is_some_and(|(_, p)| p.place.is_some());
+        if ui
+            .add_enabled(has_place, egui::Checkbox::new(&mut correct, "correct lateral colour"))
+            .on_hover_text("Move red and blue back onto green as the blur is removed, where the profile measured how far the lens moves them. Leave it off when darktable or RawTherapee corrects lateral colour with the lens's lensfun entry, or the channels move twice")
+            .on_disabled_hover_text("This profile does not record where each channel's kernels sit (it was calibrated before profile version 4, or from shots whose kernels were not kept): calibrate again to correct lateral colour")
+            .changed()
+        {
+            app.commands.push(Command::SetDeblurLateral(if correct {
+                crate::model::LateralColour::Correct
+            } else {
+                crate::model::LateralColour::Keep
+            }));
+        }
+        ui.separator();
+        ui.label("device");
+        for (d, label, tip) in [
+            (Device::Auto, "Auto", "The GPU the window draws with when it is a hardware one, else the CPU"),
+            (Device::Gpu, "GPU", "The window's GPU whatever it is (a software rasteriser is slow)"),
+            (Device::Cpu, "CPU", "The reference path"),
+        ] {
+            if ui
+                .selectable_label(app.views.deblur.device == d, label)
+                .on_hover_text(tip)
+                .clicked()
+            {
+                app.commands.push(Command::SetDeblurDevice(d));
+            }
+        }
+    });
+}
+
+/// The regularisation strength of the method: the data weight λ of HQS and IRLS (more:
+/// sharper and noisier), the noise-to-signal ratio of Wiener (more: smoother).
+fn strength_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
+    let (mut v, range, text, tip) = match method {
+        Method::Hqs(p) => (
+            p.lambda,
+            100.0..=100_000.0,
+            "λ",
+            "Data weight: higher sharpens more and keeps more noise",
+        ),
+        Method::Irls(p) => (
+            p.lambda,
+            100.0..=100_000.0,
+            "λ",
+            "Data weight: higher sharpens more and keeps more noise",
+        ),
+        Method::Wiener(p) => (p.nsr, 1e-5..=0.1, "noise/signal", "Higher smooths more"),
+    };
+    let r = ui
+        .add(
+            egui::Slider::new(&mut v, range)
+                .logarithmic(true)
+                .text(text),
+        )
+        .on_hover_text(tip);
+    if r.changed() {
+        let m = match method {
+            Method::Hqs(p) => Method::Hqs(HqsParams { lambda: v, ..p }),
+            Method::Irls(p) => Method::Irls(IrlsParams { lambda: v, ..p }),
+            Method::Wiener(_) => Method::Wiener(WienerParams { nsr: v }),
+        };
+        app.commands.push(Command::SetDeblurMethod(m));
+    }
+}
