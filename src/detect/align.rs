@@ -298,6 +298,59 @@ fn evaluate(
     }
 }
 
+/// Weight of a held corner (see [`held_corners`]) per px² of its distance from the
+/// bootstrap, in units of the square's squared contrast: a unit-contrast edge a pixel
+/// long informs its position some 0.3 px⁻² at σ = 1 px, so a held corner weighs as
+/// much as some thirty pixels of edge and moves by hundredths of a pixel under
+/// whatever pulls at it.
+const HOLD_WEIGHT: f64 = 10.0;
+
+/// The corners of square (col, row) that no edge in its window places: a corner of the
+/// board's outline whose square is white. Both its edges run between the square's
+/// white and the white margin, and the print shows nothing there; the registration
+/// would move it freely with whatever the margin holds (the paper's shading, the
+/// board's outline bent by the lens against the neighbours' short stubs of edge), and
+/// on real photos it moved by more than the shift allowed. Such a corner is held where
+/// the lattice puts it.
+fn held_corners(spec: &ChartSpec, col: usize, row: usize) -> Vec<[f64; 2]> {
+    if spec.is_black(col, row) {
+        return Vec::new();
+    }
+    let (cols, rows) = (spec.cols as f64, spec.rows as f64);
+    spec.square_corners(col, row)
+        .into_iter()
+        .filter(|c| (c[0] == 0.0 || c[0] == cols) && (c[1] == 0.0 || c[1] == rows))
+        .collect()
+}
+
+/// Adds to `ev` the cost of the `held` chart corners' distance under `h` from their
+/// bootstrap positions, weighted by `weight`, with its Gauss–Newton terms over the 8
+/// warp parameters (the warp's own Jacobian at each corner, as in [`evaluate`]).
+fn hold_corners(
+    ev: &mut Eval,
+    h: &Homography,
+    bootstrap: &Homography,
+    held: &[[f64; 2]],
+    weight: f64,
+    centre: [f64; 2],
+    scale: f64,
+) {
+    for c in held {
+        let (p, target) = (h.apply(*c), bootstrap.apply(*c));
+        let (u, v) = ((p[0] - centre[0]) / scale, (p[1] - centre[1]) / scale);
+        let jx = [u, v, 1.0, 0.0, 0.0, 0.0, -u * u, -u * v].map(|d| d * scale);
+        let jy = [0.0, 0.0, 0.0, u, v, 1.0, -u * v, -v * v].map(|d| d * scale);
+        let (rx, ry) = (target[0] - p[0], target[1] - p[1]);
+        ev.cost += weight * (rx * rx + ry * ry);
+        for a in 0..8 {
+            ev.jtr[a] += weight * (jx[a] * rx + jy[a] * ry);
+            for b in 0..8 {
+                ev.jtj[(a, b)] += weight * (jx[a] * jx[b] + jy[a] * jy[b]);
+            }
+        }
+    }
+}
+
 fn apply_step(st: &State, d: &DVector<f64>, centre: [f64; 2], scale: f64) -> State {
     let w = Matrix3::new(
         1.0 + d[0],
@@ -447,6 +500,19 @@ pub fn align_square(
         a,
         b,
     };
+    let held = held_corners(spec, col, row);
+    let contrast2 = st.b.iter().map(|b| b * b).sum::<f64>() / np as f64;
+    let hold = |ev: &mut Eval, h: &Homography| {
+        hold_corners(
+            ev,
+            h,
+            bootstrap,
+            &held,
+            HOLD_WEIGHT * contrast2,
+            centre,
+            scale,
+        );
+    };
     let mut last_eval: Option<(f64, usize, Eval)> = None;
     for level in (0..levels.max(1)).rev() {
         let extra_sigma = if level == 0 {
@@ -467,6 +533,7 @@ pub fn align_square(
             params.tolerance_px * 10.0
         };
         let mut ev = evaluate(spec, &st, &smp, rect, extra_var, centre, scale);
+        hold(&mut ev, &st.h);
         let mut lambda = 1e-4;
         let mut converged = false;
         for _ in 0..params.max_iterations {
@@ -480,7 +547,8 @@ pub fn align_square(
             };
             let next = apply_step(&st, &step, centre, scale);
             let shift = max_corner_shift(&st.h, &next.h, &quad);
-            let nev = evaluate(spec, &next, &smp, rect, extra_var, centre, scale);
+            let mut nev = evaluate(spec, &next, &smp, rect, extra_var, centre, scale);
+            hold(&mut nev, &next.h);
             if nev.cost <= ev.cost {
                 st = next;
                 ev = nev;

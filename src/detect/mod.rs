@@ -9,8 +9,9 @@
 //! than the chart (a periodic texture beside it) are set aside. Every square of the
 //! chart is then predicted, bootstrapped from its four localised corners by a
 //! normalised DLT, and refined by registering the exactly rasterised, Gaussian-blurred
-//! chart to the observed pixels ([`align`]). Squares that cannot be used are reported
-//! as skipped with a reason, never dropped.
+//! chart to the observed pixels ([`align`]; the outer corner of a white corner square,
+//! which no edge of the print places, is held where the lattice puts it). Squares that
+//! cannot be used are reported as skipped with a reason, never dropped.
 
 pub mod align;
 pub mod filter;
