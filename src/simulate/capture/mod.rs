@@ -17,6 +17,11 @@
 //! the exact rasteriser (variance 1/(12 s²)) and the s-point average (1/12 − 1/(12 s²))
 //! together add exactly the pixel box's 1/12 px², so the second moments of the
 //! pixel-level PSF are those of the optical PSF plus 1/12 px² per axis.
+//!
+//! Under a lens that bends the image (distortion, lateral colour), the chart is
+//! rasterised in small blocks, each under the homography that follows the bent mapping
+//! to [`BLOCK_MAPPING_TOLERANCE_PX`] over it, once for the whole frame per distinct
+//! mapping (strip by strip), and each neighbourhood is cut from that raster.
 
 use super::distortion::{LensGeometry, SensorMapping};
 use super::lens::{PsfShape, VirtualLens};
@@ -33,6 +38,10 @@ use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeSet, HashMap};
+
+mod bent;
+pub use bent::{BLOCK_MAPPING_TOLERANCE_PX, block_homography};
+use bent::{BentStrips, block_px};
 
 /// Where the chart sits in the frame.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -481,11 +490,29 @@ pub fn simulate_shot(
         })
         .collect();
 
+    let mut strips = bent.as_ref().map(|(distinct, _, block)| BentStrips {
+        spec,
+        chart_from_ideal: &chart_from_ideal,
+        maps: distinct,
+        block: *block,
+        background: params.paper_background,
+        s,
+        origin: [-((tile + margin) as i64); 2],
+        tile,
+        width_sub: ((xs.len() - 1) * tile + m) * s,
+        first: 0,
+        held: std::collections::VecDeque::new(),
+    });
     let mut out: Vec<Plane> = (0..3).map(|_| Plane::new(w, h)).collect();
     let total_rows = ys.len();
     for (jy, &cy) in ys.iter().enumerate() {
         job.check()?;
         job.report("simulate", jy, total_rows);
+        let row_y0 = cy as i64 - tile as i64 - margin as i64;
+        if let Some(strips) = strips.as_mut() {
+            strips.reach_row(row_y0, n);
+        }
+        let strips = strips.as_ref();
         let row: Vec<(usize, [Vec<f32>; 3], i64, i64)> = (0..xs.len())
             .into_par_iter()
             .map_init(
@@ -503,7 +530,7 @@ pub fn simulate_shot(
                     let sub_from_sensor = sensor_from_sub
                         .inverse()
                         .unwrap_or_else(Homography::identity);
-                    let sharps: Vec<Plane> = match &bent {
+                    let sharps: Vec<Plane> = match strips {
                         None => vec![rasterize(
                             spec,
                             &sub_from_sensor.compose(&image_from_chart),
@@ -511,20 +538,7 @@ pub fn simulate_shot(
                             n,
                             params.paper_background,
                         )],
-                        Some((distinct, _, block)) => distinct
-                            .iter()
-                            .map(|map| {
-                                rasterize_bent(
-                                    spec,
-                                    &chart_from_ideal,
-                                    map,
-                                    &sensor_from_sub,
-                                    n,
-                                    *block,
-                                    params.paper_background,
-                                )
-                            })
-                            .collect(),
+                        Some(strips) => strips.window(x0, y0, n),
                     };
                     let spectra: Vec<Vec<Complex32>> = sharps
                         .iter()
@@ -685,86 +699,6 @@ fn channel_mappings(lens: &VirtualLens, params: &CaptureParams) -> Option<[Senso
     lens.geometry.bends().then(|| {
         CHANNELS.map(|ch| lens.sensor_mapping(ch, params.setting, params.width, params.height))
     })
-}
-
-/// The largest error (px) allowed between a render block's local homography and the
-/// exact bent mapping anywhere in the block.
-pub const BLOCK_MAPPING_TOLERANCE_PX: f64 = 0.005;
-
-/// Side (px) of the square blocks each rendered under its own homography, for a
-/// mapping over a `width × height` region about its centre: a smooth map deviates from
-/// its best local fit over a block of side B by at most κ B² / 4, κ the largest second
-/// derivative of the radial displacement there; the blocks keep that under
-/// [`BLOCK_MAPPING_TOLERANCE_PX`].
-fn block_px(map: &SensorMapping, width: f64, height: f64) -> usize {
-    let kappa = map.radial_curvature(0.5 * width.hypot(height));
-    if !(kappa > 0.0) {
-        return 64;
-    }
-    ((4.0 * BLOCK_MAPPING_TOLERANCE_PX / kappa).sqrt().floor() as usize).clamp(1, 64)
-}
-
-/// The homography from chart units to window sub-pixels, relative to the block whose
-/// top-left sub-pixel is (a0, b0) and size `bw × bh`, fitted by least squares to the
-/// exact mapping chart → ideal image → `map` → sensor → window at a 3 × 3 grid over the
-/// block's area.
-#[must_use]
-pub fn block_homography(
-    chart_from_ideal: &Homography,
-    map: &SensorMapping,
-    sensor_from_sub: &Homography,
-    origin: [f64; 2],
-    size: [f64; 2],
-) -> Option<Homography> {
-    let mut from = Vec::with_capacity(9);
-    let mut to = Vec::with_capacity(9);
-    for j in 0..3 {
-        for i in 0..3 {
-            let local = [
-                -0.5 + size[0] * f64::from(i) / 2.0,
-                -0.5 + size[1] * f64::from(j) / 2.0,
-            ];
-            let sensor = sensor_from_sub.apply([origin[0] + local[0], origin[1] + local[1]]);
-            from.push(chart_from_ideal.apply(map.ideal_from_sensor(sensor)));
-            to.push(local);
-        }
-    }
-    Homography::from_correspondences(&from, &to)
-}
-
-/// The chart rasterised onto an `n × n` window of sub-pixels under the bent mapping: in
-/// blocks of `block × block` sub-pixels, each exactly under its local homography.
-fn rasterize_bent(
-    spec: &ChartSpec,
-    chart_from_ideal: &Homography,
-    map: &SensorMapping,
-    sensor_from_sub: &Homography,
-    n: usize,
-    block: usize,
-    background: f32,
-) -> Plane {
-    let mut out = Plane::filled(n, n, background);
-    for b0 in (0..n).step_by(block) {
-        let bh = block.min(n - b0);
-        for a0 in (0..n).step_by(block) {
-            let bw = block.min(n - a0);
-            let Some(h) = block_homography(
-                chart_from_ideal,
-                map,
-                sensor_from_sub,
-                [a0 as f64, b0 as f64],
-                [bw as f64, bh as f64],
-            ) else {
-                continue;
-            };
-            let part = rasterize(spec, &h, bw, bh, background);
-            for j in 0..bh {
-                out.data[(b0 + j) * n + a0..(b0 + j) * n + a0 + bw]
-                    .copy_from_slice(&part.data[j * bw..(j + 1) * bw]);
-            }
-        }
-    }
-    out
 }
 
 /// CFA colour of sensor pixel (x, y) for RGGB: 0 = R, 1 = G, 2 = B.

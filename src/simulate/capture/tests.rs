@@ -1,5 +1,6 @@
 //! The capture simulator against exact expectations.
 
+use super::bent::rasterize_bent;
 use super::*;
 use crate::simulate::LensGeometry;
 
@@ -109,7 +110,7 @@ fn blocks_tile_the_window_exactly() {
         &chart_from_ideal,
         &identity,
         &sensor_from_sub,
-        n,
+        (n, n),
         20,
         0.35,
     );
@@ -119,6 +120,62 @@ fn blocks_tile_the_window_exactly() {
         .zip(&bent.data)
         .map(|(a, b)| (a - b).abs())
         .fold(0.0f32, f32::max);
+    assert!(worst < 1e-4, "worst difference {worst}");
+}
+
+/// Windows cut from the frame's strips are the windows rendered on their own: with an
+/// identity mapping, exactly the exact renderer's, at every row and column of the grid
+/// (strips dropped and rendered as the rows move down included).
+#[test]
+fn windows_cut_from_the_strips_are_the_exact_windows() {
+    let spec = ChartSpec::default();
+    let (w, h) = (200usize, 150usize);
+    let image_from_chart = Pose::default().image_from_chart(&spec, w, h);
+    let chart_from_ideal = image_from_chart.inverse().expect("pose");
+    let identity = [LensGeometry::default().mapping(Channel::G, 0.0, 0.0, w, h)];
+    let (s, tile, margin) = (4usize, 16usize, 5usize);
+    let m = good_size(2 * tile + 1 + 2 * margin);
+    let n = m * s;
+    let (xs, ys) = (centre_grid(w, tile), centre_grid(h, tile));
+    let mut strips = BentStrips {
+        spec: &spec,
+        chart_from_ideal: &chart_from_ideal,
+        maps: &identity,
+        block: 28,
+        background: 0.35,
+        s,
+        origin: [-((tile + margin) as i64); 2],
+        tile,
+        width_sub: ((xs.len() - 1) * tile + m) * s,
+        first: 0,
+        held: std::collections::VecDeque::new(),
+    };
+    let sf = s as f64;
+    let off = (sf - 1.0) / (2.0 * sf);
+    let mut worst = 0.0f32;
+    for &cy in &ys {
+        let y0 = cy as i64 - (tile + margin) as i64;
+        strips.reach_row(y0, n);
+        assert!(strips.held.len() <= n.div_ceil(tile * s) + 1);
+        for &cx in xs.iter().step_by(3) {
+            let x0 = cx as i64 - (tile + margin) as i64;
+            let cut = strips.window(x0, y0, n);
+            let sub_from_sensor = Homography::translation(x0 as f64 - off, y0 as f64 - off)
+                .compose(&Homography::scaling(1.0 / sf, 1.0 / sf))
+                .inverse()
+                .expect("inverse");
+            let exact = rasterize(
+                &spec,
+                &sub_from_sensor.compose(&image_from_chart),
+                n,
+                n,
+                0.35,
+            );
+            for (a, b) in exact.data.iter().zip(&cut[0].data) {
+                worst = worst.max((a - b).abs());
+            }
+        }
+    }
     assert!(worst < 1e-4, "worst difference {worst}");
 }
 
