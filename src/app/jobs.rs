@@ -193,7 +193,7 @@ impl<T: Send + 'static> Jobs<T> {
     }
 
     /// What to call when only a job's progress changed (by default the same as for a
-    /// result): the studio repaints a few times a second for it, not every frame, so
+    /// result): the studio repaints once a second for it, not every frame, so
     /// the jobs keep the cores.
     #[must_use]
     pub fn with_progress_wake(mut self, wake: impl Fn() + Send + Sync + 'static) -> Self {
