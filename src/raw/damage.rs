@@ -75,6 +75,22 @@ fn mrw_tiff(b: &[u8]) -> Result<u64, String> {
         if tag == 0x0054_5457 {
             tiff = at as u64 + 8;
         }
+        // PRD: the sensor's size, for which rawler reserves an image before lensblur
+        // can check it.
+        let be16 = |o: usize| {
+            b.get(o..o + 2)
+                .map_or(0, |s| u64::from(u16::from_be_bytes([s[0], s[1]])))
+        };
+        if tag == 0x0050_5244
+            && be16(at + 16) * be16(at + 18) > crate::limits::MAX_IMAGE_PIXELS as u64
+        {
+            return Err(format!(
+                "its PRD block declares a {} × {} image, more than {} pixels",
+                be16(at + 18),
+                be16(at + 16),
+                crate::limits::MAX_IMAGE_PIXELS
+            ));
+        }
         // rawler adds a block's length and header in 32 bits.
         match len.wrapping_add(8) {
             0 => {
@@ -235,6 +251,7 @@ fn walk_dirs(b: &[u8], root: Dir) -> Option<String> {
         // Width, length, tile width, tile length: how many tiles the image needs.
         let mut dims: [Option<u64>; 4] = [None; 4];
         let mut samples_per_pixel = 1;
+        let mut compression = None;
         let mut counts: [Option<Vec<u64>>; 2] = [None, None];
         for e in 0..n {
             let entry = at + 2 + 12 * e;
@@ -312,6 +329,7 @@ fn walk_dirs(b: &[u8], root: Dir) -> Option<String> {
                 279 => counts[0] = values(),
                 324 => image[1] = values(),
                 325 => counts[1] = values(),
+                259 => compression = values().and_then(|v| v.first().copied()),
                 256 => dims[0] = values().and_then(|v| v.first().copied()),
                 257 => dims[1] = values().and_then(|v| v.first().copied()),
                 322 => dims[2] = values().and_then(|v| v.first().copied()),
@@ -329,6 +347,20 @@ fn walk_dirs(b: &[u8], root: Dir) -> Option<String> {
                 "a directory declares a {w} × {h} image of {samples_per_pixel} samples a \
                  pixel, more than {MAX_SAMPLES} samples"
             ));
+        }
+        // Lossless JPEG strips or tiles: rawler sizes each one's image by its own frame
+        // header, not by the directory.
+        if compression == Some(7) {
+            for (offsets, counts) in image.iter().zip(&counts) {
+                if let (Some(offsets), Some(counts)) = (offsets, counts)
+                    && let Some(why) = offsets
+                        .iter()
+                        .zip(counts)
+                        .find_map(|(&o, &c)| ljpeg_frame(b, data_base + o, c))
+                {
+                    return Some(why);
+                }
+            }
         }
         if all
             && let ([Some(w), Some(h), Some(tw), Some(th)], Some(offsets)) = (dims, &image[1])
@@ -367,6 +399,27 @@ fn walk_dirs(b: &[u8], root: Dir) -> Option<String> {
         }
     }
     None
+}
+
+/// A lossless JPEG (at byte `at`, `count` bytes) whose frame header (SOF3) declares
+/// more samples than any image lensblur reads.
+fn ljpeg_frame(b: &[u8], at: u64, count: u64) -> Option<String> {
+    let start = usize::try_from(at).ok()?;
+    let end = usize::try_from(at.saturating_add(count)).ok()?.min(b.len());
+    let jpeg = b.get(start..end)?;
+    let sof = jpeg.windows(2).position(|w| w == [0xFF, 0xC3])?;
+    let f = jpeg.get(sof + 5..sof + 10)?;
+    let (h, w, components) = (
+        u64::from(u16::from_be_bytes([f[0], f[1]])),
+        u64::from(u16::from_be_bytes([f[2], f[3]])),
+        u64::from(f[4]),
+    );
+    (w * h * components > MAX_SAMPLES).then(|| {
+        format!(
+            "the lossless JPEG at byte {at} declares a {w} × {h} frame of {components} \
+             components, more than {MAX_SAMPLES} samples"
+        )
+    })
 }
 
 /// The directory a maker note (tag 37500, its data at byte `data`) holds, where rawler
@@ -496,7 +549,138 @@ fn content(parent: Option<&[u8; 4]>, kind: &[u8; 4], uuid: Option<&[u8]>) -> Con
 /// table's entries fit in their box, and the TIFFs in Canon's CMT boxes are whole enough
 /// to read (see [`before_decoding`]).
 fn boxes(b: &[u8]) -> Option<String> {
-    walk(b, 0, b.len() as u64, None).err()
+    walk(b, 0, b.len() as u64, None).err().or_else(|| ctmd(b))
+}
+
+/// The boxes directly inside `start..end`, each as its type, where its content starts
+/// and where it ends; read once [`walk`] found them whole.
+fn children(b: &[u8], start: u64, end: u64) -> Vec<([u8; 4], u64, u64)> {
+    let mut v = Vec::new();
+    let mut at = start;
+    while at + 8 <= end {
+        let Some(i) = usize::try_from(at).ok() else {
+            break;
+        };
+        let kind = [b[i + 4], b[i + 5], b[i + 6], b[i + 7]];
+        let mut header = 8;
+        let size = match u32::from_be_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]) {
+            0 => end - at,
+            1 => {
+                header = 16;
+                b.get(i + 8..i + 16).map_or(0, |s| {
+                    u64::from_be_bytes([s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7]])
+                })
+            }
+            s => u64::from(s),
+        };
+        if &kind == b"uuid" {
+            header += 16;
+        }
+        if size < header || at + size > end {
+            break;
+        }
+        v.push((kind, at + header, at + size));
+        at += size;
+    }
+    v
+}
+
+/// The records of a CR3's CTMD sample (in the mdat, where its track's tables place
+/// it), as rawler reads them: each record's size, which rawler reserves before it looks
+/// whether the sample holds it, within the sample; and the TIFFs of its EXIF and maker
+/// note blocks whole enough to read.
+fn ctmd(b: &[u8]) -> Option<String> {
+    let be32 = |o: u64| {
+        let o = usize::try_from(o).ok()?;
+        b.get(o..o + 4)
+            .map(|s| u64::from(u32::from_be_bytes([s[0], s[1], s[2], s[3]])))
+    };
+    let first = |start: u64, end: u64, kind: &[u8; 4]| {
+        children(b, start, end)
+            .into_iter()
+            .find(|c| &c.0 == kind)
+            .map(|c| (c.1, c.2))
+    };
+    let moov = first(0, b.len() as u64, b"moov")?;
+    for trak in children(b, moov.0, moov.1)
+        .into_iter()
+        .filter(|c| &c.0 == b"trak")
+    {
+        let Some(stbl) = first(trak.1, trak.2, b"mdia")
+            .and_then(|m| first(m.0, m.1, b"minf"))
+            .and_then(|m| first(m.0, m.1, b"stbl"))
+        else {
+            continue;
+        };
+        let Some(stsd) = first(stbl.0, stbl.1, b"stsd") else {
+            continue;
+        };
+        if stsd.0 + 8 > stsd.1 || first(stsd.0 + 8, stsd.1, b"CTMD").is_none() {
+            continue;
+        }
+        // The first sample: in the first chunk the sample-to-chunk table names, at that
+        // chunk's offset, of the one size the sizes table gives or its first.
+        let (stsc, stsz, co64) = (
+            first(stbl.0, stbl.1, b"stsc")?,
+            first(stbl.0, stbl.1, b"stsz")?,
+            first(stbl.0, stbl.1, b"co64")?,
+        );
+        let chunk = be32(stsc.0 + 8)?.checked_sub(1)?;
+        let o = usize::try_from(co64.0 + 8 + 8 * chunk).ok()?;
+        let offset = u64::from_be_bytes(b.get(o..o + 8)?.try_into().ok()?);
+        let size = match be32(stsz.0 + 4)? {
+            0 => be32(stsz.0 + 12)?,
+            s => s,
+        };
+        let sample =
+            b.get(usize::try_from(offset).ok()?..usize::try_from(offset.checked_add(size)?).ok()?)?;
+        let mut at = 0usize;
+        while sample.len() - at >= 12 {
+            let le32 = |o: usize| {
+                u32::from_le_bytes([sample[o], sample[o + 1], sample[o + 2], sample[o + 3]])
+            };
+            let (rec_size, rec_type) = (
+                le32(at) as usize,
+                u16::from_le_bytes([sample[at + 4], sample[at + 5]]),
+            );
+            let Some(payload) = rec_size
+                .checked_sub(12)
+                .filter(|n| *n <= sample.len() - at - 12)
+            else {
+                return Some(format!(
+                    "a CTMD record at byte {} declares a size of {rec_size} bytes, where its \
+                     12-byte header and the {} bytes left of its sample are",
+                    offset + at as u64,
+                    sample.len() - at
+                ));
+            };
+            let data = &sample[at + 12..at + 12 + payload];
+            at += 12 + payload;
+            if !(7..=12).contains(&rec_type) {
+                continue;
+            }
+            let mut p = 0;
+            while data.len() - p >= 8 {
+                let sz =
+                    u32::from_le_bytes([data[p], data[p + 1], data[p + 2], data[p + 3]]) as usize;
+                let tag = u16::from_le_bytes([data[p + 4], data[p + 5]]);
+                let Some(n) = sz.checked_sub(8).filter(|n| *n <= data.len() - p - 8) else {
+                    break;
+                };
+                let block = &data[p + 8..p + 8 + n];
+                p += sz;
+                if matches!(tag, 0x8769 | 0x927c)
+                    && let Some(why) = tiff_walk(block, 0, Look::Hazards)
+                {
+                    return Some(format!(
+                        "in a CTMD block at byte {}: {why}",
+                        offset + (at - payload + p - sz) as u64
+                    ));
+                }
+            }
+        }
+    }
+    None
 }
 
 /// The boxes from byte `at` to `end`: the file's top level (`parent` `None`), or a
@@ -748,6 +932,41 @@ mod tests {
             before_decoding(&t).as_deref(),
             Some(
                 "tag 271 declares 2147483648 values of 4 bytes, more than the file's 26 bytes hold"
+            )
+        );
+    }
+
+    #[test]
+    fn an_image_declared_larger_than_any_read_is_refused_before_decoding() {
+        // An MRW whose PRD block declares 65535 × 65535 pixels.
+        let mut mrw = b"\0MRM".to_vec();
+        mrw.extend_from_slice(&32u32.to_be_bytes());
+        mrw.extend_from_slice(b"\0PRD");
+        mrw.extend_from_slice(&24u32.to_be_bytes());
+        mrw.extend_from_slice(&[0; 8]);
+        mrw.extend_from_slice(&[0xFF; 4]);
+        mrw.extend_from_slice(&[0; 12]);
+        assert!(
+            before_decoding(&mrw)
+                .unwrap()
+                .starts_with("its PRD block declares a 65535 × 65535 image"),
+        );
+        // A TIFF's lossless JPEG strip whose frame header says 65535 × 65535 × 2.
+        let mut t = b"II*\0\x08\0\0\0".to_vec();
+        t.extend_from_slice(&3u16.to_le_bytes());
+        for (tag, typ, value) in [(259u16, 3u16, 7u32), (273, 4, 50), (279, 4, 12)] {
+            t.extend_from_slice(&tag.to_le_bytes());
+            t.extend_from_slice(&typ.to_le_bytes());
+            t.extend_from_slice(&1u32.to_le_bytes());
+            t.extend_from_slice(&value.to_le_bytes());
+        }
+        t.extend_from_slice(&0u32.to_le_bytes());
+        t.extend_from_slice(&[0xFF, 0xD8, 0xFF, 0xC3, 0, 11, 16, 0xFF, 0xFF, 0xFF, 0xFF, 2]);
+        assert_eq!(
+            before_decoding(&t).as_deref(),
+            Some(
+                "the lossless JPEG at byte 50 declares a 65535 × 65535 frame of 2 components, \
+                 more than 1200000000 samples"
             )
         );
     }
