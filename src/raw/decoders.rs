@@ -373,9 +373,14 @@ pub(super) fn explain(
     LoadError::Corrupt {
         path: path.to_path_buf(),
         reason: match fallback {
-            Some(e) if rawler_words.starts_with("not a RAW") => {
-                format!("{rawler_words} ({})", super::fallback_words(&e))
-            }
+            // What the photographer can do about a file no decoder recognises: it may
+            // be a camera's RAW that only a converter knows, or no photo at all.
+            Some(e) if rawler_words.starts_with("not a RAW") => format!(
+                "{rawler_words} ({}); if it is a camera's RAW file, convert it to DNG with \
+                 Adobe DNG Converter or `dnglab convert` and open the DNG (PNG, TIFF and \
+                 JPEG are read as they are)",
+                super::fallback_words(&e)
+            ),
             _ => rawler_words,
         },
     }
