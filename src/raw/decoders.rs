@@ -67,6 +67,7 @@ pub(super) fn rawler_capture(
     bytes: &[u8],
     ifd: Option<&Ifd>,
 ) -> Result<(Capture, DecodedMeta), RawlerRefusal> {
+    refuse_hazards(path, bytes).map_err(RawlerRefusal::Ours)?;
     let _quiet = QuietPanics::new();
     let source = rawler::rawsource::RawSource::new_from_slice(bytes);
     let params = rawler::decoders::RawDecodeParams::default();
@@ -372,29 +373,56 @@ pub(super) fn explain(
     LoadError::Corrupt {
         path: path.to_path_buf(),
         reason: match fallback {
-            Some(e) if rawler_words.starts_with("not a RAW") => {
-                format!("{rawler_words} ({})", super::fallback_words(&e))
-            }
+            // What the photographer can do about a file no decoder recognises: it may
+            // be a camera's RAW that only a converter knows, or no photo at all.
+            Some(e) if rawler_words.starts_with("not a RAW") => format!(
+                "{rawler_words} ({}); if it is a camera's RAW file, convert it to DNG with \
+                 Adobe DNG Converter or `dnglab convert` and open the DNG (PNG, TIFF and \
+                 JPEG are read as they are)",
+                super::fallback_words(&e)
+            ),
             _ => rawler_words,
         },
     }
 }
 
+/// A file whose structure rawler cannot survive (it would loop, or allocate by a count
+/// the file cannot hold: see [`super::damage::before_decoding`]) is refused as damaged
+/// before rawler sees it.
+fn refuse_hazards(path: &Path, bytes: &[u8]) -> Result<(), LoadError> {
+    match super::damage::before_decoding(bytes) {
+        Some(reason) => Err(LoadError::Damaged {
+            path: path.to_path_buf(),
+            reason,
+        }),
+        None => Ok(()),
+    }
+}
+
+/// What rawler's header-only pass finds: the active area's size, the camera's make and
+/// model.
+pub(super) type RawlerHeader = ((usize, usize), String, String);
+
 /// rawler's header-only pass: the active area's size and the camera's names, or `None`
 /// where rawler does not read the file (or stops on it).
-pub(super) fn rawler_header(bytes: &[u8]) -> Option<((usize, usize), String, String)> {
+///
+/// # Errors
+/// The file is damaged in a way rawler is not handed (see [`refuse_hazards`]).
+pub(super) fn rawler_header(path: &Path, bytes: &[u8]) -> Result<Option<RawlerHeader>, LoadError> {
+    refuse_hazards(path, bytes)?;
     let source = rawler::rawsource::RawSource::new_from_slice(bytes);
     let params = rawler::decoders::RawDecodeParams::default();
     let head = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         rawler::get_decoder(&source)?.raw_image(&source, &params, true)
-    }))
-    .ok()?
-    .ok()?;
+    }));
+    let Ok(Ok(head)) = head else {
+        return Ok(None);
+    };
     let size = match &head.active_area {
         Some(r) if r.p.x + r.d.w <= head.width && r.p.y + r.d.h <= head.height => (r.d.w, r.d.h),
         _ => (head.width, head.height),
     };
-    Some((size, head.clean_make, head.clean_model))
+    Ok(Some((size, head.clean_make, head.clean_model)))
 }
 
 /// Whether a TIFF is a camera's own RAW (not a DNG): a CR2, or a TIFF whose first

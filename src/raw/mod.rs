@@ -225,7 +225,7 @@ fn raw_dimensions(
     exif: &mut ExifInfo,
 ) -> Result<(usize, usize), LoadError> {
     let _quiet = QuietPanics::new();
-    let (size, make, model) = match decoders::rawler_header(bytes) {
+    let (size, make, model) = match decoders::rawler_header(path, bytes)? {
         Some(found) => found,
         None => {
             let head = std::panic::catch_unwind(|| {

@@ -135,11 +135,12 @@ fn mutate_raw_inputs(per_target: usize) -> Vec<(Target, usize, usize)> {
         .collect()
 }
 
-/// Not in CI yet: some mutants of the real files make rawler allocate past the
-/// machine's memory inside its own header parsing, before lensblur's limits can be
-/// checked (the process is killed, no panic escapes).
+/// Mutants of the real files once made rawler loop or allocate past the machine's
+/// memory inside its own header parsing (an abort, no panic to catch): a box smaller
+/// than its header, a table counting more entries than its box holds, a TIFF's chain of
+/// directories linking back into itself. Such files are now refused before rawler
+/// reads them (`raw::damage::before_decoding`).
 #[test]
-#[ignore = "a mutant exhausts memory inside rawler's header parsing"]
 fn mutated_real_camera_files_never_panic() {
     for (target, ran, _) in mutate_raw_inputs(400) {
         assert!(ran >= 400, "{}: {ran}", target.name());
@@ -162,4 +163,64 @@ fn mutated_real_camera_files_at_length() {
         );
         assert!(ran >= n);
     }
+}
+
+fn real(name: &str) -> Vec<u8> {
+    std::fs::read(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/real")
+            .join(name),
+    )
+    .unwrap()
+}
+
+/// A damaged-file refusal, in one line naming the file and what is wrong.
+fn refusal(name: &str, bytes: &[u8]) -> String {
+    let e = lensblur::raw::decode_raw(Path::new(name), bytes)
+        .map(|_| ())
+        .unwrap_err();
+    assert!(matches!(e, lensblur::raw::LoadError::Damaged { .. }), "{e}");
+    let m = e.to_string();
+    assert!(m.starts_with(name) && !m.contains('\n'), "{m}");
+    m
+}
+
+#[test]
+fn a_cr3_whose_sample_table_counts_more_than_its_box_holds_is_refused_naming_the_box() {
+    let mut b = real("canon-m50-stripped.cr3");
+    // The first track's stsz: one size for its one sample. Made a table of 2^32 - 1
+    // sizes (16 GiB for rawler to reserve) in its 12 bytes.
+    let at = b.windows(4).position(|w| w == b"stsz").unwrap() + 4;
+    b[at + 4..at + 8].copy_from_slice(&0u32.to_be_bytes());
+    b[at + 8..at + 12].copy_from_slice(&u32::MAX.to_be_bytes());
+    let m = refusal("sizes.cr3", &b);
+    assert!(
+        m.contains("the 'stsz' box at byte 9321 lists 4294967295 entries"),
+        "{m}"
+    );
+    // A box inside the moov of no size at all: rawler would read it forever.
+    let mut b = real("canon-m50-stripped.cr3");
+    let at = b.windows(4).position(|w| w == b"mvhd").unwrap() - 4;
+    b[at..at + 4].copy_from_slice(&0u32.to_be_bytes());
+    let m = refusal("empty.cr3", &b);
+    assert!(
+        m.contains("'mvhd' box at byte 8788 declares a size of 0 bytes"),
+        "{m}"
+    );
+}
+
+#[test]
+fn a_tiff_raw_whose_directories_link_in_a_loop_is_refused() {
+    // The D70's NEF, its first directory's link to the next pointed back at itself.
+    let mut b = real("nikon-d70-stripped.nef");
+    assert_eq!(&b[..2], b"II");
+    let ifd = u32::from_le_bytes([b[4], b[5], b[6], b[7]]) as usize;
+    let n = u16::from_le_bytes([b[ifd], b[ifd + 1]]) as usize;
+    let next = ifd + 2 + 12 * n;
+    b[next..next + 4].copy_from_slice(&(ifd as u32).to_le_bytes());
+    let m = refusal("loop.nef", &b);
+    assert!(
+        m.contains(&format!("links back to the one at byte {ifd}")),
+        "{m}"
+    );
 }

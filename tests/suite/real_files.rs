@@ -222,6 +222,22 @@ fn an_unknown_camera_is_named_with_what_to_do() {
 }
 
 #[test]
+fn a_file_no_decoder_recognises_says_what_to_do() {
+    // The D70's NEF with its TIFF header overwritten: no format any decoder knows.
+    let path = real("nikon-d70-stripped.nef");
+    let mut bytes = std::fs::read(&path).unwrap();
+    bytes[..8].copy_from_slice(b"NOTARAW!");
+    let e = lensblur::raw::decode_raw(&path, &bytes).unwrap_err();
+    let m = one_line(&e, &path);
+    assert!(matches!(e, LoadError::Corrupt { .. }), "{m}");
+    assert!(m.contains("not a RAW format lensblur knows"), "{m}");
+    assert!(
+        m.contains("Adobe DNG Converter") && m.contains("dnglab convert"),
+        "{m}"
+    );
+}
+
+#[test]
 fn info_on_the_command_line() {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_lensblur"))
         .args(["info", "--json"])
