@@ -21,7 +21,6 @@
 pub mod edges;
 pub mod file;
 pub mod packed;
-mod shading;
 mod solve;
 
 use crate::chart::{self, ChartSpec};
@@ -546,7 +545,7 @@ fn solve(
     // The channel's real pixel centres in the observed window: where each one's kernel
     // patch starts in the raster, and its value. The patch under pixel x is centred on
     // its raster sample (x − bx0)·s + r_sub, so it starts at (x − bx0)·s.
-    let raw_pixel_centres = || {
+    let pixel_centres = || {
         planes().flat_map(move |cp| {
             // The plane's pixels inside the window [b·0, b·1] along one axis.
             let span = move |lo: usize, hi: usize, offset: usize, n: usize| {
@@ -568,21 +567,6 @@ fn solve(
                     )
                 })
             })
-        })
-    };
-    // Fall-off across the window, divided out of every observation (see [`shading`]).
-    let shading = fit_shading(prep, raw_pixel_centres());
-    let gain = move |x: f64, y: f64| shading.map_or(1.0, |s| s.gain(x, y));
-    let sensor = |x0: usize, y0: usize| {
-        (
-            prep.bx0 as f64 + x0 as f64 / os as f64,
-            prep.by0 as f64 + y0 as f64 / os as f64,
-        )
-    };
-    let pixel_centres = || {
-        raw_pixel_centres().map(move |(x0, y0, v)| {
-            let (x, y) = sensor(x0, y0);
-            (x0, y0, v / gain(x, y))
         })
     };
     let solution = match (&prep.uniform, params.weighting) {
@@ -626,8 +610,7 @@ fn solve(
                         let x = prep.bx0 as f64 + q_x as f64 / s;
                         let [pi, pj] = cp.plane_from_sensor(x, y);
                         if let Some(v) = cp.plane.bilinear(pi, pj) {
-                            let v = f64::from(v) / gain(x, y);
-                            problem.observe(q_x + 2 * r_sub, q_y + 2 * r_sub, v);
+                            problem.observe(q_x + 2 * r_sub, q_y + 2 * r_sub, f64::from(v));
                             count += 1;
                         }
                     }
@@ -653,42 +636,6 @@ fn solve(
         iterations: solution.iterations,
         residual: solution.relative_residual,
     })
-}
-
-/// The gain across a prepared window, from the pixel centres (raster patch origin and
-/// value) whose surroundings are uniform on the sharp chart for about three blur widths
-/// (what the support allows, leaving a strip of the neighbouring squares' colour inside
-/// the window's margin); `None` where it cannot be told (see [`shading::Shading::fit`]).
-fn fit_shading(
-    prep: &Prepared,
-    centres: impl Iterator<Item = (usize, usize, f64)>,
-) -> Option<shading::Shading> {
-    let os = prep.os;
-    let reach_px = (prep.r_px.saturating_sub(1) * 3).div_ceil(4) + 1;
-    let reach_px = reach_px.min(prep.r_px.saturating_sub(1)).max(1);
-    let k = 2 * reach_px * os + 1;
-    if k > prep.nx.min(prep.ny) {
-        return None;
-    }
-    let flat = edges::Uniformity::new(&prep.raster, prep.nx, prep.ny, k);
-    let skip = (prep.r_px - reach_px) * os;
-    let samples: Vec<shading::FlatSample> = centres
-        .filter_map(|(x0, y0, value)| {
-            flat.value(x0 + skip, y0 + skip)
-                .map(|level| shading::FlatSample {
-                    x: prep.bx0 as f64 + x0 as f64 / os as f64,
-                    y: prep.by0 as f64 + y0 as f64 / os as f64,
-                    white: level > 0.5,
-                    value,
-                })
-        })
-        .collect();
-    let centre = [
-        0.5 * (prep.bx0 + prep.bx1) as f64,
-        0.5 * (prep.by0 + prep.by1) as f64,
-    ];
-    let half_extent = 0.5 * (prep.bx1 - prep.bx0).max(prep.by1 - prep.by0) as f64;
-    shading::Shading::fit(&samples, centre, half_extent)
 }
 
 /// Every aligned square × channel of a shot, in parallel. A RAW capture's two green

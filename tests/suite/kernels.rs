@@ -220,22 +220,6 @@ fn gaussian_psfs_rgb16_meet_the_bars() {
     gaussian_bars(false, "RGB 16-bit");
 }
 
-/// A lens whose light falls off by two stops towards the corners (a fast wide lens
-/// wide open) dims a corner square by 10–20 % from one side to the other. The kernel
-/// must not read that slope as blur: each σ meets the same bars as under even light.
-#[test]
-fn fall_off_across_a_square_is_not_read_as_blur() {
-    let mut lens = VirtualLens::demo();
-    lens.geometry.vignetting_stops = [2.0, 2.0];
-    let [setting, _] = extremes(&lens);
-    let (truth, kernels) = measure(&lens, setting, false, 21, &KernelParams::default());
-    assert_bars(
-        "two stops of fall-off",
-        &gaussian_errors(&truth, &kernels),
-        100,
-    );
-}
-
 /// `k` placed in a `size × size` grid, centres aligned (both sizes odd).
 fn embedded(k: &Kernel, size: usize) -> Vec<f64> {
     let mut out = vec![0.0; size * size];
