@@ -15,6 +15,7 @@ mod lensfun;
 mod load;
 mod model;
 mod pipeline;
+mod positions;
 mod project;
 mod real_files;
 mod simulate;

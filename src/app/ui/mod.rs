@@ -2,6 +2,7 @@
 //! `view_data` keeps current) and push [`Command`]s, and never compute what a view
 //! shows: where its view data is absent they show a placeholder.
 
+mod coverage;
 mod deblur;
 mod deblur_controls;
 mod field;

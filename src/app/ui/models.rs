@@ -490,8 +490,9 @@ fn plan_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         n => format!(" and {n} off it"),
     };
     ui.label(format!(
-        "{} settings shot: {} of the plan's {}{off}; {} with the {} shots each recommended (on a tripod, RAW, base ISO, focused on the chart, the chart filling the frame):",
+        "{} setting{} shot: {} of the plan's {}{off}; {} with the {} shots each recommended (on a tripod, RAW, base ISO, focused on the chart, the chart filling the frame or shot at several positions that together cover it):",
         progress.settings_shot,
+        if progress.settings_shot == 1 { "" } else { "s" },
         progress.planned_shot,
         progress.planned,
         progress.complete,
@@ -553,6 +554,7 @@ fn plan_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 ui.end_row();
             }
         });
+    super::coverage::coverage_ui(app, ui);
 }
 
 /// What relative L2 is, for a photographer.

@@ -14,7 +14,9 @@
 //! makes textures.
 
 use super::{StudioApp, View};
-use crate::review::{LensRange, PlannedSetting, ShootingAdvice};
+use crate::kernel::file::KernelsFile;
+use crate::plane::LensSetting;
+use crate::review::{LensRange, PlannedSetting, SettingCoverage, ShootingAdvice};
 use crate::simulate::VirtualLens;
 use atlas::refresh_kernel_atlas;
 use field::refresh_field;
@@ -70,7 +72,13 @@ pub struct ViewData {
     pub geometry: Option<GeometryData>,
     /// The session's settings with shots and what they allow the model.
     pub calibrated: Option<Calibrated>,
+    /// Where on the sensor the chart has been, per setting (the Models view's coverage
+    /// maps), keyed by each measured shot's setting and kernels.
+    pub coverage: Option<(CoverageKey, Vec<SettingCoverage>)>,
 }
+
+/// What the coverage maps are made from: each measured shot's setting and kernels.
+pub type CoverageKey = Vec<(LensSetting, Same<KernelsFile>)>;
 
 /// The focal lengths and f-numbers the session has shots at (sorted, distinct), marked
 /// on the sliders and the sweeps, and what they allow the model (the Models and Sweeps
@@ -100,6 +108,7 @@ impl ViewData {
 pub(super) fn refresh(app: &mut StudioApp) {
     refresh_shot_plane(app);
     refresh_calibrated(app);
+    refresh_coverage(app);
     refresh_inspection(app);
     match app.view {
         View::KernelField => {
@@ -188,6 +197,34 @@ pub(super) fn refresh_calibrated(app: &mut StudioApp) {
             advice,
         }
     });
+}
+
+/// The coverage maps, made again when a shot's kernels or setting change.
+fn refresh_coverage(app: &mut StudioApp) {
+    let key: CoverageKey = app.session().map_or_else(Vec::new, |s| {
+        s.shots
+            .iter()
+            .filter_map(|shot| {
+                let setting = LensSetting {
+                    focal_mm: shot.focal_mm?,
+                    f_number: shot.f_number?,
+                };
+                Some((setting, Same::of(Some(app.kernels(shot.id)?))))
+            })
+            .collect()
+    });
+    if app.data.coverage.as_ref().is_some_and(|(k, _)| *k == key) {
+        return;
+    }
+    let size = key
+        .iter()
+        .find_map(|(_, k)| k.0.as_ref().map(|k| (k.width, k.height)))
+        .unwrap_or((1, 1));
+    let maps = crate::review::coverage(
+        size,
+        key.iter().filter_map(|(s, k)| Some((*s, k.0.as_deref()?))),
+    );
+    app.data.coverage = Some((key, maps));
 }
 
 fn is_demo(app: &StudioApp) -> bool {
