@@ -17,5 +17,6 @@ mod model;
 mod pipeline;
 mod positions;
 mod project;
+mod real_deblur;
 mod real_files;
 mod simulate;
