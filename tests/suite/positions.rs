@@ -19,7 +19,7 @@ fn lensblur(args: &[&str]) -> std::process::Output {
         .expect("run lensblur")
 }
 
-fn percentile(mut v: Vec<f64>, p: f64) -> f64 {
+pub(crate) fn percentile(mut v: Vec<f64>, p: f64) -> f64 {
     v.sort_by(f64::total_cmp);
     v[((v.len() - 1) as f64 * p).round() as usize]
 }
@@ -82,7 +82,7 @@ fn sigma_errors(measured: &[(KernelsFile, ShotTruth)]) -> Vec<f64> {
 
 /// Calibrates the demo folder on the command line (β = 2, as the full-chart test
 /// does) and returns calibrate's notes.
-fn calibrate(dir: &Path) -> String {
+pub(crate) fn calibrate(dir: &Path) -> String {
     let manifest = dir.join("manifest.json");
     let profile = dir.join("profile.json");
     let out = lensblur(&[
@@ -104,7 +104,7 @@ fn calibrate(dir: &Path) -> String {
 /// The profile's p95 error at `novel` against the lens, per C_xx, C_yy, C_or, in % of
 /// the parameter's range over the calibrated settings (the paper's measure), on a 7 × 5
 /// grid of points.
-fn prediction_p95(dir: &Path, spec: &DemoSpec, novel: LensSetting) -> [f64; 3] {
+pub(crate) fn prediction_p95(dir: &Path, spec: &DemoSpec, novel: LensSetting) -> [f64; 3] {
     let (w, h) = (spec.width, spec.height);
     let mut pts = Vec::new();
     for j in 0..5 {

@@ -3,48 +3,12 @@
 //! independent reader, dcraw: the same size, and each colour's mean within 10 % of the
 //! input's own development, so the DNG written opens as the photo it was.
 
-use lensblur::model::{GlobalModel, ModelKind, spaced};
-use lensblur::plane::LensSetting;
-use lensblur::profile::Profile;
 use lensblur::raw::{LoadOptions, load_capture};
-use lensblur::simulate::SimulatedSession;
-use lensblur::simulate::lens::VirtualLens;
 use std::path::Path;
 use std::process::Command;
 
 /// The Canon EOS 550D DNG of tests/data/real (SOURCES.md there).
 const PHOTO: &str = "tests/data/real/canon-550d-magic-lantern.dng";
-
-/// A profile of the demo lens on the photo's own sensor and camera: what `calibrate`
-/// would make from that camera's chart shots (the lens is simulated; the photo and
-/// its development are real).
-fn profile_for(identity: lensblur::plane::CameraIdentity, w: usize, h: usize) -> Profile {
-    let mut settings = Vec::new();
-    for f in spaced(24.0, 70.0, 3, false) {
-        for a in spaced(4.0, 8.0, 3, true) {
-            settings.push(LensSetting {
-                focal_mm: f,
-                f_number: a,
-            });
-        }
-    }
-    let ds = SimulatedSession {
-        seed: 5,
-        ..SimulatedSession::new(w, h)
-    }
-    .dataset(&VirtualLens::demo(), &settings);
-    let global = GlobalModel::fit(&ds, 2, 2).expect("fit");
-    Profile::new(
-        identity,
-        None,
-        settings,
-        Some(global),
-        None,
-        None,
-        ModelKind::Global,
-    )
-    .expect("profile")
-}
 
 /// dcraw's development of `path` (camera white balance, sRGB, 8-bit PPM): width,
 /// height and the mean of each colour.
@@ -94,7 +58,11 @@ fn a_real_raw_photo_deblurred_develops_as_the_photo_did() {
     let capture = load_capture(&photo, &LoadOptions::default()).expect("the photo loads");
     let dir = tempfile::tempdir().expect("temp dir");
     let profile_path = dir.path().join("profile.json");
-    let profile = profile_for(capture.identity.clone(), capture.width, capture.height);
+    // The demo lens on the photo's own sensor and camera: what `calibrate` would make
+    // from that camera's chart shots (the lens is simulated; the photo and its
+    // development are real).
+    let profile =
+        super::batch::profile_on(capture.identity.clone(), 5, (capture.width, capture.height));
     profile.save(&profile_path).expect("write profile");
     // The file records no focal length or aperture (a video frame), which a batch
     // takes from EXIF: a copy with them written in, by exiftool, as any camera records
