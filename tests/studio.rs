@@ -1687,6 +1687,28 @@ fn the_shooting_plan_maps_where_a_small_chart_has_been() {
     assert_eq!(maps[0].missing_parts(), ["top-left", "bottom-right"]);
     h.get_by_label_contains("24 mm f/4.0: top-left and bottom-right not yet covered");
     snapshot(&mut h, "studio_models_coverage");
+
+    // The Kernel field shows the seven shots' kernels as one field: every square of
+    // every position, each hover and click naming the shot it was measured on.
+    let first = h.state().session().expect("session").shots[0].id;
+    let app = h.state_mut();
+    app.commands.push(Command::SelectShot(first));
+    app.commands.push(Command::SelectView(View::KernelField));
+    h.run_steps(3);
+    {
+        let app = h.state();
+        let field = app.data.field.as_ref().expect("field");
+        let points = &field.panels[0].points;
+        assert_eq!(
+            points.len(),
+            7 * 24,
+            "a G kernel per square of each position"
+        );
+        let shots: std::collections::BTreeSet<ShotId> =
+            points.iter().filter_map(|p| p.shot).collect();
+        assert_eq!(shots.len(), 7, "each point names its own shot");
+    }
+    snapshot(&mut h, "studio_kernel_field_positions");
 }
 
 /// The demo is handed over shot by shot, so the studio shows the first shot while the
