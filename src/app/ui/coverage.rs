@@ -35,11 +35,18 @@ pub(super) fn coverage_ui(app: &StudioApp, ui: &mut egui::Ui) {
     );
     ui.horizontal_wrapped(|ui| {
         for c in maps {
-            ui.vertical(|ui| {
+            // Each map in a box of its own width, so the row wraps between maps.
+            let item = vec2(
+                MAP_W,
+                map_h + 2.0 * ui.text_style_height(&egui::TextStyle::Body),
+            );
+            ui.allocate_ui_with_layout(item, egui::Layout::top_down(egui::Align::Min), |ui| {
                 ui.label(format!(
-                    "{:.0} mm f/{:.1}, {} shot{}",
-                    c.setting.focal_mm,
-                    c.setting.f_number,
+                    "{:.0} mm f/{:.1}",
+                    c.setting.focal_mm, c.setting.f_number
+                ));
+                ui.small(format!(
+                    "{} shot{}",
                     c.shots,
                     if c.shots == 1 { "" } else { "s" }
                 ));

@@ -21,7 +21,7 @@ use crate::session::ShotId;
 use crate::simulate::VirtualLens;
 use egui::{Color32, Rect, Sense, Stroke, Vec2};
 
-pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+pub(super) fn kernel_field_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.heading("Kernel field");
     let is_demo = app.session().is_some_and(|s| s.is_demo);
     let lens = VirtualLens::demo();
@@ -48,7 +48,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .on_hover_text(tip)
                 .clicked()
             {
-                app.commands.push(Command::SetFieldSource(src));
+                out.push(Command::SetFieldSource(src));
             }
         }
         ui.separator();
@@ -79,12 +79,12 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                     .on_hover_text(tip)
                     .clicked()
                 {
-                    app.commands.push(Command::SetFieldShow(show));
+                    out.push(Command::SetFieldShow(show));
                 }
             }
         }
     });
-    options_ui(app, ui);
+    options_ui(app, out, ui);
     let s = LensSetting {
         focal_mm: app.views.field.focal_mm,
         f_number: app.views.field.f_number,
@@ -94,14 +94,14 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     match app.views.field.source {
         FieldSource::Measured => {}
         FieldSource::Predicted => {
-            setting_sliders_ui(app, ui, &lens);
+            setting_sliders_ui(app, out, ui, &lens);
             ui.horizontal(|ui| {
                 if ui
                     .button("Compare with a second profile…")
                     .on_hover_text("Two copies of one lens model blur differently (the paper's two 17–40 mm units): load the other unit's profile")
                     .clicked()
                 {
-                    app.commands.push(Command::LoadCompareProfileDialog);
+                    out.push(Command::LoadCompareProfileDialog);
                 }
             });
         }
@@ -110,14 +110,14 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 ui.label("Ground truth exists only for the demo session's simulated lens.");
                 return;
             }
-            setting_sliders_ui(app, ui, &lens);
+            setting_sliders_ui(app, out, ui, &lens);
             let mut compare = app.views.field.compare_units;
             if ui
                 .checkbox(&mut compare, "Compare with a second unit")
                 .on_hover_text("Two copies of one lens model blur differently (the paper's two 17–40 mm units).")
                 .changed()
             {
-                app.commands.push(Command::SetCompareUnits(compare));
+                out.push(Command::SetCompareUnits(compare));
             }
             ui.label("Ground truth of the demo's virtual lens: pixel-level Gaussians (optical blur plus the 1-px pixel integration).");
         }
@@ -244,20 +244,20 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     });
     // The square's inspector lives in the Shot view, beside the shot it was measured on.
     if let Some((shot, square)) = clicked {
-        app.commands.push(Command::SelectView(View::Shot));
+        out.push(Command::SelectView(View::Shot));
         // A square of another shot at the setting: that shot, then its square.
         if let Some(shot) = shot.filter(|&s| Some(s) != app.views.shot.selected) {
-            app.commands.push(Command::SelectShot(shot));
+            out.push(Command::SelectShot(shot));
         }
-        app.commands.push(Command::SelectSquare(square));
+        out.push(Command::SelectSquare(square));
     }
 }
 
 /// The map and colour-range choices: the fields or a difference map, the colours from
 /// the data or a range the user fixes.
-fn options_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+fn options_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     let options = app.views.field.options;
-    let mut set = |o: FieldOptions| app.commands.push(Command::SetFieldOptions(o));
+    let mut set = |o: FieldOptions| out.push(Command::SetFieldOptions(o));
     ui.horizontal_wrapped(|ui| {
         ui.label("Map:");
         for (d, label, tip) in [
