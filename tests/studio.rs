@@ -16,7 +16,7 @@ use lensblur::job::JobContext;
 use lensblur::pipeline::ShotFile;
 use lensblur::project::{Project, ShotEvent};
 use lensblur::session::{Session, ShotId, StageStatus};
-use lensblur::simulate::demo::{DemoSpec, make_demo};
+use lensblur::simulate::demo::{ChartPlacement, DemoSpec, make_demo};
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -1631,6 +1631,84 @@ fn models_warn_what_to_shoot_when_the_settings_cannot_determine_the_model() {
     h.get_by_label_contains("Every shot is at 35 mm");
     h.get_by_label_contains("shoot at least 1 more aperture between f/4.0 and f/8.0");
     snapshot(&mut h, "studio_models_warning");
+}
+
+/// A small chart shot at 7 of 3 × 3 positions at one setting (the top-left and
+/// bottom-right ones left out), measured on the command line's path: the Models view's
+/// shooting plan maps where the chart has been and names the two parts missing.
+#[test]
+fn the_shooting_plan_maps_where_a_small_chart_has_been() {
+    use lensblur::project::{MeasurePlan, Stages};
+    let dir = tempfile::tempdir().expect("temp dir");
+    let folder = dir.path().join("positions");
+    let spec = DemoSpec::grid(480, 320, &[24.0], &[4.0])
+        .with_chart(6, 4)
+        .with_placement(ChartPlacement::Positions {
+            across: 3,
+            down: 3,
+            fill: 0.42,
+        });
+    make_demo(&folder, &spec, &JobContext::silent()).expect("session");
+    {
+        // The folder, so that the removals are saved in its session file.
+        let (mut project, _) = Project::open(&folder, "test").expect("open the session");
+        let left_out: Vec<ShotId> = project
+            .session()
+            .shots
+            .iter()
+            .filter(|s| {
+                let name = s.path.to_string_lossy();
+                name.contains("_p11") || name.contains("_p33")
+            })
+            .map(|s| s.id)
+            .collect();
+        for id in left_out {
+            project.remove_shot(id);
+        }
+        let job = project.measure_job(&MeasurePlan::missing(Stages::All));
+        let ctx = JobContext::silent();
+        job.run(&ctx, &|_| Some(ctx.clone()), &mut |event| {
+            project.record(&event);
+        })
+        .expect("measured");
+        project.save().expect("saved");
+        project.flush().expect("flushed");
+    }
+    let mut h = new_harness(&dir.path().join("demo"), Some(&folder));
+    step_until(&mut h, "the cached results", |a| {
+        a.measured().count() == 7 && idle(a)
+    });
+    h.state_mut()
+        .commands
+        .push(Command::SelectView(View::Models));
+    h.run_steps(3);
+    let (_, maps) = h.state().data.coverage.as_ref().expect("coverage maps");
+    assert_eq!(maps.len(), 1);
+    assert_eq!(maps[0].missing_parts(), ["top-left", "bottom-right"]);
+    h.get_by_label_contains("24 mm f/4.0: top-left and bottom-right not yet covered");
+    snapshot(&mut h, "studio_models_coverage");
+
+    // The Kernel field shows the seven shots' kernels as one field: every square of
+    // every position, each hover and click naming the shot it was measured on.
+    let first = h.state().session().expect("session").shots[0].id;
+    let app = h.state_mut();
+    app.commands.push(Command::SelectShot(first));
+    app.commands.push(Command::SelectView(View::KernelField));
+    h.run_steps(3);
+    {
+        let app = h.state();
+        let field = app.data.field.as_ref().expect("field");
+        let points = &field.panels[0].points;
+        assert_eq!(
+            points.len(),
+            7 * 24,
+            "a G kernel per square of each position"
+        );
+        let shots: std::collections::BTreeSet<ShotId> =
+            points.iter().filter_map(|p| p.shot).collect();
+        assert_eq!(shots.len(), 7, "each point names its own shot");
+    }
+    snapshot(&mut h, "studio_kernel_field_positions");
 }
 
 /// The demo is handed over shot by shot, so the studio shows the first shot while the

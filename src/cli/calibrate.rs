@@ -278,6 +278,13 @@ pub fn run(args: Args) -> Result<()> {
     let t0 = std::time::Instant::now();
     // The folder stays locked until the profile is written (it may be written there).
     let (ds, chart, _project) = load_session_locked(&args.session)?;
+    // A small chart shot at several positions: say which parts of the frame a setting's
+    // shots left out, before the models are fitted to what there is.
+    for c in lensblur::review::coverage_of_dataset(&ds) {
+        if let Some(line) = c.missing_line() {
+            eprintln!("note: {line}");
+        }
+    }
     let opts = CalibrateOptions {
         families: args.model.into(),
         alpha: args.alpha,

@@ -3,7 +3,7 @@
 //! the writer and its readers cannot drift apart.
 
 use super::ShotKernels;
-use crate::plane::{CameraIdentity, Channel};
+use crate::plane::{CameraIdentity, Channel, LensSetting};
 use crate::psf::Kernel;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -161,6 +161,37 @@ pub struct KernelsFileError {
 }
 
 impl KernelsFile {
+    /// The kernels of several shots at one setting as one field over the sensor: a
+    /// small chart shot at several positions measures the frame a part per shot. Every
+    /// sample keeps its sensor position; the first file's header is kept. `None` when
+    /// the files are of different sensors, oversampling or settings, which one field
+    /// cannot hold.
+    #[must_use]
+    pub fn merged(files: &[&KernelsFile]) -> Option<KernelsFile> {
+        let (first, rest) = files.split_first()?;
+        let same = |a: Option<f64>, b: Option<f64>| match (a, b) {
+            (Some(a), Some(b)) => LensSetting::same_value(a, b),
+            (None, None) => true,
+            _ => false,
+        };
+        if rest.iter().any(|f| {
+            (f.width, f.height, f.oversample) != (first.width, first.height, first.oversample)
+                || !same(f.focal_mm, first.focal_mm)
+                || !same(f.f_number, first.f_number)
+        }) {
+            return None;
+        }
+        let mut out = KernelsFile {
+            source: None,
+            ..(*first).clone()
+        };
+        for f in rest {
+            out.samples.extend(f.samples.iter().cloned());
+            out.failed.extend(f.failed.iter().cloned());
+        }
+        Some(out)
+    }
+
     /// The file form of a shot's estimates; `with_kernels` adds the kernel arrays.
     #[must_use]
     pub fn from_shot(
@@ -320,6 +351,40 @@ impl KernelSample {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn shots_at_one_setting_merge_into_one_field() {
+        let shot = |x: f64, focal: f64, width: usize| KernelsFile {
+            schema: KERNELS.tag(),
+            width,
+            height: 2000,
+            focal_mm: Some(focal),
+            f_number: Some(4.0),
+            oversample: 3,
+            identity: None,
+            source: None,
+            samples: vec![KernelSample {
+                x,
+                y: 20.0,
+                channel: Channel::G,
+                cxx: Some(1.0),
+                cyy: Some(1.0),
+                cor: Some(0.0),
+                row: Some(0),
+                col: Some(0),
+                ml: None,
+                kernel: None,
+            }],
+            failed: Vec::new(),
+        };
+        let (a, b) = (shot(10.0, 24.0, 3000), shot(2900.0, 24.0, 3000));
+        let m = KernelsFile::merged(&[&a, &b]).expect("one field");
+        let xs: Vec<f64> = m.samples.iter().map(|s| s.x).collect();
+        assert_eq!(xs, [10.0, 2900.0], "each sample where it was measured");
+        assert!(KernelsFile::merged(&[&a, &shot(5.0, 50.0, 3000)]).is_none());
+        assert!(KernelsFile::merged(&[&a, &shot(5.0, 24.0, 4000)]).is_none());
+        assert!(KernelsFile::merged(&[]).is_none());
+    }
 
     #[test]
     fn samples_are_written_with_their_mtf50_and_read_back_unchanged() {

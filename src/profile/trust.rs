@@ -161,7 +161,12 @@ impl Trust {
 
 /// The zone (row-major) of sensor point (x, y) on a `width × height` sensor cut into
 /// `zones` across and down.
-fn zone_of(x: f64, y: f64, (width, height): (usize, usize), [zx, zy]: [usize; 2]) -> usize {
+pub(crate) fn zone_of(
+    x: f64,
+    y: f64,
+    (width, height): (usize, usize),
+    [zx, zy]: [usize; 2],
+) -> usize {
     let cell = |v: f64, side: usize, n: usize| {
         let t = (v / side.max(1) as f64 * n as f64).floor();
         (t.max(0.0) as usize).min(n.max(1) - 1)
@@ -170,7 +175,7 @@ fn zone_of(x: f64, y: f64, (width, height): (usize, usize), [zx, zy]: [usize; 2]
 }
 
 /// A zone's name for people: by its place on a 3 × 3 grid, else its column and row.
-fn zone_name(zone: usize, [zx, zy]: [usize; 2]) -> String {
+pub(crate) fn zone_name(zone: usize, [zx, zy]: [usize; 2]) -> String {
     const NAMES: [&str; 9] = [
         "top-left",
         "top",

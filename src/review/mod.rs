@@ -14,9 +14,12 @@
 //! - [`export`]: a deblurred photo written whole, plot data as CSV, PNG cuts;
 //! - [`plot`]: cross-validation curves and tick placement;
 //! - [`sharpness`]: the sharpness map (MTF50 over the frame), its CSV and picture;
-//! - [`advice`]: shooting advice.
+//! - [`advice`]: shooting advice;
+//! - [`coverage`]: where on the sensor the chart has been, per setting, and the parts
+//!   of the frame still to cover.
 
 pub mod advice;
+pub mod coverage;
 pub mod crops;
 pub mod export;
 pub mod fields;
@@ -28,6 +31,10 @@ pub mod sweeps;
 pub use advice::{
     AdviceLevel, LensRange, PlanProgress, PlannedSetting, SHOTS_PER_SETTING, ShootingAdvice,
     plan_progress, shooting_advice, shooting_plan,
+};
+pub use coverage::{
+    COVERAGE_CELLS, COVERAGE_PARTS, PART_COVERED, SettingCoverage, coverage, coverage_of_dataset,
+    coverage_of_points,
 };
 pub use crops::{
     DeblurComparison, Region, compare_deblur, crop_capture, deblur_region, display_whites,

@@ -29,6 +29,82 @@ pub struct DemoSpec {
     /// (the demo photo is blurred without them); none unless given
     /// ([`DemoSpec::with_geometry`]; the studio's demo has a typical zoom's).
     pub geometry: LensGeometry,
+    /// Where the chart is put at each setting.
+    pub placement: ChartPlacement,
+}
+
+/// Where a demo's chart lies in the frame at each setting.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ChartPlacement {
+    /// One shot per setting, the board spanning 86 % of the frame (of its height
+    /// where the chart is taller than the frame's aspect).
+    Filling,
+    /// A chart too small to fill the frame, shot at `across × down` positions per
+    /// setting: its board spans `fill` of the frame's width, and the positions tile
+    /// the same 86 % of the frame a filling chart spans, overlapping where the chart
+    /// is larger than a tile. How a wide lens is calibrated with a print that fits on
+    /// a desk.
+    Positions {
+        across: usize,
+        down: usize,
+        fill: f64,
+    },
+}
+
+/// The share of the frame's width (or height) a demo's board spans, or its
+/// positions tile.
+const FRAME_SPAN: f64 = 0.86;
+
+impl ChartPlacement {
+    /// The positions (column, row) shot at each setting, row-major; `None` for a
+    /// filling chart's one shot.
+    #[must_use]
+    pub fn positions(self) -> Vec<Option<[usize; 2]>> {
+        match self {
+            ChartPlacement::Filling => vec![None],
+            ChartPlacement::Positions { across, down, .. } => (0..down.max(1))
+                .flat_map(|r| (0..across.max(1)).map(move |c| Some([c, r])))
+                .collect(),
+        }
+    }
+
+    /// The board's share of the frame width and its centre's offset from the frame's
+    /// centre, px, at `position` of a `width × height` frame for a chart of
+    /// `cols × rows` squares.
+    fn pose_at(
+        self,
+        position: Option<[usize; 2]>,
+        (width, height): (usize, usize),
+        (cols, rows): (usize, usize),
+    ) -> (f64, [f64; 2]) {
+        let (w, h) = (width as f64, height as f64);
+        let aspect = rows as f64 / cols.max(1) as f64;
+        match (self, position) {
+            (ChartPlacement::Positions { across, down, fill }, Some([c, r])) => {
+                // Centres evenly spaced so the outermost chart edges meet the span's.
+                let step = |n: usize, frame: f64, chart: f64| {
+                    if n > 1 {
+                        ((FRAME_SPAN * frame - chart) / (n - 1) as f64).max(0.0)
+                    } else {
+                        0.0
+                    }
+                };
+                let (chart_w, chart_h) = (fill * w, fill * w * aspect);
+                let off = |i: usize, n: usize, s: f64| (i as f64 - (n as f64 - 1.0) / 2.0) * s;
+                (
+                    fill,
+                    [
+                        off(c, across, step(across, w, chart_w)),
+                        off(r, down, step(down, h, chart_h)),
+                    ],
+                )
+            }
+            _ => (
+                FRAME_SPAN.min(FRAME_SPAN * (h / w) / aspect.max(f64::EPSILON)),
+                [0.0, 0.0],
+            ),
+        }
+    }
 }
 
 impl DemoSpec {
@@ -75,7 +151,15 @@ impl DemoSpec {
             seed: 7,
             chart,
             geometry: LensGeometry::default(),
+            placement: ChartPlacement::Filling,
         }
+    }
+
+    /// The same demo with the chart placed as `placement` says.
+    #[must_use]
+    pub fn with_placement(mut self, placement: ChartPlacement) -> Self {
+        self.placement = placement;
+        self
     }
 
     /// The same demo with a chart of `cols` × `rows` squares.
@@ -125,13 +209,24 @@ impl DemoSpec {
                 g.distortion_wide, g.distortion_long, g.lateral_colour, g.vignetting_stops
             ));
         }
+        if let ChartPlacement::Positions { across, down, fill } = self.placement {
+            key.push_str(&format!(" positions {across}x{down} fill {fill}"));
+        }
         key
     }
 
-    /// File name of the demo shot for a setting.
+    /// File name of the demo shot for a setting (with a filling chart).
     #[must_use]
     pub fn shot_name(s: LensSetting) -> String {
-        format!("demo_f{:03.0}_a{:04.1}.png", s.focal_mm, s.f_number)
+        Self::shot_name_at(s, None)
+    }
+
+    /// File name of the demo shot for a setting with the chart at `position` (column,
+    /// row) of [`ChartPlacement::Positions`].
+    #[must_use]
+    pub fn shot_name_at(s: LensSetting, position: Option<[usize; 2]>) -> String {
+        let at = position.map_or(String::new(), |[c, r]| format!("_p{}{}", r + 1, c + 1));
+        format!("demo_f{:03.0}_a{:04.1}{at}.png", s.focal_mm, s.f_number)
     }
 }
 
@@ -185,29 +280,34 @@ pub fn make_demo_streaming(
     session.chart = chart.clone();
     session.is_demo = true;
     session.demo_key = Some(key);
-    let total = spec.settings.len();
+    let shots: Vec<(LensSetting, Option<[usize; 2]>)> = spec
+        .settings
+        .iter()
+        .flat_map(|&s| spec.placement.positions().into_iter().map(move |p| (s, p)))
+        .collect();
+    let total = shots.len();
     job.report("simulating demo shots", 0, total);
-    for (k, &setting) in spec.settings.iter().enumerate() {
-        let name = DemoSpec::shot_name(setting);
+    for (k, &(setting, position)) in shots.iter().enumerate() {
+        let name = DemoSpec::shot_name_at(setting, position);
         let path = dir.join(&name);
         let truth_path = dir.join(format!("{name}.truth.json"));
         // A session folder that already holds a shot is reused: only missing shots
         // are simulated, so an interrupted first launch resumes where it stopped.
         if !(path.is_file() && truth_path.is_file()) {
             let mut params = CaptureParams::new(spec.width, spec.height, setting);
+            let (fill, [sx, sy]) = spec.placement.pose_at(
+                position,
+                (spec.width, spec.height),
+                (chart.cols, chart.rows),
+            );
             // Each shot a slightly different pose, as a hand-held series would be.
             let t = k as f64;
             params.pose = Pose {
                 rotation_deg: 1.5 * (0.9 * t + 0.3).sin(),
                 tilt_x: 0.02 * (1.3 * t).cos(),
                 tilt_y: 0.015 * (0.7 * t + 1.0).sin(),
-                // The board spans 86 % of the frame's width, or of its height when
-                // the chart is taller than the frame's aspect.
-                fill: 0.86_f64.min(
-                    0.86 * (spec.height as f64 / spec.width as f64)
-                        * (chart.cols as f64 / chart.rows as f64),
-                ),
-                shift_px: [4.0 * (t * 0.5).sin(), 3.0 * (t * 0.8).cos()],
+                fill,
+                shift_px: [sx + 4.0 * (t * 0.5).sin(), sy + 3.0 * (t * 0.8).cos()],
             };
             params.bayer = false;
             params.seed = spec.seed.wrapping_add(k as u64);

@@ -28,6 +28,12 @@ fn unit(serial: &str) -> CameraIdentity {
 /// A profile of the demo lens on a `W × H` sensor, calibrated over 24–70 mm, f/4–8,
 /// recorded as `identity`'s.
 fn profile(identity: CameraIdentity, seed: u64) -> Profile {
+    profile_on(identity, seed, (W, H))
+}
+
+/// A global profile of the demo lens for `identity` on a `w × h` sensor, fitted to a
+/// simulated session at 3 × 3 settings (24–70 mm, f/4–f/8).
+pub(crate) fn profile_on(identity: CameraIdentity, seed: u64, (w, h): (usize, usize)) -> Profile {
     let mut settings = Vec::new();
     for f in spaced(24.0, 70.0, 3, false) {
         for a in spaced(4.0, 8.0, 3, true) {
@@ -39,7 +45,7 @@ fn profile(identity: CameraIdentity, seed: u64) -> Profile {
     }
     let ds = SimulatedSession {
         seed,
-        ..SimulatedSession::new(W, H)
+        ..SimulatedSession::new(w, h)
     }
     .dataset(&VirtualLens::demo(), &settings);
     let global = GlobalModel::fit(&ds, 2, 2).expect("fit");

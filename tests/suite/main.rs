@@ -15,6 +15,8 @@ mod lensfun;
 mod load;
 mod model;
 mod pipeline;
+mod positions;
 mod project;
+mod real_deblur;
 mod real_files;
 mod simulate;

@@ -7,7 +7,7 @@
 use super::super::{Command, DeblurLayout, DeblurResult, DeblurZoom, StudioApp, ViewerState};
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
 
-pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+pub(super) fn deblur_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.heading("Deblur");
     ui.horizontal(|ui| {
         if ui
@@ -15,7 +15,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             .on_hover_text("A photo taken with the calibrated lens: RAW, DNG, TIFF, PNG or JPEG; its settings come from EXIF (Ctrl+P, or drop it on this view)")
             .clicked()
         {
-            app.commands.push(Command::OpenPhotoDialog);
+            out.push(Command::OpenPhotoDialog);
         }
         let shot = app
             .views.shot.selected
@@ -29,7 +29,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .on_hover_text("Open the shot selected in the session panel as the photo: its own measured kernels are then the comparison")
                 .clicked()
         {
-            app.commands.push(Command::OpenPhoto(path));
+            out.push(Command::OpenPhoto(path));
         }
         ui.separator();
         for (layout, label) in [
@@ -40,7 +40,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .selectable_label(app.views.deblur.layout == layout, label)
                 .clicked()
             {
-                app.commands.push(Command::SetDeblurLayout(layout));
+                out.push(Command::SetDeblurLayout(layout));
             }
         }
         if app
@@ -56,7 +56,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .on_hover_text("The RAW photo and its crops as a RAW editor shows them (imagepipe); off: linear camera RGB, as deblurred")
                 .changed()
             {
-                app.commands.push(Command::SetViewer(ViewerState {
+                out.push(Command::SetViewer(ViewerState {
                     developed,
                     ..app.views.shot.viewer
                 }));
@@ -73,7 +73,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                     .on_hover_text("Deblur the open photo and write it: a RAW photo as a DNG with its metadata (or TIFF/PNG), others as 16-bit linear TIFF or PNG (Ctrl+E: predicted)")
                     .clicked()
                 {
-                    app.commands.push(Command::ExportDeblurDialog(r));
+                    out.push(Command::ExportDeblurDialog(r));
                     ui.close();
                 }
             }
@@ -87,7 +87,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                     .on_hover_text("Each photo deblurred with the profile at its own focal length and aperture (from EXIF); photos of another camera or lens, or outside the calibrated range, are skipped with the reason")
                     .clicked()
                 {
-                    app.commands.push(Command::ExportPhotosDialog { dng });
+                    out.push(Command::ExportPhotosDialog { dng });
                     ui.close();
                 }
             }
@@ -95,7 +95,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         .response
         .on_hover_text("Write the open photo deblurred, or a set of photos");
     });
-    super::deblur_controls::controls_ui(app, ui);
+    super::deblur_controls::controls_ui(app, out, ui);
     let Some(photo) = &app.views.deblur.photo else {
         ui.label("No photo open. Open one, drop one on this view, or deblur the selected shot of the session.");
         return;
@@ -148,13 +148,13 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .map_or([width as f64 / 2.0, height as f64 / 2.0], |c| {
                     c.comparison.region.centre()
                 });
-            app.commands.push(Command::SetPhotoSetting {
+            out.push(Command::SetPhotoSetting {
                 focal_mm: (f > 0.0).then_some(f),
                 f_number: (a > 0.0).then_some(a),
             });
-            app.commands.push(Command::DeblurAt(centre));
+            out.push(Command::DeblurAt(centre));
         } else if rf.changed() || ra.changed() {
-            app.commands.push(Command::SetPhotoSetting {
+            out.push(Command::SetPhotoSetting {
                 focal_mm: (f > 0.0).then_some(f),
                 f_number: (a > 0.0).then_some(a),
             });
@@ -179,28 +179,27 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     let header = egui::CollapsingHeader::new("The whole photo (click it to choose the region)")
         .id_salt("deblur overview")
         .open(Some(overview_open))
-        .show(ui, |ui| overview_and_notes_ui(app, ui));
+        .show(ui, |ui| overview_and_notes_ui(app, out, ui));
     if header.header_response.clicked() {
-        app.commands
-            .push(Command::SetDeblurOverview(!overview_open));
+        out.push(Command::SetDeblurOverview(!overview_open));
     }
     ui.separator();
     match (&app.views.deblur.comparison, app.views.deblur.layout) {
         (None, _) => {
             ui.label("Click the photo to deblur a region.");
         }
-        (Some(_), DeblurLayout::SideBySide) => side_by_side_ui(app, ui),
-        (Some(_), DeblurLayout::Slider) => slider_ui(app, ui),
+        (Some(_), DeblurLayout::SideBySide) => side_by_side_ui(app, out, ui),
+        (Some(_), DeblurLayout::Slider) => slider_ui(app, out, ui),
     }
 }
 
 /// The whole photo with the region outlined, and what the panes below compare.
-fn overview_and_notes_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+fn overview_and_notes_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.horizontal_top(|ui| {
         let overview_w = 280.0;
         ui.vertical(|ui| {
             ui.set_width(overview_w);
-            overview_ui(app, ui, overview_w);
+            overview_ui(app, out, ui, overview_w);
         });
         ui.vertical(|ui| {
             ui.label("Click the photo to choose the region compared below (outlined).");
@@ -225,7 +224,7 @@ fn overview_and_notes_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
 
 /// The whole photo at a small scale with the compared region outlined: the navigator;
 /// a click moves the region there.
-fn overview_ui(app: &mut StudioApp, ui: &mut egui::Ui, width: f32) {
+fn overview_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, width: f32) {
     let Some(photo) = &app.views.deblur.photo else {
         return;
     };
@@ -263,8 +262,7 @@ fn overview_ui(app: &mut StudioApp, ui: &mut egui::Ui, width: f32) {
         && let Some(p) = response.interact_pointer_pos()
     {
         let d = (p - rect.min) / scale;
-        app.commands
-            .push(Command::DeblurAt([f64::from(d.x), f64::from(d.y)]));
+        out.push(Command::DeblurAt([f64::from(d.x), f64::from(d.y)]));
     }
 }
 
@@ -312,7 +310,13 @@ fn points_per_pixel(app: &StudioApp, ui: &egui::Ui) -> Option<f32> {
 /// height comes from the window, not from the room left this frame: the status area
 /// grows and shrinks as previews start and end, and a region that followed it would
 /// start a new preview each time one started.
-fn request_viewport(app: &mut StudioApp, ui: &egui::Ui, pane: Vec2, per_px: Option<f32>) {
+fn request_viewport(
+    app: &StudioApp,
+    out: &mut Vec<Command>,
+    ui: &egui::Ui,
+    pane: Vec2,
+    per_px: Option<f32>,
+) {
     if let Some(pp) = per_px {
         let tall = ui.ctx().content_rect().height() * 0.6;
         let v = [
@@ -320,7 +324,7 @@ fn request_viewport(app: &mut StudioApp, ui: &egui::Ui, pane: Vec2, per_px: Opti
             ((tall / pp) as usize).max(16),
         ];
         if app.views.deblur.viewport != Some(v) {
-            app.commands.push(Command::SetDeblurViewport(v));
+            out.push(Command::SetDeblurViewport(v));
         }
     }
 }
@@ -330,7 +334,8 @@ fn request_viewport(app: &mut StudioApp, ui: &egui::Ui, pane: Vec2, per_px: Opti
 /// image and not dragging, where it is: on screen, on the texture (0–1) and the
 /// screen points per texel.
 fn pane_ui(
-    app: &mut StudioApp,
+    app: &StudioApp,
+    out: &mut Vec<Command>,
     ui: &mut egui::Ui,
     texture: &egui::TextureHandle,
     size: Vec2,
@@ -352,10 +357,10 @@ fn pane_ui(
     );
     if response.dragged() {
         let d = response.drag_delta() / scale;
-        app.commands.push(Command::DragDeblur([d.x, d.y]));
+        out.push(Command::DragDeblur([d.x, d.y]));
     }
     if response.drag_stopped() {
-        app.commands.push(Command::EndDragDeblur);
+        out.push(Command::EndDragDeblur);
     }
     hovered_texel(&response, shown, scale)
 }
@@ -488,7 +493,7 @@ fn loupe_ui(
         });
 }
 
-fn side_by_side_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+fn side_by_side_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     let Some(view) = &app.views.deblur.comparison else {
         return;
     };
@@ -509,7 +514,7 @@ fn side_by_side_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             (avail.y - 40.0).max(64.0),
         ),
     };
-    request_viewport(app, ui, pane, per_px);
+    request_viewport(app, out, ui, pane, per_px);
     ui.horizontal_top(|ui| {
         for k in 0..3 {
             ui.vertical(|ui| {
@@ -519,7 +524,7 @@ fn side_by_side_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 ui.add(egui::Label::new(&titles[k]).wrap());
                 match (&shown[k], &reasons[k]) {
                     (Some(t), _) => {
-                        let hover = pane_ui(app, ui, t, pane, per_px, &titles[k]);
+                        let hover = pane_ui(app, out, ui, t, pane, per_px, &titles[k]);
                         // Before and after: the original and this pane's result (the
                         // predicted one under the original's pane).
                         let after = if k == 0 { 1 } else { k };
@@ -557,13 +562,13 @@ fn side_by_side_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
 
 /// One crop: the original left of the divider, the chosen result right of it; drag to
 /// move the divider.
-fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+fn slider_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     let titles = titles(app);
     // The region follows the pane even while a result is missing, so a result that
     // arrives later is already the pane's size.
     let per_px = points_per_pixel(app, ui);
     let early = (visible_size(ui) - Vec2::new(8.0, 40.0)).max(Vec2::splat(64.0));
-    request_viewport(app, ui, early, per_px);
+    request_viewport(app, out, ui, early, per_px);
     let Some(view) = &app.views.deblur.comparison else {
         return;
     };
@@ -574,7 +579,7 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .selectable_label(app.views.deblur.slider_result == r, &titles[k])
                 .clicked()
             {
-                app.commands.push(Command::SetSliderResult(r));
+                out.push(Command::SetSliderResult(r));
             }
         }
     });
@@ -617,7 +622,7 @@ fn slider_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         && let Some(p) = response.interact_pointer_pos()
     {
         t = ((p.x - rect.left()) / rect.width()).clamp(0.0, 1.0);
-        app.commands.push(Command::SetSlider(t));
+        out.push(Command::SetSlider(t));
     }
     let split = rect.left() + t * rect.width();
     let painter = ui.painter_at(rect);

@@ -7,7 +7,7 @@ use crate::deblur::{Device, HqsParams, IrlsParams, Method, WienerParams};
 /// Zoom, region size and the amount, with the method, its strength and the device
 /// under *Advanced*: each change deblurs the region again (a newer preview replaces one
 /// still running), so dragging a control updates the region live.
-pub(super) fn controls_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+pub(super) fn controls_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     let method = super::super::logic::deblur_method(app);
     ui.horizontal_wrapped(|ui| {
         ui.label("zoom");
@@ -17,7 +17,7 @@ pub(super) fn controls_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .on_hover_text("Fit: the region scaled into the panes; 100–400 %: one photo pixel on 1, 2 or 4 screen pixels, the region as large as the panes (drag a pane to pan; all panes move together)")
                 .clicked()
             {
-                app.commands.push(Command::SetDeblurZoom(z));
+                out.push(Command::SetDeblurZoom(z));
             }
         }
         if app.views.deblur.zoom == DeblurZoom::Fit {
@@ -31,7 +31,7 @@ pub(super) fn controls_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 )
                 .on_hover_text("Side of the compared region, photo pixels");
             if r.drag_stopped() || (r.changed() && !r.dragged()) {
-                app.commands.push(Command::SetDeblurCrop(side.round() as usize));
+                out.push(Command::SetDeblurCrop(side.round() as usize));
             }
         }
         ui.separator();
@@ -45,12 +45,12 @@ pub(super) fn controls_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             )
             .on_hover_text("How strongly to deblur: 0 % is the photo as it is, 100 % the method at its tuned strength, more carries it further (and sharpens noise)");
         if r.changed() {
-            app.commands.push(Command::SetDeblurAmount(amount));
+            out.push(Command::SetDeblurAmount(amount));
         }
     });
     egui::CollapsingHeader::new("Advanced: method and device")
         .id_salt("deblur advanced")
-        .show(ui, |ui| advanced_ui(app, ui, method));
+        .show(ui, |ui| advanced_ui(app, out, ui, method));
     // Always one line, so the panes below keep their size when the note arrives.
     let note = app.views.deblur.device_note.as_ref().map_or_else(
         || " ".to_owned(),
@@ -60,7 +60,7 @@ pub(super) fn controls_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
 }
 
 /// The method, its regularisation and where it runs: for those who know them.
-fn advanced_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
+fn advanced_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, method: Method) {
     ui.horizontal_wrapped(|ui| {
         ui.label("method");
         let choices = [
@@ -75,10 +75,10 @@ fn advanced_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
                 .clicked()
                 && !on
             {
-                app.commands.push(Command::SetDeblurMethod(m));
+                out.push(Command::SetDeblurMethod(m));
             }
         }
-        strength_ui(app, ui, method);
+        strength_ui(out, ui, method);
         ui.separator();
         let mut suppress = app.views.deblur.fringes == crate::deblur::Fringes::Suppress;
         if ui
@@ -86,7 +86,7 @@ fn advanced_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
             .on_hover_text("Hold each deblurred pixel's colour inside the colours the photo has around it: the channels' deconvolutions ring a little differently, and at strong neutral edges that shows as fringes the scene never had (RGB photos; a RAW photo's Bayer planes are left as they are)")
             .changed()
         {
-            app.commands.push(Command::SetDeblurFringes(if suppress {
+            out.push(Command::SetDeblurFringes(if suppress {
                 crate::deblur::Fringes::Suppress
             } else {
                 crate::deblur::Fringes::Keep
@@ -102,7 +102,7 @@ fn advanced_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
             .on_disabled_hover_text("This profile does not record where each channel's kernels sit (it was calibrated before profile version 4, or from shots whose kernels were not kept): calibrate again to correct lateral colour")
             .changed()
         {
-            app.commands.push(Command::SetDeblurLateral(if correct {
+            out.push(Command::SetDeblurLateral(if correct {
                 crate::model::LateralColour::Correct
             } else {
                 crate::model::LateralColour::Keep
@@ -120,7 +120,7 @@ fn advanced_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
                 .on_hover_text(tip)
                 .clicked()
             {
-                app.commands.push(Command::SetDeblurDevice(d));
+                out.push(Command::SetDeblurDevice(d));
             }
         }
     });
@@ -128,7 +128,7 @@ fn advanced_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
 
 /// The regularisation strength of the method: the data weight λ of HQS and IRLS (more:
 /// sharper and noisier), the noise-to-signal ratio of Wiener (more: smoother).
-fn strength_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
+fn strength_ui(out: &mut Vec<Command>, ui: &mut egui::Ui, method: Method) {
     let (mut v, range, text, tip) = match method {
         Method::Hqs(p) => (
             p.lambda,
@@ -157,6 +157,6 @@ fn strength_ui(app: &mut StudioApp, ui: &mut egui::Ui, method: Method) {
             Method::Irls(p) => Method::Irls(IrlsParams { lambda: v, ..p }),
             Method::Wiener(_) => Method::Wiener(WienerParams { nsr: v }),
         };
-        app.commands.push(Command::SetDeblurMethod(m));
+        out.push(Command::SetDeblurMethod(m));
     }
 }

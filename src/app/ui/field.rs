@@ -17,10 +17,11 @@ use super::super::{
 use super::{TIP_CXX, TIP_CYY, ellipse_points, setting_sliders_ui};
 use crate::model::KernelModel;
 use crate::plane::LensSetting;
+use crate::session::ShotId;
 use crate::simulate::VirtualLens;
 use egui::{Color32, Rect, Sense, Stroke, Vec2};
 
-pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+pub(super) fn kernel_field_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.heading("Kernel field");
     let is_demo = app.session().is_some_and(|s| s.is_demo);
     let lens = VirtualLens::demo();
@@ -29,7 +30,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             (
                 FieldSource::Measured,
                 "Measured",
-                "The kernels measured on the selected shot and their robust Gaussian fits",
+                "The kernels measured on the selected shot, and on the other shots at its setting (a small chart shot at several positions), with their robust Gaussian fits",
             ),
             (
                 FieldSource::Predicted,
@@ -47,7 +48,7 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .on_hover_text(tip)
                 .clicked()
             {
-                app.commands.push(Command::SetFieldSource(src));
+                out.push(Command::SetFieldSource(src));
             }
         }
         ui.separator();
@@ -78,12 +79,12 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                     .on_hover_text(tip)
                     .clicked()
                 {
-                    app.commands.push(Command::SetFieldShow(show));
+                    out.push(Command::SetFieldShow(show));
                 }
             }
         }
     });
-    options_ui(app, ui);
+    options_ui(app, out, ui);
     let s = LensSetting {
         focal_mm: app.views.field.focal_mm,
         f_number: app.views.field.f_number,
@@ -93,14 +94,14 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     match app.views.field.source {
         FieldSource::Measured => {}
         FieldSource::Predicted => {
-            setting_sliders_ui(app, ui, &lens);
+            setting_sliders_ui(app, out, ui, &lens);
             ui.horizontal(|ui| {
                 if ui
                     .button("Compare with a second profile…")
                     .on_hover_text("Two copies of one lens model blur differently (the paper's two 17–40 mm units): load the other unit's profile")
                     .clicked()
                 {
-                    app.commands.push(Command::LoadCompareProfileDialog);
+                    out.push(Command::LoadCompareProfileDialog);
                 }
             });
         }
@@ -109,14 +110,14 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 ui.label("Ground truth exists only for the demo session's simulated lens.");
                 return;
             }
-            setting_sliders_ui(app, ui, &lens);
+            setting_sliders_ui(app, out, ui, &lens);
             let mut compare = app.views.field.compare_units;
             if ui
                 .checkbox(&mut compare, "Compare with a second unit")
                 .on_hover_text("Two copies of one lens model blur differently (the paper's two 17–40 mm units).")
                 .changed()
             {
-                app.commands.push(Command::SetCompareUnits(compare));
+                out.push(Command::SetCompareUnits(compare));
             }
             ui.label("Ground truth of the demo's virtual lens: pixel-level Gaussians (optical blur plus the 1-px pixel integration).");
         }
@@ -141,7 +142,18 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                     });
                     format!("{}{setting}", s.stem())
                 });
-            format!("measured on {name} — channel {ch}")
+            // The other shots at the setting whose kernels the field shows too.
+            let others = app
+                .data
+                .field_kernels
+                .as_ref()
+                .map_or(0, |f| f.shots.saturating_sub(1));
+            let others = match others {
+                0 => String::new(),
+                1 => " and 1 other shot at its setting".to_owned(),
+                n => format!(" and {n} other shots at its setting"),
+            };
+            format!("measured on {name}{others} — channel {ch}")
         }
         PanelOf::Profile => match app.profile() {
             Some((path, _)) => {
@@ -231,17 +243,21 @@ pub(super) fn kernel_field_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         }
     });
     // The square's inspector lives in the Shot view, beside the shot it was measured on.
-    if let Some(square) = clicked {
-        app.commands.push(Command::SelectView(View::Shot));
-        app.commands.push(Command::SelectSquare(square));
+    if let Some((shot, square)) = clicked {
+        out.push(Command::SelectView(View::Shot));
+        // A square of another shot at the setting: that shot, then its square.
+        if let Some(shot) = shot.filter(|&s| Some(s) != app.views.shot.selected) {
+            out.push(Command::SelectShot(shot));
+        }
+        out.push(Command::SelectSquare(square));
     }
 }
 
 /// The map and colour-range choices: the fields or a difference map, the colours from
 /// the data or a range the user fixes.
-fn options_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+fn options_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     let options = app.views.field.options;
-    let mut set = |o: FieldOptions| app.commands.push(Command::SetFieldOptions(o));
+    let mut set = |o: FieldOptions| out.push(Command::SetFieldOptions(o));
     ui.horizontal_wrapped(|ui| {
         ui.label("Map:");
         for (d, label, tip) in [
@@ -249,7 +265,7 @@ fn options_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             (
                 Some(Difference::MeasuredMinusPredicted),
                 "measured − predicted",
-                "The selected shot's measured σ minus the profile's prediction at the same square and the shot's setting: where the model misses",
+                "The measured σ (the selected shot's, and the other shots' at its setting) minus the profile's prediction at the same square and that setting: where the model misses",
             ),
             (
                 Some(Difference::UnitAMinusB),
@@ -422,7 +438,8 @@ fn hatch(painter: &egui::Painter, r: Rect) {
 /// its value on the shared scale, at their sensor positions magnified by `scale` screen
 /// points per px of σ; red crosses where a kernel failed; hatching over a kernel too
 /// noisy to trust. Hovering a square names its Gaussian, MTF50 and flags; hovering a
-/// cross the reason. Returns the chart square clicked, to inspect.
+/// cross the reason. Returns the chart square clicked, to inspect, and the shot it
+/// was measured on.
 fn field_panel_ui(
     ui: &mut egui::Ui,
     content: &PanelContent,
@@ -431,7 +448,7 @@ fn field_panel_ui(
     (scale, colours): (f32, &ColourScale),
     size: Vec2,
     atlas: Option<egui::TextureId>,
-) -> Option<(usize, usize)> {
+) -> Option<(Option<ShotId>, (usize, usize))> {
     let (rect, response) = ui.allocate_exact_size(size, Sense::click());
     // Named, so that a screen reader (and a test) finds the field.
     response
@@ -535,7 +552,7 @@ fn field_panel_ui(
             response.on_hover_text(format!("x {x:.0}, y {y:.0}: {reason}"));
         } else if let Some(q) = near_point {
             if response.clicked() {
-                clicked = q.square;
+                clicked = q.square.map(|sq| (q.shot, sq));
             }
             response.on_hover_text(point_hover(q));
         }

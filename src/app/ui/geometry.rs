@@ -16,7 +16,7 @@ const TIP_GRID: &str = "A regular grid of ideal (pinhole) points, pushed through
 const TIP_ARROWS: &str = "Where red (and blue) lie against green at points over the frame, from the lateral-colour fit, exaggerated by the factor shown. Outward red and inward blue: red imaged larger than green.";
 const TIP_MAP: &str = "The light the lens loses toward the corners at this aperture (lensfun's pa model fitted to the chart's white squares, assuming the chart was evenly lit), in stops: 1 stop is half the light.";
 
-pub(super) fn geometry_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+pub(super) fn geometry_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.heading("Lens geometry");
     let measuring = app
         .data
@@ -38,7 +38,6 @@ pub(super) fn geometry_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         ui.vertical_centered(|ui| ui.weak(why.unwrap_or_else(|| "preparing the view…".to_owned())));
         return;
     };
-    let out = &mut app.commands;
     ui.horizontal_wrapped(|ui| {
         ui.label("Focal length");
         for &f in &data.focal_mm {

@@ -27,7 +27,7 @@ const HELP: &[(&str, &str)] = &[
     ),
 ];
 
-pub(super) fn help_ui(app: &mut StudioApp, ctx: &egui::Context) {
+pub(super) fn help_ui(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Context) {
     let mut open = app.window.show_help;
     egui::Window::new("How the studio works")
         .open(&mut open)
@@ -49,7 +49,7 @@ pub(super) fn help_ui(app: &mut StudioApp, ctx: &egui::Context) {
             );
         });
     if !open {
-        app.commands.push(Command::ShowHelp(false));
+        out.push(Command::ShowHelp(false));
     }
 }
 
@@ -64,7 +64,7 @@ const CRATES: &[&str] = &[
     "pdf-writer, svg, flate2 (the chart)",
 ];
 
-pub(super) fn about_ui(app: &mut StudioApp, ctx: &egui::Context) {
+pub(super) fn about_ui(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Context) {
     let mut open = app.window.show_about;
     egui::Window::new("About lensblur")
         .open(&mut open)
@@ -87,7 +87,7 @@ pub(super) fn about_ui(app: &mut StudioApp, ctx: &egui::Context) {
             }
         });
     if !open {
-        app.commands.push(Command::ShowAbout(false));
+        out.push(Command::ShowAbout(false));
     }
 }
 
@@ -96,7 +96,7 @@ const GUIDE: &str = include_str!("../../../docs/guide.md");
 
 /// The guide in a window: its Markdown drawn plainly (headings, lists, code blocks and
 /// tables in monospace), so what the studio shows is the file the repository holds.
-pub(super) fn guide_ui(app: &mut StudioApp, ctx: &egui::Context) {
+pub(super) fn guide_ui(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Context) {
     let mut open = app.window.show_guide;
     egui::Window::new("Calibrate your own lens")
         .open(&mut open)
@@ -127,7 +127,7 @@ pub(super) fn guide_ui(app: &mut StudioApp, ctx: &egui::Context) {
             });
         });
     if !open {
-        app.commands.push(Command::ShowGuide(false));
+        out.push(Command::ShowGuide(false));
     }
 }
 

@@ -35,9 +35,8 @@ const SHORTCUTS: &[(&str, &str)] = &[
 
 /// The menus: what a photographer looks for first (open, recent, export, quit), the
 /// views and panels, and help.
-pub(super) fn menu_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+pub(super) fn menu_bar_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     let has_profile = app.profile().is_some();
-    let out = &mut app.commands;
     egui::MenuBar::new().ui(ui, |ui| {
         ui.menu_button("File", |ui| {
             if ui
@@ -205,11 +204,10 @@ pub(super) fn menu_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     });
 }
 
-pub(super) fn shortcuts(app: &mut StudioApp, ctx: &egui::Context) {
+pub(super) fn shortcuts(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Context) {
     let cmd = |k| KeyboardShortcut::new(Modifiers::COMMAND, k);
     let alt = |k| KeyboardShortcut::new(Modifiers::ALT, k);
     let n_shots = app.session().map_or(0, |s| s.shots.len());
-    let mut out = Vec::new();
     ctx.input_mut(|i| {
         if i.consume_shortcut(&cmd(Key::O)) {
             out.push(Command::OpenSessionDialog);
@@ -295,5 +293,4 @@ pub(super) fn shortcuts(app: &mut StudioApp, ctx: &egui::Context) {
             }
         }
     });
-    app.commands.extend(out);
 }

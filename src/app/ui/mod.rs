@@ -2,6 +2,7 @@
 //! `view_data` keeps current) and push [`Command`]s, and never compute what a view
 //! shows: where its view data is absent they show a placeholder.
 
+mod coverage;
 mod deblur;
 mod deblur_controls;
 mod field;
@@ -28,16 +29,24 @@ pub const TIP_ALPHA: &str = "α: polynomial order of the model over the sensor p
 pub const TIP_BETA: &str = "β: polynomial order of the model over focal length f and aperture a; it must stay below the number of distinct settings shot (N = min(N_f, N_a)).";
 
 pub(super) fn root_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
-    menu::shortcuts(app, ui.ctx());
-    dropped_files(app, ui.ctx());
-    egui::Panel::top("menu").show(ui, |ui| menu::menu_bar_ui(app, ui));
-    egui::Panel::top("top").show(ui, |ui| top_bar_ui(app, ui));
-    egui::Panel::bottom("status").show(ui, |ui| status_ui(app, ui));
+    // Draw code only reads the app; what it asks for is queued as commands, which
+    // the app runs after the frame.
+    let mut out = std::mem::take(&mut app.commands);
+    draw(app, &mut out, ui);
+    app.commands = out;
+}
+
+fn draw(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+    menu::shortcuts(app, out, ui.ctx());
+    dropped_files(app, out, ui.ctx());
+    egui::Panel::top("menu").show(ui, |ui| menu::menu_bar_ui(app, out, ui));
+    egui::Panel::top("top").show(ui, |ui| top_bar_ui(app, out, ui));
+    egui::Panel::bottom("status").show(ui, |ui| status_ui(app, out, ui));
     if app.window.log_open {
         egui::Panel::bottom("log")
             .resizable(true)
             .default_size(180.0)
-            .show(ui, |ui| log_ui(app, ui));
+            .show(ui, |ui| log_ui(app, out, ui));
     }
     if app.views.session.open {
         egui::Panel::left("session")
@@ -45,27 +54,27 @@ pub(super) fn root_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             .resizable(true)
             .show(ui, |ui| {
                 egui::ScrollArea::vertical()
-                    .show(ui, |ui| session_panel::session_panel_ui(app, ui));
+                    .show(ui, |ui| session_panel::session_panel_ui(app, out, ui));
             });
     }
     egui::CentralPanel::default().show(ui, |ui| match app.view {
-        View::Shot => shot::shot_view_ui(app, ui),
-        View::KernelField => field::kernel_field_ui(app, ui),
-        View::Sharpness => sharpness::sharpness_ui(app, ui),
-        View::Sweeps => sweeps::sweeps_ui(app, ui),
-        View::Models => models::models_ui(app, ui),
-        View::Deblur => deblur::deblur_ui(app, ui),
-        View::Geometry => geometry::geometry_ui(app, ui),
+        View::Shot => shot::shot_view_ui(app, out, ui),
+        View::KernelField => field::kernel_field_ui(app, out, ui),
+        View::Sharpness => sharpness::sharpness_ui(app, out, ui),
+        View::Sweeps => sweeps::sweeps_ui(app, out, ui),
+        View::Models => models::models_ui(app, out, ui),
+        View::Deblur => deblur::deblur_ui(app, out, ui),
+        View::Geometry => geometry::geometry_ui(app, out, ui),
     });
     let ctx = ui.ctx().clone();
-    confirm_ui(app, &ctx);
-    help::help_ui(app, &ctx);
-    help::about_ui(app, &ctx);
-    help::guide_ui(app, &ctx);
+    confirm_ui(app, out, &ctx);
+    help::help_ui(app, out, &ctx);
+    help::about_ui(app, out, &ctx);
+    help::guide_ui(app, out, &ctx);
 }
 
 /// The question asked before losing work, over a dimmed window.
-fn confirm_ui(app: &mut StudioApp, ctx: &egui::Context) {
+fn confirm_ui(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Context) {
     let Some(confirm) = &app.window.confirm else {
         return;
     };
@@ -112,12 +121,12 @@ fn confirm_ui(app: &mut StudioApp, ctx: &egui::Context) {
         answer = Some(false);
     }
     if let Some(yes) = answer {
-        app.commands.push(Command::ConfirmAnswer(yes));
+        out.push(Command::ConfirmAnswer(yes));
     }
 }
 
 /// Every message of this run with its time, newest at the bottom; errors in red.
-fn log_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+fn log_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         ui.strong("Log");
         ui.label(match app.window.log.len() {
@@ -126,7 +135,7 @@ fn log_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         });
         ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
             if ui.small_button("Close").on_hover_text("Ctrl+L").clicked() {
-                app.commands.push(Command::SetLogOpen(false));
+                out.push(Command::SetLogOpen(false));
             }
         });
     });
@@ -152,7 +161,7 @@ fn log_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         });
 }
 
-fn dropped_files(app: &mut StudioApp, ctx: &egui::Context) {
+fn dropped_files(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Context) {
     let files: Vec<_> = ctx.input(|i| {
         i.raw
             .dropped_files
@@ -168,21 +177,20 @@ fn dropped_files(app: &mut StudioApp, ctx: &egui::Context) {
     if app.view == View::Deblur
         && let [one] = files.as_slice()
     {
-        app.commands.push(Command::OpenPhoto(one.clone()));
+        out.push(Command::OpenPhoto(one.clone()));
     } else {
-        app.commands.push(Command::AddShots(files));
+        out.push(Command::AddShots(files));
     }
 }
 
-fn top_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+fn top_bar_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         if ui
             .selectable_label(app.views.session.open, "Session")
             .on_hover_text("Show or fold the session panel (Ctrl+B)")
             .clicked()
         {
-            app.commands
-                .push(Command::SetSessionPanel(!app.views.session.open));
+            out.push(Command::SetSessionPanel(!app.views.session.open));
         }
         ui.strong("lensblur studio");
         ui.separator();
@@ -192,7 +200,7 @@ fn top_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .on_hover_text(format!("Alt+{}", k + 1))
                 .clicked()
             {
-                app.commands.push(Command::SelectView(v));
+                out.push(Command::SelectView(v));
             }
         }
         ui.separator();
@@ -203,13 +211,13 @@ fn top_bar_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .on_hover_text(format!("Alt+{}", c.name()))
                 .clicked()
             {
-                app.commands.push(Command::SelectChannel(c));
+                out.push(Command::SelectChannel(c));
             }
         }
     });
 }
 
-fn status_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+fn status_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     for h in &app.jobs.running {
         ui.horizontal(|ui| {
             let (stage, frac, counts) = match h.progress() {
@@ -238,7 +246,7 @@ fn status_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .on_hover_text("Stop this job (Esc stops all)")
                 .clicked()
             {
-                app.commands.push(Command::Cancel(h.id));
+                out.push(Command::Cancel(h.id));
             }
         });
     }
@@ -268,7 +276,7 @@ fn status_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         });
     }
     if let Some(i) = dismiss {
-        app.commands.push(Command::DismissMessage(i));
+        out.push(Command::DismissMessage(i));
     }
     ui.horizontal(|ui| {
         if app.jobs.running.is_empty() && app.window.messages.is_empty() {
@@ -286,7 +294,7 @@ fn status_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .on_hover_text("Every message of this run, with its time (Ctrl+L)")
                 .clicked()
             {
-                app.commands.push(Command::SetLogOpen(!app.window.log_open));
+                out.push(Command::SetLogOpen(!app.window.log_open));
             }
         });
     });
@@ -398,7 +406,12 @@ fn ellipse_points(centre: Pos2, g: &Gaussian2, scale: f32) -> Vec<Pos2> {
 
 /// The sliders of the setting the predicted and true fields and the sweeps show, with a
 /// tick under each rail at every setting the session has shots at.
-fn setting_sliders_ui(app: &mut StudioApp, ui: &mut egui::Ui, lens: &VirtualLens) {
+fn setting_sliders_ui(
+    app: &StudioApp,
+    out: &mut Vec<Command>,
+    ui: &mut egui::Ui,
+    lens: &VirtualLens,
+) {
     let (f_range, a_range) = setting_ranges(app, lens);
     let (mut focal_mm, mut f_number) = (app.views.field.focal_mm, app.views.field.f_number);
     let mut changed = false;
@@ -439,8 +452,7 @@ fn setting_sliders_ui(app: &mut StudioApp, ui: &mut egui::Ui, lens: &VirtualLens
         }
     });
     if changed {
-        app.commands
-            .push(Command::SetFieldSetting { focal_mm, f_number });
+        out.push(Command::SetFieldSetting { focal_mm, f_number });
     }
 }
 

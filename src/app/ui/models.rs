@@ -18,16 +18,16 @@ fn family_color(name: &str) -> Color32 {
 /// shooting plan open on a small window).
 const MIN_PLOT_H: f32 = 240.0;
 
-pub(super) fn models_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+pub(super) fn models_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     let view_h = ui.available_height();
     egui::ScrollArea::vertical()
         .auto_shrink([false, false])
-        .show(ui, |ui| models_body_ui(app, ui, view_h));
+        .show(ui, |ui| models_body_ui(app, out, ui, view_h));
 }
 
 /// The view's content; `view_h` is the height of the window's part it scrolls in, so
 /// the plots fill what is left of it and keep [`MIN_PLOT_H`] when little is.
-fn models_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, view_h: f32) {
+fn models_body_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, view_h: f32) {
     use egui_plot::{
         Corner, Legend, Line, LineStyle, MarkerShape, Plot, PlotPoints, Points, VLine,
     };
@@ -38,21 +38,21 @@ fn models_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, view_h: f32) {
             .on_hover_text("Fit global and local models over every shot with kernels; cross-validation picks α and β unless the settings fix them (Ctrl+M)")
             .clicked()
         {
-            app.commands.push(Command::RunCalibrate);
+            out.push(Command::RunCalibrate);
         }
         if ui
             .button("Load profile…")
             .on_hover_text("Use a lens profile written earlier (lensblur calibrate or this studio)")
             .clicked()
         {
-            app.commands.push(Command::LoadProfileDialog);
+            out.push(Command::LoadProfileDialog);
         }
         if ui
             .add_enabled(app.profile().is_some(), egui::Button::new("Save profile…"))
             .on_hover_text("Write the profile in use to a file of your choice")
             .clicked()
         {
-            app.commands.push(Command::SaveProfileDialog);
+            out.push(Command::SaveProfileDialog);
         }
     });
     advice_ui(app, ui);
@@ -61,7 +61,7 @@ fn models_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, view_h: f32) {
         // the view) even where it was open before calibration.
         .id_salt(("shooting plan", app.profile().is_some()))
         .default_open(app.profile().is_none())
-        .show(ui, |ui| plan_ui(app, ui));
+        .show(ui, |ui| plan_ui(app, out, ui));
     if let Some((path, p)) = app.profile() {
         let kind = format!("{:?}", p.preferred).to_lowercase();
         let orders = |k: crate::model::ModelKind, g: Option<(usize, usize)>| {
@@ -192,7 +192,7 @@ fn models_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, view_h: f32) {
                 } else {
                     PlotId::CvBeta
                 };
-                super::plot_title_ui(&mut app.commands, ui, id, title, tip, plot_w);
+                super::plot_title_ui(out, ui, id, title, tip, plot_w);
                 // Fixed bounds are kept in the plot's memory: a new report gets a new plot.
                 let plot = Plot::new(format!("cv-{by_alpha}-{report_id}"))
                     .width(plot_w)
@@ -251,7 +251,7 @@ fn models_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, view_h: f32) {
         }
         ui.vertical(|ui| {
             super::plot_title_ui(
-                &mut app.commands,
+                out,
                 ui,
                 PlotId::CvCdf,
                 "Error CDF of the chosen models (Fig. 6)".to_owned(),
@@ -458,7 +458,7 @@ fn shape_cv_ui(ui: &mut egui::Ui, p: &crate::profile::Profile) {
 
 /// The shooting plan: the lens's range (typed, or the session's), and every setting to
 /// shoot as a checklist of the shots the session has and those still missing.
-fn plan_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+fn plan_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     let Some(c) = app.data.calibrated.as_ref() else {
         ui.label("Open a session to plan its shots.");
         return;
@@ -481,7 +481,7 @@ fn plan_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .changed();
         }
         if changed {
-            app.commands.push(Command::SetPlanRange(r));
+            out.push(Command::SetPlanRange(r));
         }
     });
     let progress = crate::review::plan_progress(&c.plan);
@@ -490,8 +490,9 @@ fn plan_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         n => format!(" and {n} off it"),
     };
     ui.label(format!(
-        "{} settings shot: {} of the plan's {}{off}; {} with the {} shots each recommended (on a tripod, RAW, base ISO, focused on the chart, the chart filling the frame):",
+        "{} setting{} shot: {} of the plan's {}{off}; {} with the {} shots each recommended (on a tripod, RAW, base ISO, focused on the chart, the chart filling the frame or shot at several positions that together cover it):",
         progress.settings_shot,
+        if progress.settings_shot == 1 { "" } else { "s" },
         progress.planned_shot,
         progress.planned,
         progress.complete,
@@ -553,6 +554,7 @@ fn plan_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 ui.end_row();
             }
         });
+    super::coverage::coverage_ui(app, ui);
 }
 
 /// What relative L2 is, for a photographer.

@@ -13,7 +13,7 @@ fn status_text(s: &StageStatus) -> String {
     }
 }
 
-pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+pub(super) fn session_panel_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     let Some(session) = app.project.as_ref().map(crate::project::Project::session) else {
         ui.heading("Session");
         if app.jobs.is_running("demo session") {
@@ -44,7 +44,7 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             )
             .clicked()
         {
-            app.commands.push(Command::CalibrateAll { then_deblur: false });
+            out.push(Command::CalibrateAll { then_deblur: false });
         }
         if ui
             .button("Add shots…")
@@ -53,28 +53,28 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             )
             .clicked()
         {
-            app.commands.push(Command::AddShotsDialog);
+            out.push(Command::AddShotsDialog);
         }
         if ui
             .button("Detect")
             .on_hover_text("Find and align the chart's squares in every shot (Ctrl+D)")
             .clicked()
         {
-            app.commands.push(Command::RunDetect(None));
+            out.push(Command::RunDetect(None));
         }
         if ui
             .button("Kernels")
             .on_hover_text("Estimate the blur kernel at every square (Ctrl+K)")
             .clicked()
         {
-            app.commands.push(Command::RunKernels(None));
+            out.push(Command::RunKernels(None));
         }
         if ui
             .button("Calibrate")
             .on_hover_text("Cross-validate and fit the blur model; write the profile (Ctrl+M)")
             .clicked()
         {
-            app.commands.push(Command::RunCalibrate);
+            out.push(Command::RunCalibrate);
         }
     });
     ui.separator();
@@ -84,7 +84,6 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     } else {
         format!("{n} shots")
     });
-    let mut out = Vec::new();
     for shot in &session.shots {
         let id = shot.id;
         let selected = app.views.shot.selected == Some(id);
@@ -236,14 +235,13 @@ pub(super) fn session_panel_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             .weak(),
         );
     }
-    app.commands.extend(out);
     ui.separator();
-    settings_ui(app, ui);
+    settings_ui(app, out, ui);
 }
 
 /// The chart and the stage settings, edited on a copy and applied by one button (a
 /// change of chart or kernel settings makes earlier results stale).
-fn settings_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+fn settings_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     let Some(session) = app.project.as_ref().map(crate::project::Project::session) else {
         return;
     };
@@ -333,20 +331,20 @@ fn settings_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                     )
                     .clicked()
                 {
-                    app.commands.push(Command::ApplySettings {
+                    out.push(Command::ApplySettings {
                         chart,
                         settings: s,
                     });
                 }
                 if ui.add_enabled(changed, egui::Button::new("Revert")).clicked() {
-                    app.commands.push(Command::EditSettings(None));
+                    out.push(Command::EditSettings(None));
                 }
             });
             if draft != before {
-                app.commands.push(Command::EditSettings(Some(draft)));
+                out.push(Command::EditSettings(Some(draft)));
             }
             if load_chart {
-                app.commands.push(Command::LoadChartDialog);
+                out.push(Command::LoadChartDialog);
             }
         });
 }

@@ -15,7 +15,7 @@ use egui::{Color32, Rect, Sense, Vec2};
 
 const TIP_MAP: &str = "MTF50: the spatial frequency at which the lens keeps half its contrast, from the blur's Gaussian (the pixel's own aperture included; demosaicing and sharpening not). Higher is sharper. Worst: along the direction the blur is widest, what every direction resolves at least; best: along the narrowest; isotropic: the round blur of the same area.";
 
-pub(super) fn sharpness_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+pub(super) fn sharpness_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.heading("Sharpness map");
     let choice = app.views.sharpness;
     let mut next = choice;
@@ -97,15 +97,15 @@ pub(super) fn sharpness_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .on_hover_text(tip)
                 .clicked()
             {
-                app.commands.push(Command::SaveSharpnessDialog { png });
+                out.push(Command::SaveSharpnessDialog { png });
             }
         }
     });
     if next != choice {
-        app.commands.push(Command::SetSharpness(next));
+        out.push(Command::SetSharpness(next));
     }
     if choice.source != FieldSource::Measured {
-        setting_sliders_ui(app, ui, &VirtualLens::demo());
+        setting_sliders_ui(app, out, ui, &VirtualLens::demo());
     }
     let Some(data) = app.data.sharpness.as_ref() else {
         ui.weak("preparing the map…");

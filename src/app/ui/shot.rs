@@ -36,16 +36,21 @@ impl SensorView {
 /// Width the inspector takes beside the viewer.
 const INSPECTOR_W: f32 = 270.0;
 
-pub(super) fn shot_view_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+pub(super) fn shot_view_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     // Zoom, pan and overlays change on a copy, handed back as one command.
     let mut viewer = app.views.shot.viewer;
-    shot_body_ui(app, ui, &mut viewer);
+    shot_body_ui(app, out, ui, &mut viewer);
     if viewer != app.views.shot.viewer {
-        app.commands.push(Command::SetViewer(viewer));
+        out.push(Command::SetViewer(viewer));
     }
 }
 
-fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState) {
+fn shot_body_ui(
+    app: &StudioApp,
+    out: &mut Vec<Command>,
+    ui: &mut egui::Ui,
+    viewer: &mut ViewerState,
+) {
     let Some(session) = app.project.as_ref().map(crate::project::Project::session) else {
         ui.label("No session yet.");
         return;
@@ -184,7 +189,7 @@ fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState
                     .inner
             })
             .inner;
-        app.commands.extend(command);
+        out.extend(command);
     }
     let fit = (rect.width() / cap.width as f32).min(rect.height() / cap.height as f32);
     let sensor_centre = [
@@ -266,7 +271,7 @@ fn shot_body_ui(app: &mut StudioApp, ui: &mut egui::Ui, viewer: &mut ViewerState
             app.views.shot.square,
             clicked,
         ) {
-            app.commands.push(Command::SelectSquare(sq));
+            out.push(Command::SelectSquare(sq));
         }
     }
     if let Some(p) = response.hover_pos() {

@@ -26,7 +26,7 @@ const LOCATION_COLORS: [Color32; 5] = [
     Color32::from_rgb(200, 120, 230),
 ];
 
-pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
+pub(super) fn sweeps_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     use egui_plot::{Line, LineStyle, MarkerShape, Plot, PlotPoints, Points, VLine};
     ui.heading("Sweeps");
     let is_demo = app.session().is_some_and(|s| s.is_demo);
@@ -35,7 +35,7 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
         ui.label("Measured points appear here after Kernels (Ctrl+K); model curves after Calibrate (Ctrl+M).");
         return;
     }
-    setting_sliders_ui(app, ui, &lens);
+    setting_sliders_ui(app, out, ui, &lens);
     super::models::advice_ui(app, ui);
     // One colour per location across the six plots, named once here rather than in six
     // legends that would cover the curves; the glyphs say which series is which.
@@ -81,7 +81,7 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 .on_hover_text(tip)
                 .clicked()
             {
-                app.commands.push(Command::SetSweepAxis(axis));
+                out.push(Command::SetSweepAxis(axis));
             }
         }
     });
@@ -121,7 +121,7 @@ pub(super) fn sweeps_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                     } else {
                         format!("{name} vs focal length at f/{fixed_a:.1}, channel {ch}")
                     };
-                    super::plot_title_ui(&mut app.commands, ui, id, title, tip, plot_w);
+                    super::plot_title_ui(out, ui, id, title, tip, plot_w);
                     let plot = Plot::new(format!("sweep-{name}-{vs_aperture}"))
                         .width(plot_w)
                         .height(plot_h)

@@ -68,11 +68,8 @@ pub(super) fn refresh_kernel_atlas(app: &mut StudioApp) {
         return;
     }
     let channel = app.views.shot.channel;
-    let file = app
-        .views
-        .shot
-        .selected
-        .and_then(|i| app.project.as_ref()?.kernels(i));
+    let file = super::field_kernels(app).cloned();
+    let file = file.as_ref();
     let key = match app.views.field.source {
         FieldSource::Predicted => {
             let Some((_, profile)) = app.profile() else {

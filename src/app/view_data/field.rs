@@ -87,8 +87,10 @@ pub struct FieldPoint {
     pub value: f64,
     /// On a difference map: field B's Gaussian there (A's is `gaussian`).
     pub other: Option<Gaussian2>,
-    /// The selected shot's chart square (row, col) it sits on.
+    /// The chart square (row, col) it sits on, and the shot (the selected one or
+    /// another at its setting) that square was measured on.
     pub square: Option<(usize, usize)>,
+    pub shot: Option<ShotId>,
     /// Why the measured kernel here is flagged as noisy
     /// ([`crate::review::noisy_kernel_reason`]).
     pub noisy: Option<String>,
@@ -182,7 +184,7 @@ fn field_key(app: &StudioApp) -> FieldKey {
     match app.views.field.source {
         FieldSource::Measured => FieldKey::Measured {
             shot: app.views.shot.selected,
-            file: Same::of(app.views.shot.selected.and_then(|i| app.kernels(i))),
+            file: Same::of(super::field_kernels(app)),
             channel,
             show: app.views.field.show,
             size,
@@ -197,7 +199,7 @@ fn field_key(app: &StudioApp) -> FieldKey {
             setting,
             size,
             show: app.views.field.show,
-            file: Same::of(app.views.shot.selected.and_then(|i| app.kernels(i))),
+            file: Same::of(super::field_kernels(app)),
             chart_cols: app.session().map_or(10, |s| s.chart.cols),
             atlas: app.data.kernel_atlas.is_some(),
         },
@@ -226,7 +228,7 @@ pub(super) fn refresh_field(app: &mut StudioApp) {
         return;
     }
     let size = sensor_size(app);
-    let file = app.views.shot.selected.and_then(|i| app.kernels(i));
+    let file = super::field_kernels(app);
     // Squares of the chart are about this far apart on the sensor.
     let pitch_px = size.0 as f64 / app.session().map_or(12, |s| s.chart.cols + 2) as f64;
     let mut panels = match app.views.field.options.difference {
@@ -269,6 +271,8 @@ pub(super) fn refresh_field(app: &mut StudioApp) {
                     mtf50: g.mtf50().map(|m| m.record(size.1)),
                     kernel_error: sample.and_then(|i| *panel.errors.get(i)?),
                     square: s.and_then(|s| Some((s.row?, s.col?))),
+                    shot: sample
+                        .and_then(|i| app.data.field_kernels.as_ref()?.shot_of.get(i).copied()),
                     noisy: s.filter(|_| measured).and_then(|s| {
                         let k = s.kernel_at(file?.oversample)?;
                         crate::review::noisy_kernel_reason(&k, &g)

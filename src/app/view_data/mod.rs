@@ -14,7 +14,10 @@
 //! makes textures.
 
 use super::{StudioApp, View};
-use crate::review::{LensRange, PlannedSetting, ShootingAdvice};
+use crate::kernel::file::KernelsFile;
+use crate::plane::LensSetting;
+use crate::review::{LensRange, PlannedSetting, SettingCoverage, ShootingAdvice};
+use crate::session::ShotId;
 use crate::simulate::VirtualLens;
 use atlas::refresh_kernel_atlas;
 use field::refresh_field;
@@ -22,6 +25,7 @@ use geometry::refresh_geometry;
 use inspector::refresh_inspection;
 use sharpness::refresh_sharpness;
 use shot_plane::refresh_shot_plane;
+use std::sync::Arc;
 use sweeps::refresh_sweeps;
 
 mod atlas;
@@ -70,7 +74,28 @@ pub struct ViewData {
     pub geometry: Option<GeometryData>,
     /// The session's settings with shots and what they allow the model.
     pub calibrated: Option<Calibrated>,
+    /// Where on the sensor the chart has been, per setting (the Models view's coverage
+    /// maps), keyed by each measured shot's setting and kernels.
+    pub coverage: Option<(CoverageKey, Vec<SettingCoverage>)>,
+    /// The measured kernels the Kernel field view shows: the selected shot's and those
+    /// of the other shots at its setting, as one field.
+    pub field_kernels: Option<FieldKernels>,
 }
+
+/// The kernels of every shot at the selected shot's setting as one field: a small
+/// chart shot at several positions measures the frame a part per shot.
+pub struct FieldKernels {
+    key: Vec<(ShotId, Same<KernelsFile>)>,
+    /// The selected shot's own file where it is the only one, else the merge.
+    pub file: Arc<KernelsFile>,
+    /// Per sample of `file`, the shot it was measured on.
+    pub shot_of: Vec<ShotId>,
+    /// How many shots `file` holds.
+    pub shots: usize,
+}
+
+/// What the coverage maps are made from: each measured shot's setting and kernels.
+pub type CoverageKey = Vec<(LensSetting, Same<KernelsFile>)>;
 
 /// The focal lengths and f-numbers the session has shots at (sorted, distinct), marked
 /// on the sliders and the sweeps, and what they allow the model (the Models and Sweeps
@@ -100,9 +125,11 @@ impl ViewData {
 pub(super) fn refresh(app: &mut StudioApp) {
     refresh_shot_plane(app);
     refresh_calibrated(app);
+    refresh_coverage(app);
     refresh_inspection(app);
     match app.view {
         View::KernelField => {
+            refresh_field_kernels(app);
             refresh_kernel_atlas(app);
             refresh_field(app);
         }
@@ -188,6 +215,111 @@ pub(super) fn refresh_calibrated(app: &mut StudioApp) {
             advice,
         }
     });
+}
+
+/// The Kernel field's measured kernels, merged again when the selection, a shot's
+/// setting or its kernels change.
+fn refresh_field_kernels(app: &mut StudioApp) {
+    let key: Vec<(ShotId, Same<KernelsFile>)> = match (app.views.shot.selected, app.session()) {
+        (Some(selected), Some(s)) => {
+            let setting_of = |id: ShotId| {
+                let shot = s.shot(id)?;
+                Some(LensSetting {
+                    focal_mm: shot.focal_mm?,
+                    f_number: shot.f_number?,
+                })
+            };
+            let mine = setting_of(selected);
+            let mut ids = vec![selected];
+            if let Some(mine) = mine {
+                ids.extend(s.shots.iter().map(|shot| shot.id).filter(|&id| {
+                    id != selected && setting_of(id).is_some_and(|t| t.same_as(mine))
+                }));
+            }
+            ids.into_iter()
+                .filter_map(|id| Some((id, Same::of(Some(app.kernels(id)?)))))
+                .collect()
+        }
+        _ => Vec::new(),
+    };
+    if app
+        .data
+        .field_kernels
+        .as_ref()
+        .is_some_and(|f| f.key == key)
+    {
+        return;
+    }
+    let files: Vec<(ShotId, &Arc<KernelsFile>)> = key
+        .iter()
+        .filter_map(|(id, f)| Some((*id, f.0.as_ref()?)))
+        .collect();
+    app.data.field_kernels = match files.as_slice() {
+        [] => None,
+        [(id, one)] => Some(FieldKernels {
+            shot_of: vec![*id; one.samples.len()],
+            file: Arc::clone(one),
+            shots: 1,
+            key,
+        }),
+        many => {
+            let refs: Vec<&KernelsFile> = many.iter().map(|(_, f)| f.as_ref()).collect();
+            // Files that cannot be one field (another sensor) leave the selected alone.
+            let (file, shot_of, shots) = match KernelsFile::merged(&refs) {
+                Some(m) => (
+                    Arc::new(m),
+                    many.iter()
+                        .flat_map(|(id, f)| std::iter::repeat_n(*id, f.samples.len()))
+                        .collect(),
+                    many.len(),
+                ),
+                None => (
+                    Arc::clone(many[0].1),
+                    vec![many[0].0; many[0].1.samples.len()],
+                    1,
+                ),
+            };
+            Some(FieldKernels {
+                key,
+                file,
+                shot_of,
+                shots,
+            })
+        }
+    };
+}
+
+/// The measured kernels the Kernel field view shows ([`FieldKernels`]).
+pub(crate) fn field_kernels(app: &StudioApp) -> Option<&Arc<KernelsFile>> {
+    app.data.field_kernels.as_ref().map(|f| &f.file)
+}
+
+/// The coverage maps, made again when a shot's kernels or setting change.
+fn refresh_coverage(app: &mut StudioApp) {
+    let key: CoverageKey = app.session().map_or_else(Vec::new, |s| {
+        s.shots
+            .iter()
+            .filter_map(|shot| {
+                let setting = LensSetting {
+                    focal_mm: shot.focal_mm?,
+                    f_number: shot.f_number?,
+                };
+                Some((setting, Same::of(Some(app.kernels(shot.id)?))))
+            })
+            .collect()
+    });
+    if app.data.coverage.as_ref().is_some_and(|(k, _)| *k == key) {
+        return;
+    }
+    let size = key
+        .iter()
+        .find_map(|(_, k)| k.0.as_ref().map(|k| (k.width, k.height)))
+        .unwrap_or((1, 1));
+    let maps = crate::review::coverage(
+        size,
+        key.iter().filter_map(|(s, k)| Some((*s, k.0.as_deref()?))),
+    );
+    app.data.coverage = Some((key, maps));
 }
 
 fn is_demo(app: &StudioApp) -> bool {
