@@ -357,18 +357,11 @@ mod tests {
 
     #[test]
     fn gaussians_interpolate_between_samples() {
-        let file = KernelsFile {
-            schema: crate::kernel::file::KERNELS.tag(),
-            width: 100,
-            height: 100,
-            focal_mm: None,
-            f_number: None,
-            oversample: 3,
-            identity: None,
-            source: None,
-            samples: vec![sample(0.0, 0.0, 1.0), sample(100.0, 0.0, 2.0)],
-            failed: Vec::new(),
-        };
+        let file = KernelsFile::of_samples(
+            100,
+            100,
+            vec![sample(0.0, 0.0, 1.0), sample(100.0, 0.0, 2.0)],
+        );
         let src = ScatteredKernels {
             neighbours: 2,
             ..ScatteredKernels::new(file, Prefer::Gaussian)

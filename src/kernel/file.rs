@@ -161,6 +161,24 @@ pub struct KernelsFileError {
 }
 
 impl KernelsFile {
+    /// A file of `samples` on a `width × height` sensor at 3× (the estimator's
+    /// default), with no setting, camera or shot recorded yet.
+    #[must_use]
+    pub fn of_samples(width: usize, height: usize, samples: Vec<KernelSample>) -> Self {
+        Self {
+            schema: KERNELS.tag(),
+            width,
+            height,
+            focal_mm: None,
+            f_number: None,
+            oversample: default_oversample(),
+            identity: None,
+            source: None,
+            samples,
+            failed: Vec::new(),
+        }
+    }
+
     /// The kernels of several shots at one setting as one field over the sensor: a
     /// small chart shot at several positions measures the frame a part per shot. Every
     /// sample keeps its sensor position; the first file's header is kept. `None` when
@@ -352,30 +370,28 @@ impl KernelSample {
 mod tests {
     use super::*;
 
+    /// A G sample of σ 1 px, isotropic, on square (0, 0), at (x, 20).
+    fn unit_sample(x: f64) -> KernelSample {
+        KernelSample {
+            x,
+            y: 20.0,
+            channel: Channel::G,
+            cxx: Some(1.0),
+            cyy: Some(1.0),
+            cor: Some(0.0),
+            row: Some(0),
+            col: Some(0),
+            ml: None,
+            kernel: None,
+        }
+    }
+
     #[test]
     fn shots_at_one_setting_merge_into_one_field() {
         let shot = |x: f64, focal: f64, width: usize| KernelsFile {
-            schema: KERNELS.tag(),
-            width,
-            height: 2000,
             focal_mm: Some(focal),
             f_number: Some(4.0),
-            oversample: 3,
-            identity: None,
-            source: None,
-            samples: vec![KernelSample {
-                x,
-                y: 20.0,
-                channel: Channel::G,
-                cxx: Some(1.0),
-                cyy: Some(1.0),
-                cor: Some(0.0),
-                row: Some(0),
-                col: Some(0),
-                ml: None,
-                kernel: None,
-            }],
-            failed: Vec::new(),
+            ..KernelsFile::of_samples(width, 2000, vec![unit_sample(x)])
         };
         let (a, b) = (shot(10.0, 24.0, 3000), shot(2900.0, 24.0, 3000));
         let m = KernelsFile::merged(&[&a, &b]).expect("one field");
@@ -389,44 +405,30 @@ mod tests {
     #[test]
     fn samples_are_written_with_their_mtf50_and_read_back_unchanged() {
         let file = KernelsFile {
-            schema: KERNELS.tag(),
-            width: 3000,
-            height: 2000,
             focal_mm: Some(50.0),
             f_number: Some(4.0),
-            oversample: 3,
-            identity: None,
-            source: None,
-            samples: vec![
-                KernelSample {
-                    x: 10.0,
-                    y: 20.0,
-                    channel: Channel::G,
-                    cxx: Some(1.0),
-                    cyy: Some(1.0),
-                    cor: Some(0.0),
-                    row: Some(0),
-                    col: Some(0),
-                    ml: None,
-                    kernel: None,
-                },
-                KernelSample {
-                    x: 30.0,
-                    y: 20.0,
-                    channel: Channel::R,
-                    cxx: None,
-                    cyy: None,
-                    cor: None,
-                    row: None,
-                    col: None,
-                    ml: None,
-                    kernel: Some(KernelData {
-                        size: 1,
-                        data: vec![1.0],
-                    }),
-                },
-            ],
-            failed: Vec::new(),
+            ..KernelsFile::of_samples(
+                3000,
+                2000,
+                vec![
+                    unit_sample(10.0),
+                    KernelSample {
+                        x: 30.0,
+                        y: 20.0,
+                        channel: Channel::R,
+                        cxx: None,
+                        cyy: None,
+                        cor: None,
+                        row: None,
+                        col: None,
+                        ml: None,
+                        kernel: Some(KernelData {
+                            size: 1,
+                            data: vec![1.0],
+                        }),
+                    },
+                ],
+            )
         };
         let text = serde_json::to_string(&file).expect("json");
         let v: serde_json::Value = serde_json::from_str(&text).expect("json");

@@ -655,18 +655,7 @@ mod tests {
                 (0..5).map(move |j| sample(10.0 + 20.0 * f64::from(i), 10.0 + 20.0 * f64::from(j)))
             })
             .collect();
-        let file = KernelsFile {
-            schema: String::new(),
-            width: 400,
-            height: 100,
-            focal_mm: None,
-            f_number: None,
-            oversample: 3,
-            identity: None,
-            source: None,
-            samples,
-            failed: Vec::new(),
-        };
+        let file = KernelsFile::of_samples(400, 100, samples);
         let map =
             SharpnessMap::measured(&file, Channel::G, Mtf50Direction::Worst, "t".into()).unwrap();
         assert_eq!(map.grid, (48, 12));

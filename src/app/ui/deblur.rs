@@ -107,38 +107,14 @@ pub(super) fn deblur_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::
     ui.horizontal(|ui| {
         ui.label(format!("{shown} — {width} × {height} px"));
         ui.separator();
-        let lf = ui.label("f").on_hover_text(
-            "focal length, mm: from EXIF, else the session's record of this file; drag or type",
+        let (rf, ra) = super::setting_drag_values(
+            ui,
+            (&mut f, &mut a),
+            [
+                "focal length, mm: from EXIF, else the session's record of this file; drag or type",
+                "aperture, f-number",
+            ],
         );
-        let rf = ui
-            .add(
-                egui::DragValue::new(&mut f)
-                    .speed(0.5)
-                    .range(0.0..=5000.0)
-                    .custom_formatter(|v, _| {
-                        if v > 0.0 {
-                            format!("{v:.0} mm")
-                        } else {
-                            "? mm".into()
-                        }
-                    }),
-            )
-            .labelled_by(lf.id);
-        let la = ui.label("a").on_hover_text("aperture, f-number");
-        let ra = ui
-            .add(
-                egui::DragValue::new(&mut a)
-                    .speed(0.05)
-                    .range(0.0..=128.0)
-                    .custom_formatter(|v, _| {
-                        if v > 0.0 {
-                            format!("f/{v:.1}")
-                        } else {
-                            "f/?".into()
-                        }
-                    }),
-            )
-            .labelled_by(la.id);
         if rf.drag_stopped() || ra.drag_stopped() || rf.lost_focus() || ra.lost_focus() {
             let centre = app
                 .views

@@ -406,6 +406,34 @@ fn ellipse_points(centre: Pos2, g: &Gaussian2, scale: f32) -> Vec<Pos2> {
 
 /// The sliders of the setting the predicted and true fields and the sweeps show, with a
 /// tick under each rail at every setting the session has shots at.
+/// A shot's or photo's focal length and f-number as two labelled drag values, "?" while
+/// unknown (0); `tips` says where each comes from.
+fn setting_drag_values(
+    ui: &mut egui::Ui,
+    (f, a): (&mut f64, &mut f64),
+    tips: [&str; 2],
+) -> (egui::Response, egui::Response) {
+    let value = |ui: &mut egui::Ui, label: &str, tip: &str, v: &mut f64, focal: bool| {
+        let l = ui.label(label).on_hover_text(tip);
+        let (speed, max) = if focal { (0.5, 5000.0) } else { (0.05, 128.0) };
+        ui.add(
+            egui::DragValue::new(v)
+                .speed(speed)
+                .range(0.0..=max)
+                .custom_formatter(move |v, _| match (v > 0.0, focal) {
+                    (true, true) => format!("{v:.0} mm"),
+                    (true, false) => format!("f/{v:.1}"),
+                    (false, true) => "? mm".into(),
+                    (false, false) => "f/?".into(),
+                }),
+        )
+        .labelled_by(l.id)
+    };
+    let rf = value(ui, "f", tips[0], f, true);
+    let ra = value(ui, "a", tips[1], a, false);
+    (rf, ra)
+}
+
 fn setting_sliders_ui(
     app: &StudioApp,
     out: &mut Vec<Command>,

@@ -132,38 +132,14 @@ pub(super) fn session_panel_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut
                         // Unknown settings show as "?" (0 internally) until the user drags.
                         let mut f = shot.focal_mm.unwrap_or(0.0);
                         let mut a = shot.f_number.unwrap_or(0.0);
-                        let lf = ui
-                            .label("f")
-                            .on_hover_text("focal length, mm (from EXIF; drag or type)");
-                        let rf = ui.add(
-                            egui::DragValue::new(&mut f)
-                                .speed(0.5)
-                                .range(0.0..=5000.0)
-                                .custom_formatter(|v, _| {
-                                    if v > 0.0 {
-                                        format!("{v:.0} mm")
-                                    } else {
-                                        "? mm".into()
-                                    }
-                                }),
+                        let (rf, ra) = super::setting_drag_values(
+                            ui,
+                            (&mut f, &mut a),
+                            [
+                                "focal length, mm (from EXIF; drag or type)",
+                                "aperture, f-number (from EXIF; drag or type)",
+                            ],
                         );
-                        let rf = rf.labelled_by(lf.id);
-                        let la = ui
-                            .label("a")
-                            .on_hover_text("aperture, f-number (from EXIF; drag or type)");
-                        let ra = ui.add(
-                            egui::DragValue::new(&mut a)
-                                .speed(0.05)
-                                .range(0.0..=128.0)
-                                .custom_formatter(|v, _| {
-                                    if v > 0.0 {
-                                        format!("f/{v:.1}")
-                                    } else {
-                                        "f/?".into()
-                                    }
-                                }),
-                        );
-                        let ra = ra.labelled_by(la.id);
                         if rf.changed() || ra.changed() {
                             out.push(Command::SetShotSetting {
                                 shot: id,
