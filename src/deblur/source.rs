@@ -363,6 +363,7 @@ mod tests {
             height: 100,
             focal_mm: None,
             f_number: None,
+            focus_distance_m: None,
             oversample: 3,
             identity: None,
             source: None,

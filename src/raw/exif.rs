@@ -40,6 +40,7 @@ impl ExifInfo {
     pub(super) fn fill(self, capture: &mut Capture) {
         capture.setting_focal_mm = capture.setting_focal_mm.or(self.focal_mm);
         capture.setting_f_number = capture.setting_f_number.or(self.f_number);
+        capture.setting_focus_m = capture.setting_focus_m.or(self.subject_distance_m);
         let id = &mut capture.identity;
         id.make = self.identity.make.or(id.make.take());
         id.model = self.identity.model.or(id.model.take());

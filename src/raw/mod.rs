@@ -403,6 +403,7 @@ fn decoded_capture(
         planes,
         setting_focal_mm: None,
         setting_f_number: None,
+        setting_focus_m: None,
         identity: Default::default(),
         is_raw,
         raw: None,

@@ -104,6 +104,9 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     let shown = app.shown_path(&photo.path);
     let mut f = photo.focal_mm.unwrap_or(0.0);
     let mut a = photo.f_number.unwrap_or(0.0);
+    // Where the photo was focused, as its file says: the core judges it against the
+    // profile's focus range.
+    let photo_focus_m = photo.capture.setting_focus_m;
     ui.horizontal(|ui| {
         ui.label(format!("{shown} — {width} × {height} px"));
         ui.separator();
@@ -160,8 +163,8 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
             });
         }
     });
-    // Where the profile is less well trusted at this setting: the core's own words,
-    // as `lensblur deblur` prints them.
+    // Where the profile is less well trusted at this setting and focus: the core's own
+    // words, as `lensblur deblur` prints them.
     if let Some((_, profile)) = app.profile()
         && f > 0.0
         && a > 0.0
@@ -170,6 +173,7 @@ pub(super) fn deblur_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
                 focal_mm: f,
                 f_number: a,
             },
+            photo_focus_m,
             None,
         )
     {
