@@ -49,12 +49,46 @@ pub struct DecodedMeta {
     pub subject_distance_m: Option<f64>,
 }
 
+/// Where a decoder stopped on a file it could not make sense of (it panicked). Only
+/// said once the damage checks found nothing cut short: the file is whole, so the
+/// values in it are what is wrong.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Stopped {
+    /// Reading its directories or records, before any image data.
+    Header,
+    /// Decoding its image data.
+    Image,
+}
+
+impl Stopped {
+    const HEADER: &str = "its headers hold values that contradict each other (the file is \
+                          whole, but a directory or record in it is corrupt)";
+    const IMAGE: &str = "its image data does not decode as its headers describe it (the \
+                         file is whole, but the data is corrupt)";
+    const CURE: &str = "copy it from the card again, or convert the original to DNG with \
+                        Adobe DNG Converter or `dnglab convert` and open the DNG";
+
+    /// What is wrong and what to do, in one line.
+    pub(super) fn words(self) -> String {
+        let what = match self {
+            Stopped::Header => Self::HEADER,
+            Stopped::Image => Self::IMAGE,
+        };
+        format!("{what}: {}", Self::CURE)
+    }
+
+    /// Whether a reason is one of these.
+    fn said(reason: &str) -> bool {
+        reason.starts_with(Self::HEADER) || reason.starts_with(Self::IMAGE)
+    }
+}
+
 /// Why rawler did not give an image.
 pub(super) enum RawlerRefusal {
     /// rawler's own error.
     Refused(rawler::RawlerError),
-    /// rawler panicked on the file.
-    Panicked,
+    /// rawler panicked on the file, there.
+    Panicked(Stopped),
     /// The file declared an image outside our limits, or shorter than its samples.
     Ours(LoadError),
 }
@@ -70,6 +104,7 @@ pub(super) fn rawler_capture(
     let _quiet = QuietPanics::new();
     let source = rawler::rawsource::RawSource::new_from_slice(bytes);
     let params = rawler::decoders::RawDecodeParams::default();
+    let stage = std::cell::Cell::new(Stopped::Header);
     let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         let decoder = rawler::get_decoder(&source).map_err(RawlerRefusal::Refused)?;
         let head = decoder
@@ -94,13 +129,15 @@ pub(super) fn rawler_capture(
                 ),
             }));
         }
+        stage.set(Stopped::Image);
         let image = decoder
             .raw_image(&source, &params, false)
             .map_err(RawlerRefusal::Refused)?;
+        stage.set(Stopped::Header);
         let meta = decoder.raw_metadata(&source, &params).ok();
         Ok((image, meta))
     }))
-    .map_err(|_| RawlerRefusal::Panicked)??;
+    .map_err(|_| RawlerRefusal::Panicked(stage.get()))??;
     let (image, meta) = decoded;
     let capture = from_rawler(path, &image, ifd).map_err(RawlerRefusal::Ours)?;
     Ok((capture, decoded_meta(meta.as_ref())))
@@ -299,12 +336,12 @@ pub(super) fn explain(
 ) -> LoadError {
     let refusal = match rawler {
         RawlerRefusal::Ours(e) => return e,
-        RawlerRefusal::Refused(e) => Some(e),
-        RawlerRefusal::Panicked => None,
+        RawlerRefusal::Refused(e) => Ok(e),
+        RawlerRefusal::Panicked(stage) => Err(stage),
     };
     // A camera no decoder knows is named first: the decoders stopped before its image
     // data, so the cure is a converter that knows it, whatever else is wrong.
-    if let Some(rawler::RawlerError::Unsupported { make, model, .. }) = &refusal
+    if let Ok(rawler::RawlerError::Unsupported { make, model, .. }) = &refusal
         && !(make.trim().is_empty() && model.trim().is_empty())
     {
         return LoadError::Unsupported {
@@ -332,10 +369,10 @@ pub(super) fn explain(
         };
     }
     let rawler_words = match &refusal {
-        Some(rawler::RawlerError::Unsupported { .. }) => {
+        Ok(rawler::RawlerError::Unsupported { .. }) => {
             "not a RAW format lensblur knows".to_string()
         }
-        Some(rawler::RawlerError::DecoderFailed(m)) => {
+        Ok(rawler::RawlerError::DecoderFailed(m)) => {
             let m = one_line(m);
             // rawler's I/O failures are reads past the end of what it was given.
             if m.contains("I/O") || m.contains("fill whole buffer") || m.contains("EOF") {
@@ -349,13 +386,21 @@ pub(super) fn explain(
             }
             m.split(". Please").next().unwrap_or_default().to_string()
         }
-        None => "the decoder stopped on malformed data".to_string(),
+        Err(stage) => stage.words(),
     };
     LoadError::Corrupt {
         path: path.to_path_buf(),
         reason: match fallback {
             // What the photographer can do about a file no decoder recognises: it may
             // be a camera's RAW that only a converter knows, or no photo at all.
+            // Where rawler does not know the format but rawloader does and stops in
+            // it, the file is one of rawloader's, corrupt: its words say so.
+            Some(e)
+                if rawler_words.starts_with("not a RAW")
+                    && Stopped::said(&super::fallback_words(&e)) =>
+            {
+                super::fallback_words(&e)
+            }
             Some(e) if rawler_words.starts_with("not a RAW") => format!(
                 "{rawler_words} ({}); if it is a camera's RAW file, convert it to DNG with \
                  Adobe DNG Converter or `dnglab convert` and open the DNG (PNG, TIFF and \
@@ -502,8 +547,8 @@ pub(super) fn rawloader_capture(
     }
     let _quiet = QuietPanics::new();
     let decoded = std::panic::catch_unwind(|| rawloader::decode(&mut std::io::Cursor::new(bytes)))
-        .map_err(|_| rawloader_stopped(path))?
-        .map_err(|e| rawloader_error(path, &e))?;
+        .map_err(|_| stopped(path, Stopped::Image))?
+        .map_err(|e| rawloader_error(path, &e, Stopped::Image))?;
     from_rawloader(path, &decoded, ifd)
 }
 
@@ -511,24 +556,24 @@ pub(super) fn rawloader_capture(
 fn rawloader_head(path: &Path, bytes: &[u8]) -> Result<rawloader::RawImage, LoadError> {
     let _quiet = QuietPanics::new();
     std::panic::catch_unwind(|| rawloader::decode_dummy(&mut std::io::Cursor::new(bytes)))
-        .map_err(|_| rawloader_stopped(path))?
-        .map_err(|e| rawloader_error(path, &e))
+        .map_err(|_| stopped(path, Stopped::Header))?
+        .map_err(|e| rawloader_error(path, &e, Stopped::Header))
 }
 
-/// rawloader panicked on the file.
-fn rawloader_stopped(path: &Path) -> LoadError {
+/// A decoder panicked on the file, there.
+fn stopped(path: &Path, stage: Stopped) -> LoadError {
     LoadError::Corrupt {
         path: path.to_path_buf(),
-        reason: "the RAW decoder stopped on malformed data".into(),
+        reason: stage.words(),
     }
 }
 
-/// rawloader's refusal as one line. It reports its decoders' panics as errors: a panic
-/// is never the message.
-fn rawloader_error(path: &Path, e: &rawloader::RawLoaderError) -> LoadError {
+/// rawloader's refusal as one line. It reports its decoders' panics (in `stage`) as
+/// errors: a panic is never the message.
+fn rawloader_error(path: &Path, e: &rawloader::RawLoaderError, stage: Stopped) -> LoadError {
     let m = one_line(&e.to_string());
     if m.contains("panic") {
-        rawloader_stopped(path)
+        stopped(path, stage)
     } else {
         LoadError::Corrupt {
             path: path.to_path_buf(),
