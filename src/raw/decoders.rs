@@ -6,7 +6,7 @@
 //! refusal is explained in words a photographer can act on (see [`explain`]).
 
 use super::cfa::{DecoderColour, mosaic_capture};
-use super::tiff::{Ifd, site_black_levels};
+use super::tiff::{Ifd, TAG_DNG_VERSION, TAG_PHOTOMETRIC, first_tag, site_black_levels};
 use super::{LoadError, check_size, decoded_capture};
 use crate::plane::{Capture, Channel, ChannelPlane, Plane, RawMeta};
 use std::path::Path;
@@ -93,8 +93,12 @@ pub(super) enum RawlerRefusal {
     Ours(LoadError),
 }
 
-/// A RAW file through rawler: its header-only pass first, so the declared size is
-/// checked against [`crate::limits`] before the image is allocated.
+/// A RAW file through rawler: the declared size first, checked against
+/// [`crate::limits`] before the image is allocated, then the one decode. The size is
+/// rawler's header-only pass's, or where a DNG's first directory is its raw image, that
+/// directory's: rawler (0.8) decodes a DNG's whole image even in its header-only pass,
+/// which cost a second decode (0.8 s against 0.4 s for a 24 MP lossless-JPEG DNG) and
+/// checked nothing before it.
 pub(super) fn rawler_capture(
     path: &Path,
     bytes: &[u8],
@@ -107,14 +111,17 @@ pub(super) fn rawler_capture(
     let stage = std::cell::Cell::new(Stopped::Header);
     let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         let decoder = rawler::get_decoder(&source).map_err(RawlerRefusal::Refused)?;
-        let head = decoder
-            .raw_image(&source, &params, true)
-            .map_err(RawlerRefusal::Refused)?;
-        check_size(path, head.width, head.height).map_err(RawlerRefusal::Ours)?;
-        let samples = head
-            .width
-            .saturating_mul(head.height)
-            .saturating_mul(head.cpp.max(1));
+        let (width, height, cpp) = match ifd.and_then(dng_raw_size) {
+            Some(size) => size,
+            None => {
+                let head = decoder
+                    .raw_image(&source, &params, true)
+                    .map_err(RawlerRefusal::Refused)?;
+                (head.width, head.height, head.cpp)
+            }
+        };
+        check_size(path, width, height).map_err(RawlerRefusal::Ours)?;
+        let samples = width.saturating_mul(height).saturating_mul(cpp.max(1));
         // No lossless coding spends less than a bit on a sample (and a lossy one not
         // less than a tenth of one): a file that claims far more samples than it has
         // bits is truncated, and is refused before the decoder allocates its image.
@@ -122,10 +129,9 @@ pub(super) fn rawler_capture(
             return Err(RawlerRefusal::Ours(LoadError::Damaged {
                 path: path.to_path_buf(),
                 reason: format!(
-                    "truncated at byte {}: a {} × {} image cannot be coded in so few bytes",
+                    "truncated at byte {}: a {width} × {height} image cannot be coded in so few \
+                     bytes",
                     bytes.len(),
-                    head.width,
-                    head.height
                 ),
             }));
         }
@@ -141,6 +147,23 @@ pub(super) fn rawler_capture(
     let (image, meta) = decoded;
     let capture = from_rawler(path, &image, ifd).map_err(RawlerRefusal::Ours)?;
     Ok((capture, decoded_meta(meta.as_ref())))
+}
+
+/// A DNG's raw image size (width, height, samples per pixel) where its first directory
+/// holds it (not a preview: NewSubfileType 0; a CFA or linear raw image), as the DNG's
+/// writer declared it.
+fn dng_raw_size(ifd: &Ifd) -> Option<(usize, usize, usize)> {
+    let main = first_tag(ifd, 254).is_none_or(|t| t as u32 & 1 == 0);
+    let raw = matches!(first_tag(ifd, TAG_PHOTOMETRIC), Some(32803.0 | 34892.0));
+    if !(ifd.contains_key(&TAG_DNG_VERSION) && main && raw) {
+        return None;
+    }
+    let count = |tag: u16| {
+        first_tag(ifd, tag)
+            .filter(|v| v.is_finite() && *v >= 0.0)
+            .map(|v| v as usize)
+    };
+    Some((count(256)?, count(257)?, count(277).unwrap_or(1)))
 }
 
 fn rational(r: Option<&rawler::formats::tiff::Rational>) -> Option<f64> {
