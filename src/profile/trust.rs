@@ -31,10 +31,11 @@ pub const LARGE_ERROR_PCT: f64 = 5.0;
 ///
 /// Why in ratio, not in metres: what changes a lens's blur with focus is where its
 /// focusing group sits, and that moves as 1/distance (the extension beyond infinity
-/// focus is f²/(s − f)): 1 m to 2 m moves a 50 mm lens as far as 2 m to infinity.
-/// Within a factor 2 of a distance the shots were taken at, the lens moved less than
-/// between the nearest shots of a session that spans the usual 1.5–3 m of a chart
-/// shot; beyond it, the blur was not measured. Not tuned to any session.
+/// focus is f²/(s − f)): 1 m to 2 m moves a 50 mm lens about as far as 2 m to
+/// infinity. The factor 2 is a chart session's own span (1.5–3 m is usual): a photo
+/// within that factor beyond either end is taken as near enough to what was measured;
+/// beyond it the blur was not measured, and the line says so. A judgement from those
+/// numbers, not tuned to any session.
 pub const FOCUS_FACTOR: f64 = 2.0;
 
 /// Beyond this distance, metres, focus counts as this distance (infinity included):
@@ -52,8 +53,8 @@ pub struct FocusRange {
 }
 
 impl FocusRange {
-    /// The range of `distances` (metres, infinite for infinity; others than positive
-    /// ones left out), `None` without any.
+    /// The range of `distances` (metres, infinite for infinity; zero, negative and NaN
+    /// left out), `None` without any.
     #[must_use]
     pub fn of(distances: impl IntoIterator<Item = f64>) -> Option<Self> {
         let found: Vec<FocusDistance> = distances
