@@ -97,8 +97,8 @@ pub(super) enum RawlerRefusal {
 /// [`crate::limits`] before the image is allocated, then the one decode. The size is
 /// rawler's header-only pass's, or where a DNG's first directory is its raw image, that
 /// directory's: rawler (0.8) decodes a DNG's whole image even in its header-only pass,
-/// which cost a second decode (0.8 s against 0.4 s for a 24 MP lossless-JPEG DNG) and
-/// checked nothing before it.
+/// which doubled the time of a 24 MP lossless-JPEG DNG (docs/figures.md, "Decoding a
+/// RAW file") and checked nothing before that decode.
 pub(super) fn rawler_capture(
     path: &Path,
     bytes: &[u8],
