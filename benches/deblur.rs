@@ -68,6 +68,7 @@ fn bench(c: &mut Criterion) {
         planes,
         setting_focal_mm: Some(35.0),
         setting_f_number: Some(4.5),
+        setting_focus_m: None,
         identity: Default::default(),
         is_raw: false,
         raw: None,

@@ -35,6 +35,7 @@ fn raw_photo(w: usize, h: usize) -> Capture {
         planes,
         setting_focal_mm: Some(35.0),
         setting_f_number: Some(4.5),
+        setting_focus_m: None,
         identity: CameraIdentity {
             make: Some("Virtual".into()),
             model: Some("Sim 14".into()),

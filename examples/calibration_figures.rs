@@ -196,6 +196,7 @@ fn datasets(shots: &[(String, KernelsFile, ShotTruth)]) -> Result<(Dataset, Data
             name: name.clone(),
             focal_mm: t.setting.focal_mm,
             f_number: t.setting.f_number,
+            focus_distance_m: k.focus_distance_m,
         };
         let mut meas = Vec::new();
         let mut tru = Vec::new();

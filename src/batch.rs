@@ -537,6 +537,8 @@ pub enum Outcome {
     Done {
         profile: PathBuf,
         setting: LensSetting,
+        /// Where the photo was focused, metres, where its file says.
+        focus_m: Option<f64>,
         extrapolated: bool,
     },
     Skipped(Skip),
@@ -819,6 +821,7 @@ fn deblur_photo(
         Ok(()) => Outcome::Done {
             profile: entry.path.clone(),
             setting: pick.setting,
+            focus_m: capture.setting_focus_m,
             extrapolated: pick.extrapolated,
         },
         Err(_) if job.is_cancelled() => Outcome::Cancelled,

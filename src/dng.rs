@@ -15,6 +15,8 @@ pub struct DngInfo {
     pub identity: CameraIdentity,
     /// Focal length and f-number (EXIF FocalLength, FNumber).
     pub setting: Option<LensSetting>,
+    /// Where the lens was focused, metres, infinite for infinity (EXIF SubjectDistance).
+    pub focus_m: Option<f64>,
     /// Levels, CFA, colour, orientation and the rest of the shot's EXIF.
     pub raw: RawMeta,
     /// Where the EXIF tags go: their own directory (what Adobe's converter writes) or
@@ -43,6 +45,7 @@ impl DngInfo {
                 ..CameraIdentity::default()
             },
             setting,
+            focus_m: None,
             raw: RawMeta::rggb(black, white),
             exif_in_ifd0: true,
             original_file_name: None,
@@ -269,6 +272,14 @@ fn exif_tags(info: &DngInfo) -> Vec<(u16, Val)> {
     if let Some(s) = info.setting {
         tags.push((33437, Val::Rational(vec![rational(s.f_number)])));
         tags.push((37386, Val::Rational(vec![rational(s.focal_mm)])));
+    }
+    // EXIF writes infinity as 0xFFFFFFFF/1.
+    match info.focus_m {
+        Some(m) if m.is_infinite() => tags.push((37382, Val::Rational(vec![(u32::MAX, 1)]))),
+        Some(m) if m.is_finite() && m > 0.0 => {
+            tags.push((37382, Val::Rational(vec![rational(m)])));
+        }
+        _ => {}
     }
     if let Some(iso) = raw.iso {
         tags.push((
@@ -599,6 +610,7 @@ pub fn write_capture_dng(
     let info = DngInfo {
         identity: capture.identity.clone(),
         setting,
+        focus_m: capture.setting_focus_m,
         raw: RawMeta {
             description: Some(description.to_string()),
             ..raw

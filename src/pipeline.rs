@@ -269,7 +269,8 @@ pub fn detect(
 }
 
 /// Estimates a detected shot's kernels and their Gaussians as a kernels file, which
-/// records the setting as given or else read from EXIF; `with_kernels` keeps the
+/// records the setting as given or else read from EXIF, and where the file says the
+/// lens was focused; `with_kernels` keeps the
 /// kernel arrays, not only their fits.
 ///
 /// # Errors
@@ -292,13 +293,17 @@ pub fn estimate(
             },
         })?;
     let setting = setting.or_exif(capture);
-    Ok(KernelsFile::from_shot(
+    let mut file = KernelsFile::from_shot(
         &kernels,
         setting.focal_mm,
         setting.f_number,
         Some(capture.identity.clone()),
         with_kernels,
-    ))
+    );
+    file.focus_distance_m = capture
+        .setting_focus_m
+        .and_then(crate::raw::FocusDistance::from_metres);
+    Ok(file)
 }
 
 /// [`detect`], and the result cached.

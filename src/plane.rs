@@ -432,6 +432,10 @@ pub struct Capture {
     /// From EXIF; `None` where the file did not say.
     pub setting_focal_mm: Option<f64>,
     pub setting_f_number: Option<f64>,
+    /// Where the lens was focused, metres (infinite where the file says infinity),
+    /// from EXIF SubjectDistance or the camera's own record; `None` where the file
+    /// does not say. Blur changes with it: a profile knows the range it was measured at.
+    pub setting_focus_m: Option<f64>,
     pub identity: CameraIdentity,
     /// True for a RAW (CFA) source.
     pub is_raw: bool,

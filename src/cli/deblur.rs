@@ -259,8 +259,9 @@ pub fn run(args: Args) -> Result<()> {
                 eprintln!("lensblur: warning: {}", identity_warnings.join("; "));
             }
             // Outside the shots' range (only reached with --allow-extrapolation), far
-            // from any shot, or where the profile recorded a large held-out error.
-            if let Some(line) = profile.trust_line(setting, None) {
+            // from any shot, where the profile recorded a large held-out error, or
+            // focused far from where the shots were.
+            if let Some(line) = profile.trust_line(setting, capture.setting_focus_m, None) {
                 eprintln!("lensblur: {line}");
             }
             let model = args

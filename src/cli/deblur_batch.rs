@@ -165,6 +165,7 @@ pub fn run(
             Outcome::Done {
                 profile,
                 setting,
+                focus_m,
                 extrapolated,
             } => {
                 eprintln!(
@@ -175,13 +176,14 @@ pub fn run(
                     if *extrapolated { " (extrapolated)" } else { "" },
                     o.output.display()
                 );
-                // As for one photo: outside the shots' range, far from any shot, or
-                // where the profile recorded a large held-out error.
+                // As for one photo: outside the shots' range, far from any shot, where
+                // the profile recorded a large held-out error, or focused far from
+                // where the shots were.
                 let trust = library
                     .profiles
                     .iter()
                     .find(|p| &p.path == profile)
-                    .and_then(|p| p.profile.trust_line(*setting, None));
+                    .and_then(|p| p.profile.trust_line(*setting, *focus_m, None));
                 if let Some(line) = trust {
                     eprintln!("{photo}: {line}");
                 }

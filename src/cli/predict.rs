@@ -110,7 +110,7 @@ pub fn run(args: Args) -> Result<()> {
     // Outside the shots' range (only reached with --allow-extrapolation), far from
     // any shot, or where the profile recorded a large held-out error: one line.
     if (args.allow_extrapolation || profile.covers(setting))
-        && let Some(line) = profile.trust_line(setting, None)
+        && let Some(line) = profile.trust_line(setting, None, None)
     {
         eprintln!("lensblur: {line}");
     }

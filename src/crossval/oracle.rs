@@ -242,6 +242,7 @@ fn synthetic_session(cols: usize, rows: usize, shots_per_setting: usize, kernels
                         name: format!("f{focal_mm}-a{f_number}-{rep}"),
                         focal_mm,
                         f_number,
+                        focus_distance_m: None,
                     },
                     samples,
                 );

@@ -141,6 +141,7 @@ mod tests {
             }],
             setting_focal_mm: None,
             setting_f_number: None,
+            setting_focus_m: None,
             identity: Default::default(),
             is_raw: false,
             raw: None,

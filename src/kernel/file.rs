@@ -81,6 +81,9 @@ pub struct KernelsFile {
     pub focal_mm: Option<f64>,
     #[serde(default)]
     pub f_number: Option<f64>,
+    /// Where the lens was focused, where the shot's file says.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub focus_distance_m: Option<crate::raw::FocusDistance>,
     #[serde(default = "default_oversample")]
     pub oversample: usize,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -103,6 +106,8 @@ struct FileOut<'a> {
     height: usize,
     focal_mm: Option<f64>,
     f_number: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    focus_distance_m: Option<crate::raw::FocusDistance>,
     oversample: usize,
     #[serde(skip_serializing_if = "Option::is_none")]
     identity: Option<&'a CameraIdentity>,
@@ -129,6 +134,7 @@ impl Serialize for KernelsFile {
             height: self.height,
             focal_mm: self.focal_mm,
             f_number: self.f_number,
+            focus_distance_m: self.focus_distance_m,
             oversample: self.oversample,
             identity: self.identity.as_ref(),
             source: self.source.as_ref(),
@@ -171,6 +177,7 @@ impl KernelsFile {
             height,
             focal_mm: None,
             f_number: None,
+            focus_distance_m: None,
             oversample: default_oversample(),
             identity: None,
             source: None,
@@ -263,6 +270,7 @@ impl KernelsFile {
             height: shot.height,
             focal_mm,
             f_number,
+            focus_distance_m: None,
             oversample: shot.oversample,
             identity,
             source: None,

@@ -227,6 +227,7 @@ mod tests {
             height: 480,
             focal_mm: Some(35.0),
             f_number: Some(5.6),
+            focus_distance_m: None,
             oversample: 3,
             identity: Some(CameraIdentity {
                 make: Some("Virtual".into()),

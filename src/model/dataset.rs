@@ -55,6 +55,9 @@ pub struct ShotInfo {
     pub name: String,
     pub focal_mm: f64,
     pub f_number: f64,
+    /// Where the lens was focused, where the shot's file says.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub focus_distance_m: Option<crate::raw::FocusDistance>,
 }
 
 impl ShotInfo {
@@ -240,11 +243,22 @@ impl Dataset {
                     name: name.into(),
                     focal_mm,
                     f_number,
+                    focus_distance_m: kf.focus_distance_m,
                 },
                 samples,
             );
         }
         ds.ok_or(ModelError::Empty)
+    }
+
+    /// The focus distances of the shots that record one, nearest to farthest.
+    #[must_use]
+    pub fn focus_range(&self) -> Option<crate::profile::FocusRange> {
+        crate::profile::FocusRange::of(
+            self.shots
+                .iter()
+                .filter_map(|s| s.focus_distance_m.map(crate::raw::FocusDistance::metres)),
+        )
     }
 
     /// Checks every shot's setting is a real one.

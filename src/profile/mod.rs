@@ -27,7 +27,10 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 pub mod trust;
-pub use trust::{LARGE_ERROR_PCT, SettingTrust, TRUST_ZONES, Trust, TrustWarning, warning_line};
+pub use trust::{
+    FOCUS_AS_INFINITY_M, FOCUS_FACTOR, FocusRange, LARGE_ERROR_PCT, SettingTrust, TRUST_ZONES,
+    Trust, TrustWarning, warning_line,
+};
 
 /// The profile's version.
 /// Version 2 adds the kernel-shape model and its cross-validation; a version-1 file
@@ -200,6 +203,9 @@ struct ProfileFile {
     /// Version 4: where each channel's kernels are centred.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     place: Option<StoredPlace>,
+    /// The focus distances of the shots, where they record one (optional in any version).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    focus_range_m: Option<FocusRange>,
 }
 
 /// Where the kernels sit, as stored: per channel, each part's x and y offsets (px) as
@@ -242,6 +248,9 @@ pub struct Profile {
     /// Where the profile is trusted: its preferred model's held-out error by setting
     /// and zone (version 3; `None` in earlier files and without cross-validation).
     pub trust: Option<Trust>,
+    /// The focus distances the shots were taken at; `None` where none recorded one
+    /// (and in profiles made before it was kept).
+    pub focus_range: Option<FocusRange>,
     /// Predict outside the calibrated range instead of failing. Off by default.
     pub allow_extrapolation: bool,
 }
@@ -550,6 +559,7 @@ impl Profile {
             shape_cv: None,
             place: None,
             trust: None,
+            focus_range: None,
             allow_extrapolation: false,
         })
     }
@@ -622,6 +632,7 @@ impl Profile {
                 cv: c.cv.clone(),
                 centred_rms_px: c.centred_rms_px,
             }),
+            focus_range_m: self.focus_range,
         }
     }
 
@@ -844,6 +855,9 @@ impl Profile {
             t.validate().map_err(&invalid)?;
         }
         let trust = file.trust.clone();
+        if let Some(r) = &file.focus_range_m {
+            r.validate().map_err(&invalid)?;
+        }
         let shape = match &file.shape {
             None => None,
             Some(sh) => Some(load_shape(sh, &norm, &invalid, &checked_basis)?),
@@ -895,6 +909,7 @@ impl Profile {
             shape_cv: file.shape_cv,
             place,
             trust,
+            focus_range: file.focus_range_m,
             allow_extrapolation: false,
         })
     }

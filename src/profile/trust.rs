@@ -9,6 +9,7 @@
 use super::Profile;
 use crate::crossval::HeldOutError;
 use crate::plane::LensSetting;
+use crate::raw::FocusDistance;
 use serde::{Deserialize, Serialize};
 
 /// Zones across and down the frame the error is summarised over: coarse enough that
@@ -23,6 +24,96 @@ pub const TRUST_ZONES: usize = 3;
 /// unlike its neighbours, too few squares), not the usual scatter. Chosen from those
 /// figures, not tuned to a simulated session.
 pub const LARGE_ERROR_PCT: f64 = 5.0;
+
+/// How far beyond the calibrated focus distances a photo may be focused before the
+/// profile warns: a factor in distance either way, with every distance past
+/// [`FOCUS_AS_INFINITY_M`] counted as that distance.
+///
+/// Why in ratio, not in metres: what changes a lens's blur with focus is where its
+/// focusing group sits, and that moves as 1/distance (the extension beyond infinity
+/// focus is f²/(s − f)): 1 m to 2 m moves a 50 mm lens about as far as 2 m to
+/// infinity. The factor 2 is a chart session's own span (1.5–3 m is usual): a photo
+/// within that factor beyond either end is taken as near enough to what was measured;
+/// beyond it the blur was not measured, and the line says so. A judgement from those
+/// numbers, not tuned to any session.
+pub const FOCUS_FACTOR: f64 = 2.0;
+
+/// Beyond this distance, metres, focus counts as this distance (infinity included):
+/// the focusing group has less than f²/10 m left to travel to infinity, a quarter
+/// of a millimetre for a 50 mm lens and under 1 % of the focal length for any lens
+/// up to 100 mm, so a session at 10 m or beyond covers a photo at infinity. A range
+/// ending under 10 / [`FOCUS_FACTOR`] = 5 m does not.
+pub const FOCUS_AS_INFINITY_M: f64 = 10.0;
+
+/// The focus distances a profile's shots were taken at, where they record one.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FocusRange {
+    pub nearest_m: FocusDistance,
+    pub farthest_m: FocusDistance,
+}
+
+impl FocusRange {
+    /// The range of `distances` (metres, infinite for infinity; zero, negative and NaN
+    /// left out), `None` without any.
+    #[must_use]
+    pub fn of(distances: impl IntoIterator<Item = f64>) -> Option<Self> {
+        let found: Vec<FocusDistance> = distances
+            .into_iter()
+            .filter_map(FocusDistance::from_metres)
+            .collect();
+        let nearest = found
+            .iter()
+            .copied()
+            .min_by(|a, b| a.metres().total_cmp(&b.metres()))?;
+        let farthest = found
+            .iter()
+            .copied()
+            .max_by(|a, b| a.metres().total_cmp(&b.metres()))?;
+        Some(Self {
+            nearest_m: nearest,
+            farthest_m: farthest,
+        })
+    }
+
+    /// Whether a photo focused at `metres` (infinite for infinity) is far outside this
+    /// range: more than [`FOCUS_FACTOR`] nearer than its nearest or farther than its
+    /// farthest, distances past [`FOCUS_AS_INFINITY_M`] counted as that. A distance
+    /// that is no distance (0, negative, not a number) is not judged.
+    #[must_use]
+    pub fn far_outside(&self, metres: f64) -> bool {
+        if metres.is_nan() || metres <= 0.0 {
+            return false;
+        }
+        let d = |m: f64| m.min(FOCUS_AS_INFINITY_M);
+        let (near, far) = (d(self.nearest_m.metres()), d(self.farthest_m.metres()));
+        d(metres) < near / FOCUS_FACTOR || d(metres) > far * FOCUS_FACTOR
+    }
+
+    /// Checks what a loaded range claims.
+    ///
+    /// # Errors
+    /// Not a distance, or the nearest beyond the farthest, as a sentence.
+    pub fn validate(&self) -> Result<(), String> {
+        let (n, f) = (self.nearest_m.metres(), self.farthest_m.metres());
+        if !(n > 0.0 && f > 0.0) || n > f {
+            return Err(format!(
+                "focus range: {} to {} is not a range of distances",
+                distance_words(n),
+                distance_words(f)
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// A focus distance for people: "1.5 m", "infinity".
+fn distance_words(m: f64) -> String {
+    if m.is_infinite() {
+        "infinity".into()
+    } else {
+        format!("{} m", (m * 100.0).round() / 100.0)
+    }
+}
 
 /// The held-out error of one calibrated setting.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -217,6 +308,13 @@ pub enum TrustWarning {
         /// (zone name, mean error % of range).
         zones: Vec<(String, f64)>,
     },
+    /// Focused far outside the distances the shots were taken at
+    /// ([`FocusRange::far_outside`]).
+    FocusFar {
+        /// Metres, infinite for infinity.
+        focus_m: f64,
+        range: FocusRange,
+    },
 }
 
 impl std::fmt::Display for TrustWarning {
@@ -268,6 +366,19 @@ impl std::fmt::Display for TrustWarning {
                     list.join(", ")
                 )
             }
+            Self::FocusFar { focus_m, range } => {
+                let (near, far) = (range.nearest_m.metres(), range.farthest_m.metres());
+                let calibrated = if near == far {
+                    distance_words(near)
+                } else {
+                    format!("{}–{}", distance_words(near), distance_words(far))
+                };
+                write!(
+                    f,
+                    "the photo was focused at {}, far from the focus distances the shots were taken at ({calibrated}): blur changes with focus, and there it was not measured",
+                    distance_words(*focus_m)
+                )
+            }
         }
     }
 }
@@ -283,16 +394,20 @@ pub fn warning_line(warnings: &[TrustWarning]) -> Option<String> {
 }
 
 impl Profile {
-    /// Where this profile is less well trusted for a photo at `setting` (and, given a
-    /// point, there): outside the calibrated ranges or settings, far from any shot,
-    /// beyond the chart, or where its recorded held-out error is large
-    /// ([`LARGE_ERROR_PCT`]) at the nearest calibrated setting (in the point's zone, or
-    /// any zone for a whole photo). Empty where it is trusted, or where a profile
-    /// before version 3 recorded nothing to judge by (the setting checks still apply).
+    /// Where this profile is less well trusted for a photo at `setting`, focused at
+    /// `focus_m` where known (and, given a point, there): outside the calibrated ranges
+    /// or settings, far from any shot, beyond the chart, where its recorded held-out
+    /// error is large ([`LARGE_ERROR_PCT`]) at the nearest calibrated setting (in the
+    /// point's zone, or any zone for a whole photo), or focused far outside the focus
+    /// distances of its shots ([`FocusRange::far_outside`]). Empty where it is trusted,
+    /// or where a profile recorded nothing to judge by (a profile before version 3 has
+    /// no held-out errors, one from shots without a focus distance no focus range; the
+    /// setting checks still apply).
     #[must_use]
     pub fn trust_warnings(
         &self,
         setting: LensSetting,
+        focus_m: Option<f64>,
         point: Option<(f64, f64)>,
     ) -> Vec<TrustWarning> {
         let mut out = Vec::new();
@@ -343,13 +458,23 @@ impl Profile {
                 out.push(TrustWarning::LargeError { nearest, zones });
             }
         }
+        if let (Some(range), Some(focus_m)) = (self.focus_range, focus_m)
+            && range.far_outside(focus_m)
+        {
+            out.push(TrustWarning::FocusFar { focus_m, range });
+        }
         out
     }
 
     /// [`Profile::trust_warnings`] as one line, `None` where there is nothing to say.
     #[must_use]
-    pub fn trust_line(&self, setting: LensSetting, point: Option<(f64, f64)>) -> Option<String> {
-        warning_line(&self.trust_warnings(setting, point))
+    pub fn trust_line(
+        &self,
+        setting: LensSetting,
+        focus_m: Option<f64>,
+        point: Option<(f64, f64)>,
+    ) -> Option<String> {
+        warning_line(&self.trust_warnings(setting, focus_m, point))
     }
 
     /// The calibrated setting nearest `s` in the normalised (f, a) plane, and its
@@ -407,5 +532,51 @@ mod tests {
         assert_eq!(zone_name(6, g), "bottom-left");
         assert_eq!(zone_of(299.0, 199.0, (300, 200), [4, 2]), 7);
         assert_eq!(zone_name(7, [4, 2]), "zone 4, 2");
+    }
+
+    fn range(near: f64, far: f64) -> FocusRange {
+        FocusRange::of([near, far]).unwrap()
+    }
+
+    #[test]
+    fn focus_far_outside_the_range_is_more_than_twice_beyond_it_with_10_m_as_infinity() {
+        let chart = range(1.5, 3.0);
+        // Within a factor 2 either way: no warning.
+        for m in [0.75, 1.0, 1.5, 2.2, 3.0, 6.0] {
+            assert!(!chart.far_outside(m), "{m} m");
+        }
+        for m in [0.7, 6.1, 30.0, f64::INFINITY] {
+            assert!(chart.far_outside(m), "{m} m");
+        }
+        // A range reaching 5 m covers infinity (10 m and beyond count as 10 m).
+        assert!(!range(2.0, 5.0).far_outside(f64::INFINITY));
+        assert!(range(2.0, 4.9).far_outside(f64::INFINITY));
+        // A session at infinity covers anything from 5 m out.
+        let far = range(f64::INFINITY, f64::INFINITY);
+        assert_eq!(far.nearest_m.metres(), f64::INFINITY);
+        assert!(!far.far_outside(5.0) && !far.far_outside(250.0));
+        assert!(far.far_outside(4.9));
+        // No distance, no judgement.
+        assert!(!chart.far_outside(0.0) && !chart.far_outside(f64::NAN));
+        assert_eq!(FocusRange::of([0.0, f64::NAN]), None);
+    }
+
+    #[test]
+    fn a_focus_warning_says_where_and_against_what() {
+        let w = TrustWarning::FocusFar {
+            focus_m: f64::INFINITY,
+            range: range(1.5, 3.0),
+        };
+        let line = warning_line(&[w]).unwrap();
+        assert!(
+            line.contains("focused at infinity") && line.contains("(1.5 m–3 m)"),
+            "{line}"
+        );
+        assert!(range(2.0, 1.0).validate().is_ok(), "of() orders them");
+        let backwards = FocusRange {
+            nearest_m: FocusDistance::Metres(3.0),
+            farthest_m: FocusDistance::Metres(1.0),
+        };
+        assert!(backwards.validate().is_err());
     }
 }

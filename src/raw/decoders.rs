@@ -5,10 +5,9 @@
 //! answer becomes the same normalised CFA planes; and where every one refuses, the
 //! refusal is explained in words a photographer can act on (see [`explain`]).
 
-use super::{
-    Ifd, LoadError, QuietPanics, cfa_capture, check_size, decoded_capture, dng_matrix, dng_neutral,
-    matrix_illuminant, one_line,
-};
+use super::cfa::{DecoderColour, mosaic_capture};
+use super::tiff::{Ifd, TAG_DNG_VERSION, TAG_PHOTOMETRIC, first_tag, site_black_levels};
+use super::{LoadError, check_size, decoded_capture};
 use crate::plane::{Capture, Channel, ChannelPlane, Plane, RawMeta};
 use std::path::Path;
 
@@ -50,18 +49,56 @@ pub struct DecodedMeta {
     pub subject_distance_m: Option<f64>,
 }
 
+/// Where a decoder stopped on a file it could not make sense of (it panicked). Only
+/// said once the damage checks found nothing cut short: the file is whole, so the
+/// values in it are what is wrong.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Stopped {
+    /// Reading its directories or records, before any image data.
+    Header,
+    /// Decoding its image data.
+    Image,
+}
+
+impl Stopped {
+    const HEADER: &str = "its headers hold values that contradict each other (the file is \
+                          whole, but a directory or record in it is corrupt)";
+    const IMAGE: &str = "its image data does not decode as its headers describe it (the \
+                         file is whole, but the data is corrupt)";
+    const CURE: &str = "copy it from the card again, or convert the original to DNG with \
+                        Adobe DNG Converter or `dnglab convert` and open the DNG";
+
+    /// What is wrong and what to do, in one line.
+    pub(super) fn words(self) -> String {
+        let what = match self {
+            Stopped::Header => Self::HEADER,
+            Stopped::Image => Self::IMAGE,
+        };
+        format!("{what}: {}", Self::CURE)
+    }
+
+    /// Whether a reason is one of these.
+    fn said(reason: &str) -> bool {
+        reason.starts_with(Self::HEADER) || reason.starts_with(Self::IMAGE)
+    }
+}
+
 /// Why rawler did not give an image.
 pub(super) enum RawlerRefusal {
     /// rawler's own error.
     Refused(rawler::RawlerError),
-    /// rawler panicked on the file.
-    Panicked,
+    /// rawler panicked on the file, there.
+    Panicked(Stopped),
     /// The file declared an image outside our limits, or shorter than its samples.
     Ours(LoadError),
 }
 
-/// A RAW file through rawler: its header-only pass first, so the declared size is
-/// checked against [`crate::limits`] before the image is allocated.
+/// A RAW file through rawler: the declared size first, checked against
+/// [`crate::limits`] before the image is allocated, then the one decode. The size is
+/// rawler's header-only pass's, or where a DNG's first directory is its raw image, that
+/// directory's: rawler (0.8) decodes a DNG's whole image even in its header-only pass,
+/// which doubled the time of a 24 MP lossless-JPEG DNG (docs/figures.md, "Decoding a
+/// RAW file") and checked nothing before that decode.
 pub(super) fn rawler_capture(
     path: &Path,
     bytes: &[u8],
@@ -71,16 +108,20 @@ pub(super) fn rawler_capture(
     let _quiet = QuietPanics::new();
     let source = rawler::rawsource::RawSource::new_from_slice(bytes);
     let params = rawler::decoders::RawDecodeParams::default();
+    let stage = std::cell::Cell::new(Stopped::Header);
     let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         let decoder = rawler::get_decoder(&source).map_err(RawlerRefusal::Refused)?;
-        let head = decoder
-            .raw_image(&source, &params, true)
-            .map_err(RawlerRefusal::Refused)?;
-        check_size(path, head.width, head.height).map_err(RawlerRefusal::Ours)?;
-        let samples = head
-            .width
-            .saturating_mul(head.height)
-            .saturating_mul(head.cpp.max(1));
+        let (width, height, cpp) = match ifd.and_then(dng_raw_size) {
+            Some(size) => size,
+            None => {
+                let head = decoder
+                    .raw_image(&source, &params, true)
+                    .map_err(RawlerRefusal::Refused)?;
+                (head.width, head.height, head.cpp)
+            }
+        };
+        check_size(path, width, height).map_err(RawlerRefusal::Ours)?;
+        let samples = width.saturating_mul(height).saturating_mul(cpp.max(1));
         // No lossless coding spends less than a bit on a sample (and a lossy one not
         // less than a tenth of one): a file that claims far more samples than it has
         // bits is truncated, and is refused before the decoder allocates its image.
@@ -88,23 +129,41 @@ pub(super) fn rawler_capture(
             return Err(RawlerRefusal::Ours(LoadError::Damaged {
                 path: path.to_path_buf(),
                 reason: format!(
-                    "truncated at byte {}: a {} × {} image cannot be coded in so few bytes",
+                    "truncated at byte {}: a {width} × {height} image cannot be coded in so few \
+                     bytes",
                     bytes.len(),
-                    head.width,
-                    head.height
                 ),
             }));
         }
+        stage.set(Stopped::Image);
         let image = decoder
             .raw_image(&source, &params, false)
             .map_err(RawlerRefusal::Refused)?;
+        stage.set(Stopped::Header);
         let meta = decoder.raw_metadata(&source, &params).ok();
         Ok((image, meta))
     }))
-    .map_err(|_| RawlerRefusal::Panicked)??;
+    .map_err(|_| RawlerRefusal::Panicked(stage.get()))??;
     let (image, meta) = decoded;
     let capture = from_rawler(path, &image, ifd).map_err(RawlerRefusal::Ours)?;
     Ok((capture, decoded_meta(meta.as_ref())))
+}
+
+/// A DNG's raw image size (width, height, samples per pixel) where its first directory
+/// holds it (not a preview: NewSubfileType 0; a CFA or linear raw image), as the DNG's
+/// writer declared it.
+fn dng_raw_size(ifd: &Ifd) -> Option<(usize, usize, usize)> {
+    let main = first_tag(ifd, 254).is_none_or(|t| t as u32 & 1 == 0);
+    let raw = matches!(first_tag(ifd, TAG_PHOTOMETRIC), Some(32803.0 | 34892.0));
+    if !(ifd.contains_key(&TAG_DNG_VERSION) && main && raw) {
+        return None;
+    }
+    let count = |tag: u16| {
+        first_tag(ifd, tag)
+            .filter(|v| v.is_finite() && *v >= 0.0)
+            .map(|v| v as usize)
+    };
+    Some((count(256)?, count(257)?, count(277).unwrap_or(1)))
 }
 
 fn rational(r: Option<&rawler::formats::tiff::Rational>) -> Option<f64> {
@@ -195,12 +254,6 @@ fn from_rawler(
             .or(img.whitelevel.0.first())
             .map_or(65535.0, |&v| v.min(65535) as f32)
     };
-    let matrix = rawler_matrix(img);
-    let wb = img.wb_coeffs;
-    let neutral = (wb[..3].iter().all(|v| v.is_normal() && *v > 0.0)).then(|| {
-        let g = f64::from(wb[1]);
-        [g / f64::from(wb[0]), 1.0, g / f64::from(wb[2])]
-    });
     let mut capture = match (&img.photometric, cpp) {
         (rawler::rawimage::RawPhotometricInterpretation::Cfa(config), 1) => {
             let cfa = &config.cfa;
@@ -220,25 +273,13 @@ fn from_rawler(
             }
             let color_at = |x: usize, y: usize| cfa.color_at(y + top, x + left);
             let black = |x: usize, y: usize| black_at(x, y, 0);
-            let white = white_of(0);
-            let mut c = cfa_capture(path, &values, (w, h), &color_at, &black, white)?;
-            let sites = [(0, 0), (1, 0), (0, 1), (1, 1)];
-            c.raw = Some(RawMeta {
-                cfa: sites.map(|(x, y)| color_at(x, y).min(3) as u8),
-                black: sites.map(|(x, y)| black(x, y).clamp(0.0, 65535.0) as u16),
-                white: white.clamp(0.0, 65535.0) as u16,
-                // A DNG's own values where it has them (rawler keeps them as f32).
-                color_matrix: ifd.and_then(dng_matrix).or(matrix),
-                calibration_illuminant: ifd.map_or(21, matrix_illuminant),
-                as_shot_neutral: ifd.and_then(dng_neutral).or(neutral),
-                orientation: match img.orientation.to_u16() {
-                    0 => 1,
-                    o => o,
-                },
-                // The EXIF facts come with `ExifInfo::fill`.
-                ..RawMeta::default()
-            });
-            c
+            let colour = DecoderColour {
+                matrix: rawler_matrix(img),
+                wb: Some(img.wb_coeffs),
+                orientation: img.orientation.to_u16(),
+            };
+            let (white, size) = (white_of(0), (w, h));
+            mosaic_capture(path, &values, size, &color_at, &black, white, ifd, colour)?
         }
         (_, 3) => {
             // Linear (already demosaiced) camera RGB, as phones and Adobe's converter's
@@ -291,8 +332,8 @@ fn from_rawler(
             });
         }
     };
-    capture.identity.make = Some(img.clean_make.clone()).filter(|s| !s.is_empty());
-    capture.identity.model = Some(img.clean_model.clone()).filter(|s| !s.is_empty());
+    capture.identity.make = named(&img.clean_make);
+    capture.identity.model = named(&img.clean_model);
     Ok(capture)
 }
 
@@ -318,12 +359,12 @@ pub(super) fn explain(
 ) -> LoadError {
     let refusal = match rawler {
         RawlerRefusal::Ours(e) => return e,
-        RawlerRefusal::Refused(e) => Some(e),
-        RawlerRefusal::Panicked => None,
+        RawlerRefusal::Refused(e) => Ok(e),
+        RawlerRefusal::Panicked(stage) => Err(stage),
     };
     // A camera no decoder knows is named first: the decoders stopped before its image
     // data, so the cure is a converter that knows it, whatever else is wrong.
-    if let Some(rawler::RawlerError::Unsupported { make, model, .. }) = &refusal
+    if let Ok(rawler::RawlerError::Unsupported { make, model, .. }) = &refusal
         && !(make.trim().is_empty() && model.trim().is_empty())
     {
         return LoadError::Unsupported {
@@ -351,10 +392,10 @@ pub(super) fn explain(
         };
     }
     let rawler_words = match &refusal {
-        Some(rawler::RawlerError::Unsupported { .. }) => {
+        Ok(rawler::RawlerError::Unsupported { .. }) => {
             "not a RAW format lensblur knows".to_string()
         }
-        Some(rawler::RawlerError::DecoderFailed(m)) => {
+        Ok(rawler::RawlerError::DecoderFailed(m)) => {
             let m = one_line(m);
             // rawler's I/O failures are reads past the end of what it was given.
             if m.contains("I/O") || m.contains("fill whole buffer") || m.contains("EOF") {
@@ -368,13 +409,21 @@ pub(super) fn explain(
             }
             m.split(". Please").next().unwrap_or_default().to_string()
         }
-        None => "the decoder stopped on malformed data".to_string(),
+        Err(stage) => stage.words(),
     };
     LoadError::Corrupt {
         path: path.to_path_buf(),
         reason: match fallback {
             // What the photographer can do about a file no decoder recognises: it may
             // be a camera's RAW that only a converter knows, or no photo at all.
+            // Where rawler does not know the format but rawloader does and stops in
+            // it, the file is one of rawloader's, corrupt: its words say so.
+            Some(e)
+                if rawler_words.starts_with("not a RAW")
+                    && Stopped::said(&super::fallback_words(&e)) =>
+            {
+                super::fallback_words(&e)
+            }
             Some(e) if rawler_words.starts_with("not a RAW") => format!(
                 "{rawler_words} ({}); if it is a camera's RAW file, convert it to DNG with \
                  Adobe DNG Converter or `dnglab convert` and open the DNG (PNG, TIFF and \
@@ -399,17 +448,18 @@ fn refuse_hazards(path: &Path, bytes: &[u8]) -> Result<(), LoadError> {
     }
 }
 
-/// What rawler's header-only pass finds: the active area's size, the camera's make and
-/// model.
-pub(super) type RawlerHeader = ((usize, usize), String, String);
+/// What a decoder's header-only pass finds: the active area's size, the camera's make
+/// and model.
+pub(super) type RawHeader = ((usize, usize), Option<String>, Option<String>);
 
 /// rawler's header-only pass: the active area's size and the camera's names, or `None`
 /// where rawler does not read the file (or stops on it).
 ///
 /// # Errors
 /// The file is damaged in a way rawler is not handed (see [`refuse_hazards`]).
-pub(super) fn rawler_header(path: &Path, bytes: &[u8]) -> Result<Option<RawlerHeader>, LoadError> {
+pub(super) fn rawler_header(path: &Path, bytes: &[u8]) -> Result<Option<RawHeader>, LoadError> {
     refuse_hazards(path, bytes)?;
+    let _quiet = QuietPanics::new();
     let source = rawler::rawsource::RawSource::new_from_slice(bytes);
     let params = rawler::decoders::RawDecodeParams::default();
     let head = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
@@ -422,7 +472,25 @@ pub(super) fn rawler_header(path: &Path, bytes: &[u8]) -> Result<Option<RawlerHe
         Some(r) if r.p.x + r.d.w <= head.width && r.p.y + r.d.h <= head.height => (r.d.w, r.d.h),
         _ => (head.width, head.height),
     };
-    Ok(Some((size, head.clean_make, head.clean_model)))
+    Ok(Some((
+        size,
+        named(&head.clean_make),
+        named(&head.clean_model),
+    )))
+}
+
+/// rawloader's header-only pass: the active area's size and the camera's names.
+///
+/// # Errors
+/// rawloader does not read the file.
+pub(super) fn rawloader_header(path: &Path, bytes: &[u8]) -> Result<RawHeader, LoadError> {
+    let head = rawloader_head(path, bytes)?;
+    let [top, right, bottom, left] = head.crops;
+    let size = (
+        head.width.saturating_sub(left + right),
+        head.height.saturating_sub(top + bottom),
+    );
+    Ok((size, named(&head.clean_make), named(&head.clean_model)))
 }
 
 /// Whether a TIFF is a camera's own RAW (not a DNG): a CR2, or a TIFF whose first
@@ -471,4 +539,180 @@ pub(super) fn camera_raw(bytes: &[u8]) -> bool {
             .collect();
         MAKERS.contains(&make.trim_end())
     })
+}
+
+/// A RAW file through rawloader, whose header-only pass gives the declared size to
+/// check against our limits before the real decode allocates the image.
+pub(super) fn rawloader_capture(
+    path: &Path,
+    bytes: &[u8],
+    ifd: Option<&Ifd>,
+) -> Result<Capture, LoadError> {
+    let head = rawloader_head(path, bytes)?;
+    check_size(path, head.width, head.height)?;
+    // No lossless coding spends less than a bit on a sample: a file that claims more
+    // samples than it has bits is truncated, and is refused before the decoder
+    // allocates its image (a few kB claiming 300 MP would otherwise take 600 MB).
+    let samples = head
+        .width
+        .saturating_mul(head.height)
+        .saturating_mul(head.cpp.max(1));
+    if bytes.len().saturating_mul(8) < samples {
+        return Err(LoadError::Damaged {
+            path: path.to_path_buf(),
+            reason: format!(
+                "truncated at byte {}: a {} × {} image cannot be coded in so few bytes",
+                bytes.len(),
+                head.width,
+                head.height,
+            ),
+        });
+    }
+    let _quiet = QuietPanics::new();
+    let decoded = std::panic::catch_unwind(|| rawloader::decode(&mut std::io::Cursor::new(bytes)))
+        .map_err(|_| stopped(path, Stopped::Image))?
+        .map_err(|e| rawloader_error(path, &e, Stopped::Image))?;
+    from_rawloader(path, &decoded, ifd)
+}
+
+/// rawloader's header-only pass (its image left empty).
+fn rawloader_head(path: &Path, bytes: &[u8]) -> Result<rawloader::RawImage, LoadError> {
+    let _quiet = QuietPanics::new();
+    std::panic::catch_unwind(|| rawloader::decode_dummy(&mut std::io::Cursor::new(bytes)))
+        .map_err(|_| stopped(path, Stopped::Header))?
+        .map_err(|e| rawloader_error(path, &e, Stopped::Header))
+}
+
+/// A decoder panicked on the file, there.
+fn stopped(path: &Path, stage: Stopped) -> LoadError {
+    LoadError::Corrupt {
+        path: path.to_path_buf(),
+        reason: stage.words(),
+    }
+}
+
+/// rawloader's refusal as one line. It reports its decoders' panics (in `stage`) as
+/// errors: a panic is never the message.
+fn rawloader_error(path: &Path, e: &rawloader::RawLoaderError, stage: Stopped) -> LoadError {
+    let m = one_line(&e.to_string());
+    if m.contains("panic") {
+        stopped(path, stage)
+    } else {
+        LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: format!("RAW decoder: {m}"),
+        }
+    }
+}
+
+type PanicHook = Box<dyn Fn(&std::panic::PanicHookInfo<'_>) + Sync + Send + 'static>;
+
+/// The panic hook saved while any decode runs, and how many decodes run.
+static QUIET: std::sync::Mutex<(usize, Option<PanicHook>)> = std::sync::Mutex::new((0, None));
+
+/// While alive, panics print nothing. rawloader turns its decoders' panics into errors
+/// but prints each one on the way; a malformed file must cost the user one line, not
+/// hundreds. Counted, so decodes on several threads restore the original hook only when
+/// the last one ends (a plain take/set pair per call would leave the silent hook in
+/// place when two overlap).
+pub(super) struct QuietPanics;
+
+impl QuietPanics {
+    pub(super) fn new() -> Self {
+        let mut q = QUIET
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if q.0 == 0 {
+            q.1 = Some(std::panic::take_hook());
+            std::panic::set_hook(Box::new(|_| {}));
+        }
+        q.0 += 1;
+        Self
+    }
+}
+
+impl Drop for QuietPanics {
+    fn drop(&mut self) {
+        let mut q = QUIET
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        q.0 -= 1;
+        if q.0 == 0
+            && let Some(hook) = q.1.take()
+        {
+            std::panic::set_hook(hook);
+        }
+    }
+}
+
+/// The decoder's message as one line: its first line, without the error type's wrapper
+/// (it appends an address to report samples to on a second line).
+pub(super) fn one_line(message: &str) -> String {
+    let first = message.lines().next().unwrap_or_default();
+    let bare = first.strip_prefix("RawLoaderError: ").unwrap_or(first);
+    bare.trim_matches('"').trim().to_string()
+}
+
+/// rawloader's image as our planes: the active area of its CFA mosaic.
+fn from_rawloader(
+    path: &Path,
+    img: &rawloader::RawImage,
+    ifd: Option<&Ifd>,
+) -> Result<Capture, LoadError> {
+    if img.cpp != 1 {
+        return Err(LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: format!("{} samples per pixel: not a CFA RAW", img.cpp),
+        });
+    }
+    let rawloader::RawImageData::Integer(data) = &img.data else {
+        return Err(LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: "floating-point RAW data is not supported".into(),
+        });
+    };
+    if data.len() < img.width * img.height {
+        return Err(LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: "fewer samples than the sensor has pixels (truncated?)".into(),
+        });
+    }
+    // The active area: crops are [top, right, bottom, left].
+    let [top, right, bottom, left] = img.crops;
+    let (w, h) = (
+        img.width.saturating_sub(left + right),
+        img.height.saturating_sub(top + bottom),
+    );
+    check_size(path, w, h)?;
+    let mut values = Vec::with_capacity(w * h);
+    for y in 0..h {
+        let row = (y + top) * img.width + left;
+        values.extend_from_slice(&data[row..row + w]);
+    }
+    let color_at = |x: usize, y: usize| img.cfa.color_at(y + top, x + left);
+    // rawloader keeps one black level per colour, reading a DNG's per-site levels (a
+    // 2 × 2 BlackLevelRepeatDim, what Adobe's converter writes) as if they were per
+    // colour; where the raw image is in IFD0 we take them per site ourselves.
+    let site_blacks = ifd.and_then(site_black_levels);
+    let black = |x: usize, y: usize| match site_blacks {
+        Some(b) => b[RawMeta::site(x + left, y + top)],
+        None => f32::from(img.blacklevels[color_at(x, y).min(3)]),
+    };
+    let colour = DecoderColour {
+        matrix: Some(std::array::from_fn(|r| {
+            std::array::from_fn(|k| f64::from(img.xyz_to_cam[r][k]))
+        })),
+        wb: Some(img.wb_coeffs),
+        orientation: img.orientation.to_u16(),
+    };
+    let white = f32::from(img.whitelevels[0]);
+    let mut c = mosaic_capture(path, &values, (w, h), &color_at, &black, white, ifd, colour)?;
+    c.identity.make = named(&img.clean_make);
+    c.identity.model = named(&img.clean_model);
+    Ok(c)
+}
+
+/// A decoder's cleaned-up camera name, `None` where it has none.
+fn named(name: &str) -> Option<String> {
+    Some(name.to_string()).filter(|s| !s.is_empty())
 }

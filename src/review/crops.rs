@@ -107,6 +107,7 @@ pub fn crop_capture(cap: &Capture, region: Region) -> Capture {
         planes,
         setting_focal_mm: cap.setting_focal_mm,
         setting_f_number: cap.setting_f_number,
+        setting_focus_m: cap.setting_focus_m,
         identity: cap.identity.clone(),
         is_raw: cap.is_raw,
         raw: cap.raw.clone(),

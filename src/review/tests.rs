@@ -76,6 +76,7 @@ fn comet_profiles() -> (Profile, Profile, KernelsFile) {
         height: ds.height,
         focal_mm: Some(shot.focal_mm),
         f_number: Some(shot.f_number),
+        focus_distance_m: None,
         oversample: 3,
         identity: None,
         source: None,
@@ -160,6 +161,7 @@ fn crops_keep_sensor_positions() {
         }],
         setting_focal_mm: None,
         setting_f_number: None,
+        setting_focus_m: None,
         identity: CameraIdentity::default(),
         is_raw: true,
         raw: None,
@@ -217,6 +219,7 @@ fn sweep_points_follow_the_fixed_setting() {
                 name: format!("{f}-{a}"),
                 focal_mm: f,
                 f_number: a,
+                focus_distance_m: None,
             },
             samples,
         );

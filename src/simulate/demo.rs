@@ -404,6 +404,7 @@ fn make_demo_photo(
         planes,
         setting_focal_mm: None,
         setting_f_number: None,
+        setting_focus_m: None,
         identity: crate::plane::CameraIdentity::default(),
         is_raw: false,
         raw: None,

@@ -226,6 +226,7 @@ impl SimulatedSession {
                         name: format!("sim-{si:02}-{rep}"),
                         focal_mm: setting.focal_mm,
                         f_number: setting.f_number,
+                        focus_distance_m: None,
                     },
                     samples,
                 );

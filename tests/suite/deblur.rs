@@ -23,7 +23,7 @@ use lensblur::model::spaced;
 use lensblur::plane::{CameraIdentity, Channel, ChannelPlane, LensSetting, Plane, RawMeta};
 use lensblur::profile::Profile;
 use lensblur::psf::{Gaussian2, Kernel};
-use lensblur::raw::{LoadOptions, load_capture};
+use lensblur::raw::{FocusDistance, LoadOptions, load_capture};
 use lensblur::simulate::capture::rggb_channel;
 use lensblur::simulate::dead_leaves;
 use lensblur::simulate::lens::VirtualLens;
@@ -801,6 +801,7 @@ fn lens_kernels_file(w: usize, h: usize, setting: LensSetting, with: &str) -> Ke
         height: h,
         focal_mm: Some(setting.focal_mm),
         f_number: Some(setting.f_number),
+        focus_distance_m: None,
         oversample,
         identity: None,
         source: None,
@@ -946,6 +947,82 @@ fn deblur_command_on_a_raw_photo_with_settings_from_exif() {
     }
 }
 
+/// Issue 36: a photo focused far from where the calibration shots were focused is
+/// warned about in one line, the profile's focus range kept from its shots; one
+/// focused among them is not.
+#[test]
+fn deblur_command_warns_when_the_photo_was_focused_far_from_the_shots() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (w, h) = (192, 128);
+    let lens = VirtualLens::demo();
+    // The shots at 1.5 and 3 m, as a chart on a wall is shot.
+    let mut ds = SimulatedSession {
+        seed: 17,
+        ..SimulatedSession::new(w, h)
+    }
+    .dataset(&lens, &calibration_settings());
+    for (i, shot) in ds.shots.iter_mut().enumerate() {
+        shot.focus_distance_m = FocusDistance::from_metres([1.5, 3.0][i % 2]);
+    }
+    let opts = CalibrateOptions {
+        families: Families::Global,
+        alpha: Some(3),
+        beta: Some(2),
+        ..CalibrateOptions::default()
+    };
+    let (profile, _) = calibrate(&ds, None, &opts, &JobContext::silent()).expect("calibrate");
+    let range = profile.focus_range.expect("a focus range");
+    assert_eq!(
+        (range.nearest_m.metres(), range.farthest_m.metres()),
+        (1.5, 3.0)
+    );
+    let profile_path = dir.path().join("profile.json");
+    profile.save(&profile_path).expect("save profile");
+    let setting = LensSetting {
+        focal_mm: 45.0,
+        f_number: 6.3,
+    };
+    let (_, blurry) = blurred_rgb(w, h, setting, 43);
+    let stderr_for = |name: &str, focus_m: f64| {
+        let mut info = DngInfo::simulated(
+            &lens.make,
+            &lens.model,
+            512,
+            16383,
+            Some(setting),
+            lensblur::dng::DngLayout::default(),
+        );
+        info.focus_m = Some(focus_m);
+        let photo = dir.path().join(format!("{name}.dng"));
+        write_dng(&photo, &mosaic_of(&blurry, &info), w, h, &info).expect("write dng");
+        let read = lensblur::raw::inspect(&photo).expect("inspect");
+        assert_eq!(read.focus_distance_m, FocusDistance::from_metres(focus_m));
+        let out = dir.path().join(format!("{name}.tiff"));
+        let o = lensblur(&[
+            os("deblur"),
+            photo.as_os_str(),
+            os("--out"),
+            out.as_os_str(),
+            os("--profile"),
+            profile_path.as_os_str(),
+        ]);
+        let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert!(o.status.success(), "{stderr}");
+        stderr
+    };
+    let far = stderr_for("far", f64::INFINITY);
+    let warned: Vec<&str> = far.lines().filter(|l| l.contains("focused at")).collect();
+    assert_eq!(warned.len(), 1, "{far}");
+    assert!(
+        warned[0].starts_with("lensblur: warning: ")
+            && warned[0].contains("focused at infinity")
+            && warned[0].contains("(1.5 m–3 m)"),
+        "{far}"
+    );
+    let among = stderr_for("among", 2.0);
+    assert!(!among.contains("focused at"), "{among}");
+}
+
 /// A RAW photo as a camera writes it: a Bayer mosaic with per-site black levels, a
 /// camera colour matrix, an as-shot white balance, a rotated orientation and the EXIF a
 /// RAW editor reads.
@@ -960,6 +1037,7 @@ fn camera_dng_info(setting: LensSetting) -> DngInfo {
             lens_serial: Some("VZ-0001".into()),
         },
         setting: Some(setting),
+        focus_m: None,
         raw: RawMeta {
             cfa: [0, 1, 1, 2],
             black: [512, 510, 511, 514],
@@ -1620,6 +1698,7 @@ fn gpu_test_photo(w: usize, h: usize) -> (lensblur::plane::Capture, impl KernelS
         planes,
         setting_focal_mm: None,
         setting_f_number: None,
+        setting_focus_m: None,
         identity: CameraIdentity::default(),
         is_raw: false,
         raw: None,

@@ -103,7 +103,7 @@ fn a_version_2_profile_reads_without_a_trust_record_and_warns_only_by_setting() 
         focal_mm: f1 * 1.5,
         f_number: a,
     };
-    assert!(p.trust_line(beyond, None).is_some());
+    assert!(p.trust_line(beyond, None, None).is_some());
     let shot = p
         .calibrated_settings
         .first()
@@ -112,7 +112,7 @@ fn a_version_2_profile_reads_without_a_trust_record_and_warns_only_by_setting() 
             focal_mm: f0,
             f_number: a,
         });
-    assert_eq!(p.trust_line(shot, None), None);
+    assert_eq!(p.trust_line(shot, None, None), None);
     // Written again, it is a version-4 file.
     let again = String::from_utf8(p.to_json().unwrap()).unwrap();
     assert!(again.contains("lensblur.profile/4"));
@@ -193,4 +193,46 @@ fn a_file_of_another_kind_is_named_as_such() {
     let t = current("kernels", ".kernels.json");
     let e = Profile::from_json(&t, "k.json").unwrap_err().to_string();
     assert!(e.contains("not a lensblur.profile file"), "{e}");
+}
+
+/// Issue 36: where the shots were focused goes from a kernels file through the dataset
+/// into the profile, and back out of its file; a profile without one (every profile
+/// calibrated before it was kept) reads as having none.
+#[test]
+fn the_focus_distances_of_the_shots_travel_into_the_profile_and_back() {
+    use lensblur::model::Dataset;
+    use lensblur::profile::FocusRange;
+    use lensblur::raw::FocusDistance;
+    let mut near = KernelsFile::from_json(&current("kernels", ".kernels.json")).unwrap();
+    near.focus_distance_m = FocusDistance::from_metres(1.5);
+    let mut far = near.clone();
+    far.focus_distance_m = FocusDistance::from_metres(f64::INFINITY);
+    let text_of = |k: &KernelsFile| serde_json::to_string(k).unwrap();
+    assert!(text_of(&far).contains("\"focus_distance_m\":\"infinity\""));
+    let (near, far) = (
+        KernelsFile::from_json(&text_of(&near)).unwrap(),
+        KernelsFile::from_json(&text_of(&far)).unwrap(),
+    );
+    let ds = Dataset::from_kernels(&[("near", &near, None), ("far", &far, None)]).unwrap();
+    let range = ds.focus_range().expect("both shots say");
+    assert_eq!(range, FocusRange::of([1.5, f64::INFINITY]).unwrap());
+
+    let old = Profile::from_json(&text(&kept("profile-v2.json")), "profile-v2.json").unwrap();
+    assert_eq!(old.focus_range, None);
+    let mut p = old.clone();
+    p.focus_range = Some(range);
+    let json = String::from_utf8(p.to_json().unwrap()).unwrap();
+    assert!(json.contains("\"focus_range_m\""), "{json}");
+    let back = Profile::from_json(&json, "p.json").unwrap();
+    assert_eq!(back.focus_range, Some(range));
+    // A range that is no range is refused, naming the file.
+    let bad = json.replacen("\"nearest_m\": 1.5", "\"nearest_m\": -1.5", 1);
+    assert_ne!(bad, json);
+    let e = Profile::from_json(&bad, "bad.json")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.starts_with("bad.json") && e.contains("focus range"),
+        "{e}"
+    );
 }

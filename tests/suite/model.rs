@@ -1546,14 +1546,14 @@ fn a_profile_records_where_it_is_trusted_and_warns_outside_it() {
     let about_setting = |w: &lensblur::profile::TrustWarning| {
         !matches!(w, lensblur::profile::TrustWarning::LargeError { .. })
     };
-    let said = profile.trust_warnings(inside, None);
+    let said = profile.trust_warnings(inside, None, None);
     assert!(!said.iter().any(about_setting), "{said:?}");
     // Beyond the longest focal length shot.
     let outside = LensSetting {
         focal_mm: 135.0,
         f_number: 5.6,
     };
-    let warnings = profile.trust_warnings(outside, None);
+    let warnings = profile.trust_warnings(outside, None, None);
     assert!(
         matches!(
             warnings.first(),
@@ -1561,7 +1561,7 @@ fn a_profile_records_where_it_is_trusted_and_warns_outside_it() {
         ),
         "{warnings:?}"
     );
-    let line = profile.trust_line(outside, None).expect("a warning");
+    let line = profile.trust_line(outside, None, None).expect("a warning");
     assert!(
         line.starts_with("warning: ")
             && line.contains("outside the calibrated range")
@@ -1569,7 +1569,7 @@ fn a_profile_records_where_it_is_trusted_and_warns_outside_it() {
         "{line}"
     );
     // A point the chart never reached is named.
-    let corner = profile.trust_warnings(inside, Some((0.0, 0.0)));
+    let corner = profile.trust_warnings(inside, None, Some((0.0, 0.0)));
     assert!(
         corner
             .iter()
@@ -1582,7 +1582,7 @@ fn a_profile_records_where_it_is_trusted_and_warns_outside_it() {
     let t2 = back.trust.as_ref().expect("kept");
     assert_eq!(t2.settings.len(), 9);
     assert!((t2.mean_error_pct - trust.mean_error_pct).abs() < 1e-9);
-    assert_eq!(back.trust_line(outside, None), Some(line));
+    assert_eq!(back.trust_line(outside, None, None), Some(line));
     // A damaged record is refused, naming the file.
     let damaged = text.replacen("\"zones\": [\n      3,", "\"zones\": [\n      0,", 1);
     if damaged != text {

@@ -237,6 +237,43 @@ fn a_file_no_decoder_recognises_says_what_to_do() {
     );
 }
 
+/// A decoder that stops on a file (it panicked) says what is wrong and what to do,
+/// naming the file: the 300D's CRW with one header byte corrupted, not cut short.
+fn assert_says_corrupt_header(e: &LoadError, path: &Path) {
+    let m = one_line(e, path);
+    assert!(matches!(e, LoadError::Corrupt { .. }), "{m}");
+    assert!(
+        m.contains("its headers hold values that contradict each other")
+            && m.contains("copy it from the card again")
+            && m.contains("dnglab convert"),
+        "{m}"
+    );
+    assert!(!m.contains("malformed"), "{m}");
+}
+
+#[test]
+fn a_crw_whose_header_length_is_corrupt_says_so_and_what_to_do() {
+    // Its header length's top byte flipped: rawler stops reading the heap it points to.
+    let path = real("canon-300d-stripped.crw");
+    let mut bytes = std::fs::read(&path).unwrap();
+    bytes[3] ^= 0xFF;
+    assert_says_corrupt_header(&inspect_bytes(&path, &bytes).unwrap_err(), &path);
+    let alone = decode_raw_with(Decoder::Rawler, &path, &bytes).unwrap_err();
+    assert_says_corrupt_header(&alone, &path);
+}
+
+#[test]
+fn a_crw_whose_signature_is_corrupt_says_so_and_what_to_do() {
+    // "HEAPCCDR" made "\xB7EAPCCDR": rawler no longer knows the format, rawloader still
+    // takes it for a CRW and stops in its header.
+    let path = real("canon-300d-stripped.crw");
+    let mut bytes = std::fs::read(&path).unwrap();
+    bytes[6] ^= 0xFF;
+    assert_says_corrupt_header(&inspect_bytes(&path, &bytes).unwrap_err(), &path);
+    let alone = decode_raw_with(Decoder::Rawloader, &path, &bytes).unwrap_err();
+    assert_says_corrupt_header(&alone, &path);
+}
+
 #[test]
 fn info_on_the_command_line() {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_lensblur"))

@@ -104,6 +104,9 @@ pub(super) fn deblur_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::
     let shown = app.shown_path(&photo.path);
     let mut f = photo.focal_mm.unwrap_or(0.0);
     let mut a = photo.f_number.unwrap_or(0.0);
+    // Where the photo was focused, as its file says: the core judges it against the
+    // profile's focus range.
+    let photo_focus_m = photo.capture.setting_focus_m;
     ui.horizontal(|ui| {
         ui.label(format!("{shown} — {width} × {height} px"));
         ui.separator();
@@ -136,8 +139,8 @@ pub(super) fn deblur_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::
             });
         }
     });
-    // Where the profile is less well trusted at this setting: the core's own words,
-    // as `lensblur deblur` prints them.
+    // Where the profile is less well trusted at this setting and focus: the core's own
+    // words, as `lensblur deblur` prints them.
     if let Some((_, profile)) = app.profile()
         && f > 0.0
         && a > 0.0
@@ -146,6 +149,7 @@ pub(super) fn deblur_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::
                 focal_mm: f,
                 f_number: a,
             },
+            photo_focus_m,
             None,
         )
     {

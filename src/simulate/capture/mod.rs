@@ -841,6 +841,7 @@ pub fn capture_from_raw(
         planes,
         setting_focal_mm: None,
         setting_f_number: None,
+        setting_focus_m: None,
         identity: CameraIdentity::default(),
         is_raw: bayer,
         raw: None,

@@ -1,0 +1,75 @@
+//! The peak memory of decoding one 24 MP DNG, for `/usr/bin/time -v`: writing the file
+//! and reading it are separate runs, so the reading run holds only what decoding it
+//! takes (the file's bytes, the decoder's image, the planes).
+//!
+//! Usage:
+//!   cargo run --example raw_decode_memory -- write FILE.dng uncompressed|ljpeg
+//!   /usr/bin/time -v target/debug/examples/raw_decode_memory read FILE.dng chain|rawloader
+//!
+//! The mosaic is the one `benches/raw_decode.rs` times; `chain` is what `load_capture`
+//! runs (rawler first), `rawloader` the decoder alone (the chain before rawler).
+use anyhow::{Context, bail};
+use lensblur::dng::{DngCompression, DngInfo, DngLayout, dng_bytes};
+use lensblur::raw::{Decoder, decode_raw, decode_raw_with};
+use std::path::Path;
+
+/// A 6000 × 4000 RGGB mosaic with a smooth scene and noise-like detail (as the bench's).
+fn mosaic_24mp() -> (Vec<u16>, usize, usize) {
+    let (w, h) = (6000, 4000);
+    let mut state = 0x2545_f491_4f6c_dd1d_u64;
+    let cfa = (0..w * h)
+        .map(|k| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let (x, y) = ((k % w) as f64, (k / w) as f64);
+            let scene = 0.5 + 0.4 * (x / 700.0).sin() * (y / 500.0).cos();
+            (512.0 + scene * 12000.0) as u16 + (state % 64) as u16
+        })
+        .collect();
+    (cfa, w, h)
+}
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let [mode, file, kind] = args.as_slice() else {
+        bail!("usage: raw_decode_memory write|read FILE.dng uncompressed|ljpeg|chain|rawloader");
+    };
+    let path = Path::new(file);
+    match (mode.as_str(), kind.as_str()) {
+        ("write", layout) => {
+            let layout = match layout {
+                "uncompressed" => DngLayout {
+                    tile: None,
+                    compression: DngCompression::Uncompressed,
+                },
+                "ljpeg" => DngLayout {
+                    tile: Some(256),
+                    compression: DngCompression::LosslessJpeg,
+                },
+                other => bail!("unknown layout {other}"),
+            };
+            let (cfa, w, h) = mosaic_24mp();
+            let info = DngInfo::simulated("Lensblur", "Bench", 512, 16383, None, layout);
+            std::fs::write(path, dng_bytes(&cfa, w, h, &info))
+                .with_context(|| path.display().to_string())?;
+        }
+        ("read", decoder) => {
+            let bytes = std::fs::read(path).with_context(|| path.display().to_string())?;
+            let capture = match decoder {
+                "chain" => decode_raw(path, &bytes)?,
+                "rawloader" => decode_raw_with(Decoder::Rawloader, path, &bytes)?,
+                other => bail!("unknown decoder {other}"),
+            };
+            println!(
+                "{}: {} × {}, {} planes",
+                path.display(),
+                capture.width,
+                capture.height,
+                capture.planes.len()
+            );
+        }
+        (other, _) => bail!("unknown mode {other}"),
+    }
+    Ok(())
+}
