@@ -445,6 +445,24 @@ pub struct Capture {
 }
 
 impl Capture {
+    /// A capture of `planes` and nothing yet of its settings, its camera or (for a RAW
+    /// file) its metadata: what decoding or a simulation leaves, before the loader
+    /// fills in what the file says.
+    #[must_use]
+    pub fn of_planes(width: usize, height: usize, planes: Vec<ChannelPlane>, is_raw: bool) -> Self {
+        Self {
+            width,
+            height,
+            planes,
+            setting_focal_mm: None,
+            setting_f_number: None,
+            setting_focus_m: None,
+            identity: CameraIdentity::default(),
+            is_raw,
+            raw: None,
+        }
+    }
+
     /// The channels this capture reports, in R, G, B, Y order (G once however many
     /// green planes a mosaic has): the order a shot's kernels are listed in.
     #[must_use]

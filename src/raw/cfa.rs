@@ -3,7 +3,7 @@
 //! the rules for what a file says (whose matrix, whose white balance) are kept once.
 
 use super::tiff::{Ifd, dng_matrix, dng_neutral, matrix_illuminant};
-use super::{LoadError, check_size, decoded_capture};
+use super::{LoadError, check_size};
 use crate::plane::{Capture, Channel, ChannelPlane, Plane, RawMeta};
 use std::path::Path;
 
@@ -57,7 +57,7 @@ fn cfa_capture(
             offset_y: oy,
         });
     }
-    Ok(decoded_capture(w, h, planes, true))
+    Ok(Capture::of_planes(w, h, planes, true))
 }
 
 /// What a decoder read of a mosaic's colour beyond its samples.

@@ -7,7 +7,7 @@
 
 use super::cfa::{DecoderColour, mosaic_capture};
 use super::tiff::{Ifd, TAG_DNG_VERSION, TAG_PHOTOMETRIC, first_tag, site_black_levels};
-use super::{LoadError, check_size, decoded_capture};
+use super::{LoadError, check_size};
 use crate::plane::{Capture, Channel, ChannelPlane, Plane, RawMeta};
 use std::path::Path;
 
@@ -304,7 +304,7 @@ fn from_rawler(
                     }
                 })
                 .collect();
-            decoded_capture(w, h, planes, false)
+            Capture::of_planes(w, h, planes, false)
         }
         (_, 1) => {
             let black = black_at(0, 0, 0);
@@ -312,7 +312,7 @@ fn from_rawler(
             let plane = Plane::from_fn(w, h, |x, y| {
                 (f32::from(data[(y + top) * img.width + x + left]) - black_at(x, y, 0)) / range
             });
-            decoded_capture(
+            Capture::of_planes(
                 w,
                 h,
                 vec![ChannelPlane {

@@ -13,7 +13,7 @@
 //! (`cfa`); EXIF (`exif`); PNG/TIFF/JPEG (`picture`); writing planes out (`save`).
 
 use crate::limits;
-use crate::plane::{Capture, ChannelPlane};
+use crate::plane::Capture;
 use std::path::{Path, PathBuf};
 
 mod cfa;
@@ -387,25 +387,4 @@ fn check_size(path: &Path, width: usize, height: usize) -> Result<(), LoadError>
         path: path.to_path_buf(),
         reason,
     })
-}
-
-/// A capture as decoding leaves it: its planes, and nothing yet of its settings, its
-/// camera or (for a RAW file) its metadata, which the loader fills in from the file.
-fn decoded_capture(
-    width: usize,
-    height: usize,
-    planes: Vec<ChannelPlane>,
-    is_raw: bool,
-) -> Capture {
-    Capture {
-        width,
-        height,
-        planes,
-        setting_focal_mm: None,
-        setting_f_number: None,
-        setting_focus_m: None,
-        identity: Default::default(),
-        is_raw,
-        raw: None,
-    }
 }

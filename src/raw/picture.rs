@@ -1,6 +1,6 @@
 //! PNG, TIFF and JPEG pictures through image-rs, held to lensblur's limits.
 
-use super::{Encoding, LoadError, LoadOptions, check_size, decoded_capture};
+use super::{Encoding, LoadError, LoadOptions, check_size};
 use crate::limits;
 use crate::plane::{Capture, Channel, ChannelPlane, Plane, srgb_decode};
 use std::path::Path;
@@ -124,5 +124,5 @@ pub(super) fn load_image(
             offset_y: 0,
         })
         .collect();
-    Ok(decoded_capture(w, h, planes, false))
+    Ok(Capture::of_planes(w, h, planes, false))
 }

@@ -398,17 +398,7 @@ fn make_demo_photo(
             offset_y: 0,
         });
     }
-    let capture = Capture {
-        width: w,
-        height: h,
-        planes,
-        setting_focal_mm: None,
-        setting_f_number: None,
-        setting_focus_m: None,
-        identity: crate::plane::CameraIdentity::default(),
-        is_raw: false,
-        raw: None,
-    };
+    let capture = Capture::of_planes(w, h, planes, false);
     write_rgb16_png(&path, &capture)?;
     job.report("blurring the demo photo", 1, 1);
     Ok(photo)

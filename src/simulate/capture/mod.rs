@@ -835,17 +835,7 @@ pub fn capture_from_raw(
             })
             .collect()
     };
-    Capture {
-        width: w,
-        height: h,
-        planes,
-        setting_focal_mm: None,
-        setting_f_number: None,
-        setting_focus_m: None,
-        identity: CameraIdentity::default(),
-        is_raw: bayer,
-        raw: None,
-    }
+    Capture::of_planes(w, h, planes, bayer)
 }
 
 fn shot_truth(
