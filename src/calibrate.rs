@@ -141,7 +141,7 @@ pub fn calibrate(
         preferred,
     )
     .ok_or(ModelError::Empty)?;
-    profile.focus_range = ds.focus_range();
+    profile.focus_range = crate::profile::FocusRange::of_dataset(ds);
     // Where the profile is trusted: the preferred model's held-out errors, by setting
     // and zone, from the same folds its orders were chosen by.
     if ds.shots.len() >= 2 {

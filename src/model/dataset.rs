@@ -251,16 +251,6 @@ impl Dataset {
         ds.ok_or(ModelError::Empty)
     }
 
-    /// The focus distances of the shots that record one, nearest to farthest.
-    #[must_use]
-    pub fn focus_range(&self) -> Option<crate::profile::FocusRange> {
-        crate::profile::FocusRange::of(
-            self.shots
-                .iter()
-                .filter_map(|s| s.focus_distance_m.map(crate::raw::FocusDistance::metres)),
-        )
-    }
-
     /// Checks every shot's setting is a real one.
     ///
     /// # Errors

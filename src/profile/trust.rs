@@ -53,6 +53,17 @@ pub struct FocusRange {
 }
 
 impl FocusRange {
+    /// The focus distances of a dataset's shots that record one, nearest to
+    /// farthest; `None` where none does.
+    #[must_use]
+    pub fn of_dataset(ds: &crate::model::Dataset) -> Option<Self> {
+        Self::of(
+            ds.shots
+                .iter()
+                .filter_map(|s| s.focus_distance_m.map(crate::raw::FocusDistance::metres)),
+        )
+    }
+
     /// The range of `distances` (metres, infinite for infinity; zero, negative and NaN
     /// left out), `None` without any.
     #[must_use]

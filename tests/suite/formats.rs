@@ -214,7 +214,7 @@ fn the_focus_distances_of_the_shots_travel_into_the_profile_and_back() {
         KernelsFile::from_json(&text_of(&far)).unwrap(),
     );
     let ds = Dataset::from_kernels(&[("near", &near, None), ("far", &far, None)]).unwrap();
-    let range = ds.focus_range().expect("both shots say");
+    let range = lensblur::profile::FocusRange::of_dataset(&ds).expect("both shots say");
     assert_eq!(range, FocusRange::of([1.5, f64::INFINITY]).unwrap());
 
     let old = Profile::from_json(&text(&kept("profile-v2.json")), "profile-v2.json").unwrap();
