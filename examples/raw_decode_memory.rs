@@ -13,21 +13,10 @@ use lensblur::dng::{DngCompression, DngInfo, DngLayout, dng_bytes};
 use lensblur::raw::{Decoder, decode_raw, decode_raw_with};
 use std::path::Path;
 
-/// A 6000 × 4000 RGGB mosaic with a smooth scene and noise-like detail (as the bench's).
+/// The 6000 × 4000 RGGB mosaic both the decoding benchmark and the memory example use.
 fn mosaic_24mp() -> (Vec<u16>, usize, usize) {
     let (w, h) = (6000, 4000);
-    let mut state = 0x2545_f491_4f6c_dd1d_u64;
-    let cfa = (0..w * h)
-        .map(|k| {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            let (x, y) = ((k % w) as f64, (k / w) as f64);
-            let scene = 0.5 + 0.4 * (x / 700.0).sin() * (y / 500.0).cos();
-            (512.0 + scene * 12000.0) as u16 + (state % 64) as u16
-        })
-        .collect();
-    (cfa, w, h)
+    (lensblur::simulate::camera_like_mosaic(w, h), w, h)
 }
 
 fn main() -> anyhow::Result<()> {

@@ -18,5 +18,5 @@ pub use capture::{
 pub use distortion::{LensGeometry, SensorMapping};
 pub use files::{ShotFormat, write_shot, write_shot_as};
 pub use lens::{Aberrations, PsfShape, Seidel, VirtualLens, flat_field};
-pub use scene::{blur_varying, dead_leaves, hard_edges};
+pub use scene::{blur_varying, camera_like_mosaic, dead_leaves, hard_edges};
 pub use session::{SampleNoise, SimulatedSession};

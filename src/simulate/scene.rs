@@ -1,12 +1,31 @@
 //! Test scenes for the simulator, the experiments and the benchmarks: a dead-leaves
-//! image with natural-image statistics, a hard-edge synthetic one, and an image seen
-//! through a spatially varying PSF.
+//! image with natural-image statistics, a hard-edge synthetic one, an image seen
+//! through a spatially varying PSF, and a camera-like raw mosaic.
 
 use crate::plane::Plane;
 use crate::psf::Kernel;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use rayon::prelude::*;
+
+/// A `width × height` raw mosaic (row-major, 14-bit range above a black level of 512)
+/// with a smooth scene and noise-like detail, so that lossless JPEG codes it at a
+/// camera's rate rather than a flat field's: what the RAW decoding benchmarks decode.
+#[must_use]
+pub fn camera_like_mosaic(width: usize, height: usize) -> Vec<u16> {
+    let mut state = 0x2545_f491_4f6c_dd1d_u64;
+    (0..width * height)
+        .map(|k| {
+            // xorshift64: the detail only has to be incompressible, not random.
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let (x, y) = ((k % width) as f64, (k / width) as f64);
+            let scene = 0.5 + 0.4 * (x / 700.0).sin() * (y / 500.0).cos();
+            (512.0 + scene * 12000.0) as u16 + (state % 64) as u16
+        })
+        .collect()
+}
 
 /// A dead-leaves image: opaque discs of uniform random grey, radii drawn from a power
 /// law p(r) ∝ r⁻³ (scale invariant, like natural images), 2 × 2 supersampled.
