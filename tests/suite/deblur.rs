@@ -964,13 +964,7 @@ fn deblur_command_warns_when_the_photo_was_focused_far_from_the_shots() {
     for (i, shot) in ds.shots.iter_mut().enumerate() {
         shot.focus_distance_m = FocusDistance::from_metres([1.5, 3.0][i % 2]);
     }
-    let opts = CalibrateOptions {
-        families: Families::Global,
-        alpha: Some(3),
-        beta: Some(2),
-        ..CalibrateOptions::default()
-    };
-    let (profile, _) = calibrate(&ds, None, &opts, &JobContext::silent()).expect("calibrate");
+    let profile = crate::global_profile(&ds, 3, 2);
     let range = profile.focus_range.expect("a focus range");
     assert_eq!(
         (range.nearest_m.metres(), range.farthest_m.metres()),
@@ -1539,13 +1533,7 @@ fn predicted_kernel_shapes_deblur_an_aberrated_lens_better_than_its_gaussians() 
         ..SimulatedSession::new(w, h)
     }
     .dataset(&lens, &lens.setting_grid(3, 3));
-    let opts = CalibrateOptions {
-        families: Families::Global,
-        alpha: Some(4),
-        beta: Some(2),
-        ..CalibrateOptions::default()
-    };
-    let (profile, _) = calibrate(&ds, None, &opts, &JobContext::silent()).expect("calibrate");
+    let profile = crate::global_profile(&ds, 4, 2);
     assert!(
         profile.shape.is_some(),
         "cross-validation kept the Gaussians"

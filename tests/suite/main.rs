@@ -20,3 +20,21 @@ mod project;
 mod real_deblur;
 mod real_files;
 mod simulate;
+
+/// The global model of orders α, β calibrated on `ds`, given rather than chosen by
+/// cross-validation: the profile the model, trust and deblurring tests start from.
+pub(crate) fn global_profile(
+    ds: &lensblur::model::Dataset,
+    alpha: usize,
+    beta: usize,
+) -> lensblur::profile::Profile {
+    let opts = lensblur::calibrate::CalibrateOptions {
+        families: lensblur::calibrate::Families::Global,
+        alpha: Some(alpha),
+        beta: Some(beta),
+        ..lensblur::calibrate::CalibrateOptions::default()
+    };
+    lensblur::calibrate::calibrate(ds, None, &opts, &lensblur::job::JobContext::silent())
+        .expect("calibrate")
+        .0
+}

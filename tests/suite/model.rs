@@ -1281,7 +1281,7 @@ fn comet_session_and_profile() -> &'static (VirtualLens, Dataset, Profile) {
             ..SimulatedSession::new(360, 240)
         }
         .dataset(&lens, &grid_settings(3, 3));
-        let profile = global_3_2(&ds);
+        let profile = crate::global_profile(&ds, 3, 2);
         (lens, ds, profile)
     })
 }
@@ -1454,7 +1454,7 @@ fn predicted_channel_kernels_keep_the_measured_centroid_against_green() {
         ..SimulatedSession::new(w, h)
     }
     .dataset(&lens, &grid_settings(3, 3));
-    let profile = global_3_2(&ds);
+    let profile = crate::global_profile(&ds, 3, 2);
     assert!(
         profile.shape.is_some(),
         "a comet lens keeps its shape model"
@@ -1521,13 +1521,7 @@ fn a_profile_records_where_it_is_trusted_and_warns_outside_it() {
         ..SimulatedSession::new(360, 240)
     }
     .dataset(&VirtualLens::demo(), &grid_settings(3, 3));
-    let opts = CalibrateOptions {
-        families: Families::Global,
-        alpha: Some(3),
-        beta: Some(2),
-        ..CalibrateOptions::default()
-    };
-    let (profile, _) = calibrate(&ds, None, &opts, &JobContext::silent()).expect("calibrate");
+    let profile = crate::global_profile(&ds, 3, 2);
     let trust = profile.trust.as_ref().expect("a trust record");
     assert_eq!(trust.zones, [3, 3]);
     assert_eq!(trust.settings.len(), 9, "one entry per calibrated setting");
@@ -1589,18 +1583,4 @@ fn a_profile_records_where_it_is_trusted_and_warns_outside_it() {
         let err = Profile::from_json(&damaged, "damaged.json").expect_err("refused");
         assert!(err.to_string().contains("trust"), "{err}");
     }
-}
-
-/// The global model G_{3,2} calibrated on `ds` (orders given, no selection): the
-/// small sessions' profile in the trust and centroid tests.
-fn global_3_2(ds: &lensblur::model::Dataset) -> lensblur::profile::Profile {
-    let opts = CalibrateOptions {
-        families: Families::Global,
-        alpha: Some(3),
-        beta: Some(2),
-        ..CalibrateOptions::default()
-    };
-    calibrate(ds, None, &opts, &JobContext::silent())
-        .expect("calibrate")
-        .0
 }
