@@ -1665,12 +1665,9 @@ fn the_shooting_plan_maps_where_a_small_chart_has_been() {
         for id in left_out {
             project.remove_shot(id);
         }
-        let job = project.measure_job(&MeasurePlan::missing(Stages::All));
-        let ctx = JobContext::silent();
-        job.run(&ctx, &|_| Some(ctx.clone()), &mut |event| {
-            project.record(&event);
-        })
-        .expect("measured");
+        project
+            .measure_now(&MeasurePlan::missing(Stages::All), &JobContext::silent())
+            .expect("measured");
         project.save().expect("saved");
         project.flush().expect("flushed");
     }

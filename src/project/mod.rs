@@ -505,6 +505,19 @@ impl Project {
         Ok(self.apply_survey(survey))
     }
 
+    /// Runs the measurement `plan` asks for on the calling thread, recording each
+    /// shot's result as it comes: for scripts and tests, which have no job thread to
+    /// hand the job to and nothing to show meanwhile.
+    ///
+    /// # Errors
+    /// `ctx` was cancelled; what was measured before is recorded.
+    pub fn measure_now(&mut self, plan: &MeasurePlan, ctx: &JobContext) -> Result<(), Cancelled> {
+        let job = self.measure_job(plan);
+        job.run(ctx, &|_| Some(ctx.clone()), &mut |event| {
+            self.record(&event);
+        })
+    }
+
     /// The measurement `plan` asks for, detached to run on any thread. Shots that
     /// cannot be read, and shots that are kernels files, are left out of a run over
     /// what is missing.

@@ -310,12 +310,9 @@ fn a_series_with_positions_left_out_names_them() {
     for id in left_out {
         project.remove_shot(id);
     }
-    let job = project.measure_job(&MeasurePlan::missing(Stages::All));
-    let ctx = JobContext::silent();
-    job.run(&ctx, &|_| Some(ctx.clone()), &mut |event| {
-        project.record(&event);
-    })
-    .expect("measured");
+    project
+        .measure_now(&MeasurePlan::missing(Stages::All), &JobContext::silent())
+        .expect("measured");
     let shots = project.measured_shots();
     assert_eq!(shots.len(), 7, "every shot measured");
     let cov = lensblur::review::coverage(
