@@ -324,7 +324,7 @@ impl eframe::App for StudioApp {
         }
         // A notice fades out over its last second: one wake when the fade starts, then
         // frames until it has gone. (Ten frames a second over a notice's whole life
-        // were most of a first launch's frames, each 0.2 s of CPU under a software
+        // were a third of a first launch's frames, each 0.2 s of CPU under a software
         // rasteriser.)
         if let Some(life) = self.options.notice_lifetime
             && let Some(m) = self.window.messages.iter().find(|m| !m.is_error)
