@@ -153,16 +153,48 @@ impl GaussianSsd<'_> {
     }
 
     fn model(&self, p: &Vector6<f64>) -> Vec<f64> {
+        self.evaluate(p, None)
+    }
+
+    /// The sampled Gaussian at `p` and, when asked, its derivatives with respect to the
+    /// six parameters, from the same exponential per sample: the density's logarithm is
+    /// a quadratic in the parameters' natural coordinates, so each derivative is the
+    /// sample times a polynomial. A central-difference Jacobian costs twelve model
+    /// evaluations per step, which made the fit a quarter of a shot's kernel time.
+    fn evaluate(&self, p: &Vector6<f64>, mut jac: Option<&mut OMatrix<f64, Dyn, U6>>) -> Vec<f64> {
         let (g, mean, amp) = Self::gaussian(p);
         let c = (self.size / 2) as f64;
         // Density × cell area: samples of a kernel that sums to 1.
-        let cell = amp / (self.oversample * self.oversample);
+        let per_amp = 1.0 / (self.oversample * self.oversample);
+        let cell = amp * per_amp;
+        let (sx, sy, r) = (g.sigma_x, g.sigma_y, g.rho);
+        let q = 1.0 - r * r;
         let mut out = Vec::with_capacity(self.size * self.size);
         for j in 0..self.size {
             for i in 0..self.size {
                 let dx = (i as f64 - c) / self.oversample - mean[0];
                 let dy = (j as f64 - c) / self.oversample - mean[1];
-                out.push(cell * g.density(dx, dy));
+                let density = g.density(dx, dy);
+                let value = cell * density;
+                if let Some(jac) = jac.as_deref_mut() {
+                    let row = out.len();
+                    // ∂ ln(sample) / ∂ parameter, for ln σx, ln σy, atanh ρ, mean x, mean y.
+                    let (u, v) = (dx / sx, dy / sy);
+                    let (eu, ev) = ((u - r * v) / q, (v - r * u) / q);
+                    let quad = u * u - 2.0 * r * u * v + v * v;
+                    let dlog = [
+                        u * eu - 1.0,
+                        v * ev - 1.0,
+                        u * v - r * quad / q + r,
+                        eu / sx,
+                        ev / sy,
+                    ];
+                    for (k, d) in dlog.iter().enumerate() {
+                        jac[(row, k)] = value * d;
+                    }
+                    jac[(row, 5)] = per_amp * density;
+                }
+                out.push(value);
             }
         }
         out
@@ -191,20 +223,8 @@ impl LeastSquaresProblem<f64, Dyn, U6> for GaussianSsd<'_> {
     }
 
     fn jacobian(&self) -> Option<OMatrix<f64, Dyn, U6>> {
-        // Central differences: six parameters, and the model is cheap next to the
-        // kernel estimate that produced it.
-        let n = self.size * self.size;
-        let mut jac = OMatrix::<f64, Dyn, U6>::zeros(n);
-        for k in 0..6 {
-            let h = 1e-6 * (1.0 + self.p[k].abs());
-            let (mut lo, mut hi) = (self.p, self.p);
-            lo[k] -= h;
-            hi[k] += h;
-            let (ml, mh) = (self.model(&lo), self.model(&hi));
-            for i in 0..n {
-                jac[(i, k)] = (mh[i] - ml[i]) / (2.0 * h);
-            }
-        }
+        let mut jac = OMatrix::<f64, Dyn, U6>::zeros(self.size * self.size);
+        self.evaluate(&self.p, Some(&mut jac));
         jac.iter().all(|v| v.is_finite()).then_some(jac)
     }
 }
@@ -340,6 +360,40 @@ mod tests {
                 .map(|(&v, &l)| if l == centre { v } else { 0.0 })
                 .collect();
             assert_eq!(fast, slow);
+        }
+    }
+
+    #[test]
+    fn jacobian_matches_central_differences() {
+        let target = vec![0.0; 21 * 21];
+        for p in [
+            Vector6::new(0.3f64, -0.2, 0.4, 0.15, -0.3, 0.9),
+            Vector6::new(-0.5f64, 0.1, -1.2, -0.4, 0.2, 1.1),
+            Vector6::new(0.9f64, 0.8, 0.0, 0.0, 0.0, 1.0),
+        ] {
+            let problem = GaussianSsd {
+                target: &target,
+                size: 21,
+                oversample: 3.0,
+                p,
+            };
+            let jac = problem.jacobian().unwrap();
+            for k in 0..6 {
+                let h = 1e-6;
+                let (mut lo, mut hi) = (p, p);
+                lo[k] -= h;
+                hi[k] += h;
+                let (ml, mh) = (problem.model(&lo), problem.model(&hi));
+                let scale = mh.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+                for i in 0..ml.len() {
+                    let numeric = (mh[i] - ml[i]) / (2.0 * h);
+                    assert!(
+                        (jac[(i, k)] - numeric).abs() < 1e-6 * scale,
+                        "parameter {k}, sample {i}: {} vs {numeric}",
+                        jac[(i, k)]
+                    );
+                }
+            }
         }
     }
 
