@@ -28,16 +28,20 @@
 //! The uniform-line sums are exact algebra, not an approximation: the operator equals
 //! the FFT form to rounding (tested below).
 //!
-//! Unknowns, as for the FFT form: the K × K kernel (row-major) then one offset. The model
-//! at an observation whose patch starts at raster sample (x₀, y₀) is
-//! y = Σ_{r,c} f(r, c) X(y₀ + r, x₀ + c) + c₀ with f(r, c) = k(K−1−r, K−1−c): a
-//! convolution read as a correlation with the flipped kernel.
+//! Unknowns, as for the FFT form: the K × K kernel (row-major), one offset and the
+//! light's slope across the window (two more). The model at an observation whose patch
+//! starts at raster sample (x₀, y₀) is y = Σ_{r,c} f(r, c) X(y₀ + r, x₀ + c) + c₀ +
+//! shading with f(r, c) = k(K−1−r, K−1−c): a convolution read as a correlation with the
+//! flipped kernel. The uniformly white observations differ only in their position, so
+//! with the slope in use they are three rows of compressed normal equations rather
+//! than one repeated row.
 
 use super::solve::{LinearOperator, gradient_rows, gradient_rows_adjoint};
 
 /// Observations whose kernel patch is uniformly black (0) or white (1): each group is
 /// one repeated design row, (0, …, 0, 1) or (1, …, 1, 1), so it enters the least squares
-/// as that row weighted by √n with its mean as the target.
+/// as that row weighted by √n with its mean as the target. (The white group's rows are
+/// [`WhiteRows`], which also carry the light's slope.)
 #[derive(Clone, Copy, Debug, Default)]
 struct FlatSums {
     /// Count and sum of the observed values, per group.

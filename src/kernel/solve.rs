@@ -1,11 +1,15 @@
 //! The kernel's least-squares problem as FFT operators, and conjugate gradients on its
 //! normal equations.
 //!
-//! Unknowns: the `K × K` kernel (row-major) followed by one constant offset. The model
-//! at convolution-output sample n is y(n) = Σ_i k(i) X(n − i) + c, valid for n in
-//! `[K − 1, N − 1]` along each axis; observations carry a weight w(n) (how many
-//! observations fall there) and a sum t(n), so ‖W(Ak − b)‖² has normal equations
-//! Aᵀ diag(w) A k = Aᵀ t.
+//! Unknowns: the `K × K` kernel (row-major), one constant offset c and the light's
+//! slope (a, b) across the window. The model at convolution-output sample n is
+//! y(n) = Σ_i k(i) X(n − i) + c + (a u(n) + b v(n)) (g ⊛ X)(n), valid for n in
+//! `[K − 1, N − 1]` along each axis, where (u, v) is the position across the raster
+//! (−1 to 1) and g a guess at the blur: the slope scales the blurred chart, and with
+//! the guess in place of the kernel the model stays linear, wrong only by the slope
+//! times the guess's error. Without a guess the slope's columns are zero and stay so.
+//! Observations carry a weight w(n) (how many fall there) and a sum t(n), so
+//! ‖W(Ax − b)‖² has normal equations Aᵀ diag(w) A x = Aᵀ t.
 
 use crate::fft::{Fft2, good_size};
 use rustfft::num_complex::Complex;
