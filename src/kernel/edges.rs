@@ -28,16 +28,20 @@
 //! The uniform-line sums are exact algebra, not an approximation: the operator equals
 //! the FFT form to rounding (tested below).
 //!
-//! Unknowns, as for the FFT form: the K × K kernel (row-major) then one offset. The model
-//! at an observation whose patch starts at raster sample (x₀, y₀) is
-//! y = Σ_{r,c} f(r, c) X(y₀ + r, x₀ + c) + c₀ with f(r, c) = k(K−1−r, K−1−c): a
-//! convolution read as a correlation with the flipped kernel.
+//! Unknowns, as for the FFT form: the K × K kernel (row-major), one offset and the
+//! light's slope across the window (two more). The model at an observation whose patch
+//! starts at raster sample (x₀, y₀) is y = Σ_{r,c} f(r, c) X(y₀ + r, x₀ + c) + c₀ +
+//! shading with f(r, c) = k(K−1−r, K−1−c): a convolution read as a correlation with the
+//! flipped kernel. The uniformly white observations differ only in their position, so
+//! with the slope in use they are three rows of compressed normal equations rather
+//! than one repeated row.
 
 use super::solve::{LinearOperator, gradient_rows, gradient_rows_adjoint};
 
 /// Observations whose kernel patch is uniformly black (0) or white (1): each group is
 /// one repeated design row, (0, …, 0, 1) or (1, …, 1, 1), so it enters the least squares
-/// as that row weighted by √n with its mean as the target.
+/// as that row weighted by √n with its mean as the target. (The white group's rows are
+/// [`WhiteRows`], which also carry the light's slope.)
 #[derive(Clone, Copy, Debug, Default)]
 struct FlatSums {
     /// Count and sum of the observed values, per group.
@@ -207,6 +211,16 @@ pub struct EdgeProblem {
     values: Vec<f64>,
     built: bool,
     flat: FlatSums,
+    /// Each edge observation's position across the window (−1 to 1 along x and y).
+    position: Vec<[f64; 2]>,
+    /// Each edge observation's shading regressors: its position times the reference
+    /// blur of the chart there (zero until [`EdgeProblem::set_shading_reference`]).
+    shade: Vec<[f64; 2]>,
+    /// The uniformly white observations' normal equations in (kernel sum + offset,
+    /// shading x, shading y), and those compressed to three rows once built.
+    white: WhiteRows,
+    /// Whether the shading unknowns are in use (a reference has been set).
+    shading: bool,
     smoothness: f64,
     /// Rows of the gradient penalty √λ·D k in the observation vector (0 without one).
     smooth_rows: usize,
@@ -239,6 +253,10 @@ impl EdgeProblem {
             values: Vec::new(),
             built: false,
             flat: FlatSums::default(),
+            position: Vec::new(),
+            shade: Vec::new(),
+            white: WhiteRows::default(),
+            shading: false,
             smoothness: 0.0,
             smooth_rows: 0,
             g: [vec![0.0; kp * k], vec![0.0; kp * k]],
@@ -259,15 +277,24 @@ impl EdgeProblem {
             x0 + self.k <= self.lines[0].len && y0 + self.k <= self.lines[1].len,
             "patch outside the raster"
         );
+        let (dx, dy) = (
+            across(x0, self.k, self.lines[0].len),
+            across(y0, self.k, self.lines[1].len),
+        );
         match uniform {
             Some(v) => {
                 let g = usize::from(v > 0.5);
                 self.flat.n[g] += 1.0;
                 self.flat.y[g] += value;
+                if g == 1 {
+                    self.white.add([1.0, dx, dy], value);
+                }
             }
             None => {
                 self.patches.push((x0, y0));
                 self.values.push(value);
+                self.position.push([dx, dy]);
+                self.shade.push([0.0, 0.0]);
                 self.built = false;
             }
         }
@@ -305,12 +332,39 @@ impl EdgeProblem {
         self.smooth_rows = 2 * k * (k - 1);
     }
 
+    /// Sets the shading regressors from `kernel` (`K × K`, a guess at the blur): at an
+    /// edge observation the light's slope scales the blurred chart, so the regressor is
+    /// the position times the chart blurred by the guess. The guess only has to be
+    /// close: the error is the slope times the guess's error, second order.
+    pub fn set_shading_reference(&mut self, kernel: &[f64]) {
+        let mut x = kernel.to_vec();
+        x.extend([0.0; 3]);
+        self.shade.iter_mut().for_each(|s| *s = [0.0, 0.0]);
+        let mut out = vec![0.0; self.rows()];
+        self.forward(&x, &mut out);
+        for ((s, p), v) in self.shade.iter_mut().zip(&self.position).zip(&out) {
+            *s = [p[0] * v, p[1] * v];
+        }
+        // On white the guess's blur is the chart itself: the regressor is the position.
+        self.shading = true;
+        self.white.compress(true);
+    }
+
+    /// Whether the uniformly white observations show the light sloping across the
+    /// window (fall-off, an uneven light) beyond their noise: only then are the shading
+    /// unknowns worth their cost in conditioning.
+    #[must_use]
+    pub fn light_slopes(&self) -> bool {
+        self.white.slope_is_significant()
+    }
+
     /// Splits every edge patch into its uniform runs and non-uniform segments along the
     /// axis that leaves fewer segments, grouped by line index.
     fn build(&mut self) {
         if self.built {
             return;
         }
+        self.white.compress(self.shading);
         let k = self.k;
         // (line index in the patch, observation, offset) per axis, then grouped by line.
         let mut items: [Vec<(u32, u32, usize)>; 2] = [Vec::new(), Vec::new()];
@@ -425,20 +479,20 @@ impl EdgeProblem {
 
 impl LinearOperator for EdgeProblem {
     fn dim(&self) -> usize {
-        self.k * self.k + 1
+        self.k * self.k + 3
     }
 
     fn rows(&self) -> usize {
-        self.patches.len() + 2 + self.smooth_rows
+        self.patches.len() + 4 + self.smooth_rows
     }
 
-    /// Edge observations, the two flat rows, then the penalty rows.
+    /// Edge observations, the black row, the three white rows, then the penalty rows.
     fn forward(&mut self, x: &[f64], out: &mut [f64]) {
         self.build();
         let (k, kp) = (self.k, self.kp);
         let n = k * k;
-        let (kernel, offset) = x.split_at(n);
-        let c = offset[0];
+        let (kernel, rest) = x.split_at(n);
+        let (c, shade) = (rest[0], [rest[1], rest[2]]);
         // f(r, c) = k(K−1−r, K−1−c), along rows (g[0]) and along columns (g[1]).
         for r in 0..k {
             for col in 0..k {
@@ -449,14 +503,15 @@ impl LinearOperator for EdgeProblem {
         }
         self.predict_edges();
         let e = self.patches.len();
-        for (o, p) in out[..e].iter_mut().zip(&self.predicted) {
-            *o = p + c;
+        for ((o, p), u) in out[..e].iter_mut().zip(&self.predicted).zip(&self.shade) {
+            *o = p + c + shade[0] * u[0] + shade[1] * u[1];
         }
         let sum_k: f64 = kernel.iter().sum();
         out[e] = self.flat.weight(0) * c;
-        out[e + 1] = self.flat.weight(1) * (sum_k + c);
+        let z = [sum_k + c, shade[0], shade[1]];
+        out[e + 1..e + 4].copy_from_slice(&self.white.forward(z));
         if self.smooth_rows > 0 {
-            gradient_rows(kernel, k, self.smoothness.sqrt(), &mut out[e + 2..]);
+            gradient_rows(kernel, k, self.smoothness.sqrt(), &mut out[e + 4..]);
         }
     }
 
@@ -466,7 +521,8 @@ impl LinearOperator for EdgeProblem {
         let n = k * k;
         let e = self.patches.len();
         self.correlate(&r[..e]);
-        let (w0, w1) = (self.flat.weight(0) * r[e], self.flat.weight(1) * r[e + 1]);
+        let w0 = self.flat.weight(0) * r[e];
+        let dz = self.white.adjoint([r[e + 1], r[e + 2], r[e + 3]]);
         // Uniform lines add their weight to every entry of their line: running sums of
         // the difference arrays.
         let mut line_add = [vec![0.0; k], vec![0.0; k]];
@@ -483,21 +539,140 @@ impl LinearOperator for EdgeProblem {
                     + self.acc[1][col * kp + row]
                     + line_add[0][row]
                     + line_add[1][col]
-                    + w1;
+                    + dz[0];
             }
         }
-        out[n] = r[..e].iter().sum::<f64>() + w0 + w1;
+        out[n] = r[..e].iter().sum::<f64>() + w0 + dz[0];
+        let (mut sx, mut sy) = (0.0, 0.0);
+        for (ri, u) in r[..e].iter().zip(&self.shade) {
+            sx += ri * u[0];
+            sy += ri * u[1];
+        }
+        out[n + 1] = sx + dz[1];
+        out[n + 2] = sy + dz[2];
         if self.smooth_rows > 0 {
-            gradient_rows_adjoint(&r[e + 2..], k, self.smoothness.sqrt(), &mut out[..n]);
+            gradient_rows_adjoint(&r[e + 4..], k, self.smoothness.sqrt(), &mut out[..n]);
         }
     }
 
     fn target(&self) -> Vec<f64> {
         let mut b = self.values.clone();
         b.push(self.flat.target(0));
-        b.push(self.flat.target(1));
+        // CGLS asks for the target before any product has built the problem.
+        let mut white = self.white.clone();
+        white.compress(self.shading);
+        b.extend(white.target());
         b.resize(self.rows(), 0.0);
         b
+    }
+}
+
+/// Where the centre of a patch starting at raster sample `start` lies across a raster
+/// `len` samples long, from −1 to 1: the shading unknowns' coordinate.
+fn across(start: usize, k: usize, len: usize) -> f64 {
+    let half = (len as f64 - 1.0) / 2.0;
+    (start as f64 + (k / 2) as f64 - half) / half.max(1.0)
+}
+
+/// [`EdgeProblem::light_slopes`] for observations (patch start x, y and value) given to
+/// another form of the problem, over a raster `nx × ny`.
+pub fn light_slopes(
+    uniform: &Uniformity,
+    (nx, ny): (usize, usize),
+    observations: impl Iterator<Item = (usize, usize, f64)>,
+) -> bool {
+    let k = uniform.k;
+    let mut white = WhiteRows::default();
+    for (x0, y0, v) in observations {
+        if uniform.value(x0, y0).is_some_and(|u| u > 0.5) {
+            white.add([1.0, across(x0, k, nx), across(y0, k, ny)], v);
+        }
+    }
+    white.slope_is_significant()
+}
+
+/// The uniformly white observations as least squares in z = (kernel sum + offset,
+/// shading x, shading y): each is the row φ = (1, x, y) with its value as target. All of
+/// them together equal three rows, Lᵀ z against L⁻¹ Σ φ y, with L Lᵀ = Σ φ φᵀ (Cholesky),
+/// up to a constant.
+#[derive(Clone, Debug, Default)]
+struct WhiteRows {
+    gram: [[f64; 3]; 3],
+    sum: [f64; 3],
+    /// Σ y², for the slope's significance.
+    sum_sq: f64,
+    /// Lower-triangular L (zero rows and columns where the positions do not span).
+    l: [[f64; 3]; 3],
+    t: [f64; 3],
+}
+
+impl WhiteRows {
+    fn add(&mut self, phi: [f64; 3], value: f64) {
+        for i in 0..3 {
+            for j in 0..3 {
+                self.gram[i][j] += phi[i] * phi[j];
+            }
+            self.sum[i] += phi[i] * value;
+        }
+        self.sum_sq += value * value;
+    }
+
+    /// Whether a slope across the window explains the white observations better than
+    /// a constant, beyond what their noise would by chance: the F statistic of the two
+    /// slope terms against a false-alarm rate of 1 in 1000 (for two numerator degrees
+    /// of freedom and many observations, P(F > f) = e^(−f)).
+    fn slope_is_significant(&self) -> bool {
+        let mut full = self.clone();
+        full.compress(true);
+        let n = self.gram[0][0];
+        if !(n > 10.0) || (1..3).any(|i| !(full.l[i][i] > 0.0)) {
+            return false;
+        }
+        let explained = full.t[1] * full.t[1] + full.t[2] * full.t[2];
+        let rss = self.sum_sq - full.t.iter().map(|t| t * t).sum::<f64>();
+        let f = (explained / 2.0) / (rss.max(0.0) / (n - 3.0));
+        f > -(1e-3f64).ln()
+    }
+
+    /// Without `shading`, only the first unknown: the shading directions left out.
+    fn compress(&mut self, shading: bool) {
+        let g = &self.gram;
+        let mut l = [[0.0; 3]; 3];
+        let used = if shading { 3 } else { 1 };
+        let scale = g[0][0].max(g[1][1]).max(g[2][2]);
+        for j in 0..used {
+            let d = g[j][j] - (0..j).map(|p| l[j][p] * l[j][p]).sum::<f64>();
+            // Positions that do not span a direction leave it out (a pivot of zero).
+            if !(d > 1e-12 * scale) {
+                continue;
+            }
+            l[j][j] = d.sqrt();
+            for i in j + 1..used {
+                l[i][j] = (g[i][j] - (0..j).map(|p| l[i][p] * l[j][p]).sum::<f64>()) / l[j][j];
+            }
+        }
+        let mut t = [0.0; 3];
+        for i in 0..3 {
+            if l[i][i] > 0.0 {
+                t[i] = (self.sum[i] - (0..i).map(|p| l[i][p] * t[p]).sum::<f64>()) / l[i][i];
+            }
+        }
+        self.l = l;
+        self.t = t;
+    }
+
+    /// Lᵀ z.
+    fn forward(&self, z: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|j| (0..3).map(|i| self.l[i][j] * z[i]).sum())
+    }
+
+    /// L r.
+    fn adjoint(&self, r: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|i| (0..3).map(|j| self.l[i][j] * r[j]).sum())
+    }
+
+    fn target(&self) -> [f64; 3] {
+        self.t
     }
 }
 
@@ -797,8 +972,8 @@ mod tests {
         seed: u64,
     ) {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
-        let probe: Vec<f64> = (0..k * k + 1).map(|_| rng.random::<f64>() - 0.5).collect();
-        let (mut a, mut b) = (vec![0.0; k * k + 1], vec![0.0; k * k + 1]);
+        let probe: Vec<f64> = (0..k * k + 3).map(|_| rng.random::<f64>() - 0.5).collect();
+        let (mut a, mut b) = (vec![0.0; k * k + 3], vec![0.0; k * k + 3]);
         fft.apply(&probe, &mut a);
         let mut y = vec![0.0; edges.rows()];
         edges.forward(&probe, &mut y);
@@ -808,7 +983,7 @@ mod tests {
             assert!((x - y).abs() < 1e-9 * scale, "{x} vs {y}");
         }
         let ra = fft.rhs();
-        let mut rb = vec![0.0; k * k + 1];
+        let mut rb = vec![0.0; k * k + 3];
         edges.adjoint(&edges.target(), &mut rb);
         let scale = ra.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         for (x, y) in ra.iter().zip(&rb) {
@@ -881,6 +1056,11 @@ mod tests {
             segments(0) + segments(1)
         );
         assert_same_normal_equations(&mut fft, &mut edges, k, 11);
+        // With the shading unknowns in use, from a Gaussian guess at the blur.
+        let guess = super::super::gaussian_guess(k, 3, 1.0);
+        fft.set_shading_reference(&guess);
+        edges.set_shading_reference(&guess);
+        assert_same_normal_equations(&mut fft, &mut edges, k, 12);
     }
 
     /// A raster with uniform regions and edges, and observations on a lattice of step 3:
@@ -916,9 +1096,12 @@ mod tests {
             }
         }
         assert!(flat > 5, "the test needs flat patches ({flat})");
-        let probe: Vec<f64> = (0..k * k + 1).map(|_| rng.random::<f64>() - 0.5).collect();
+        let guess = super::super::gaussian_guess(k, 1, 0.8);
+        fft.set_shading_reference(&guess);
+        edges.set_shading_reference(&guess);
+        let probe: Vec<f64> = (0..k * k + 3).map(|_| rng.random::<f64>() - 0.5).collect();
         // AᵀA p by the edge form is adjoint(forward(p)).
-        let (mut a, mut b) = (vec![0.0; k * k + 1], vec![0.0; k * k + 1]);
+        let (mut a, mut b) = (vec![0.0; k * k + 3], vec![0.0; k * k + 3]);
         fft.apply(&probe, &mut a);
         let mut y = vec![0.0; edges.rows()];
         edges.forward(&probe, &mut y);
@@ -927,7 +1110,7 @@ mod tests {
             assert!((x - y).abs() < 1e-4 * (1.0 + x.abs()), "{x} vs {y}");
         }
         let ra = fft.rhs();
-        let mut rb = vec![0.0; k * k + 1];
+        let mut rb = vec![0.0; k * k + 3];
         edges.adjoint(&edges.target(), &mut rb);
         for (x, y) in ra.iter().zip(&rb) {
             assert!((x - y).abs() < 1e-4 * (1.0 + x.abs()), "{x} vs {y}");
@@ -939,5 +1122,58 @@ mod tests {
         for (x, y) in sa.x.iter().zip(&sb.x) {
             assert!((x - y).abs() < 1e-3 * (1.0 + x.abs()), "{x} vs {y}");
         }
+    }
+}
+
+#[cfg(test)]
+mod shading_tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// With the shading unknowns (edge regressors and the white rows' compression), the
+    /// forward and adjoint products are each other's transpose.
+    #[test]
+    fn forward_and_adjoint_are_transposes() {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+        let (nx, ny, k) = (40, 34, 5);
+        let raster: Vec<f32> = (0..nx * ny)
+            .map(|i| {
+                let (x, y) = (i % nx, i / nx);
+                if x < 15 && y < 20 {
+                    0.0
+                } else if x > 22 {
+                    1.0
+                } else {
+                    rng.random::<f32>()
+                }
+            })
+            .collect();
+        let uniform = Uniformity::new(&raster, nx, ny, k);
+        let mut edges = EdgeProblem::new(&raster, nx, k);
+        for y0 in (0..=ny - k).step_by(3) {
+            for x0 in (0..=nx - k).step_by(3) {
+                edges.observe(x0, y0, rng.random::<f64>(), uniform.value(x0, y0));
+            }
+        }
+        edges.set_shading_reference(&super::super::gaussian_guess(k, 1, 0.7));
+        let x: Vec<f64> = (0..edges.dim())
+            .map(|_| rng.random::<f64>() - 0.5)
+            .collect();
+        let y: Vec<f64> = (0..edges.rows())
+            .map(|_| rng.random::<f64>() - 0.5)
+            .collect();
+        let mut ax = vec![0.0; edges.rows()];
+        edges.forward(&x, &mut ax);
+        let mut aty = vec![0.0; edges.dim()];
+        edges.adjoint(&y, &mut aty);
+        let l: f64 = ax.iter().zip(&y).map(|(a, b)| a * b).sum();
+        let r: f64 = x.iter().zip(&aty).map(|(a, b)| a * b).sum();
+        assert!((l - r).abs() < 1e-9 * l.abs().max(1.0), "{l} vs {r}");
+        // All three white rows carry weight: the shading directions are in use.
+        assert!(
+            (0..3).all(|i| edges.white.l[i][i] > 0.0),
+            "{:?}",
+            edges.white.l
+        );
     }
 }

@@ -257,19 +257,21 @@ pub fn estimate_square(
                 .iter()
                 .find(|(c, _)| *c == channel)
                 .map(|(_, s)| *s);
+            let hint = hint.filter(|s| s.is_finite() && *s >= 0.0);
             let first = match (params.support_px, hint) {
-                (Some(s), _) => Ok(s),
-                (None, Some(sigma)) if sigma.is_finite() => Ok(support_for_sigma(sigma)),
-                (None, _) => measure_support(capture, square, spec, params, channel),
+                (Some(s), _) => Ok((s, hint)),
+                (None, Some(sigma)) => Ok((support_for_sigma(sigma), hint)),
+                (None, None) => measure_support(capture, square, spec, params, channel)
+                    .map(|(support, sigma)| (support, Some(sigma))),
             };
-            let r = first.and_then(|support| {
+            let r = first.and_then(|(support, sigma)| {
                 estimate_with_support(
                     capture,
                     square,
                     spec,
                     params,
                     channel,
-                    support,
+                    (support, sigma),
                     &mut prepared,
                 )
             });
@@ -285,10 +287,11 @@ fn estimate_with_support(
     spec: &ChartSpec,
     params: &KernelParams,
     channel: Channel,
-    mut support_px: f64,
+    (mut support_px, sigma_px): (f64, Option<f64>),
     prepared: &mut Vec<Prepared>,
 ) -> Result<KernelEstimate, KernelFailure> {
     let os = params.oversample;
+    let mut previous_clipped = None;
     loop {
         let r_px = support_px.ceil().max(1.0) as usize;
         let prep = match prepared.iter().position(|p| p.r_px == r_px && p.os == os) {
@@ -304,8 +307,8 @@ fn estimate_with_support(
             prep,
             channel,
             params,
-            params.cg_iterations,
-            params.cg_tolerance,
+            (params.cg_iterations, params.cg_tolerance),
+            sigma_px,
         )?;
         let kernel = clean(&raw.kernel, params.threshold)?;
         let fit = fit_gaussian(
@@ -316,7 +319,13 @@ fn estimate_with_support(
             },
         )?;
         let clipped = clipped_fraction(&kernel, &fit, params.threshold, r_px as f64);
-        if clipped <= params.clipped_fraction {
+        // A PSF's tail thins outwards: with the support grown by half, the ring at the
+        // new border holds well under half the mass the old one did (a tail falling as
+        // steeply as 1/r³ leaves 44 %). Border mass that does not fall is not the PSF's
+        // (the fall-off's slope across the square, noise the solve spread outwards), and
+        // growing further would only chase it.
+        let not_the_psf = previous_clipped.is_some_and(|before| clipped > 0.5 * before);
+        if clipped <= params.clipped_fraction || not_the_psf {
             return Ok(KernelEstimate {
                 channel,
                 centre: square_centre(square),
@@ -332,6 +341,7 @@ fn estimate_with_support(
                 support_px: r_px as f64,
             });
         }
+        previous_clipped = Some(clipped);
         support_px = (r_px as f64 * 1.5).ceil().min(params.max_support_px);
     }
 }
@@ -362,12 +372,12 @@ fn measure_support(
     spec: &ChartSpec,
     params: &KernelParams,
     channel: Channel,
-) -> Result<f64, KernelFailure> {
+) -> Result<(f64, f64), KernelFailure> {
     let mut support = FIRST_PASS_SUPPORT_PX;
     loop {
         let r_px = support.ceil() as usize;
         let prep = prepare(capture, square, spec, 1, r_px, params, channel)?;
-        let raw = solve(capture, &prep, channel, params, 40, 1e-6)?;
+        let raw = solve(capture, &prep, channel, params, (40, 1e-6), None)?;
         let kernel = clean(&raw.kernel, params.threshold)?;
         let central = Kernel {
             data: crate::gaussian::central_region(&kernel, params.threshold),
@@ -383,13 +393,29 @@ fn measure_support(
             if r > params.max_support_px {
                 return Err(KernelFailure::TooWide(params.max_support_px));
             }
-            return Ok(r);
+            return Ok((r, sigma));
         }
         if support >= params.max_support_px {
             return Err(KernelFailure::TooWide(params.max_support_px));
         }
         support = (support * 2.0).min(params.max_support_px);
     }
+}
+
+/// A `k_size × k_size` isotropic Gaussian of `sigma_px` sensor pixels at `os`
+/// sub-samples per pixel, summing to one: the blur's guess the shading regressors use.
+fn gaussian_guess(k_size: usize, os: usize, sigma_px: f64) -> Vec<f64> {
+    let r = (k_size / 2) as f64;
+    let s = (sigma_px.powi(2) + 1.0 / 12.0).sqrt() * os as f64;
+    let mut g: Vec<f64> = (0..k_size * k_size)
+        .map(|i| {
+            let (x, y) = ((i % k_size) as f64 - r, (i / k_size) as f64 - r);
+            (-(x * x + y * y) / (2.0 * s * s)).exp()
+        })
+        .collect();
+    let sum: f64 = g.iter().sum();
+    g.iter_mut().for_each(|v| *v /= sum);
+    g
 }
 
 /// Clamps negatives, zeroes samples below `threshold`·peak, renormalises.
@@ -537,8 +563,8 @@ fn solve(
     prep: &Prepared,
     channel: Channel,
     params: &KernelParams,
-    iterations: usize,
-    tolerance: f64,
+    (iterations, tolerance): (usize, f64),
+    reference_sigma_px: Option<f64>,
 ) -> Result<RawKernel, KernelFailure> {
     let (os, k_size) = (prep.os, prep.k_size);
     let planes = || capture.planes.iter().filter(|p| p.channel == channel);
@@ -569,6 +595,23 @@ fn solve(
             })
         })
     };
+    // The FFT forms decide on the shading unknowns as the direct one does.
+    let fft_shading = |problem: &mut LeastSquares| {
+        let Some(sigma) = reference_sigma_px else {
+            return;
+        };
+        let own;
+        let uniform = match &prep.uniform {
+            Some(u) => u,
+            None => {
+                own = edges::Uniformity::new(&prep.raster, prep.nx, prep.ny, k_size);
+                &own
+            }
+        };
+        if edges::light_slopes(uniform, (prep.nx, prep.ny), pixel_centres()) {
+            problem.set_shading_reference(&gaussian_guess(k_size, os, sigma));
+        }
+    };
     let solution = match (&prep.uniform, params.weighting) {
         (Some(uniform), _) => {
             let mut problem = edges::EdgeProblem::new(&prep.raster, prep.nx, k_size);
@@ -579,6 +622,9 @@ fn solve(
                 return Err(KernelFailure::NoObservations(channel));
             }
             problem.set_smoothness(params.smoothness);
+            if let Some(sigma) = reference_sigma_px.filter(|_| problem.light_slopes()) {
+                problem.set_shading_reference(&gaussian_guess(k_size, os, sigma));
+            }
             cgls_solve(&mut problem, iterations, tolerance)
         }
         (None, Weighting::PixelCentres) => {
@@ -593,6 +639,7 @@ fn solve(
             if count < k_size {
                 return Err(KernelFailure::NoObservations(channel));
             }
+            fft_shading(&mut problem);
             // CGLS, as for the default operator: the iteration count is the
             // regulariser, and CG on the normal equations squares the rounding.
             cgls_solve(&mut problem, iterations, tolerance)
@@ -619,6 +666,7 @@ fn solve(
             if count < k_size {
                 return Err(KernelFailure::NoObservations(channel));
             }
+            fft_shading(&mut problem);
             cg_solve(&mut problem, iterations, tolerance)
         }
     };

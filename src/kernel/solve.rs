@@ -1,11 +1,15 @@
 //! The kernel's least-squares problem as FFT operators, and conjugate gradients on its
 //! normal equations.
 //!
-//! Unknowns: the `K × K` kernel (row-major) followed by one constant offset. The model
-//! at convolution-output sample n is y(n) = Σ_i k(i) X(n − i) + c, valid for n in
-//! `[K − 1, N − 1]` along each axis; observations carry a weight w(n) (how many
-//! observations fall there) and a sum t(n), so ‖W(Ak − b)‖² has normal equations
-//! Aᵀ diag(w) A k = Aᵀ t.
+//! Unknowns: the `K × K` kernel (row-major), one constant offset c and the light's
+//! slope (a, b) across the window. The model at convolution-output sample n is
+//! y(n) = Σ_i k(i) X(n − i) + c + (a u(n) + b v(n)) (g ⊛ X)(n), valid for n in
+//! `[K − 1, N − 1]` along each axis, where (u, v) is the position across the raster
+//! (−1 to 1) and g a guess at the blur: the slope scales the blurred chart, and with
+//! the guess in place of the kernel the model stays linear, wrong only by the slope
+//! times the guess's error. Without a guess the slope's columns are zero and stay so.
+//! Observations carry a weight w(n) (how many fall there) and a sum t(n), so
+//! ‖W(Ax − b)‖² has normal equations Aᵀ diag(w) A x = Aᵀ t.
 
 use crate::fft::{Fft2, good_size};
 use rustfft::num_complex::Complex;
@@ -31,6 +35,11 @@ pub struct LeastSquares {
     rows_hi: usize,
     sharp_mean_square: f64,
     smoothness: f64,
+    /// Shading regressors per output sample (see `EdgeProblem::set_shading_reference`):
+    /// zero until a reference is set.
+    shade: [Vec<f64>; 2],
+    nx: usize,
+    ny: usize,
     image: Vec<f64>,
     spectrum: Vec<Complex<f64>>,
 }
@@ -70,8 +79,38 @@ impl LeastSquares {
             sharp_mean_square: sharp.iter().map(|&v| f64::from(v).powi(2)).sum::<f64>()
                 / sharp.len() as f64,
             smoothness: 0.0,
+            shade: [vec![0.0; m * m], vec![0.0; m * m]],
+            nx,
+            ny,
             image: vec![0.0; m * m],
             spectrum,
+        }
+    }
+
+    /// The shading regressors from a guess at the blur (`K × K`), as
+    /// `EdgeProblem::set_shading_reference` sets them: at each observed output sample,
+    /// its position across the raster (−1 to 1) times the chart blurred by the guess.
+    /// Call it after the observations.
+    pub fn set_shading_reference(&mut self, kernel: &[f64]) {
+        let (m, k) = (self.m, self.k_size);
+        self.convolve_into_image(kernel);
+        let r = k / 2;
+        let across = |end: usize, len: usize| {
+            let half = (len as f64 - 1.0) / 2.0;
+            (end as f64 + 1.0 - k as f64 + r as f64 - half) / half.max(1.0)
+        };
+        for row in 0..m {
+            for col in 0..m {
+                let i = row * m + col;
+                let (sx, sy) = if self.weight[i] > 0.0 {
+                    let v = self.image[i];
+                    (across(col, self.nx) * v, across(row, self.ny) * v)
+                } else {
+                    (0.0, 0.0)
+                };
+                self.shade[0][i] = sx;
+                self.shade[1][i] = sy;
+            }
         }
     }
 
@@ -149,22 +188,30 @@ impl LeastSquares {
 
 impl NormalEquations for LeastSquares {
     fn dim(&self) -> usize {
-        self.k_size * self.k_size + 1
+        self.k_size * self.k_size + 3
     }
 
     fn apply(&mut self, x: &[f64], out: &mut [f64]) {
         let (m, k) = (self.m, self.k_size);
-        let (kernel, offset) = x.split_at(k * k);
-        let offset = offset[0];
+        let (kernel, rest) = x.split_at(k * k);
+        let (offset, a, b) = (rest[0], rest[1], rest[2]);
         self.convolve_into_image(kernel);
         let rows = self.obs_rows();
-        let mut sum = 0.0;
+        let (mut sum, mut sum_x, mut sum_y) = (0.0, 0.0, 0.0);
         for row in 0..m {
-            let line = &mut self.image[row * m..(row + 1) * m];
+            let r = row * m..(row + 1) * m;
+            let line = &mut self.image[r.clone()];
             if rows.contains(&row) {
-                for (v, w) in line.iter_mut().zip(&self.weight[row * m..(row + 1) * m]) {
-                    *v = w * (*v + offset);
+                for (((v, w), sx), sy) in line
+                    .iter_mut()
+                    .zip(&self.weight[r.clone()])
+                    .zip(&self.shade[0][r.clone()])
+                    .zip(&self.shade[1][r.clone()])
+                {
+                    *v = w * (*v + offset + a * sx + b * sy);
                     sum += *v;
+                    sum_x += *v * sx;
+                    sum_y += *v * sy;
                 }
             } else {
                 line.iter_mut().for_each(|v| *v = 0.0);
@@ -172,6 +219,8 @@ impl NormalEquations for LeastSquares {
         }
         let (out_k, out_c) = out.split_at_mut(k * k);
         out_c[0] = sum;
+        out_c[1] = sum_x;
+        out_c[2] = sum_y;
         self.correlate_into(out_k);
         if self.smoothness > 0.0 {
             add_gradient_penalty(kernel, k, self.penalty_weight(), out_k);
@@ -181,8 +230,16 @@ impl NormalEquations for LeastSquares {
     fn rhs(&mut self) -> Vec<f64> {
         let k = self.k_size;
         self.image.copy_from_slice(&self.target);
-        let mut out = vec![0.0; k * k + 1];
+        let mut out = vec![0.0; k * k + 3];
         out[k * k] = self.target.iter().sum();
+        for axis in 0..2 {
+            out[k * k + 1 + axis] = self
+                .target
+                .iter()
+                .zip(&self.shade[axis])
+                .map(|(t, s)| t * s)
+                .sum();
+        }
         self.correlate_into(&mut out[..k * k]);
         out
     }
@@ -266,7 +323,7 @@ pub trait LinearOperator {
 /// ‖A x − b‖² equals ‖W(A k − b)‖² up to a constant), then the penalty rows.
 impl LinearOperator for LeastSquares {
     fn dim(&self) -> usize {
-        self.k_size * self.k_size + 1
+        self.k_size * self.k_size + 3
     }
 
     fn rows(&self) -> usize {
@@ -275,12 +332,13 @@ impl LinearOperator for LeastSquares {
 
     fn forward(&mut self, x: &[f64], out: &mut [f64]) {
         let k = self.k_size;
-        let (kernel, offset) = x.split_at(k * k);
+        let (kernel, rest) = x.split_at(k * k);
         self.convolve_into_image(kernel);
         let mut o = 0;
-        for (v, &w) in self.image.iter().zip(&self.weight) {
+        for (i, (v, &w)) in self.image.iter().zip(&self.weight).enumerate() {
             if w > 0.0 {
-                out[o] = w.sqrt() * (v + offset[0]);
+                let shading = rest[1] * self.shade[0][i] + rest[2] * self.shade[1][i];
+                out[o] = w.sqrt() * (v + rest[0] + shading);
                 o += 1;
             }
         }
@@ -293,12 +351,14 @@ impl LinearOperator for LeastSquares {
     fn adjoint(&mut self, r: &[f64], out: &mut [f64]) {
         let k = self.k_size;
         let mut o = 0;
-        let mut sum = 0.0;
-        for (v, &w) in self.image.iter_mut().zip(&self.weight) {
+        let (mut sum, mut sum_x, mut sum_y) = (0.0, 0.0, 0.0);
+        for (i, (v, &w)) in self.image.iter_mut().zip(&self.weight).enumerate() {
             *v = if w > 0.0 {
                 let z = w.sqrt() * r[o];
                 o += 1;
                 sum += z;
+                sum_x += z * self.shade[0][i];
+                sum_y += z * self.shade[1][i];
                 z
             } else {
                 0.0
@@ -306,6 +366,8 @@ impl LinearOperator for LeastSquares {
         }
         let (out_k, out_c) = out.split_at_mut(k * k);
         out_c[0] = sum;
+        out_c[1] = sum_x;
+        out_c[2] = sum_y;
         self.correlate_into(out_k);
         if self.smoothness > 0.0 {
             let lambda = self.penalty_weight();
@@ -451,22 +513,33 @@ mod tests {
     use rand::{Rng, SeedableRng};
 
     /// The same model built as a dense matrix: rows are observations, columns the kernel
-    /// samples and the offset.
+    /// samples, the offset and the two shading regressors for the blur guess `guess`
+    /// (position across the raster times the chart blurred by the guess).
     fn dense(
         sharp: &[f32],
-        nx: usize,
+        (nx, ny): (usize, usize),
         k: usize,
         obs: &[(usize, usize, f64)],
+        guess: &[f64],
     ) -> (DMatrix<f64>, DVector<f64>) {
-        let mut a = DMatrix::zeros(obs.len(), k * k + 1);
+        let mut a = DMatrix::zeros(obs.len(), k * k + 3);
         let mut b = DVector::zeros(obs.len());
+        let across = |end: usize, len: usize| {
+            let half = (len as f64 - 1.0) / 2.0;
+            (end as f64 + 1.0 - k as f64 + (k / 2) as f64 - half) / half
+        };
         for (row, &(n_x, n_y, v)) in obs.iter().enumerate() {
+            let mut blurred = 0.0;
             for j in 0..k {
                 for i in 0..k {
-                    a[(row, j * k + i)] = f64::from(sharp[(n_y - j) * nx + (n_x - i)]);
+                    let x = f64::from(sharp[(n_y - j) * nx + (n_x - i)]);
+                    a[(row, j * k + i)] = x;
+                    blurred += guess[j * k + i] * x;
                 }
             }
             a[(row, k * k)] = 1.0;
+            a[(row, k * k + 1)] = across(n_x, nx) * blurred;
+            a[(row, k * k + 2)] = across(n_y, ny) * blurred;
             b[row] = v;
         }
         (a, b)
@@ -489,11 +562,13 @@ mod tests {
         for &(x, y, v) in &obs {
             problem.observe(x, y, v);
         }
-        let (a, b) = dense(&sharp, nx, k, &obs);
+        let guess: Vec<f64> = (0..k * k).map(|_| rng.random::<f64>()).collect();
+        problem.set_shading_reference(&guess);
+        let (a, b) = dense(&sharp, (nx, ny), k, &obs, &guess);
         // The operator is AᵀWA.
         let ata = a.transpose() * &a;
-        let probe: Vec<f64> = (0..k * k + 1).map(|_| rng.random::<f64>() - 0.5).collect();
-        let mut out = vec![0.0; k * k + 1];
+        let probe: Vec<f64> = (0..k * k + 3).map(|_| rng.random::<f64>() - 0.5).collect();
+        let mut out = vec![0.0; k * k + 3];
         problem.apply(&probe, &mut out);
         let want = &ata * DVector::from_vec(probe);
         for (o, w) in out.iter().zip(want.iter()) {
@@ -527,18 +602,22 @@ mod tests {
                     }
                 }
             }
-            let probe: Vec<f64> = (0..k * k + 1).map(|_| rng.random::<f64>() - 0.5).collect();
-            let mut want = vec![0.0; k * k + 1];
+            if smoothness > 0.0 {
+                let guess: Vec<f64> = (0..k * k).map(|_| rng.random::<f64>()).collect();
+                problem.set_shading_reference(&guess);
+            }
+            let probe: Vec<f64> = (0..k * k + 3).map(|_| rng.random::<f64>() - 0.5).collect();
+            let mut want = vec![0.0; k * k + 3];
             problem.apply(&probe, &mut want);
             let mut y = vec![0.0; LinearOperator::rows(&problem)];
             problem.forward(&probe, &mut y);
-            let mut got = vec![0.0; k * k + 1];
+            let mut got = vec![0.0; k * k + 3];
             problem.adjoint(&y, &mut got);
             for (g, w) in got.iter().zip(&want) {
                 assert!((g - w).abs() < 1e-9 * (1.0 + w.abs()), "{g} vs {w}");
             }
             let want_rhs = problem.rhs();
-            let mut got_rhs = vec![0.0; k * k + 1];
+            let mut got_rhs = vec![0.0; k * k + 3];
             problem.adjoint(&LinearOperator::target(&problem), &mut got_rhs);
             for (g, w) in got_rhs.iter().zip(&want_rhs) {
                 assert!((g - w).abs() < 1e-9 * (1.0 + w.abs()), "{g} vs {w}");
