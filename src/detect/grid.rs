@@ -222,12 +222,14 @@ pub enum LatticeError {
 
 struct Buckets {
     cell: f64,
-    map: HashMap<(i64, i64), Vec<usize>>,
+    // Looked up nine times per step of every grid walk, with keys that are our own
+    // bucket indices: std's DoS-resistant SipHash costs more than the lookup's work.
+    map: rustc_hash::FxHashMap<(i64, i64), Vec<usize>>,
 }
 
 impl Buckets {
     fn new(pts: &[Junction], cell: f64) -> Self {
-        let mut map: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+        let mut map = rustc_hash::FxHashMap::<(i64, i64), Vec<usize>>::default();
         for (i, j) in pts.iter().enumerate() {
             map.entry((
                 (j.pos[0] / cell).floor() as i64,

@@ -1069,18 +1069,7 @@ mod tests {
     fn edge_operator_equals_the_fft_operator() {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
         let (nx, ny, k) = (40, 34, 5);
-        let raster: Vec<f32> = (0..nx * ny)
-            .map(|i| {
-                let (x, y) = (i % nx, i / nx);
-                if x < 15 && y < 20 {
-                    0.0
-                } else if x > 28 {
-                    1.0
-                } else {
-                    rng.random::<f32>()
-                }
-            })
-            .collect();
+        let raster = flat_and_random(&mut rng, (nx, ny), 28);
         let uniform = Uniformity::new(&raster, nx, ny, k);
         let mut fft = LeastSquares::new(&raster, nx, ny, k);
         let mut edges = EdgeProblem::new(&raster, nx, k);
@@ -1123,12 +1112,27 @@ mod tests {
             assert!((x - y).abs() < 1e-3 * (1.0 + x.abs()), "{x} vs {y}");
         }
     }
-}
 
-#[cfg(test)]
-mod shading_tests {
-    use super::*;
-    use rand::{Rng, SeedableRng};
+    /// A raster black in its top-left corner, white right of column `white_after`, random
+    /// elsewhere: uniform patches of both kinds beside non-uniform ones.
+    fn flat_and_random(
+        rng: &mut rand_pcg::Pcg64,
+        (nx, ny): (usize, usize),
+        white_after: usize,
+    ) -> Vec<f32> {
+        (0..nx * ny)
+            .map(|i| {
+                let (x, y) = (i % nx, i / nx);
+                if x < 15 && y < 20 {
+                    0.0
+                } else if x > white_after {
+                    1.0
+                } else {
+                    rng.random::<f32>()
+                }
+            })
+            .collect()
+    }
 
     /// With the shading unknowns (edge regressors and the white rows' compression), the
     /// forward and adjoint products are each other's transpose.
@@ -1136,18 +1140,7 @@ mod shading_tests {
     fn forward_and_adjoint_are_transposes() {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
         let (nx, ny, k) = (40, 34, 5);
-        let raster: Vec<f32> = (0..nx * ny)
-            .map(|i| {
-                let (x, y) = (i % nx, i / nx);
-                if x < 15 && y < 20 {
-                    0.0
-                } else if x > 22 {
-                    1.0
-                } else {
-                    rng.random::<f32>()
-                }
-            })
-            .collect();
+        let raster = flat_and_random(&mut rng, (nx, ny), 22);
         let uniform = Uniformity::new(&raster, nx, ny, k);
         let mut edges = EdgeProblem::new(&raster, nx, k);
         for y0 in (0..=ny - k).step_by(3) {
