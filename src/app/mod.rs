@@ -49,6 +49,11 @@ const NOTICE_FADE: std::time::Duration = std::time::Duration::from_secs(1);
 /// rasteriser (lavapipe, 2 cores) repainting every 250 ms spent 455 s of CPU in the
 /// rasteriser over one first launch, against 112 s in the jobs; once a second, 62 s.
 const PROGRESS_REPAINT: std::time::Duration = std::time::Duration::from_millis(1000);
+/// How soon a job's result reaches the screen: results that arrive together (a shot's
+/// detection, its kernels, its thumbnail; the demo's shots as they are made) share one
+/// frame, each costing about 0.2 s of CPU under a software rasteriser, where a wake per
+/// result made four frames a second while the demo was being made.
+const RESULT_REPAINT: std::time::Duration = std::time::Duration::from_millis(250);
 
 /// The studio app: plumbing only. The project owns the session and its results, each
 /// view its own state (`views`), `data` what the views show that takes computing; the
@@ -97,8 +102,10 @@ impl StudioApp {
             .unwrap_or_default();
         let mut app = Self {
             project: None,
-            jobs: Jobs::new(options.job_threads, move || wake_ctx.request_repaint())
-                .with_progress_wake(move || progress_ctx.request_repaint_after(PROGRESS_REPAINT)),
+            jobs: Jobs::new(options.job_threads, move || {
+                wake_ctx.request_repaint_after(RESULT_REPAINT);
+            })
+            .with_progress_wake(move || progress_ctx.request_repaint_after(PROGRESS_REPAINT)),
             tallies: BTreeMap::new(),
             session_generation: 0,
             shots: BTreeMap::new(),
