@@ -145,7 +145,10 @@ pub struct Jobs<T> {
     pub running: Vec<JobHandle>,
     tx: SyncSender<JobEvent<T>>,
     rx: Receiver<JobEvent<T>>,
+    /// Called when a job has ended.
     wake: Arc<dyn Fn() + Send + Sync>,
+    /// Called when a job hands over a result on its way.
+    output_wake: Arc<dyn Fn() + Send + Sync>,
     /// Called when only a job's progress changed: the window may take its time.
     progress_wake: Arc<dyn Fn() + Send + Sync>,
     /// Where jobs compute; `None` if it could not be built (rayon's global pool then).
@@ -186,6 +189,7 @@ impl<T: Send + 'static> Jobs<T> {
             tx,
             rx,
             progress_wake: Arc::clone(&wake),
+            output_wake: Arc::clone(&wake),
             wake,
             pool: job_pool(threads, "job-worker"),
             threads,
@@ -198,6 +202,14 @@ impl<T: Send + 'static> Jobs<T> {
     #[must_use]
     pub fn with_progress_wake(mut self, wake: impl Fn() + Send + Sync + 'static) -> Self {
         self.progress_wake = Arc::new(wake);
+        self
+    }
+
+    /// What to call when a job hands over a result before its end (by default the same
+    /// as for its end): the studio lets a stream of them share a frame.
+    #[must_use]
+    pub fn with_output_wake(mut self, wake: impl Fn() + Send + Sync + 'static) -> Self {
+        self.output_wake = Arc::new(wake);
         self
     }
 
@@ -272,9 +284,10 @@ impl<T: Send + 'static> Jobs<T> {
             job: id,
             session: scope.session,
             tx: self.tx.clone(),
-            wake: Arc::clone(&self.wake),
+            wake: Arc::clone(&self.output_wake),
             shots: Arc::clone(&shots),
         };
+        let finished_wake = Arc::clone(&self.wake);
         let worker_ctx = ctx.clone();
         let job_name = name.to_owned();
         std::thread::Builder::new()
@@ -303,7 +316,7 @@ impl<T: Send + 'static> Jobs<T> {
                     name: job_name,
                     result,
                 });
-                (emitter.wake)();
+                finished_wake();
             })
             .map_err(|e| format!("cannot start job '{name}': {e}"))?;
         self.running.push(JobHandle {

@@ -49,11 +49,55 @@ const NOTICE_FADE: std::time::Duration = std::time::Duration::from_secs(1);
 /// rasteriser (lavapipe, 2 cores) repainting every 250 ms spent 455 s of CPU in the
 /// rasteriser over one first launch, against 112 s in the jobs; once a second, 62 s.
 const PROGRESS_REPAINT: std::time::Duration = std::time::Duration::from_millis(1000);
-/// How soon a job's result reaches the screen: results that arrive together (a shot's
-/// detection, its kernels, its thumbnail; the demo's shots as they are made) share one
-/// frame, each costing about 0.2 s of CPU under a software rasteriser, where a wake per
-/// result made four frames a second while the demo was being made.
+/// How soon a job's result reaches the screen while the user works the window: results
+/// that arrive together (a shot's detection, its kernels, its thumbnail) share one
+/// frame, each costing about 0.2 s of CPU under a software rasteriser.
 const RESULT_REPAINT: std::time::Duration = std::time::Duration::from_millis(250);
+/// How long after the user's last input the window still counts as watched closely.
+const ATTENDED: std::time::Duration = std::time::Duration::from_secs(3);
+
+/// When the user last touched the window, shared with the job threads' wakes: a result
+/// that arrives while the user works the window is drawn within [`RESULT_REPAINT`]; the
+/// results that stream in while nobody touches it (the demo's shots as they are made,
+/// every shot's detection and kernels in *Calibrate all*) share the progress line's
+/// frame a second. Over a first launch under a software rasteriser those streams drew
+/// four frames a second while the demo was made, a third of the machine. A job's end
+/// still wakes the window within [`RESULT_REPAINT`]: what follows it (the next stage,
+/// the before/after) starts then.
+#[derive(Clone)]
+struct Attention {
+    start: Instant,
+    /// Milliseconds from `start` to the last input.
+    last_input_ms: Arc<std::sync::atomic::AtomicU64>,
+}
+
+impl Attention {
+    fn new() -> Self {
+        Self {
+            start: Instant::now(),
+            last_input_ms: Arc::new(std::sync::atomic::AtomicU64::new(0)),
+        }
+    }
+
+    fn touched(&self) {
+        let ms = u64::try_from(self.start.elapsed().as_millis()).unwrap_or(u64::MAX);
+        self.last_input_ms
+            .store(ms, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// How soon a result handed over now should be drawn.
+    fn result_delay(&self) -> std::time::Duration {
+        let last = std::time::Duration::from_millis(
+            self.last_input_ms
+                .load(std::sync::atomic::Ordering::Relaxed),
+        );
+        if self.start.elapsed().saturating_sub(last) < ATTENDED {
+            RESULT_REPAINT
+        } else {
+            PROGRESS_REPAINT
+        }
+    }
+}
 
 /// The studio app: plumbing only. The project owns the session and its results, each
 /// view its own state (`views`), `data` what the views show that takes computing; the
@@ -85,6 +129,7 @@ pub struct StudioApp {
     trace: Trace,
     autorun: Autorun,
     options: AppOptions,
+    attention: Attention,
     ctx: egui::Context,
 }
 
@@ -94,7 +139,10 @@ impl StudioApp {
     #[must_use]
     pub fn new(ctx: &egui::Context, options: AppOptions) -> Self {
         let wake_ctx = ctx.clone();
+        let output_ctx = ctx.clone();
         let progress_ctx = ctx.clone();
+        let attention = Attention::new();
+        let watched = attention.clone();
         let recent = options
             .recent_file
             .as_deref()
@@ -105,6 +153,7 @@ impl StudioApp {
             jobs: Jobs::new(options.job_threads, move || {
                 wake_ctx.request_repaint_after(RESULT_REPAINT);
             })
+            .with_output_wake(move || output_ctx.request_repaint_after(watched.result_delay()))
             .with_progress_wake(move || progress_ctx.request_repaint_after(PROGRESS_REPAINT)),
             tallies: BTreeMap::new(),
             session_generation: 0,
@@ -118,6 +167,7 @@ impl StudioApp {
             trace: Trace::default(),
             autorun: Autorun::default(),
             options: options.clone(),
+            attention,
             ctx: ctx.clone(),
         };
         ctx.set_theme(egui::Theme::Dark);
@@ -324,22 +374,31 @@ impl StudioApp {
 }
 
 impl eframe::App for StudioApp {
+    /// The panels' own colour: the panels then paint no background of their own (see
+    /// `Window::cleared_to_panel_fill`).
+    fn clear_color(&self, visuals: &egui::Visuals) -> [f32; 4] {
+        visuals.panel_fill.to_normalized_gamma_f32()
+    }
+
     fn logic(&mut self, ctx: &egui::Context, _frame: &mut eframe::Frame) {
+        if ctx.input(|i| !i.events.is_empty()) {
+            self.attention.touched();
+        }
         self.logic_step();
         if self.autorun.drag_frames > 0 {
             ctx.request_repaint();
         }
         // A notice fades out over its last second: one wake when the fade starts, then
-        // frames until it has gone. (Ten frames a second over a notice's whole life
+        // four frames until it has gone. (Ten frames a second over a notice's whole life
         // were a third of a first launch's frames, each 0.2 s of CPU under a software
-        // rasteriser.)
+        // rasteriser; ten over its fade were a tenth.)
         if let Some(life) = self.options.notice_lifetime
             && let Some(m) = self.window.messages.iter().find(|m| !m.is_error)
         {
             let left = life.saturating_sub(m.said.elapsed());
             let until_fade = left.saturating_sub(NOTICE_FADE);
             ctx.request_repaint_after(if until_fade.is_zero() {
-                left.min(NOTICE_FADE / 10)
+                left.min(NOTICE_FADE / 4)
             } else {
                 until_fade
             });
@@ -460,7 +519,9 @@ pub fn run(options: AppOptions) -> Result<(), String> {
                     &rs.adapter.get_info(),
                 );
             }
-            Ok(Box::new(StudioApp::new(&cc.egui_ctx, options)))
+            let mut app = StudioApp::new(&cc.egui_ctx, options);
+            app.window.cleared_to_panel_fill = true;
+            Ok(Box::new(app))
         }),
     )
     .map_err(|e| format!("cannot open the studio window: {e}"))

@@ -126,6 +126,11 @@ pub struct Window {
     pub dark: bool,
     /// A plot being saved as PNG, waiting for its screenshot.
     pub plot_png: Option<PendingPlotPng>,
+    /// Whether whatever draws the window clears it to the panels' colour first (the
+    /// studio's own window does; a test harness clears to transparent), so that the
+    /// panels need not paint their background: under a software rasteriser that fill,
+    /// the whole window's area, was a quarter of every frame's cost.
+    pub cleared_to_panel_fill: bool,
 }
 
 impl Window {
@@ -143,6 +148,7 @@ impl Window {
             recent,
             dark: true,
             plot_png: None,
+            cleared_to_panel_fill: false,
         }
     }
 }

@@ -36,20 +36,38 @@ pub(super) fn root_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
     app.commands = out;
 }
 
+/// A panel's frame, without its background where the window is cleared to that colour.
+fn panel_frame(app: &StudioApp, frame: egui::Frame) -> egui::Frame {
+    if app.window.cleared_to_panel_fill {
+        frame.fill(egui::Color32::TRANSPARENT)
+    } else {
+        frame
+    }
+}
+
 fn draw(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     menu::shortcuts(app, out, ui.ctx());
     dropped_files(app, out, ui.ctx());
-    egui::Panel::top("menu").show(ui, |ui| menu::menu_bar_ui(app, out, ui));
-    egui::Panel::top("top").show(ui, |ui| top_bar_ui(app, out, ui));
-    egui::Panel::bottom("status").show(ui, |ui| status_ui(app, out, ui));
+    let side = panel_frame(app, egui::Frame::side_top_panel(ui.style()));
+    egui::Panel::top("menu")
+        .frame(side)
+        .show(ui, |ui| menu::menu_bar_ui(app, out, ui));
+    egui::Panel::top("top")
+        .frame(side)
+        .show(ui, |ui| top_bar_ui(app, out, ui));
+    egui::Panel::bottom("status")
+        .frame(side)
+        .show(ui, |ui| status_ui(app, out, ui));
     if app.window.log_open {
         egui::Panel::bottom("log")
+            .frame(side)
             .resizable(true)
             .default_size(180.0)
             .show(ui, |ui| log_ui(app, out, ui));
     }
     if app.views.session.open {
         egui::Panel::left("session")
+            .frame(side)
             .default_size(300.0)
             .resizable(true)
             .show(ui, |ui| {
@@ -57,15 +75,17 @@ fn draw(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
                     .show(ui, |ui| session_panel::session_panel_ui(app, out, ui));
             });
     }
-    egui::CentralPanel::default().show(ui, |ui| match app.view {
-        View::Shot => shot::shot_view_ui(app, out, ui),
-        View::KernelField => field::kernel_field_ui(app, out, ui),
-        View::Sharpness => sharpness::sharpness_ui(app, out, ui),
-        View::Sweeps => sweeps::sweeps_ui(app, out, ui),
-        View::Models => models::models_ui(app, out, ui),
-        View::Deblur => deblur::deblur_ui(app, out, ui),
-        View::Geometry => geometry::geometry_ui(app, out, ui),
-    });
+    egui::CentralPanel::default()
+        .frame(panel_frame(app, egui::Frame::central_panel(ui.style())))
+        .show(ui, |ui| match app.view {
+            View::Shot => shot::shot_view_ui(app, out, ui),
+            View::KernelField => field::kernel_field_ui(app, out, ui),
+            View::Sharpness => sharpness::sharpness_ui(app, out, ui),
+            View::Sweeps => sweeps::sweeps_ui(app, out, ui),
+            View::Models => models::models_ui(app, out, ui),
+            View::Deblur => deblur::deblur_ui(app, out, ui),
+            View::Geometry => geometry::geometry_ui(app, out, ui),
+        });
     let ctx = ui.ctx().clone();
     confirm_ui(app, out, &ctx);
     help::help_ui(app, out, &ctx);
