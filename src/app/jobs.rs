@@ -433,4 +433,31 @@ mod tests {
         );
         assert!(jobs.running.is_empty());
     }
+
+    /// A result on a job's way calls the output wake (the studio may let a stream of
+    /// them share a frame), its end the job-end wake (which the studio never delays).
+    #[test]
+    fn results_and_ends_wake_through_their_own_callbacks() {
+        let (woken, wakes) = mpsc::channel();
+        let ended = woken.clone();
+        let mut jobs: Jobs<u32> = Jobs::new(1, move || {
+            let _ = ended.send("end");
+        })
+        .with_output_wake(move || {
+            let _ = woken.send("output");
+        });
+        jobs.spawn("count", |_ctx, out| {
+            out.emit(1);
+            out.emit(2);
+            Ok(())
+        })
+        .expect("spawned");
+        let got: Vec<&str> = (0..3)
+            .map(|_| {
+                // A guard against a hang, not a timing: the job ends at once.
+                wakes.recv_timeout(Duration::from_secs(60)).expect("a wake")
+            })
+            .collect();
+        assert_eq!(got, ["output", "output", "end"]);
+    }
 }

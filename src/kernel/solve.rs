@@ -422,18 +422,11 @@ pub fn cgls_solve(
             break;
         }
         let alpha = gamma / qq;
-        for i in 0..n {
-            x[i] += alpha * p[i];
-        }
-        for i in 0..m {
-            r[i] -= alpha * q[i];
-        }
+        add_scaled(&mut x, alpha, &p);
+        add_scaled(&mut r, -alpha, &q);
         problem.adjoint(&r, &mut s);
         let gamma_new = dot(&s, &s);
-        let beta = gamma_new / gamma;
-        for i in 0..n {
-            p[i] = s[i] + beta * p[i];
-        }
+        next_direction(&mut p, &s, gamma_new / gamma);
         gamma = gamma_new;
         iterations += 1;
     }
@@ -483,15 +476,10 @@ pub fn cg_solve(
             break;
         }
         let alpha = rr / pq;
-        for i in 0..n {
-            x[i] += alpha * p[i];
-            r[i] -= alpha * q[i];
-        }
+        add_scaled(&mut x, alpha, &p);
+        add_scaled(&mut r, -alpha, &q);
         let rr_new = dot(&r, &r);
-        let beta = rr_new / rr;
-        for i in 0..n {
-            p[i] = r[i] + beta * p[i];
-        }
+        next_direction(&mut p, &r, rr_new / rr);
         rr = rr_new;
         iterations += 1;
     }
@@ -504,6 +492,21 @@ pub fn cg_solve(
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// y ← y + a·x, element by element (`y − a·x` is `y + (−a)·x` exactly, so the residual
+/// updates round as they did written out).
+fn add_scaled(y: &mut [f64], a: f64, x: &[f64]) {
+    for (y, x) in y.iter_mut().zip(x) {
+        *y += a * x;
+    }
+}
+
+/// The next search direction p ← g + β·p from the new gradient (or residual) g.
+fn next_direction(p: &mut [f64], g: &[f64], beta: f64) {
+    for (p, g) in p.iter_mut().zip(g) {
+        *p = g + beta * *p;
+    }
 }
 
 #[cfg(test)]
