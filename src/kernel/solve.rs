@@ -218,9 +218,7 @@ impl NormalEquations for LeastSquares {
             }
         }
         let (out_k, out_c) = out.split_at_mut(k * k);
-        out_c[0] = sum;
-        out_c[1] = sum_x;
-        out_c[2] = sum_y;
+        out_c.copy_from_slice(&[sum, sum_x, sum_y]);
         self.correlate_into(out_k);
         if self.smoothness > 0.0 {
             add_gradient_penalty(kernel, k, self.penalty_weight(), out_k);
@@ -365,9 +363,7 @@ impl LinearOperator for LeastSquares {
             };
         }
         let (out_k, out_c) = out.split_at_mut(k * k);
-        out_c[0] = sum;
-        out_c[1] = sum_x;
-        out_c[2] = sum_y;
+        out_c.copy_from_slice(&[sum, sum_x, sum_y]);
         self.correlate_into(out_k);
         if self.smoothness > 0.0 {
             let lambda = self.penalty_weight();
@@ -399,42 +395,15 @@ pub fn cgls_solve(
     tolerance: f64,
 ) -> CgSolution {
     let (n, m) = (problem.dim(), problem.rows());
-    let mut x = vec![0.0; n];
-    let mut r = problem.target();
+    let r = problem.target();
     let mut s = vec![0.0; n];
     problem.adjoint(&r, &mut s);
-    let s0 = dot(&s, &s).sqrt();
-    if !(s0 > 0.0) {
-        return CgSolution {
-            x,
-            iterations: 0,
-            relative_residual: 0.0,
-        };
-    }
-    let mut p = s.clone();
-    let mut q = vec![0.0; m];
-    let mut gamma = dot(&s, &s);
-    let mut iterations = 0;
-    while iterations < max_iterations && gamma.sqrt() > tolerance * s0 {
-        problem.forward(&p, &mut q);
-        let qq = dot(&q, &q);
-        if !(qq > 0.0) {
-            break;
-        }
-        let alpha = gamma / qq;
-        add_scaled(&mut x, alpha, &p);
-        add_scaled(&mut r, -alpha, &q);
-        problem.adjoint(&r, &mut s);
-        let gamma_new = dot(&s, &s);
-        next_direction(&mut p, &s, gamma_new / gamma);
-        gamma = gamma_new;
-        iterations += 1;
-    }
-    CgSolution {
-        x,
-        iterations,
-        relative_residual: gamma.sqrt() / s0,
-    }
+    let mut descent = Residual {
+        problem,
+        r,
+        q: vec![0.0; m],
+    };
+    iterate(&mut descent, s, max_iterations, tolerance)
 }
 
 /// What conjugate gradients reached.
@@ -453,40 +422,98 @@ pub fn cg_solve(
     max_iterations: usize,
     tolerance: f64,
 ) -> CgSolution {
-    let n = problem.dim();
     let b = problem.rhs();
-    let b_norm = dot(&b, &b).sqrt();
-    let mut x = vec![0.0; n];
-    if !(b_norm > 0.0) {
+    let mut descent = Normal {
+        q: vec![0.0; problem.dim()],
+        problem,
+    };
+    iterate(&mut descent, b, max_iterations, tolerance)
+}
+
+/// Conjugate gradients as [`cg_solve`] and [`cgls_solve`] share them: the curvature of a
+/// search direction, and the gradient after a step along it.
+trait Descent {
+    /// pᵀ N p of the direction p, keeping what [`Descent::step`] needs.
+    fn curvature(&mut self, p: &[f64]) -> f64;
+    /// Moves the gradient `g` by a step `alpha` along the direction last measured.
+    fn step(&mut self, alpha: f64, g: &mut [f64]);
+}
+
+/// CG on the normal equations N x = b: the gradient is the residual b − N x.
+struct Normal<'a, P> {
+    problem: &'a mut P,
+    /// N p.
+    q: Vec<f64>,
+}
+
+impl<P: NormalEquations> Descent for Normal<'_, P> {
+    fn curvature(&mut self, p: &[f64]) -> f64 {
+        self.problem.apply(p, &mut self.q);
+        dot(p, &self.q)
+    }
+
+    fn step(&mut self, alpha: f64, g: &mut [f64]) {
+        add_scaled(g, -alpha, &self.q);
+    }
+}
+
+/// CGLS: the residual r = b − A x kept in observation space, the gradient Aᵀ r.
+struct Residual<'a, P> {
+    problem: &'a mut P,
+    r: Vec<f64>,
+    /// A p.
+    q: Vec<f64>,
+}
+
+impl<P: LinearOperator> Descent for Residual<'_, P> {
+    fn curvature(&mut self, p: &[f64]) -> f64 {
+        self.problem.forward(p, &mut self.q);
+        dot(&self.q, &self.q)
+    }
+
+    fn step(&mut self, alpha: f64, g: &mut [f64]) {
+        add_scaled(&mut self.r, -alpha, &self.q);
+        self.problem.adjoint(&self.r, g);
+    }
+}
+
+/// Conjugate gradients from x = 0 with the initial gradient `g`, for at most
+/// `max_iterations`, stopping when ‖g‖ ≤ `tolerance`·‖g₀‖.
+fn iterate(
+    descent: &mut impl Descent,
+    mut g: Vec<f64>,
+    max_iterations: usize,
+    tolerance: f64,
+) -> CgSolution {
+    let mut x = vec![0.0; g.len()];
+    let mut gg = dot(&g, &g);
+    let g0 = gg.sqrt();
+    if !(g0 > 0.0) {
         return CgSolution {
             x,
             iterations: 0,
             relative_residual: 0.0,
         };
     }
-    let mut r = b;
-    let mut p = r.clone();
-    let mut q = vec![0.0; n];
-    let mut rr = dot(&r, &r);
+    let mut p = g.clone();
     let mut iterations = 0;
-    while iterations < max_iterations && rr.sqrt() > tolerance * b_norm {
-        problem.apply(&p, &mut q);
-        let pq = dot(&p, &q);
-        if !(pq > 0.0) {
+    while iterations < max_iterations && gg.sqrt() > tolerance * g0 {
+        let curvature = descent.curvature(&p);
+        if !(curvature > 0.0) {
             break;
         }
-        let alpha = rr / pq;
+        let alpha = gg / curvature;
         add_scaled(&mut x, alpha, &p);
-        add_scaled(&mut r, -alpha, &q);
-        let rr_new = dot(&r, &r);
-        next_direction(&mut p, &r, rr_new / rr);
-        rr = rr_new;
+        descent.step(alpha, &mut g);
+        let gg_new = dot(&g, &g);
+        next_direction(&mut p, &g, gg_new / gg);
+        gg = gg_new;
         iterations += 1;
     }
     CgSolution {
         x,
         iterations,
-        relative_residual: rr.sqrt() / b_norm,
+        relative_residual: gg.sqrt() / g0,
     }
 }
 
