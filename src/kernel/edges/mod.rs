@@ -687,27 +687,36 @@ mod tests {
     use crate::kernel::solve::{LeastSquares, NormalEquations, cg_solve, cgls_solve};
     use rand::{Rng, SeedableRng};
 
-    /// AᵀA p by the edge form against the FFT form, and the right-hand sides.
-    fn assert_same_normal_equations(
+    /// One side of the normal equations by the FFT form, then by the edge form.
+    type NormalPair = (Vec<f64>, Vec<f64>);
+
+    /// AᵀA p for a random probe p and the right-hand sides Aᵀb, each by the FFT form
+    /// then by the edge form (there AᵀA p is adjoint(forward(p))).
+    fn normal_equations_both_ways(
         fft: &mut LeastSquares,
         edges: &mut EdgeProblem,
-        k: usize,
-        seed: u64,
-    ) {
-        let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
-        let probe: Vec<f64> = (0..k * k + 3).map(|_| rng.random::<f64>() - 0.5).collect();
-        let (mut a, mut b) = (vec![0.0; k * k + 3], vec![0.0; k * k + 3]);
+        rng: &mut impl Rng,
+    ) -> (NormalPair, NormalPair) {
+        let n = edges.dim();
+        let probe: Vec<f64> = (0..n).map(|_| rng.random::<f64>() - 0.5).collect();
+        let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
         fft.apply(&probe, &mut a);
         let mut y = vec![0.0; edges.rows()];
         edges.forward(&probe, &mut y);
         edges.adjoint(&y, &mut b);
+        let mut rb = vec![0.0; n];
+        edges.adjoint(&edges.target(), &mut rb);
+        ((a, b), (fft.rhs(), rb))
+    }
+
+    /// AᵀA p by the edge form against the FFT form, and the right-hand sides.
+    fn assert_same_normal_equations(fft: &mut LeastSquares, edges: &mut EdgeProblem, seed: u64) {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+        let ((a, b), (ra, rb)) = normal_equations_both_ways(fft, edges, &mut rng);
         let scale = a.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         for (x, y) in a.iter().zip(&b) {
             assert!((x - y).abs() < 1e-9 * scale, "{x} vs {y}");
         }
-        let ra = fft.rhs();
-        let mut rb = vec![0.0; k * k + 3];
-        edges.adjoint(&edges.target(), &mut rb);
         let scale = ra.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         for (x, y) in ra.iter().zip(&rb) {
             assert!((x - y).abs() < 1e-9 * scale, "{x} vs {y}");
@@ -778,12 +787,12 @@ mod tests {
             "{} of {all_lines} lines are dot products",
             segments(0) + segments(1)
         );
-        assert_same_normal_equations(&mut fft, &mut edges, k, 11);
+        assert_same_normal_equations(&mut fft, &mut edges, 11);
         // With the shading unknowns in use, from a Gaussian guess at the blur.
         let guess = super::super::gaussian_guess(k, 3, 1.0);
         fft.set_shading_reference(&guess);
         edges.set_shading_reference(&guess);
-        assert_same_normal_equations(&mut fft, &mut edges, k, 12);
+        assert_same_normal_equations(&mut fft, &mut edges, 12);
     }
 
     /// A raster with uniform regions and edges, and observations on a lattice of step 3:
@@ -811,19 +820,10 @@ mod tests {
         let guess = super::super::gaussian_guess(k, 1, 0.8);
         fft.set_shading_reference(&guess);
         edges.set_shading_reference(&guess);
-        let probe: Vec<f64> = (0..k * k + 3).map(|_| rng.random::<f64>() - 0.5).collect();
-        // AᵀA p by the edge form is adjoint(forward(p)).
-        let (mut a, mut b) = (vec![0.0; k * k + 3], vec![0.0; k * k + 3]);
-        fft.apply(&probe, &mut a);
-        let mut y = vec![0.0; edges.rows()];
-        edges.forward(&probe, &mut y);
-        edges.adjoint(&y, &mut b);
+        let ((a, b), (ra, rb)) = normal_equations_both_ways(&mut fft, &mut edges, &mut rng);
         for (x, y) in a.iter().zip(&b) {
             assert!((x - y).abs() < 1e-4 * (1.0 + x.abs()), "{x} vs {y}");
         }
-        let ra = fft.rhs();
-        let mut rb = vec![0.0; k * k + 3];
-        edges.adjoint(&edges.target(), &mut rb);
         for (x, y) in ra.iter().zip(&rb) {
             assert!((x - y).abs() < 1e-4 * (1.0 + x.abs()), "{x} vs {y}");
         }

@@ -55,7 +55,7 @@ impl SegmentBounds {
     }
 }
 
-/// Some segments of a [`SegmentSet`] (or, in tests, segments given whole).
+/// Some segments of a [`SegmentSet`].
 #[derive(Clone, Copy)]
 pub(super) struct Segments<'a> {
     obs: &'a [u32],
@@ -362,17 +362,6 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
 
-    impl<'a> Segments<'a> {
-        fn new(obs: &'a [u32], offsets: &'a [usize], len: usize) -> Self {
-            Self {
-                obs,
-                offsets,
-                len,
-                bounds: SegmentBounds::of(obs, offsets, len),
-            }
-        }
-    }
-
     /// The SIMD products (blocks of segments plus a remainder) against the portable ones.
     #[test]
     fn simd_products_match_the_portable_ones() {
@@ -396,12 +385,14 @@ mod tests {
                     );
                 }
             };
+            let set = SegmentSet::new(obs.to_vec(), offsets.to_vec(), len);
+            let all = set.range(0..obs.len());
             let (mut fast, mut slow) = (vec![0.5; obs_count], vec![0.5; obs_count]);
-            predict_segments(&data, Segments::new(obs, offsets, len), &g, &mut fast);
+            predict_segments(&data, all, &g, &mut fast);
             predict_segments_portable(&data, offsets, obs, &g, &mut slow);
             agree("predict", &fast, &slow);
             let (mut fast, mut slow) = (vec![0.25; len], vec![0.25; len]);
-            correlate_segments(&data, Segments::new(obs, offsets, len), &w, &mut fast);
+            correlate_segments(&data, all, &w, &mut fast);
             correlate_segments_portable(&data, offsets, obs, &w, &mut slow);
             agree("correlate", &fast, &slow);
         }
@@ -414,7 +405,12 @@ mod tests {
         let data = vec![1.0; 40];
         let (obs, offsets) = ([0u32, 1], [0usize, 33]);
         let mut out = vec![0.0; 2];
-        predict_segments(&data, Segments::new(&obs, &offsets, 8), &[0.5; 8], &mut out);
+        predict_segments(
+            &data,
+            SegmentSet::new(obs.to_vec(), offsets.to_vec(), 8).range(0..2),
+            &[0.5; 8],
+            &mut out,
+        );
     }
 
     #[test]
@@ -423,6 +419,11 @@ mod tests {
         let data = vec![1.0; 40];
         let (obs, offsets) = ([0u32, 2], [0usize, 32]);
         let mut acc = vec![0.0; 8];
-        correlate_segments(&data, Segments::new(&obs, &offsets, 8), &[0.5; 2], &mut acc);
+        correlate_segments(
+            &data,
+            SegmentSet::new(obs.to_vec(), offsets.to_vec(), 8).range(0..2),
+            &[0.5; 2],
+            &mut acc,
+        );
     }
 }
