@@ -1,4 +1,4 @@
-//! The crate's layering, checked: ARCHITECTURE.md's *Layers* list (read from the file
+//! The crate's layering, checked: ARCHITECTURE.md's *Layers* table (read from the file
 //! itself, so the document cannot drift from the code) against every `use` and every
 //! `crate::`, `super::` and `self::` path in `src/`. A module may use its own layer and
 //! those below, never one above, and no two modules may import each other, directly or
@@ -393,8 +393,9 @@ fn imports(modules: &BTreeMap<String, String>) -> BTreeMap<String, BTreeSet<Stri
     edges
 }
 
-/// ARCHITECTURE.md's layers, bottom first: the backquoted module names of each
-/// numbered line under the `## Layers` heading.
+/// ARCHITECTURE.md's layers, bottom first: the backquoted module names in the second
+/// cell of each table row under the `## Layers` heading whose first cell is a number (the
+/// third cell, which says what the layer is for, may quote names too).
 fn layers(architecture: &str) -> Vec<Vec<String>> {
     let section = architecture
         .split("\n## ")
@@ -402,11 +403,22 @@ fn layers(architecture: &str) -> Vec<Vec<String>> {
         .expect("ARCHITECTURE.md has a `## Layers` section");
     section
         .lines()
-        .filter(|l| {
-            l.split_once(". ")
-                .is_some_and(|(n, _)| !n.is_empty() && n.chars().all(|c| c.is_ascii_digit()))
+        .filter_map(|l| {
+            let mut cells = l.strip_prefix('|')?.split('|').map(str::trim);
+            let n = cells.next()?;
+            if n.is_empty() || !n.chars().all(|c| c.is_ascii_digit()) {
+                return None;
+            }
+            let names = cells.next()?;
+            Some(
+                names
+                    .split('`')
+                    .skip(1)
+                    .step_by(2)
+                    .map(str::to_owned)
+                    .collect(),
+            )
         })
-        .map(|l| l.split('`').skip(1).step_by(2).map(str::to_owned).collect())
         .collect()
 }
 
@@ -508,6 +520,15 @@ fn no_module_imports_a_layer_above_it_or_itself_round_a_loop() {
             }
         }
     }
+    // Each of the studio's modules is named: one that is not would take `app`'s layer,
+    // the top, and could import any other.
+    for m in modules.keys().filter(|m| m.matches("::").count() == 1) {
+        if m.starts_with("app::") && !layers.iter().flatten().any(|n| n == m) {
+            wrong.push(format!(
+                "{m}: a studio module in no layer of ARCHITECTURE.md"
+            ));
+        }
+    }
     for c in cycles(&between_siblings(&edges)) {
         wrong.push(format!("cycle: {}", c.join(" <-> ")));
     }
@@ -531,7 +552,9 @@ fn the_check_finds_what_it_looks_for() {
         cycles(&edges),
         vec![vec!["high".to_owned(), "low".to_owned()]]
     );
-    let l = layers("x\n## Layers\n\n1. `low`\n2. `high`, `high::part`\n\n## Next\n3. `no`");
+    let l = layers(
+        "x\n## Layers\n\n| layer | modules |\n|---|---|\n| 1 | `low` | below `high` |\n| 2 | `high`, `high::part` |\n\n## Next\n| 3 | `no` |",
+    );
     assert_eq!(l.len(), 2);
     assert_eq!(layer_of(&l, "high::part::deep"), Some(1));
     assert_eq!(layer_of(&l, "low"), Some(0));
