@@ -8,6 +8,7 @@
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
+use lensblur::app::jobs::JobKind;
 use lensblur::app::{
     AppOptions, ColourRange, Command, FieldOptions, FieldShow, FieldSource, PlotId,
     SharpnessChoice, StudioApp, SweepAxis, View,
@@ -100,7 +101,7 @@ fn step_until(h: &mut Harness<'_, StudioApp>, what: &str, done: impl Fn(&StudioA
                 .jobs
                 .running
                 .iter()
-                .map(|j| (&j.name, j.progress()))
+                .map(|j| (j.kind, j.progress()))
                 .collect::<Vec<_>>(),
             h.state().window.messages
         );
@@ -242,7 +243,7 @@ fn measuring_and_calibrating_the_demo_by_clicking() {
     h.run_steps(1);
     assert!(h.state().session().is_none());
     h.get_by_label_contains("Making the demo session");
-    assert!(h.state().jobs.is_running("demo session"));
+    assert!(h.state().jobs.is_running(JobKind::DemoSession));
     step_until(&mut h, "the demo session", demo_ready);
     let n = h.state().session().map_or(0, |s| s.shots.len());
     assert_eq!(n, n_shots);
@@ -708,7 +709,7 @@ fn the_deblur_view_compares_previews_and_exports() {
         .push(Command::SetDeblurDevice(lensblur::deblur::Device::Gpu));
     h.run_steps(2);
     assert!(
-        h.state().jobs.is_running("deblur preview"),
+        h.state().jobs.is_running(JobKind::DeblurPreview),
         "a new device deblurs the region again"
     );
     step_until(&mut h, "the GPU preview", |a| {
@@ -784,7 +785,7 @@ fn the_deblur_view_compares_previews_and_exports() {
         )));
     h.run_steps(2);
     assert!(
-        h.state().jobs.is_running("deblur preview"),
+        h.state().jobs.is_running(JobKind::DeblurPreview),
         "a new strength deblurs the region again"
     );
     step_until(&mut h, "the stronger preview", |a| {
@@ -1766,21 +1767,15 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
         (Some(photo.focal_mm), Some(photo.f_number))
     );
     step_until(&mut h, "calibrate all", |a| {
-        a.jobs.is_running("calibrate all")
+        a.jobs.is_running(JobKind::CalibrateAll)
             || a.profile().is_some()
             || a.window.messages.iter().any(|m| m.is_error)
     });
-    let job_ids: Vec<String> = h
-        .state()
-        .jobs
-        .running
-        .iter()
-        .map(|j| j.name.clone())
-        .collect();
+    let job_ids: Vec<JobKind> = h.state().jobs.running.iter().map(|j| j.kind).collect();
     assert!(
         !job_ids
             .iter()
-            .any(|j| ["detect", "kernels", "calibrate"].contains(&j.as_str())),
+            .any(|j| [JobKind::Detect, JobKind::Kernels, JobKind::Calibrate].contains(j)),
         "one job, not a stage each: {job_ids:?}"
     );
     step_until(&mut h, "the profile", |a| a.profile().is_some() && idle(a));

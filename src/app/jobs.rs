@@ -40,6 +40,78 @@ impl JobScope {
     }
 }
 
+/// What a job does. The studio tells its jobs apart by this (is one running, what
+/// follows its end); [`JobKind::name`] is only what the window and the log call it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum JobKind {
+    /// Making the demo session (on a pool of its own).
+    DemoSession,
+    /// Reading a reopened session's cached results.
+    ReadResults,
+    /// Loading shots for display.
+    LoadShot,
+    Detect,
+    Kernels,
+    /// Gathering the measured Gaussians into the session's dataset.
+    GatherMeasurements,
+    Calibrate,
+    /// Whatever the session lacks measured, then calibration.
+    CalibrateAll,
+    LoadProfile,
+    OpenPhoto,
+    /// The Deblur view's crops, replaced by a newer one as a control is dragged.
+    DeblurPreview,
+    /// The photo deblurred whole and written.
+    ExportPhoto,
+    ExportPhotos,
+    /// The square inspector's crops.
+    InspectSquare,
+    /// The lens's geometry measured from the detections.
+    Geometry,
+    LensfunExport,
+}
+
+impl JobKind {
+    /// What the window, the log and the job's thread call it.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::DemoSession => "demo session",
+            Self::ReadResults => "read results",
+            Self::LoadShot => "load shot",
+            Self::Detect => "detect",
+            Self::Kernels => "kernels",
+            Self::GatherMeasurements => "gather measurements",
+            Self::Calibrate => "calibrate",
+            Self::CalibrateAll => "calibrate all",
+            Self::LoadProfile => "load profile",
+            Self::OpenPhoto => "open photo",
+            Self::DeblurPreview => "deblur preview",
+            Self::ExportPhoto => "export",
+            Self::ExportPhotos => "export photos",
+            Self::InspectSquare => "inspect square",
+            Self::Geometry => "geometry",
+            Self::LensfunExport => "lensfun export",
+        }
+    }
+}
+
+impl std::fmt::Display for JobKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// How a job ended.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum JobEnd {
+    Done,
+    /// Stopped by a cancel (its own, its session's or a newer job's).
+    Cancelled,
+    /// The one-line reason it failed (a panic included).
+    Failed(String),
+}
+
 /// The cancel flag of every shot a job works on.
 type ShotFlags = Arc<BTreeMap<ShotId, Arc<AtomicBool>>>;
 
@@ -52,18 +124,18 @@ pub enum JobEvent<T> {
         session: Option<u64>,
         output: T,
     },
-    /// The job stopped: `Ok(())`, or the one-line reason it failed or was cancelled.
+    /// The job stopped.
     Finished {
         job: u64,
-        name: String,
-        result: Result<(), String>,
+        kind: JobKind,
+        end: JobEnd,
     },
 }
 
 /// A running job as the UI sees it.
 pub struct JobHandle {
     pub id: u64,
-    pub name: String,
+    pub kind: JobKind,
     pub started: Instant,
     pub session: Option<u64>,
     ctx: JobContext,
@@ -222,11 +294,11 @@ impl<T: Send + 'static> Jobs<T> {
     /// The thread could not be spawned.
     pub fn spawn_apart(
         &mut self,
-        name: &str,
+        kind: JobKind,
         work: impl FnOnce(&JobContext, &Emitter<T>) -> Result<(), String> + Send + 'static,
     ) -> Result<u64, String> {
         let pool = job_pool(self.threads, "apart-worker");
-        self.spawn_on(name, JobScope::default(), pool, work)
+        self.spawn_on(kind, JobScope::default(), pool, work)
     }
 
     /// Starts `work` on its own named thread.
@@ -235,10 +307,10 @@ impl<T: Send + 'static> Jobs<T> {
     /// The thread could not be spawned.
     pub fn spawn(
         &mut self,
-        name: &str,
+        kind: JobKind,
         work: impl FnOnce(&JobContext, &Emitter<T>) -> Result<(), String> + Send + 'static,
     ) -> Result<u64, String> {
-        self.spawn_scoped(name, JobScope::default(), work)
+        self.spawn_scoped(kind, JobScope::default(), work)
     }
 
     /// Starts `work` on its own named thread, working on `scope`.
@@ -247,17 +319,17 @@ impl<T: Send + 'static> Jobs<T> {
     /// The thread could not be spawned.
     pub fn spawn_scoped(
         &mut self,
-        name: &str,
+        kind: JobKind,
         scope: JobScope,
         work: impl FnOnce(&JobContext, &Emitter<T>) -> Result<(), String> + Send + 'static,
     ) -> Result<u64, String> {
         let pool = self.pool.clone();
-        self.spawn_on(name, scope, pool, work)
+        self.spawn_on(kind, scope, pool, work)
     }
 
     fn spawn_on(
         &mut self,
-        name: &str,
+        kind: JobKind,
         scope: JobScope,
         pool: Option<Arc<rayon::ThreadPool>>,
         work: impl FnOnce(&JobContext, &Emitter<T>) -> Result<(), String> + Send + 'static,
@@ -289,7 +361,7 @@ impl<T: Send + 'static> Jobs<T> {
         };
         let finished_wake = Arc::clone(&self.wake);
         let worker_ctx = ctx.clone();
-        let job_name = name.to_owned();
+        let name = kind.name();
         std::thread::Builder::new()
             .name(format!("job-{id}-{name}"))
             .spawn(move || {
@@ -302,26 +374,22 @@ impl<T: Send + 'static> Jobs<T> {
                 });
                 let result = std::panic::catch_unwind(run).unwrap_or_else(|panic| {
                     Err(format!(
-                        "{job_name}: internal error: {}",
+                        "{name}: internal error: {}",
                         panic_message(panic.as_ref())
                     ))
                 });
-                let result = if worker_ctx.is_cancelled() && result.is_err() {
-                    Err("cancelled".into())
-                } else {
-                    result
+                let end = match result {
+                    Ok(()) => JobEnd::Done,
+                    Err(_) if worker_ctx.is_cancelled() => JobEnd::Cancelled,
+                    Err(e) => JobEnd::Failed(e),
                 };
-                let _ = emitter.tx.send(JobEvent::Finished {
-                    job: id,
-                    name: job_name,
-                    result,
-                });
+                let _ = emitter.tx.send(JobEvent::Finished { job: id, kind, end });
                 finished_wake();
             })
             .map_err(|e| format!("cannot start job '{name}': {e}"))?;
         self.running.push(JobHandle {
             id,
-            name: name.to_owned(),
+            kind,
             started: Instant::now(),
             session: scope.session,
             ctx,
@@ -344,16 +412,8 @@ impl<T: Send + 'static> Jobs<T> {
     }
 
     #[must_use]
-    pub fn name_of(&self, id: u64) -> Option<&str> {
-        self.running
-            .iter()
-            .find(|h| h.id == id)
-            .map(|h| h.name.as_str())
-    }
-
-    #[must_use]
-    pub fn is_running(&self, name: &str) -> bool {
-        self.running.iter().any(|h| h.name == name)
+    pub fn is_running(&self, kind: JobKind) -> bool {
+        self.running.iter().any(|h| h.kind == kind)
     }
 
     pub fn cancel(&mut self, id: u64) {
@@ -412,7 +472,7 @@ mod tests {
             let _ = woken.send(());
         });
         let id = jobs
-            .spawn("measure", |_ctx, _out| panic!("index out of bounds"))
+            .spawn(JobKind::Kernels, |_ctx, _out| panic!("index out of bounds"))
             .expect("spawned");
         let result = loop {
             // A guard against a hang, not a timing: the job ends at once.
@@ -420,7 +480,7 @@ mod tests {
                 .recv_timeout(Duration::from_secs(60))
                 .expect("the job ends");
             let finished = jobs.drain().into_iter().find_map(|e| match e {
-                JobEvent::Finished { job, result, .. } if job == id => Some(result),
+                JobEvent::Finished { job, end, .. } if job == id => Some(end),
                 _ => None,
             });
             if let Some(r) = finished {
@@ -429,7 +489,7 @@ mod tests {
         };
         assert_eq!(
             result,
-            Err("measure: internal error: index out of bounds".to_owned())
+            JobEnd::Failed("kernels: internal error: index out of bounds".to_owned())
         );
         assert!(jobs.running.is_empty());
     }
@@ -446,7 +506,7 @@ mod tests {
         .with_output_wake(move || {
             let _ = woken.send("output");
         });
-        jobs.spawn("count", |_ctx, out| {
+        jobs.spawn(JobKind::Kernels, |_ctx, out| {
             out.emit(1);
             out.emit(2);
             Ok(())

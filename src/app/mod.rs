@@ -46,8 +46,9 @@ use std::time::Instant;
 const NOTICE_FADE: std::time::Duration = std::time::Duration::from_secs(1);
 
 /// How often the window repaints while only a job's progress changes: under a software
-/// rasteriser (lavapipe, 2 cores) repainting every 250 ms spent 455 s of CPU in the
-/// rasteriser over one first launch, against 112 s in the jobs; once a second, 62 s.
+/// rasteriser a frame costs about as much CPU as a job gets between two quick frames,
+/// so faster progress would take the cores from the jobs it shows (the measurements
+/// are in docs/performance.md).
 const PROGRESS_REPAINT: std::time::Duration = std::time::Duration::from_millis(1000);
 /// How soon a job's result reaches the screen while the user works the window: results
 /// that arrive together (a shot's detection, its kernels, its thumbnail) share one
@@ -60,10 +61,9 @@ const ATTENDED: std::time::Duration = std::time::Duration::from_secs(3);
 /// that arrives while the user works the window is drawn within [`RESULT_REPAINT`]; the
 /// results that stream in while nobody touches it (the demo's shots as they are made,
 /// every shot's detection and kernels in *Calibrate all*) share the progress line's
-/// frame a second. Over a first launch under a software rasteriser those streams drew
-/// four frames a second while the demo was made, a third of the machine. A job's end
-/// still wakes the window within [`RESULT_REPAINT`]: what follows it (the next stage,
-/// the before/after) starts then.
+/// frame a second: drawn one by one under a software rasteriser, they take the cores the
+/// jobs need. A job's end still wakes the window within [`RESULT_REPAINT`]: what follows
+/// it (the next stage, the before/after) starts then.
 #[derive(Clone)]
 struct Attention {
     start: Instant,
@@ -389,9 +389,8 @@ impl eframe::App for StudioApp {
             ctx.request_repaint();
         }
         // A notice fades out over its last second: one wake when the fade starts, then
-        // four frames until it has gone. (Ten frames a second over a notice's whole life
-        // were a third of a first launch's frames, each 0.2 s of CPU under a software
-        // rasteriser; ten over its fade were a tenth.)
+        // four frames until it has gone, not a frame every few milliseconds of its life
+        // (each costs a software rasteriser a fifth of a second of CPU).
         if let Some(life) = self.options.notice_lifetime
             && let Some(m) = self.window.messages.iter().find(|m| !m.is_error)
         {
@@ -418,7 +417,7 @@ impl eframe::App for StudioApp {
         }
         if !self.jobs.running.is_empty() {
             for j in &self.jobs.running {
-                self.trace.frames.busy_jobs.insert(j.name.clone());
+                self.trace.frames.busy_jobs.insert(j.kind.name().to_owned());
             }
             if let Some(last) = self.trace.frames.last {
                 self.trace
@@ -438,8 +437,8 @@ impl eframe::App for StudioApp {
                         .running
                         .iter()
                         .map(|h| match h.progress() {
-                            Some(p) => format!("{}: {} {}/{}", h.name, p.stage, p.done, p.total),
-                            None => h.name.clone(),
+                            Some(p) => format!("{}: {} {}/{}", h.kind, p.stage, p.done, p.total),
+                            None => h.kind.name().to_owned(),
                         })
                         .collect();
                     eprintln!(

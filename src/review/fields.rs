@@ -194,3 +194,47 @@ pub fn colour_range(values: impl IntoIterator<Item = f64>, symmetric: bool) -> O
     }
     Some([lo, hi])
 }
+
+/// The 1-σ ellipse of `g` as `points` + 1 offsets from its centre, px, the first repeated
+/// last so it closes: the Cholesky factor of the covariance maps the unit circle onto it
+/// (ρ held inside ±0.999, where the factor stays real).
+#[must_use]
+pub fn ellipse_outline(g: &Gaussian2, points: usize) -> Vec<[f64; 2]> {
+    let (sx, sy, r) = (g.sigma_x, g.sigma_y, g.rho.clamp(-0.999, 0.999));
+    let l21 = r * sy;
+    let l22 = sy * (1.0 - r * r).sqrt();
+    let n = points.max(3);
+    (0..=n)
+        .map(|k| {
+            let t = k as f64 / n as f64 * std::f64::consts::TAU;
+            let (c, s) = (t.cos(), t.sin());
+            [sx * c, l21 * c + l22 * s]
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every point of the outline lies on the 1-σ contour: xᵀ Σ⁻¹ x = 1.
+    #[test]
+    fn the_outline_is_the_one_sigma_contour() {
+        for (sx, sy, rho) in [(1.0, 1.0, 0.0), (2.5, 0.7, 0.6), (0.9, 1.8, -0.85)] {
+            let g = Gaussian2 {
+                sigma_x: sx,
+                sigma_y: sy,
+                rho,
+            };
+            let pts = ellipse_outline(&g, 40);
+            assert_eq!(pts.len(), 41);
+            assert!((pts[0][0] - pts[40][0]).abs() < 1e-12, "closed");
+            let (a, b, d) = (sx * sx, rho * sx * sy, sy * sy);
+            let det = a * d - b * b;
+            for [x, y] in pts {
+                let q = (d * x * x - 2.0 * b * x * y + a * y * y) / det;
+                assert!((q - 1.0).abs() < 1e-9, "{q} for {sx} {sy} {rho}");
+            }
+        }
+    }
+}

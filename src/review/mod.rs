@@ -16,7 +16,9 @@
 //! - [`sharpness`]: the sharpness map (MTF50 over the frame), its CSV and picture;
 //! - [`advice`]: shooting advice;
 //! - [`coverage`]: where on the sensor the chart has been, per setting, and the parts
-//!   of the frame still to cover.
+//!   of the frame still to cover;
+//! - [`lens_geometry`]: a measured geometry as the Geometry view draws it (the grid
+//!   through the distortion, lateral-colour arrows, the fall-off map).
 
 pub mod advice;
 pub mod coverage;
@@ -24,6 +26,7 @@ pub mod crops;
 pub mod export;
 pub mod fields;
 pub mod kernels;
+pub mod lens_geometry;
 pub mod plot;
 pub mod sharpness;
 pub mod sweeps;
@@ -42,13 +45,17 @@ pub use crops::{
 };
 pub use export::{PlotTable, export_deblurred, plot_csv, write_png_crop};
 pub use fields::{
-    FieldDifference, colour_range, field_difference, field_grid, palette_rgb, predicted_at,
-    predicted_field, truth_field, truth_pixel_gaussian,
+    FieldDifference, colour_range, ellipse_outline, field_difference, field_grid, palette_rgb,
+    predicted_at, predicted_field, truth_field, truth_pixel_gaussian,
 };
 pub use kernels::{
     KernelError, KernelTails, NOISY_TAIL_FRACTION, PredictedKernel, SquareFacts, kernel_errors,
     kernel_tail_fraction, kernel_tails, no_shape_reason, noisy_kernel_reason, predicted_kernels,
     skip_reasons, square_facts,
+};
+pub use lens_geometry::{
+    ColourArrows, FalloffMap, WarpedGrid, colour_arrows, falloff_map, nice_factor, stops_at,
+    warped_grid,
 };
 pub use plot::{
     aperture_stops, cv_cdf_curves, cv_curve, f_number_at_stops, f_number_label, nice_ticks,

@@ -2,6 +2,7 @@
 //! (`LENSBLUR_FRAME_LOG`), and the stages `LENSBLUR_AUTORUN` asks for, one after
 //! another, for measuring frame times under load.
 
+use crate::app::jobs::JobKind;
 use crate::app::{Command, DeblurLayout, DeblurZoom, FrameLog, StudioApp, View};
 use std::path::PathBuf;
 
@@ -17,7 +18,7 @@ pub(in crate::app) fn autorun_step(app: &mut StudioApp) {
 
 /// The first shot shown, and every shot loaded (or found unreadable).
 fn log_readiness(app: &mut StudioApp) {
-    let ready = !app.jobs.is_running("demo session")
+    let ready = !app.jobs.is_running(JobKind::DemoSession)
         && app
             .session()
             .is_some_and(|s| !s.shots.is_empty() && app.shots_shown() == s.shots.len());

@@ -3,6 +3,7 @@
 
 use super::apply;
 use super::shots::{develop_for_display, load_capture};
+use crate::app::jobs::JobKind;
 use crate::app::textures::{developed_texture, rgb_texture};
 use crate::app::{Command, ComparisonView, DeblurResult, DeblurZoom, JobOutput, Photo, StudioApp};
 use crate::deblur::{DeblurOptions, KernelSource, Method};
@@ -15,7 +16,7 @@ use std::sync::Arc;
 pub(super) fn apply_deblur(app: &mut StudioApp, command: Command) {
     match command {
         Command::OpenPhoto(path) => {
-            let r = app.jobs.spawn("open photo", move |ctx, out| {
+            let r = app.jobs.spawn(JobKind::OpenPhoto, move |ctx, out| {
                 ctx.report("loading", 0, 1);
                 let capture = load_capture(&path)?;
                 let developed = develop_for_display(&capture);
@@ -312,7 +313,7 @@ pub(super) fn run_deblur_preview(app: &mut StudioApp, centre: [f64; 2]) {
     // control dragged over many frames never queues a preview per frame.
     let mut busy = false;
     for h in &app.jobs.running {
-        if h.name == "deblur preview" {
+        if h.kind == JobKind::DeblurPreview {
             h.cancel();
             busy = true;
         }
@@ -341,7 +342,7 @@ pub(super) fn run_deblur_preview(app: &mut StudioApp, centre: [f64; 2]) {
         let note = crate::deblur::gpu::describe(opts.device, &opts.method);
         app.views.deblur.device_note = Some(note);
     }
-    let r = app.jobs.spawn("deblur preview", move |ctx, out| {
+    let r = app.jobs.spawn(JobKind::DeblurPreview, move |ctx, out| {
         let comparison = crate::review::compare_deblur(
             &cap,
             region,
@@ -390,7 +391,7 @@ fn run_export_photos(app: &mut StudioApp, photos: Vec<PathBuf>, out_dir: PathBuf
         memory_budget: None,
         max_parallel: None,
     };
-    let r = app.jobs.spawn("export photos", move |ctx, out| {
+    let r = app.jobs.spawn(JobKind::ExportPhotos, move |ctx, out| {
         let report = crate::batch::deblur_photos(&photos, &library, &opts, ctx);
         out.emit(JobOutput::PhotosExported(report));
         Ok(())
@@ -430,7 +431,7 @@ fn run_export(app: &mut StudioApp, path: PathBuf, result: DeblurResult) {
         opts.method.name(),
         result.label()
     );
-    let r = app.jobs.spawn("export", move |ctx, out| {
+    let r = app.jobs.spawn(JobKind::ExportPhoto, move |ctx, out| {
         crate::review::export_deblurred(&cap, source.as_ref(), &opts, &path, original, &note, ctx)?;
         out.emit(JobOutput::DeblurExported(path));
         Ok(())

@@ -2,7 +2,7 @@
 //! and the lensfun entry written from it on a job of its own (the shot's EXIF is read
 //! there; the names and the checks are the core's, as `lensblur lensfun` makes them).
 
-use crate::app::jobs::JobScope;
+use crate::app::jobs::{JobKind, JobScope};
 use crate::app::{Command, JobOutput, StudioApp, view_data};
 use crate::correction::lensfun::{NameOverrides, checked_entry};
 use crate::correction::{LensCorrection, LensfunNames};
@@ -81,7 +81,7 @@ fn export_lensfun(app: &mut StudioApp, path: PathBuf) {
     let scope = JobScope::session(app.session_generation);
     let r = app
         .jobs
-        .spawn_scoped("lensfun export", scope, move |_ctx, out| {
+        .spawn_scoped(JobKind::LensfunExport, scope, move |_ctx, out| {
             let lens = write_entry(&correction, &first, is_demo, &path, &provenance)
                 .map_err(|e| format!("cannot export the lensfun entry: {e}"))?;
             out.emit(JobOutput::LensfunExported { path, lens });

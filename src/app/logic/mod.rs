@@ -19,7 +19,7 @@ mod shots;
 mod stages;
 mod view;
 
-use super::jobs::JobEvent;
+use super::jobs::{JobEnd, JobEvent, JobKind};
 use super::view_data;
 use super::{Command, JobOutput, StudioApp};
 use deblur::run_deblur_preview;
@@ -155,37 +155,36 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                     apply_output(app, output);
                 }
             }
-            JobEvent::Finished { job, name, result } => {
+            JobEvent::Finished { job, kind, end } => {
                 let tally = app.tallies.remove(&job);
-                match result {
+                match end {
                     // A preview cancelled by a newer one (a control being dragged) is
                     // not news: the newer one's result follows.
-                    Err(e) if e == "cancelled" && name == "deblur preview" => {}
-                    Err(e) if e == "cancelled" => {
+                    JobEnd::Cancelled if kind == JobKind::DeblurPreview => {}
+                    JobEnd::Cancelled => {
                         let done =
                             tally.map_or(String::new(), |t| match t.ok.len() + t.failed.len() {
                                 1 => " after 1 shot".to_owned(),
                                 n => format!(" after {n} shots"),
                             });
-                        app.info(format!("{name}: cancelled{done}"));
+                        app.info(format!("{kind}: cancelled{done}"));
                     }
-                    Err(e) => app.error(e),
-                    Ok(()) => {
+                    JobEnd::Failed(e) => app.error(e),
+                    JobEnd::Done => {
                         if let Some(t) = tally {
-                            finished_message(app, &name, &t);
+                            finished_message(app, kind, &t);
                         }
                     }
                 }
-                if name == "kernels" {
-                    spawn_dataset(app);
-                }
-                if name == "demo session" {
-                    session::calibrate_demo(app);
-                }
-                if name == "deblur preview"
-                    && let Some(centre) = app.views.deblur.pending.take()
-                {
-                    run_deblur_preview(app, centre);
+                match kind {
+                    JobKind::Kernels => spawn_dataset(app),
+                    JobKind::DemoSession => session::calibrate_demo(app),
+                    JobKind::DeblurPreview => {
+                        if let Some(centre) = app.views.deblur.pending.take() {
+                            run_deblur_preview(app, centre);
+                        }
+                    }
+                    _ => {}
                 }
             }
         }
@@ -224,7 +223,7 @@ fn tally(app: &mut StudioApp, job: u64, output: &JobOutput) {
 }
 
 /// "Measured kernels for 9 shots (1 failed: IMG_3.png — no chart found)".
-fn finished_message(app: &mut StudioApp, job: &str, t: &super::Tally) {
+fn finished_message(app: &mut StudioApp, job: JobKind, t: &super::Tally) {
     let n = t.ok.len() + t.failed.len();
     let shots = if n == 1 {
         "1 shot".to_owned()
@@ -232,10 +231,10 @@ fn finished_message(app: &mut StudioApp, job: &str, t: &super::Tally) {
         format!("{n} shots")
     };
     let what = match job {
-        "detect" => format!("Detected the chart in {shots}"),
-        "kernels" => format!("Measured kernels for {shots}"),
-        "calibrate all" if n == 0 => return,
-        "calibrate all" => format!("Calibrate all: measured {shots}"),
+        JobKind::Detect => format!("Detected the chart in {shots}"),
+        JobKind::Kernels => format!("Measured kernels for {shots}"),
+        JobKind::CalibrateAll if n == 0 => return,
+        JobKind::CalibrateAll => format!("Calibrate all: measured {shots}"),
         _ => return,
     };
     if t.failed.is_empty() {

@@ -4,7 +4,7 @@
 use super::CV_FILE;
 use super::save;
 use super::stages::spawn_dataset;
-use crate::app::jobs::JobScope;
+use crate::app::jobs::{JobKind, JobScope};
 use crate::app::view_data;
 use crate::app::{Command, Confirm, JobOutput, StudioApp};
 use crate::job::JobContext;
@@ -136,8 +136,8 @@ pub(super) fn calibrate_demo(app: &mut StudioApp) {
         && app
             .session()
             .is_some_and(|s| s.is_demo && s.profile.is_none() && !s.shots.is_empty())
-        && !app.jobs.is_running("demo session")
-        && !app.jobs.is_running("calibrate all")
+        && !app.jobs.is_running(JobKind::DemoSession)
+        && !app.jobs.is_running(JobKind::CalibrateAll)
         && !app
             .commands
             .iter()
@@ -266,7 +266,7 @@ pub(in crate::app) fn read_results(app: &mut StudioApp) {
     let scope = JobScope::session(app.session_generation);
     let r = app
         .jobs
-        .spawn_scoped("read results", scope, move |ctx, out| {
+        .spawn_scoped(JobKind::ReadResults, scope, move |ctx, out| {
             let survey = Box::new(survey.run(ctx).map_err(|e| e.to_string())?);
             let cv = crate::io::read_json_text(&cv_path)
                 .ok()
@@ -305,7 +305,7 @@ impl StudioApp {
         let spec = self.options.demo_spec.clone();
         let started = self
             .jobs
-            .spawn_apart("demo session", move |ctx: &JobContext, out| {
+            .spawn_apart(JobKind::DemoSession, move |ctx: &JobContext, out| {
                 // Each shot is shown as soon as it is on disk: a newcomer sees a
                 // session within seconds instead of waiting for all of them.
                 let s = crate::simulate::demo::make_demo_streaming(&dir, &spec, ctx, &mut |s| {

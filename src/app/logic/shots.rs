@@ -2,7 +2,7 @@
 
 use super::save;
 use crate::app::ShotView;
-use crate::app::jobs::JobScope;
+use crate::app::jobs::{JobKind, JobScope};
 use crate::app::textures::{channel_texture, developed_texture, encode};
 use crate::app::{JobOutput, ShotPreview, StudioApp};
 use crate::develop::Developed;
@@ -54,7 +54,7 @@ pub(super) fn shot_output(app: &mut StudioApp, output: JobOutput) {
 
 pub(in crate::app) fn ensure_preview(app: &mut StudioApp) {
     let Some(s) = app.session() else { return };
-    if app.jobs.is_running("load shot") {
+    if app.jobs.is_running(JobKind::LoadShot) {
         return;
     }
     let order = app
@@ -74,23 +74,25 @@ pub(in crate::app) fn ensure_preview(app: &mut StudioApp) {
     };
     app.shots.insert(id, ShotView::Loading);
     let scope = JobScope::shots(app.session_generation, vec![id]);
-    let r = app.jobs.spawn_scoped("load shot", scope, move |ctx, out| {
-        ctx.report("loading shot", 0, 1);
-        match load_capture(&path) {
-            Ok(capture) => {
-                ctx.check().map_err(|e| e.to_string())?;
-                let developed = develop_for_display(&capture);
-                out.emit(JobOutput::ShotLoaded {
-                    shot: id,
-                    capture: Arc::new(capture),
-                    developed,
-                });
+    let r = app
+        .jobs
+        .spawn_scoped(JobKind::LoadShot, scope, move |ctx, out| {
+            ctx.report("loading shot", 0, 1);
+            match load_capture(&path) {
+                Ok(capture) => {
+                    ctx.check().map_err(|e| e.to_string())?;
+                    let developed = develop_for_display(&capture);
+                    out.emit(JobOutput::ShotLoaded {
+                        shot: id,
+                        capture: Arc::new(capture),
+                        developed,
+                    });
+                }
+                Err(reason) => out.emit(JobOutput::ShotUnreadable { shot: id, reason }),
             }
-            Err(reason) => out.emit(JobOutput::ShotUnreadable { shot: id, reason }),
-        }
-        ctx.report("loading shot", 1, 1);
-        Ok(())
-    });
+            ctx.report("loading shot", 1, 1);
+            Ok(())
+        });
     if let Err(e) = r {
         app.error(e);
     }

@@ -2,7 +2,7 @@
 //! read) and what they hand back.
 
 use super::save;
-use crate::app::jobs::JobScope;
+use crate::app::jobs::{JobKind, JobScope};
 use crate::app::{Command, JobOutput, StudioApp};
 use crate::project::{CV_FILE, MeasurePlan, PROFILE_FILE, Project, ShotEvent, Stages};
 use crate::session::ShotId;
@@ -17,7 +17,7 @@ pub(super) fn apply_stage(app: &mut StudioApp, command: Command) {
         Command::RunCalibrate => run_calibrate(app),
         Command::CalibrateAll { then_deblur } => calibrate_all(app, then_deblur),
         Command::LoadProfile { path, compare } => {
-            let r = app.jobs.spawn("load profile", move |_ctx, out| {
+            let r = app.jobs.spawn(JobKind::LoadProfile, move |_ctx, out| {
                 let profile = crate::profile::Profile::load(&path).map_err(|e| e.to_string())?;
                 out.emit(JobOutput::ProfileLoaded {
                     profile: Arc::new(profile),
@@ -137,8 +137,8 @@ pub(in crate::app) fn shot_event(app: &mut StudioApp, event: &ShotEvent) {
 
 /// Runs the stages of `plan` on a job thread, shot after shot (each shot's work is
 /// itself parallel), leaving out shots the window could not read; each shot's steps
-/// come back as they happen. `what` names the job ("detect", "kernels").
-fn run_measure(app: &mut StudioApp, what: &'static str, plan: &MeasurePlan) -> usize {
+/// come back as they happen. `what` is the job: detection or kernels.
+fn run_measure(app: &mut StudioApp, what: JobKind, plan: &MeasurePlan) -> usize {
     let Some(p) = app.project.as_ref() else {
         return 0;
     };
@@ -165,7 +165,7 @@ fn run_measure(app: &mut StudioApp, what: &'static str, plan: &MeasurePlan) -> u
 
 /// Detection of the chosen shot (again), or of every shot not yet detected.
 fn run_detect(app: &mut StudioApp, which: Option<ShotId>) {
-    if app.jobs.is_running("detect") {
+    if app.jobs.is_running(JobKind::Detect) {
         app.info("detection is already running");
         return;
     }
@@ -173,7 +173,7 @@ fn run_detect(app: &mut StudioApp, which: Option<ShotId>) {
         Some(id) => MeasurePlan::again(Stages::Detect, vec![id]),
         None => MeasurePlan::missing(Stages::Detect),
     };
-    if run_measure(app, "detect", &plan) == 0 {
+    if run_measure(app, JobKind::Detect, &plan) == 0 {
         app.info(
             "every shot is already detected (right-click a shot and choose Detect this shot again to redo it)",
         );
@@ -189,7 +189,7 @@ pub(super) fn spawn_dataset(app: &mut StudioApp) {
     let scope = JobScope::session(app.session_generation);
     let r = app
         .jobs
-        .spawn_scoped("gather measurements", scope, move |_ctx, out| {
+        .spawn_scoped(JobKind::GatherMeasurements, scope, move |_ctx, out| {
             match job.run() {
                 Ok(ds) => out.emit(JobOutput::DatasetReady(Some(Arc::new(ds)))),
                 Err(e) => {
@@ -207,7 +207,7 @@ pub(super) fn spawn_dataset(app: &mut StudioApp) {
 /// Fits the models over every shot with measured kernels and writes the profile into
 /// the session folder; cross-validation chooses α and β unless the settings fix them.
 fn run_calibrate(app: &mut StudioApp) {
-    if app.jobs.is_running("calibrate") {
+    if app.jobs.is_running(JobKind::Calibrate) {
         app.info("calibration is already running");
         return;
     }
@@ -228,10 +228,12 @@ fn run_calibrate(app: &mut StudioApp) {
     };
     let folder = p.folder().to_path_buf();
     let scope = JobScope::session(app.session_generation);
-    let r = app.jobs.spawn_scoped("calibrate", scope, move |ctx, out| {
-        let cal = job.run(ctx).map_err(|e| e.to_string())?;
-        hand_over(cal, &folder, out)
-    });
+    let r = app
+        .jobs
+        .spawn_scoped(JobKind::Calibrate, scope, move |ctx, out| {
+            let cal = job.run(ctx).map_err(|e| e.to_string())?;
+            hand_over(cal, &folder, out)
+        });
     if let Err(e) = r {
         app.error(e);
     }
@@ -260,9 +262,14 @@ fn hand_over(
 /// models fitted over every shot with kernels, as one job with one progress line and
 /// one cancel; its end message says what it measured and what failed.
 fn calibrate_all(app: &mut StudioApp, then_deblur: bool) {
-    if ["calibrate all", "detect", "kernels", "calibrate"]
-        .iter()
-        .any(|j| app.jobs.is_running(j))
+    if [
+        JobKind::CalibrateAll,
+        JobKind::Detect,
+        JobKind::Kernels,
+        JobKind::Calibrate,
+    ]
+    .into_iter()
+    .any(|j| app.jobs.is_running(j))
     {
         app.info("a stage is already running: wait for it or cancel it (Esc)");
         return;
@@ -287,7 +294,7 @@ fn calibrate_all(app: &mut StudioApp, then_deblur: bool) {
     let scope = JobScope::shots(app.session_generation, job.shots());
     let r = app
         .jobs
-        .spawn_scoped("calibrate all", scope, move |ctx, out| {
+        .spawn_scoped(JobKind::CalibrateAll, scope, move |ctx, out| {
             let cal = job
                 .run(ctx, &|id| out.shot_context(ctx, id), &mut |e| {
                     out.emit(JobOutput::Shot(e));
@@ -303,7 +310,7 @@ fn calibrate_all(app: &mut StudioApp, then_deblur: bool) {
 
 /// Kernels of the chosen shot (again), or of every detected shot without them.
 fn run_kernels(app: &mut StudioApp, which: Option<ShotId>) {
-    if app.jobs.is_running("kernels") {
+    if app.jobs.is_running(JobKind::Kernels) {
         app.info("kernel estimation is already running");
         return;
     }
@@ -321,7 +328,7 @@ fn run_kernels(app: &mut StudioApp, which: Option<ShotId>) {
         }
         None => MeasurePlan::missing(Stages::Kernels),
     };
-    if run_measure(app, "kernels", &plan) == 0 {
+    if run_measure(app, JobKind::Kernels, &plan) == 0 {
         app.info(if app.detections().next().is_none() {
             "no shot is detected yet: run Detect (Ctrl+D) first"
         } else {

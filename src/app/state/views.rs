@@ -128,8 +128,8 @@ pub struct Window {
     pub plot_png: Option<PendingPlotPng>,
     /// Whether whatever draws the window clears it to the panels' colour first (the
     /// studio's own window does; a test harness clears to transparent), so that the
-    /// panels need not paint their background: under a software rasteriser that fill,
-    /// the whole window's area, was a quarter of every frame's cost.
+    /// panels need not paint their background: under a software rasteriser a frame costs
+    /// the pixels it fills, and that fill covers the whole window.
     pub cleared_to_panel_fill: bool,
 }
 

@@ -2,7 +2,6 @@
 //! small map per setting, and the parts of the frame still to cover in words. The
 //! maps and the words come from the core (`review::coverage`); this only draws them.
 
-use super::StudioApp;
 use crate::review::{COVERAGE_CELLS, PART_COVERED, SettingCoverage};
 use egui::{Color32, Rect, Sense, Vec2, pos2, vec2};
 
@@ -11,8 +10,14 @@ const MAP_W: f32 = 120.0;
 
 /// One map per setting with measured shots, in a wrapping row, and a line per setting
 /// with parts not yet covered.
-pub(super) fn coverage_ui(app: &StudioApp, ui: &mut egui::Ui) {
-    let Some((_, maps)) = app.data.coverage.as_ref() else {
+/// `maps` are the view data's (`view_data::ViewData::coverage`), on a sensor of
+/// `(w, h)` px.
+pub(super) fn coverage_ui(
+    maps: Option<&[SettingCoverage]>,
+    (w, h): (usize, usize),
+    ui: &mut egui::Ui,
+) {
+    let Some(maps) = maps else {
         return;
     };
     if maps.is_empty() {
@@ -25,7 +30,6 @@ pub(super) fn coverage_ui(app: &StudioApp, ui: &mut egui::Ui) {
             "Each map is the frame; shaded where the squares whose kernels were measured lie, in any shot at that setting. A small chart shot at several positions covers the frame together. A part of the frame (top-left, top, …, a ninth of it) counts as covered once {:.0} % of it is.",
             100.0 * PART_COVERED
         ));
-    let (w, h) = super::sensor_size(app);
     let map_h = MAP_W * h as f32 / w.max(1) as f32;
     let visuals = ui.visuals();
     let (covered, empty, warn) = (

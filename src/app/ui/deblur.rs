@@ -5,6 +5,7 @@
 //! values in both.
 
 use super::super::{Command, DeblurLayout, DeblurResult, DeblurZoom, StudioApp, ViewerState};
+use crate::app::jobs::JobKind;
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
 
 pub(super) fn deblur_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
@@ -195,7 +196,7 @@ fn overview_and_notes_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui:
             }
             ui.label("Predicted Gaussians: the profile's model at the photo's focal length and aperture (what deblurring any photo uses).");
             ui.label("Measured kernels: the non-parametric kernels measured on the session's chart shot at the same setting (the paper's Fig. 7–8 comparison).");
-            if app.jobs.is_running("deblur preview") {
+            if app.jobs.is_running(JobKind::DeblurPreview) {
                 ui.label("Deblurring the region…");
             }
         });

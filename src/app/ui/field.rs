@@ -14,7 +14,7 @@ use super::super::view_data::{ColourScale, FieldPanel, FieldPoint, PanelContent,
 use super::super::{
     ColourRange, Command, Difference, FieldOptions, FieldShow, FieldSource, StudioApp, View,
 };
-use super::{TIP_CXX, TIP_CYY, ellipse_points, setting_sliders_ui};
+use super::{Sliders, TIP_CXX, TIP_CYY, ellipse_points, setting_sliders_ui};
 use crate::model::KernelModel;
 use crate::plane::LensSetting;
 use crate::session::ShotId;
@@ -23,8 +23,79 @@ use egui::{Color32, Rect, Sense, Stroke, Vec2};
 
 pub(super) fn kernel_field_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.heading("Kernel field");
-    let is_demo = app.session().is_some_and(|s| s.is_demo);
     let lens = VirtualLens::demo();
+    source_and_show_ui(app, out, ui);
+    options_ui(app, out, ui);
+    let s = LensSetting {
+        focal_mm: app.views.field.focal_mm,
+        f_number: app.views.field.f_number,
+    };
+    let size = super::sensor_size(app);
+    if !source_controls_ui(app, out, ui, &lens) {
+        return;
+    }
+    let Some(field) = &app.data.field else {
+        ui.horizontal(|ui| {
+            ui.spinner();
+            ui.label("preparing the field…");
+        });
+        return;
+    };
+    let title = |p: &FieldPanel| panel_title(app, p, s);
+    let panels = &field.panels;
+    if let Some(colours) = &field.scale {
+        colour_bar_ui(ui, colours, field.noisy, &format!("{TIP_CXX}\n{TIP_CYY}"));
+    }
+    let avail = ui.available_size();
+    let cols = panels.len().max(1) as f32;
+    let w = ((avail.x - 16.0 * cols) / cols)
+        .min((avail.y - 48.0) * size.0 as f32 / size.1 as f32)
+        .max(100.0);
+    let panel_size = Vec2::new(w, w * size.1 as f32 / size.0 as f32);
+    // One magnification for every panel so compared fields are comparable: the largest
+    // 1-σ radius fills 45 % of a twelfth of the sensor width.
+    let scale = 0.45 * (panel_size.x / 12.0) / field.max_sigma as f32;
+    let atlas = app.data.kernel_atlas.as_ref().map(|a| a.texture.id());
+    let mut clicked = None;
+    ui.horizontal(|ui| {
+        for p in panels {
+            ui.vertical(|ui| {
+                ui.label(title(p));
+                match (&p.content, &field.scale) {
+                    (Ok(content), Some(colours)) => {
+                        clicked = clicked.or(field_panel_ui(
+                            ui,
+                            content,
+                            (&p.points, &p.failed),
+                            size,
+                            (scale, colours),
+                            panel_size,
+                            atlas,
+                        ));
+                    }
+                    (Ok(_), None) => {
+                        ui.label("Nothing to show here.");
+                    }
+                    (Err(reason), _) => {
+                        ui.label(reason);
+                    }
+                }
+            });
+        }
+    });
+    // The square's inspector lives in the Shot view, beside the shot it was measured on.
+    if let Some((shot, square)) = clicked {
+        out.push(Command::SelectView(View::Shot));
+        // A square of another shot at the setting: that shot, then its square.
+        if let Some(shot) = shot.filter(|&s| Some(s) != app.views.shot.selected) {
+            out.push(Command::SelectShot(shot));
+        }
+        out.push(Command::SelectSquare(square));
+    }
+}
+
+/// Which field (measured, predicted, truth) and how (ellipses, kernel shapes).
+fn source_and_show_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         for (src, label, tip) in [
             (
@@ -84,17 +155,20 @@ pub(super) fn kernel_field_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut 
             }
         }
     });
-    options_ui(app, out, ui);
-    let s = LensSetting {
-        focal_mm: app.views.field.focal_mm,
-        f_number: app.views.field.f_number,
-    };
-    let size = super::sensor_size(app);
-    let ch = app.views.shot.channel;
+}
+
+/// The controls of the chosen field: the setting's sliders, a second profile or unit to
+/// compare. False where there is nothing to show (truth outside the demo).
+fn source_controls_ui(
+    app: &StudioApp,
+    out: &mut Vec<Command>,
+    ui: &mut egui::Ui,
+    lens: &VirtualLens,
+) -> bool {
     match app.views.field.source {
         FieldSource::Measured => {}
         FieldSource::Predicted => {
-            setting_sliders_ui(app, out, ui, &lens);
+            setting_sliders_ui(&Sliders::of(app, lens), out, ui);
             ui.horizontal(|ui| {
                 if ui
                     .button("Compare with a second profile…")
@@ -106,11 +180,11 @@ pub(super) fn kernel_field_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut 
             });
         }
         FieldSource::Truth => {
-            if !is_demo {
+            if !app.session().is_some_and(|s| s.is_demo) {
                 ui.label("Ground truth exists only for the demo session's simulated lens.");
-                return;
+                return false;
             }
-            setting_sliders_ui(app, out, ui, &lens);
+            setting_sliders_ui(&Sliders::of(app, lens), out, ui);
             let mut compare = app.views.field.compare_units;
             if ui
                 .checkbox(&mut compare, "Compare with a second unit")
@@ -122,14 +196,13 @@ pub(super) fn kernel_field_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut 
             ui.label("Ground truth of the demo's virtual lens: pixel-level Gaussians (optical blur plus the 1-px pixel integration).");
         }
     }
-    let Some(field) = &app.data.field else {
-        ui.horizontal(|ui| {
-            ui.spinner();
-            ui.label("preparing the field…");
-        });
-        return;
-    };
-    let title = |p: &FieldPanel| match &p.of {
+    true
+}
+
+/// A panel's title: whose field it is, at which setting and channel.
+fn panel_title(app: &StudioApp, p: &FieldPanel, s: LensSetting) -> String {
+    let ch = app.views.shot.channel;
+    match &p.of {
         PanelOf::Measured => {
             let name = app
                 .views
@@ -200,56 +273,6 @@ pub(super) fn kernel_field_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut 
             };
             format!("{} {} — channel {ch}", unit.model, unit.serial)
         }
-    };
-    let panels = &field.panels;
-    if let Some(colours) = &field.scale {
-        colour_bar_ui(ui, colours, field.noisy, &format!("{TIP_CXX}\n{TIP_CYY}"));
-    }
-    let avail = ui.available_size();
-    let cols = panels.len().max(1) as f32;
-    let w = ((avail.x - 16.0 * cols) / cols)
-        .min((avail.y - 48.0) * size.0 as f32 / size.1 as f32)
-        .max(100.0);
-    let panel_size = Vec2::new(w, w * size.1 as f32 / size.0 as f32);
-    // One magnification for every panel so compared fields are comparable: the largest
-    // 1-σ radius fills 45 % of a twelfth of the sensor width.
-    let scale = 0.45 * (panel_size.x / 12.0) / field.max_sigma as f32;
-    let atlas = app.data.kernel_atlas.as_ref().map(|a| a.texture.id());
-    let mut clicked = None;
-    ui.horizontal(|ui| {
-        for p in panels {
-            ui.vertical(|ui| {
-                ui.label(title(p));
-                match (&p.content, &field.scale) {
-                    (Ok(content), Some(colours)) => {
-                        clicked = clicked.or(field_panel_ui(
-                            ui,
-                            content,
-                            (&p.points, &p.failed),
-                            size,
-                            (scale, colours),
-                            panel_size,
-                            atlas,
-                        ));
-                    }
-                    (Ok(_), None) => {
-                        ui.label("Nothing to show here.");
-                    }
-                    (Err(reason), _) => {
-                        ui.label(reason);
-                    }
-                }
-            });
-        }
-    });
-    // The square's inspector lives in the Shot view, beside the shot it was measured on.
-    if let Some((shot, square)) = clicked {
-        out.push(Command::SelectView(View::Shot));
-        // A square of another shot at the setting: that shot, then its square.
-        if let Some(shot) = shot.filter(|&s| Some(s) != app.views.shot.selected) {
-            out.push(Command::SelectShot(shot));
-        }
-        out.push(Command::SelectSquare(square));
     }
 }
 

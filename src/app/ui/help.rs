@@ -1,7 +1,7 @@
 //! The Help menu's windows: how the studio works in five steps, the guide to
 //! calibrating your own lens (`docs/guide.md`, compiled in), and About.
 
-use super::super::{Command, StudioApp};
+use super::super::{Command, Window};
 
 /// The workflow in a few lines, for someone who has never calibrated a lens.
 const HELP: &[(&str, &str)] = &[
@@ -27,8 +27,8 @@ const HELP: &[(&str, &str)] = &[
     ),
 ];
 
-pub(super) fn help_ui(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Context) {
-    let mut open = app.window.show_help;
+pub(super) fn help_ui(window: &Window, out: &mut Vec<Command>, ctx: &egui::Context) {
+    let mut open = window.show_help;
     egui::Window::new("How the studio works")
         .open(&mut open)
         .collapsible(false)
@@ -64,8 +64,8 @@ const CRATES: &[&str] = &[
     "pdf-writer, svg, flate2 (the chart)",
 ];
 
-pub(super) fn about_ui(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Context) {
-    let mut open = app.window.show_about;
+pub(super) fn about_ui(window: &Window, out: &mut Vec<Command>, ctx: &egui::Context) {
+    let mut open = window.show_about;
     egui::Window::new("About lensblur")
         .open(&mut open)
         .collapsible(false)
@@ -96,8 +96,8 @@ const GUIDE: &str = include_str!("../../../docs/guide.md");
 
 /// The guide in a window: its Markdown drawn plainly (headings, lists, code blocks and
 /// tables in monospace), so what the studio shows is the file the repository holds.
-pub(super) fn guide_ui(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Context) {
-    let mut open = app.window.show_guide;
+pub(super) fn guide_ui(window: &Window, out: &mut Vec<Command>, ctx: &egui::Context) {
+    let mut open = window.show_guide;
     egui::Window::new("Calibrate your own lens")
         .open(&mut open)
         .pivot(egui::Align2::CENTER_CENTER)

@@ -16,7 +16,7 @@ mod shot;
 mod sweeps;
 
 use super::view_data::{sensor_size, setting_ranges};
-use super::{Command, PlotId, StudioApp, View};
+use super::{Command, PlotId, StudioApp, View, Window};
 use crate::plane::Channel;
 use crate::psf::Gaussian2;
 use crate::simulate::VirtualLens;
@@ -37,8 +37,8 @@ pub(super) fn root_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
 }
 
 /// A panel's frame, without its background where the window is cleared to that colour.
-fn panel_frame(app: &StudioApp, frame: egui::Frame) -> egui::Frame {
-    if app.window.cleared_to_panel_fill {
+fn panel_frame(window: &Window, frame: egui::Frame) -> egui::Frame {
+    if window.cleared_to_panel_fill {
         frame.fill(egui::Color32::TRANSPARENT)
     } else {
         frame
@@ -47,8 +47,8 @@ fn panel_frame(app: &StudioApp, frame: egui::Frame) -> egui::Frame {
 
 fn draw(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     menu::shortcuts(app, out, ui.ctx());
-    dropped_files(app, out, ui.ctx());
-    let side = panel_frame(app, egui::Frame::side_top_panel(ui.style()));
+    dropped_files(app.view, out, ui.ctx());
+    let side = panel_frame(&app.window, egui::Frame::side_top_panel(ui.style()));
     egui::Panel::top("menu")
         .frame(side)
         .show(ui, |ui| menu::menu_bar_ui(app, out, ui));
@@ -63,7 +63,7 @@ fn draw(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
             .frame(side)
             .resizable(true)
             .default_size(180.0)
-            .show(ui, |ui| log_ui(app, out, ui));
+            .show(ui, |ui| log_ui(&app.window, out, ui));
     }
     if app.views.session.open {
         egui::Panel::left("session")
@@ -76,32 +76,50 @@ fn draw(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
             });
     }
     egui::CentralPanel::default()
-        .frame(panel_frame(app, egui::Frame::central_panel(ui.style())))
+        .frame(panel_frame(
+            &app.window,
+            egui::Frame::central_panel(ui.style()),
+        ))
         .show(ui, |ui| match app.view {
             View::Shot => shot::shot_view_ui(app, out, ui),
             View::KernelField => field::kernel_field_ui(app, out, ui),
-            View::Sharpness => sharpness::sharpness_ui(app, out, ui),
+            View::Sharpness => sharpness::sharpness_ui(
+                app.views.sharpness,
+                app.data.sharpness.as_ref(),
+                &Sliders::of(app, &VirtualLens::demo()),
+                out,
+                ui,
+            ),
             View::Sweeps => sweeps::sweeps_ui(app, out, ui),
             View::Models => models::models_ui(app, out, ui),
             View::Deblur => deblur::deblur_ui(app, out, ui),
-            View::Geometry => geometry::geometry_ui(app, out, ui),
+            View::Geometry => geometry::geometry_ui(
+                app.data.geometry_measure.as_ref(),
+                app.data.geometry.as_ref(),
+                out,
+                ui,
+            ),
         });
     let ctx = ui.ctx().clone();
-    confirm_ui(app, out, &ctx);
-    help::help_ui(app, out, &ctx);
-    help::about_ui(app, out, &ctx);
-    help::guide_ui(app, out, &ctx);
+    confirm_ui(app.window.confirm.as_ref(), app.session(), out, &ctx);
+    help::help_ui(&app.window, out, &ctx);
+    help::about_ui(&app.window, out, &ctx);
+    help::guide_ui(&app.window, out, &ctx);
 }
 
 /// The question asked before losing work, over a dimmed window.
-fn confirm_ui(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Context) {
-    let Some(confirm) = &app.window.confirm else {
+fn confirm_ui(
+    confirm: Option<&super::Confirm>,
+    session: Option<&crate::session::Session>,
+    out: &mut Vec<Command>,
+    ctx: &egui::Context,
+) {
+    let Some(confirm) = confirm else {
         return;
     };
     let (title, text, yes) = match confirm {
         super::Confirm::RemoveShot(id) => {
-            let name = app
-                .session()
+            let name = session
                 .and_then(|s| s.shot(*id))
                 .map_or_else(|| "this shot".into(), crate::session::Shot::name);
             (
@@ -146,10 +164,10 @@ fn confirm_ui(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Context) {
 }
 
 /// Every message of this run with its time, newest at the bottom; errors in red.
-fn log_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+fn log_ui(window: &Window, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         ui.strong("Log");
-        ui.label(match app.window.log.len() {
+        ui.label(match window.log.len() {
             1 => "1 message".to_owned(),
             n => format!("{n} messages"),
         });
@@ -164,10 +182,10 @@ fn log_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
         .auto_shrink([false, false])
         .stick_to_bottom(true)
         .show(ui, |ui| {
-            if app.window.log.is_empty() {
+            if window.log.is_empty() {
                 ui.label(egui::RichText::new("Nothing yet.").weak());
             }
-            for m in &app.window.log {
+            for m in &window.log {
                 ui.horizontal_wrapped(|ui| {
                     ui.monospace(&m.time);
                     let text = egui::RichText::new(&m.text);
@@ -181,7 +199,7 @@ fn log_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
         });
 }
 
-fn dropped_files(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Context) {
+fn dropped_files(view: View, out: &mut Vec<Command>, ctx: &egui::Context) {
     let files: Vec<_> = ctx.input(|i| {
         i.raw
             .dropped_files
@@ -194,7 +212,7 @@ fn dropped_files(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Context) {
         return;
     }
     // A photo dropped on the Deblur view is opened there; anywhere else files are shots.
-    if app.view == View::Deblur
+    if view == View::Deblur
         && let [one] = files.as_slice()
     {
         out.push(Command::OpenPhoto(one.clone()));
@@ -249,7 +267,7 @@ fn status_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
                 Some(p) => (p.stage.clone(), 0.0, String::new()),
                 None => ("starting".into(), 0.0, String::new()),
             };
-            ui.label(format!("{}: {stage}", h.name));
+            ui.label(format!("{}: {stage}", h.kind));
             ui.add(
                 egui::ProgressBar::new(frac)
                     .desired_width(240.0)
@@ -411,16 +429,9 @@ fn caption(painter: &egui::Painter, pos: Pos2, align: egui::Align2, text: String
 
 /// The 1-σ ellipse of `g` scaled by `scale` screen points per px, as a closed polyline.
 fn ellipse_points(centre: Pos2, g: &Gaussian2, scale: f32) -> Vec<Pos2> {
-    let (sx, sy, r) = (g.sigma_x, g.sigma_y, g.rho.clamp(-0.999, 0.999));
-    // Cholesky factor of the covariance maps the unit circle onto the 1-σ ellipse.
-    let l21 = r * sy;
-    let l22 = sy * (1.0 - r * r).sqrt();
-    (0..=40)
-        .map(|k| {
-            let t = f64::from(k) / 40.0 * std::f64::consts::TAU;
-            let (c, s) = (t.cos(), t.sin());
-            centre + Vec2::new((sx * c) as f32, (l21 * c + l22 * s) as f32) * scale
-        })
+    crate::review::ellipse_outline(g, 40)
+        .into_iter()
+        .map(|[x, y]| centre + Vec2::new(x as f32, y as f32) * scale)
         .collect()
 }
 
@@ -454,21 +465,35 @@ fn setting_drag_values(
     (rf, ra)
 }
 
-fn setting_sliders_ui(
-    app: &StudioApp,
-    out: &mut Vec<Command>,
-    ui: &mut egui::Ui,
-    lens: &VirtualLens,
-) {
-    let (f_range, a_range) = setting_ranges(app, lens);
-    let (mut focal_mm, mut f_number) = (app.views.field.focal_mm, app.views.field.f_number);
+/// What the setting sliders show: the ranges they span (the profile's, else the
+/// session's, else the demo lens's), where they stand, and the focal lengths and
+/// apertures shot (ticks on their rails).
+pub(super) struct Sliders<'a> {
+    ranges: ([f64; 2], [f64; 2]),
+    setting: (f64, f64),
+    shot_at: Option<(&'a [f64], &'a [f64])>,
+}
+
+impl<'a> Sliders<'a> {
+    pub(super) fn of(app: &'a StudioApp, lens: &VirtualLens) -> Self {
+        Self {
+            ranges: setting_ranges(app, lens),
+            setting: (app.views.field.focal_mm, app.views.field.f_number),
+            shot_at: app
+                .data
+                .calibrated
+                .as_ref()
+                .filter(|c| !c.focal_mm.is_empty() || !c.f_number.is_empty())
+                .map(|c| (c.focal_mm.as_slice(), c.f_number.as_slice())),
+        }
+    }
+}
+
+fn setting_sliders_ui(sliders: &Sliders<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+    let (f_range, a_range) = sliders.ranges;
+    let (mut focal_mm, mut f_number) = sliders.setting;
     let mut changed = false;
-    let shot_at = app
-        .data
-        .calibrated
-        .as_ref()
-        .filter(|c| !c.focal_mm.is_empty() || !c.f_number.is_empty())
-        .map(|c| (c.focal_mm.clone(), c.f_number.clone()));
+    let shot_at = sliders.shot_at;
     ui.horizontal(|ui| {
         let rail_left = ui.cursor().left();
         let r = ui.add(

@@ -2,6 +2,7 @@
 //! distributions of the chosen models (Fig. 6), the profile in use; load and save; and
 //! what the session's settings allow the model, with what to shoot next.
 
+use super::super::view_data::Calibrated;
 use super::super::{Command, PlotId, StudioApp};
 use super::{TIP_ALPHA, TIP_BETA, TIP_COR, TIP_CXX, TIP_CYY};
 use egui::Color32;
@@ -28,10 +29,61 @@ pub(super) fn models_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::
 /// The view's content; `view_h` is the height of the window's part it scrolls in, so
 /// the plots fill what is left of it and keep [`MIN_PLOT_H`] when little is.
 fn models_body_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, view_h: f32) {
-    use egui_plot::{
-        Corner, Legend, Line, LineStyle, MarkerShape, Plot, PlotPoints, Points, VLine,
-    };
     ui.heading("Models");
+    profile_buttons_ui(app, out, ui);
+    advice_ui(app.data.calibrated.as_ref(), ui);
+    egui::CollapsingHeader::new("Shooting plan")
+        // A header of its own once a profile exists, so it folds then (the plots take
+        // the view) even where it was open before calibration.
+        .id_salt(("shooting plan", app.profile().is_some()))
+        .default_open(app.profile().is_none())
+        .show(ui, |ui| plan_ui(app, out, ui));
+    profile_summary_ui(app, ui);
+    let Some(cv) = app.cv().cloned() else {
+        ui.label("Cross-validation curves over α and β (paper Fig. 5) and the error distributions (Fig. 6) appear after a calibration that selects α and β.");
+        return;
+    };
+    ui.label(format!(
+        "Cross-validation: {} shots in {} folds, whole shots held out. Errors are % of each parameter's 99 % range (C_xx {:.3} px, C_yy {:.3} px, C_or {:.3}).",
+        cv.shots, cv.folds, cv.ranges.cxx, cv.ranges.cyy, cv.ranges.cor
+    ));
+    let families: Vec<(&str, &crate::crossval::Selection)> =
+        [("global", cv.global.as_ref()), ("local", cv.local.as_ref())]
+            .into_iter()
+            .filter_map(|(n, s)| s.map(|s| (n, s)))
+            .collect();
+    chosen_models_ui(ui, &families);
+    let avail = ui.available_size();
+    let used = ui.cursor().top() - ui.max_rect().top();
+    let size = PlotSize {
+        width: (avail.x - 24.0) / 3.0,
+        // Room below for the x axis's title and the scroll area's margin.
+        height: (view_h - used - 44.0).max(MIN_PLOT_H),
+        // Fixed bounds are kept in the plot's memory: a new report gets a new plot.
+        report_id: std::sync::Arc::as_ptr(&cv) as usize,
+    };
+    ui.horizontal(|ui| {
+        for (title, tip, by_alpha) in [
+            ("CV error vs α (β = N − 1)", TIP_ALPHA, true),
+            ("CV error vs β (chosen α)", TIP_BETA, false),
+        ] {
+            cv_order_plot_ui(out, ui, &families, (title, tip, by_alpha), size);
+        }
+        cv_cdf_plot_ui(out, ui, &families, size);
+    });
+}
+
+/// Where the three plots go: their size, and the report they show (part of each plot's
+/// id).
+#[derive(Clone, Copy)]
+struct PlotSize {
+    width: f32,
+    height: f32,
+    report_id: usize,
+}
+
+/// Run calibration, load and save a profile.
+fn profile_buttons_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         if ui
             .button("Run calibration")
@@ -55,13 +107,11 @@ fn models_body_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, vi
             out.push(Command::SaveProfileDialog);
         }
     });
-    advice_ui(app, ui);
-    egui::CollapsingHeader::new("Shooting plan")
-        // A header of its own once a profile exists, so it folds then (the plots take
-        // the view) even where it was open before calibration.
-        .id_salt(("shooting plan", app.profile().is_some()))
-        .default_open(app.profile().is_none())
-        .show(ui, |ui| plan_ui(app, out, ui));
+}
+
+/// The profile in use: its file, model and orders, calibrated range; and its shape
+/// model's cross-validation.
+fn profile_summary_ui(app: &StudioApp, ui: &mut egui::Ui) {
     if let Some((path, p)) = app.profile() {
         let kind = format!("{:?}", p.preferred).to_lowercase();
         let orders = |k: crate::model::ModelKind, g: Option<(usize, usize)>| {
@@ -88,20 +138,10 @@ fn models_body_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, vi
     } else {
         ui.label("No profile yet — press Calibrate once kernels are measured on the shots, or load a profile.");
     }
-    let Some(cv) = app.cv().cloned() else {
-        ui.label("Cross-validation curves over α and β (paper Fig. 5) and the error distributions (Fig. 6) appear after a calibration that selects α and β.");
-        return;
-    };
-    ui.label(format!(
-        "Cross-validation: {} shots in {} folds, whole shots held out. Errors are % of each parameter's 99 % range (C_xx {:.3} px, C_yy {:.3} px, C_or {:.3}).",
-        cv.shots, cv.folds, cv.ranges.cxx, cv.ranges.cyy, cv.ranges.cor
-    ));
-    let report_id = std::sync::Arc::as_ptr(&cv) as usize;
-    let families: Vec<(&str, &crate::crossval::Selection)> =
-        [("global", cv.global.as_ref()), ("local", cv.local.as_ref())]
-            .into_iter()
-            .filter_map(|(n, s)| s.map(|s| (n, s)))
-            .collect();
+}
+
+/// The chosen α and β of each family with their held-out errors.
+fn chosen_models_ui(ui: &mut egui::Ui, families: &[(&str, &crate::crossval::Selection)]) {
     egui::Grid::new("cv-chosen")
         .striped(true)
         .spacing([18.0, 4.0])
@@ -115,7 +155,7 @@ fn models_body_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, vi
             ui.label("C_or").on_hover_text(TIP_COR);
             ui.label("95th percentile C_xx / C_yy / C_or");
             ui.end_row();
-            for (name, sel) in &families {
+            for (name, sel) in families {
                 ui.colored_label(family_color(name), *name);
                 ui.monospace(sel.alpha.to_string());
                 ui.monospace(sel.beta.to_string());
@@ -132,11 +172,25 @@ fn models_body_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, vi
                 ui.end_row();
             }
         });
-    let avail = ui.available_size();
-    let plot_w = (avail.x - 24.0) / 3.0;
-    let used = ui.cursor().top() - ui.max_rect().top();
-    // Room below for the x axis's title and the scroll area's margin.
-    let plot_h = (view_h - used - 44.0).max(MIN_PLOT_H);
+}
+
+/// The cross-validation error over α (`by_alpha`) or β, one curve per family, the
+/// chosen order marked.
+fn cv_order_plot_ui(
+    out: &mut Vec<Command>,
+    ui: &mut egui::Ui,
+    families: &[(&str, &crate::crossval::Selection)],
+    (title, tip, by_alpha): (&str, &str, bool),
+    size: PlotSize,
+) {
+    use egui_plot::{
+        Corner, Legend, Line, LineStyle, MarkerShape, Plot, PlotPoints, Points, VLine,
+    };
+    let PlotSize {
+        width: plot_w,
+        height: plot_h,
+        report_id,
+    } = size;
     let integer_ticks = |mark: egui_plot::GridMark, _: &std::ops::RangeInclusive<f64>| {
         if (mark.value - mark.value.round()).abs() < 1e-9 {
             format!("{:.0}", mark.value)
@@ -167,135 +221,140 @@ fn models_body_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, vi
             1.0
         }
     };
-    ui.horizontal(|ui| {
-        for (title, tip, by_alpha) in [
-            ("CV error vs α (β = N − 1)", TIP_ALPHA, true),
-            ("CV error vs β (chosen α)", TIP_BETA, false),
-        ] {
-            ui.vertical(|ui| {
-                let off_plot = families.iter().any(|(_, sel)| {
-                    if by_alpha {
-                        &sel.alpha_curve
-                    } else {
-                        &sel.beta_curve
-                    }
-                    .iter()
-                    .any(|p| p.mean_pct > y_top(by_alpha))
-                });
-                let title = if off_plot {
-                    format!("{title}; higher errors above the plot")
-                } else {
-                    title.to_owned()
-                };
-                let id = if by_alpha {
-                    PlotId::CvAlpha
-                } else {
-                    PlotId::CvBeta
-                };
-                super::plot_title_ui(out, ui, id, title, tip, plot_w);
-                // Fixed bounds are kept in the plot's memory: a new report gets a new plot.
-                let plot = Plot::new(format!("cv-{by_alpha}-{report_id}"))
-                    .width(plot_w)
-                    .height(plot_h)
-                    .custom_x_axes(vec![
-                        super::x_axis(if by_alpha {
-                            "α (order in x, y)"
-                        } else {
-                            "β (order in f, a)"
-                        })
-                        .formatter(integer_ticks),
-                    ])
-                    .custom_y_axes(vec![super::y_axis("mean error (% of range)")])
-                    .x_grid_spacer(egui_plot::uniform_grid_spacer(|_| [1.0, 5.0, 10.0]))
-                    .default_y_bounds(0.0, y_top(by_alpha))
-                    .legend(Legend::default().position(Corner::RightTop))
-                    .allow_scroll(false);
-                super::show_plot(ui, id, plot, |plot| {
-                        for (name, sel) in &families {
-                            let color = family_color(name);
-                            let pts = crate::review::cv_curve(sel, by_alpha);
-                            plot.line(
-                                Line::new(name.to_string(), PlotPoints::from(pts.clone()))
-                                    .color(color)
-                                    .width(1.5),
-                            );
-                            plot.points(
-                                Points::new(name.to_string(), PlotPoints::from(pts))
-                                    .color(color)
-                                    .filled(true)
-                                    .radius(3.0),
-                            );
-                            // The chosen order: a dashed line; on the β curve (where the
-                            // chosen α, β lies) a diamond too. Unnamed: not in the legend.
-                            let chosen = if by_alpha { sel.alpha } else { sel.beta } as f64;
-                            plot.vline(
-                                VLine::new("", chosen)
-                                    .color(color.gamma_multiply(0.6))
-                                    .style(LineStyle::dashed_loose()),
-                            );
-                            if !by_alpha {
-                                plot.points(
-                                    Points::new(
-                                        "",
-                                        PlotPoints::from(vec![[chosen, sel.chosen.mean_pct]]),
-                                    )
-                                    .shape(MarkerShape::Diamond)
-                                    .color(color)
-                                    .filled(false)
-                                    .radius(7.0),
-                                );
-                            }
-                        }
-                    });
-            });
-        }
-        ui.vertical(|ui| {
-            super::plot_title_ui(
-                out,
-                ui,
-                PlotId::CvCdf,
-                "Error CDF of the chosen models (Fig. 6)".to_owned(),
-                "Fraction of held-out samples whose prediction error is below each value: solid C_xx, dashed C_yy, dotted C_or",
-                plot_w,
-            );
-            cdf_legend_ui(ui, &families, plot_w);
-            // The worst few samples would stretch the axis until the curves are a wall
-            // at zero: show up to the 99th percentile.
-            let x_max = families
-                .iter()
-                .flat_map(|(_, sel)| {
-                    let c = &sel.error_cdf;
-                    let at99 = c.percentiles.iter().position(|&p| p >= 99.0);
-                    [&c.cxx, &c.cyy, &c.cor]
-                        .into_iter()
-                        .filter_map(move |q| q.get(at99?).copied())
-                })
-                .fold(1e-6, f64::max);
-            let plot = Plot::new(format!("cv-cdf-{report_id}"))
-                .width(plot_w)
-                .height(plot_h - CDF_LEGEND_H)
-                .custom_x_axes(vec![super::x_axis("error (% of range)")])
-                .custom_y_axes(vec![super::y_axis("held-out samples (%)")])
-                .default_x_bounds(0.0, x_max * 1.02)
-                .default_y_bounds(0.0, 101.0)
-                .allow_scroll(false);
-            super::show_plot(ui, PlotId::CvCdf, plot, |plot| {
-                    for (name, sel) in &families {
-                        let color = family_color(name);
-                        // The legend above the plot shows these same styles.
-                        for ((param, pts), (_, style)) in
-                            crate::review::cv_cdf_curves(sel).into_iter().zip(CDF_STYLES)
-                        {
-                            plot.line(
-                                Line::new(format!("{name} {param}"), PlotPoints::from(pts))
-                                    .color(color)
-                                    .style(style)
-                                    .width(1.5),
-                            );
-                        }
-                    }
-                });
+    ui.vertical(|ui| {
+        let off_plot = families.iter().any(|(_, sel)| {
+            if by_alpha {
+                &sel.alpha_curve
+            } else {
+                &sel.beta_curve
+            }
+            .iter()
+            .any(|p| p.mean_pct > y_top(by_alpha))
         });
+        let title = if off_plot {
+            format!("{title}; higher errors above the plot")
+        } else {
+            title.to_owned()
+        };
+        let id = if by_alpha {
+            PlotId::CvAlpha
+        } else {
+            PlotId::CvBeta
+        };
+        super::plot_title_ui(out, ui, id, title, tip, plot_w);
+        // Fixed bounds are kept in the plot's memory: a new report gets a new plot.
+        let plot = Plot::new(format!("cv-{by_alpha}-{report_id}"))
+            .width(plot_w)
+            .height(plot_h)
+            .custom_x_axes(vec![
+                super::x_axis(if by_alpha {
+                    "α (order in x, y)"
+                } else {
+                    "β (order in f, a)"
+                })
+                .formatter(integer_ticks),
+            ])
+            .custom_y_axes(vec![super::y_axis("mean error (% of range)")])
+            .x_grid_spacer(egui_plot::uniform_grid_spacer(|_| [1.0, 5.0, 10.0]))
+            .default_y_bounds(0.0, y_top(by_alpha))
+            .legend(Legend::default().position(Corner::RightTop))
+            .allow_scroll(false);
+        super::show_plot(ui, id, plot, |plot| {
+            for (name, sel) in families {
+                let color = family_color(name);
+                let pts = crate::review::cv_curve(sel, by_alpha);
+                plot.line(
+                    Line::new(name.to_string(), PlotPoints::from(pts.clone()))
+                        .color(color)
+                        .width(1.5),
+                );
+                plot.points(
+                    Points::new(name.to_string(), PlotPoints::from(pts))
+                        .color(color)
+                        .filled(true)
+                        .radius(3.0),
+                );
+                // The chosen order: a dashed line; on the β curve (where the
+                // chosen α, β lies) a diamond too. Unnamed: not in the legend.
+                let chosen = if by_alpha { sel.alpha } else { sel.beta } as f64;
+                plot.vline(
+                    VLine::new("", chosen)
+                        .color(color.gamma_multiply(0.6))
+                        .style(LineStyle::dashed_loose()),
+                );
+                if !by_alpha {
+                    plot.points(
+                        Points::new("", PlotPoints::from(vec![[chosen, sel.chosen.mean_pct]]))
+                            .shape(MarkerShape::Diamond)
+                            .color(color)
+                            .filled(false)
+                            .radius(7.0),
+                    );
+                }
+            }
+        });
+    });
+}
+
+/// The held-out error distributions of the chosen models (Fig. 6).
+fn cv_cdf_plot_ui(
+    out: &mut Vec<Command>,
+    ui: &mut egui::Ui,
+    families: &[(&str, &crate::crossval::Selection)],
+    size: PlotSize,
+) {
+    use egui_plot::{Line, Plot, PlotPoints};
+    let PlotSize {
+        width: plot_w,
+        height: plot_h,
+        report_id,
+    } = size;
+    ui.vertical(|ui| {
+        super::plot_title_ui(
+            out,
+            ui,
+            PlotId::CvCdf,
+            "Error CDF of the chosen models (Fig. 6)".to_owned(),
+            "Fraction of held-out samples whose prediction error is below each value: solid C_xx, dashed C_yy, dotted C_or",
+            plot_w,
+        );
+        cdf_legend_ui(ui, families, plot_w);
+        // The worst few samples would stretch the axis until the curves are a wall
+        // at zero: show up to the 99th percentile.
+        let x_max = families
+            .iter()
+            .flat_map(|(_, sel)| {
+                let c = &sel.error_cdf;
+                let at99 = c.percentiles.iter().position(|&p| p >= 99.0);
+                [&c.cxx, &c.cyy, &c.cor]
+                    .into_iter()
+                    .filter_map(move |q| q.get(at99?).copied())
+            })
+            .fold(1e-6, f64::max);
+        let plot = Plot::new(format!("cv-cdf-{report_id}"))
+            .width(plot_w)
+            .height(plot_h - CDF_LEGEND_H)
+            .custom_x_axes(vec![super::x_axis("error (% of range)")])
+            .custom_y_axes(vec![super::y_axis("held-out samples (%)")])
+            .default_x_bounds(0.0, x_max * 1.02)
+            .default_y_bounds(0.0, 101.0)
+            .allow_scroll(false);
+        super::show_plot(ui, PlotId::CvCdf, plot, |plot| {
+                for (name, sel) in families {
+                    let color = family_color(name);
+                    // The legend above the plot shows these same styles.
+                    for ((param, pts), (_, style)) in
+                        crate::review::cv_cdf_curves(sel).into_iter().zip(CDF_STYLES)
+                    {
+                        plot.line(
+                            Line::new(format!("{name} {param}"), PlotPoints::from(pts))
+                                .color(color)
+                                .style(style)
+                                .width(1.5),
+                        );
+                    }
+                }
+            });
     });
 }
 
@@ -350,8 +409,8 @@ fn cdf_legend_ui(ui: &mut egui::Ui, families: &[(&str, &crate::crossval::Selecti
 
 /// What the session's settings allow the model: warnings where it cannot be
 /// determined, notes where it is limited, each saying what to shoot next.
-pub(super) fn advice_ui(app: &StudioApp, ui: &mut egui::Ui) {
-    let Some(c) = &app.data.calibrated else {
+pub(super) fn advice_ui(calibrated: Option<&Calibrated>, ui: &mut egui::Ui) {
+    let Some(c) = calibrated else {
         return;
     };
     for a in &c.advice {
@@ -554,7 +613,11 @@ fn plan_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
                 ui.end_row();
             }
         });
-    super::coverage::coverage_ui(app, ui);
+    super::coverage::coverage_ui(
+        app.data.coverage.as_ref().map(|(_, maps)| maps.as_slice()),
+        super::sensor_size(app),
+        ui,
+    );
 }
 
 /// What relative L2 is, for a photographer.

@@ -2,7 +2,8 @@
 //! run each stage, and the session's settings.
 
 use super::super::{Command, StudioApp};
-use crate::session::StageStatus;
+use crate::app::jobs::JobKind;
+use crate::session::{Session, Shot, StageStatus};
 use egui::{Color32, Sense};
 
 fn status_text(s: &StageStatus) -> String {
@@ -14,9 +15,9 @@ fn status_text(s: &StageStatus) -> String {
 }
 
 pub(super) fn session_panel_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
-    let Some(session) = app.project.as_ref().map(crate::project::Project::session) else {
+    let Some(session) = app.session() else {
         ui.heading("Session");
-        if app.jobs.is_running("demo session") {
+        if app.jobs.is_running(JobKind::DemoSession) {
             ui.label("Making the demo session: simulated calibration shots of the virtual lens (first launch only; progress below)…");
         } else {
             ui.label("No session open. Open or create a session folder (Ctrl+O).");
@@ -27,7 +28,7 @@ pub(super) fn session_panel_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut
         .on_hover_text(format!("Session folder: {}", session.folder().display()));
     if session.is_demo {
         ui.label("Demo: shots simulated from the virtual lens, whose true blur is known.");
-        if app.jobs.is_running("demo session") {
+        if app.jobs.is_running(JobKind::DemoSession) {
             ui.label(
                 egui::RichText::new(
                     "More shots arrive as they are simulated (first launch only; progress below).",
@@ -36,6 +37,32 @@ pub(super) fn session_panel_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut
             );
         }
     }
+    stage_buttons_ui(out, ui);
+    ui.separator();
+    let n = session.shots.len();
+    ui.label(if n == 1 {
+        "1 shot".to_owned()
+    } else {
+        format!("{n} shots")
+    });
+    for shot in &session.shots {
+        shot_entry_ui(app, session, shot, out, ui);
+    }
+    if n > 0 {
+        ui.label(
+            egui::RichText::new(
+                "Right-click a shot to detect it or estimate its kernels again (only that shot), or to remove it.",
+            )
+            .small()
+            .weak(),
+        );
+    }
+    ui.separator();
+    settings_ui(app, out, ui);
+}
+
+/// The buttons that run each stage over the session.
+fn stage_buttons_ui(out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.horizontal_wrapped(|ui| {
         if ui
             .button(egui::RichText::new("Calibrate all").strong())
@@ -77,148 +104,138 @@ pub(super) fn session_panel_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut
             out.push(Command::RunCalibrate);
         }
     });
-    ui.separator();
-    let n = session.shots.len();
-    ui.label(if n == 1 {
-        "1 shot".to_owned()
+}
+
+/// One shot: its thumbnail, name, settings and stage results; a click selects it, a
+/// right-click offers its stages again and its removal.
+fn shot_entry_ui(
+    app: &StudioApp,
+    session: &Session,
+    shot: &Shot,
+    out: &mut Vec<Command>,
+    ui: &mut egui::Ui,
+) {
+    let id = shot.id;
+    let selected = app.views.shot.selected == Some(id);
+    let frame = egui::Frame::group(ui.style()).fill(if selected {
+        ui.visuals().selection.bg_fill.gamma_multiply(0.35)
     } else {
-        format!("{n} shots")
+        Color32::TRANSPARENT
     });
-    for shot in &session.shots {
-        let id = shot.id;
-        let selected = app.views.shot.selected == Some(id);
-        let frame = egui::Frame::group(ui.style()).fill(if selected {
-            ui.visuals().selection.bg_fill.gamma_multiply(0.35)
-        } else {
-            Color32::TRANSPARENT
-        });
-        let r = frame.show(ui, |ui| {
-            ui.horizontal(|ui| {
-                match (
-                    app.preview(id).and_then(|p| p.thumbnail.as_ref()),
-                    app.unreadable(id),
-                ) {
-                    (Some(t), _) => {
-                        let size = t.size_vec2() * (72.0 / t.size_vec2().x.max(1.0));
-                        ui.image((t.id(), size));
-                    }
-                    (None, Some(reason)) => {
-                        ui.add_sized(
-                            [72.0, 48.0],
-                            egui::Label::new(
-                                egui::RichText::new("unreadable")
-                                    .color(ui.visuals().error_fg_color),
-                            ),
-                        )
-                        .on_hover_text(reason);
-                    }
-                    (None, None) => {
-                        ui.add_sized([72.0, 48.0], egui::Spinner::new());
-                    }
+    let r = frame.show(ui, |ui| {
+        ui.horizontal(|ui| {
+            match (
+                app.preview(id).and_then(|p| p.thumbnail.as_ref()),
+                app.unreadable(id),
+            ) {
+                (Some(t), _) => {
+                    let size = t.size_vec2() * (72.0 / t.size_vec2().x.max(1.0));
+                    ui.image((t.id(), size));
                 }
-                ui.vertical(|ui| {
-                    let name = shot.path.file_name().map_or_else(
-                        || shot.path.display().to_string(),
-                        |n| n.to_string_lossy().into_owned(),
+                (None, Some(reason)) => {
+                    ui.add_sized(
+                        [72.0, 48.0],
+                        egui::Label::new(
+                            egui::RichText::new("unreadable").color(ui.visuals().error_fg_color),
+                        ),
+                    )
+                    .on_hover_text(reason);
+                }
+                (None, None) => {
+                    ui.add_sized([72.0, 48.0], egui::Spinner::new());
+                }
+            }
+            ui.vertical(|ui| {
+                let name = shot.path.file_name().map_or_else(
+                    || shot.path.display().to_string(),
+                    |n| n.to_string_lossy().into_owned(),
+                );
+                if ui
+                    .selectable_label(selected, name)
+                    .on_hover_text(app.shown_path(&session.path_of(shot)))
+                    .clicked()
+                {
+                    out.push(Command::SelectShot(id));
+                }
+                ui.horizontal(|ui| {
+                    // Unknown settings show as "?" (0 internally) until the user drags.
+                    let mut f = shot.focal_mm.unwrap_or(0.0);
+                    let mut a = shot.f_number.unwrap_or(0.0);
+                    let (rf, ra) = super::setting_drag_values(
+                        ui,
+                        (&mut f, &mut a),
+                        [
+                            "focal length, mm (from EXIF; drag or type)",
+                            "aperture, f-number (from EXIF; drag or type)",
+                        ],
                     );
-                    if ui
-                        .selectable_label(selected, name)
-                        .on_hover_text(app.shown_path(&session.path_of(shot)))
-                        .clicked()
-                    {
-                        out.push(Command::SelectShot(id));
+                    if rf.changed() || ra.changed() {
+                        out.push(Command::SetShotSetting {
+                            shot: id,
+                            focal_mm: (f > 0.0).then_some(f),
+                            f_number: (a > 0.0).then_some(a),
+                        });
                     }
-                    ui.horizontal(|ui| {
-                        // Unknown settings show as "?" (0 internally) until the user drags.
-                        let mut f = shot.focal_mm.unwrap_or(0.0);
-                        let mut a = shot.f_number.unwrap_or(0.0);
-                        let (rf, ra) = super::setting_drag_values(
-                            ui,
-                            (&mut f, &mut a),
-                            [
-                                "focal length, mm (from EXIF; drag or type)",
-                                "aperture, f-number (from EXIF; drag or type)",
-                            ],
-                        );
-                        if rf.changed() || ra.changed() {
-                            out.push(Command::SetShotSetting {
-                                shot: id,
-                                focal_mm: (f > 0.0).then_some(f),
-                                f_number: (a > 0.0).then_some(a),
-                            });
-                        }
-                    });
-                    let failed = matches!(shot.detect, StageStatus::Failed { .. })
-                        || matches!(shot.kernels, StageStatus::Failed { .. });
-                    let text = egui::RichText::new(format!(
-                        "detect: {}\nkernels: {}",
-                        status_text(&shot.detect),
-                        status_text(&shot.kernels)
-                    ))
-                    .small();
-                    let text = if failed {
-                        text.color(ui.visuals().error_fg_color)
-                    } else {
-                        text
-                    };
-                    ui.add(egui::Label::new(text).wrap());
                 });
+                let failed = matches!(shot.detect, StageStatus::Failed { .. })
+                    || matches!(shot.kernels, StageStatus::Failed { .. });
+                let text = egui::RichText::new(format!(
+                    "detect: {}\nkernels: {}",
+                    status_text(&shot.detect),
+                    status_text(&shot.kernels)
+                ))
+                .small();
+                let text = if failed {
+                    text.color(ui.visuals().error_fg_color)
+                } else {
+                    text
+                };
+                ui.add(egui::Label::new(text).wrap());
             });
         });
-        let response = r.response.interact(Sense::click());
-        if response.clicked() {
-            out.push(Command::SelectShot(id));
+    });
+    let response = r.response.interact(Sense::click());
+    if response.clicked() {
+        out.push(Command::SelectShot(id));
+    }
+    // Each entry says what it will do for this shot: run a stage for the first
+    // time or again, or why it cannot yet.
+    let detected = app.detection(id).is_some();
+    let measured = app.kernels(id).is_some();
+    response.context_menu(|ui| {
+        let detect = if detected {
+            "Detect this shot again"
+        } else {
+            "Detect this shot"
+        };
+        if ui.button(detect).clicked() {
+            out.push(Command::RunDetect(Some(id)));
+            ui.close();
         }
-        // Each entry says what it will do for this shot: run a stage for the first
-        // time or again, or why it cannot yet.
-        let detected = app.detection(id).is_some();
-        let measured = app.kernels(id).is_some();
-        response.context_menu(|ui| {
-            let detect = if detected {
-                "Detect this shot again"
-            } else {
-                "Detect this shot"
-            };
-            if ui.button(detect).clicked() {
-                out.push(Command::RunDetect(Some(id)));
-                ui.close();
-            }
-            let kernels = if measured {
-                "Estimate its kernels again"
-            } else {
-                "Estimate its kernels"
-            };
-            if ui
-                .add_enabled(detected, egui::Button::new(kernels))
-                .on_disabled_hover_text("Detect the chart in this shot first")
-                .clicked()
-            {
-                out.push(Command::RunKernels(Some(id)));
-                ui.close();
-            }
-            if ui.button("Remove from the session…").clicked() {
-                out.push(Command::AskConfirm(super::super::Confirm::RemoveShot(id)));
-                ui.close();
-            }
-        });
-    }
-    if n > 0 {
-        ui.label(
-            egui::RichText::new(
-                "Right-click a shot to detect it or estimate its kernels again (only that shot), or to remove it.",
-            )
-            .small()
-            .weak(),
-        );
-    }
-    ui.separator();
-    settings_ui(app, out, ui);
+        let kernels = if measured {
+            "Estimate its kernels again"
+        } else {
+            "Estimate its kernels"
+        };
+        if ui
+            .add_enabled(detected, egui::Button::new(kernels))
+            .on_disabled_hover_text("Detect the chart in this shot first")
+            .clicked()
+        {
+            out.push(Command::RunKernels(Some(id)));
+            ui.close();
+        }
+        if ui.button("Remove from the session…").clicked() {
+            out.push(Command::AskConfirm(super::super::Confirm::RemoveShot(id)));
+            ui.close();
+        }
+    });
 }
 
 /// The chart and the stage settings, edited on a copy and applied by one button (a
 /// change of chart or kernel settings makes earlier results stale).
 fn settings_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
-    let Some(session) = app.project.as_ref().map(crate::project::Project::session) else {
+    let Some(session) = app.session() else {
         return;
     };
     let current = (session.chart.clone(), session.settings.clone());

@@ -6,108 +6,33 @@
 //!
 //! Draws the map `view_data` made; computes nothing.
 
-use super::super::{Command, FieldSource, StudioApp};
+use super::super::view_data::SharpnessData;
+use super::super::{Command, FieldSource, SharpnessChoice};
 use super::field::colour_bar_ui;
-use super::{caption, setting_sliders_ui};
+use super::{Sliders, caption, setting_sliders_ui};
 use crate::review::{Mtf50Direction, SharpnessUnit};
-use crate::simulate::VirtualLens;
 use egui::{Color32, Rect, Sense, Vec2};
 
 const TIP_MAP: &str = "MTF50: the spatial frequency at which the lens keeps half its contrast, from the blur's Gaussian (the pixel's own aperture included; demosaicing and sharpening not). Higher is sharper. Worst: along the direction the blur is widest, what every direction resolves at least; best: along the narrowest; isotropic: the round blur of the same area.";
 
-pub(super) fn sharpness_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+/// The view, from its own state (`choice`), its view data (`data`: the map, absent
+/// while it is made) and the setting sliders' inputs.
+pub(super) fn sharpness_ui(
+    choice: SharpnessChoice,
+    data: Option<&SharpnessData>,
+    sliders: &Sliders<'_>,
+    out: &mut Vec<Command>,
+    ui: &mut egui::Ui,
+) {
     ui.heading("Sharpness map");
-    let choice = app.views.sharpness;
-    let mut next = choice;
-    ui.horizontal_wrapped(|ui| {
-        for (src, label, tip) in [
-            (
-                FieldSource::Measured,
-                "Measured",
-                "What the selected shot's kernels measured, interpolated between the chart's squares",
-            ),
-            (
-                FieldSource::Predicted,
-                "Predicted",
-                "What the profile predicts at the focal length and aperture of the sliders",
-            ),
-            (
-                FieldSource::Truth,
-                "Ground truth",
-                "The demo lens's exact blur (demo session only)",
-            ),
-        ] {
-            if ui
-                .selectable_label(choice.source == src, label)
-                .on_hover_text(tip)
-                .clicked()
-            {
-                next.source = src;
-            }
-        }
-        ui.separator();
-        for d in Mtf50Direction::ALL {
-            if ui
-                .selectable_label(choice.direction == d, d.label())
-                .on_hover_text(TIP_MAP)
-                .clicked()
-            {
-                next.direction = d;
-            }
-        }
-        ui.separator();
-        for (u, tip) in [
-            (
-                SharpnessUnit::LpPerPictureHeight,
-                "Line pairs per picture height: comparable between cameras of different resolution",
-            ),
-            (
-                SharpnessUnit::CyclesPerPixel,
-                "Cycles per pixel: 0.5 is the sensor's Nyquist frequency",
-            ),
-        ] {
-            if ui
-                .selectable_label(choice.unit == u, u.label())
-                .on_hover_text(tip)
-                .clicked()
-            {
-                next.unit = u;
-            }
-        }
-        ui.separator();
-        let ready = app
-            .data
-            .sharpness
-            .as_ref()
-            .is_some_and(|d| d.map.is_ok());
-        for (png, label, tip) in [
-            (
-                true,
-                "Save PNG…",
-                "Save the map as a PNG with its title and colour bar",
-            ),
-            (
-                false,
-                "Save CSV…",
-                "Save the map as CSV: each cell's sensor position and MTF50 in both units",
-            ),
-        ] {
-            if ui
-                .add_enabled(ready, egui::Button::new(label))
-                .on_hover_text(tip)
-                .clicked()
-            {
-                out.push(Command::SaveSharpnessDialog { png });
-            }
-        }
-    });
+    let next = choices_ui(choice, data.is_some_and(|d| d.map.is_ok()), out, ui);
     if next != choice {
         out.push(Command::SetSharpness(next));
     }
     if choice.source != FieldSource::Measured {
-        setting_sliders_ui(app, out, ui, &VirtualLens::demo());
+        setting_sliders_ui(sliders, out, ui);
     }
-    let Some(data) = app.data.sharpness.as_ref() else {
+    let Some(data) = data else {
         ui.weak("preparing the map…");
         return;
     };
@@ -189,4 +114,93 @@ pub(super) fn sharpness_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egu
         ui.add_space(6.0);
         colour_bar_ui(ui, scale, 0, TIP_MAP);
     }
+}
+
+/// Where the map comes from, which MTF50 and unit (the choice as changed this frame),
+/// and its saving (`ready`: there is a map to save).
+fn choices_ui(
+    choice: SharpnessChoice,
+    ready: bool,
+    out: &mut Vec<Command>,
+    ui: &mut egui::Ui,
+) -> SharpnessChoice {
+    let mut next = choice;
+    ui.horizontal_wrapped(|ui| {
+        for (src, label, tip) in [
+            (
+                FieldSource::Measured,
+                "Measured",
+                "What the selected shot's kernels measured, interpolated between the chart's squares",
+            ),
+            (
+                FieldSource::Predicted,
+                "Predicted",
+                "What the profile predicts at the focal length and aperture of the sliders",
+            ),
+            (
+                FieldSource::Truth,
+                "Ground truth",
+                "The demo lens's exact blur (demo session only)",
+            ),
+        ] {
+            if ui
+                .selectable_label(choice.source == src, label)
+                .on_hover_text(tip)
+                .clicked()
+            {
+                next.source = src;
+            }
+        }
+        ui.separator();
+        for d in Mtf50Direction::ALL {
+            if ui
+                .selectable_label(choice.direction == d, d.label())
+                .on_hover_text(TIP_MAP)
+                .clicked()
+            {
+                next.direction = d;
+            }
+        }
+        ui.separator();
+        for (u, tip) in [
+            (
+                SharpnessUnit::LpPerPictureHeight,
+                "Line pairs per picture height: comparable between cameras of different resolution",
+            ),
+            (
+                SharpnessUnit::CyclesPerPixel,
+                "Cycles per pixel: 0.5 is the sensor's Nyquist frequency",
+            ),
+        ] {
+            if ui
+                .selectable_label(choice.unit == u, u.label())
+                .on_hover_text(tip)
+                .clicked()
+            {
+                next.unit = u;
+            }
+        }
+        ui.separator();
+        for (png, label, tip) in [
+            (
+                true,
+                "Save PNG…",
+                "Save the map as a PNG with its title and colour bar",
+            ),
+            (
+                false,
+                "Save CSV…",
+                "Save the map as CSV: each cell's sensor position and MTF50 in both units",
+            ),
+        ] {
+            if ui
+                .add_enabled(ready, egui::Button::new(label))
+                .on_hover_text(tip)
+                .clicked()
+            {
+                out.push(Command::SaveSharpnessDialog { png });
+            }
+        }
+    });
+    next
 }

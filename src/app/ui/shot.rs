@@ -9,8 +9,10 @@ use super::super::view_data::Inspecting;
 use super::super::{Command, ShotView, StudioApp, ViewerState};
 use super::{caption, ellipse_points};
 use crate::detect::{Detection, SquareStatus};
-use crate::session::StageStatus;
+use crate::plane::ChannelPlane;
+use crate::session::{Session, Shot, StageStatus};
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
+use std::sync::Arc;
 
 /// Sensor-to-screen mapping of the shot viewer.
 struct SensorView {
@@ -51,7 +53,7 @@ fn shot_body_ui(
     ui: &mut egui::Ui,
     viewer: &mut ViewerState,
 ) {
-    let Some(session) = app.project.as_ref().map(crate::project::Project::session) else {
+    let Some(session) = app.session() else {
         ui.label("No session yet.");
         return;
     };
@@ -60,59 +62,8 @@ fn shot_body_ui(
         return;
     };
     let index = shot.id;
-    ui.horizontal(|ui| {
-        ui.heading(app.shown_path(&session.path_of(shot)));
-        match shot.setting() {
-            Some(s) => ui.label(format!("{:.0} mm  f/{:.1}", s.focal_mm, s.f_number)),
-            None => ui.colored_label(
-                ui.visuals().warn_fg_color,
-                "settings unknown: type f and a in the shot list",
-            ),
-        };
-    });
     let detected = app.detection(index).cloned();
-    ui.horizontal_wrapped(|ui| {
-        match &shot.detect {
-            StageStatus::Pending => {
-                ui.label("No detection yet — press Detect (Ctrl+D) to overlay squares, corners and the chart grid.");
-            }
-            StageStatus::Failed { reason } => {
-                ui.colored_label(
-                    ui.visuals().error_fg_color,
-                    format!("Detection failed: {reason}"),
-                );
-            }
-            StageStatus::Done { summary } => {
-                ui.label(format!("Detection: {summary}."));
-            }
-        }
-        if let Some(det) = &detected {
-            let reasons = crate::review::skip_reasons(det);
-            if !reasons.is_empty() {
-                let text = reasons
-                    .iter()
-                    .map(|(r, n)| format!("{r} ({n})"))
-                    .collect::<Vec<_>>()
-                    .join(", ");
-                ui.colored_label(ui.visuals().warn_fg_color, format!("skipped: {text}"));
-            }
-        }
-        if app.preview(index).is_some_and(|p| p.developed.is_some()) {
-            ui.separator();
-            ui.checkbox(&mut viewer.developed, "developed")
-                .on_hover_text("The RAW as a RAW editor shows it (imagepipe: demosaic, white balance, colour, tone); off: the selected channel's linear CFA plane, which is what is measured");
-        }
-        if detected.is_some() {
-            ui.separator();
-            ui.checkbox(&mut viewer.show_squares, "squares")
-                .on_hover_text("Each square's refined outline, coloured by its alignment residual");
-            ui.checkbox(&mut viewer.show_circles, "circles & corners")
-                .on_hover_text("The chart's circles projected through each square's own homography, and its corners (when zoomed in, or on the selected square)");
-            ui.checkbox(&mut viewer.show_grid, "chart grid")
-                .on_hover_text("The whole chart's grid projected through the global homography");
-            residual_legend_ui(ui);
-        }
-    });
+    shot_header_ui(app, session, shot, &detected, viewer, ui);
     // The field alone is borrowed: the view pushes commands while it holds the preview.
     let Some(preview) = app.shots.get(&index).and_then(ShotView::preview) else {
         match app.unreadable(index) {
@@ -191,11 +142,124 @@ fn shot_body_ui(
             .inner;
         out.extend(command);
     }
-    let fit = (rect.width() / cap.width as f32).min(rect.height() / cap.height as f32);
-    let sensor_centre = [
-        (cap.width as f32 - 1.0) / 2.0,
-        (cap.height as f32 - 1.0) / 2.0,
-    ];
+    let view = navigate(ui, &response, rect, (cap.width, cap.height), viewer);
+    let painter = ui.painter_at(rect);
+    painter.rect_filled(rect, 0.0, super::image_backdrop(ui));
+    let tex_size = texture.size_vec2();
+    // Plane pixel (i, j) covers sensor [step·i + ox ± step/2]: the texture's outer edges.
+    let min = view.to_screen(ox - step / 2.0, oy - step / 2.0);
+    let max = view.to_screen(
+        ox + step * (f64::from(tex_size.x) - 0.5),
+        oy + step * (f64::from(tex_size.y) - 0.5),
+    );
+    painter.image(
+        texture.id(),
+        Rect::from_min_max(min, max),
+        Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)),
+        Color32::WHITE,
+    );
+    if let Some(det) = &detected {
+        let clicked = response
+            .clicked()
+            .then(|| response.interact_pointer_pos())
+            .flatten()
+            .map(|p| view.to_sensor(p));
+        let overlay = Overlay {
+            squares: viewer.show_squares,
+            circles: viewer.show_circles,
+            grid: viewer.show_grid,
+        };
+        if let Some(sq) = detection_overlay(
+            &painter,
+            &view,
+            det,
+            &session.chart,
+            overlay,
+            app.views.shot.square,
+            clicked,
+        ) {
+            out.push(Command::SelectSquare(sq));
+        }
+    }
+    captions(app, &painter, &view, plane, response.hover_pos());
+}
+
+/// The shot's name and setting, its detection's outcome and what it skipped, and the
+/// viewer's switches.
+fn shot_header_ui(
+    app: &StudioApp,
+    session: &Session,
+    shot: &Shot,
+    detected: &Option<Arc<Detection>>,
+    viewer: &mut ViewerState,
+    ui: &mut egui::Ui,
+) {
+    let index = shot.id;
+    ui.horizontal(|ui| {
+        ui.heading(app.shown_path(&session.path_of(shot)));
+        match shot.setting() {
+            Some(s) => ui.label(format!("{:.0} mm  f/{:.1}", s.focal_mm, s.f_number)),
+            None => ui.colored_label(
+                ui.visuals().warn_fg_color,
+                "settings unknown: type f and a in the shot list",
+            ),
+        };
+    });
+    ui.horizontal_wrapped(|ui| {
+        match &shot.detect {
+            StageStatus::Pending => {
+                ui.label("No detection yet — press Detect (Ctrl+D) to overlay squares, corners and the chart grid.");
+            }
+            StageStatus::Failed { reason } => {
+                ui.colored_label(
+                    ui.visuals().error_fg_color,
+                    format!("Detection failed: {reason}"),
+                );
+            }
+            StageStatus::Done { summary } => {
+                ui.label(format!("Detection: {summary}."));
+            }
+        }
+        if let Some(det) = &detected {
+            let reasons = crate::review::skip_reasons(det);
+            if !reasons.is_empty() {
+                let text = reasons
+                    .iter()
+                    .map(|(r, n)| format!("{r} ({n})"))
+                    .collect::<Vec<_>>()
+                    .join(", ");
+                ui.colored_label(ui.visuals().warn_fg_color, format!("skipped: {text}"));
+            }
+        }
+        if app.preview(index).is_some_and(|p| p.developed.is_some()) {
+            ui.separator();
+            ui.checkbox(&mut viewer.developed, "developed")
+                .on_hover_text("The RAW as a RAW editor shows it (imagepipe: demosaic, white balance, colour, tone); off: the selected channel's linear CFA plane, which is what is measured");
+        }
+        if detected.is_some() {
+            ui.separator();
+            ui.checkbox(&mut viewer.show_squares, "squares")
+                .on_hover_text("Each square's refined outline, coloured by its alignment residual");
+            ui.checkbox(&mut viewer.show_circles, "circles & corners")
+                .on_hover_text("The chart's circles projected through each square's own homography, and its corners (when zoomed in, or on the selected square)");
+            ui.checkbox(&mut viewer.show_grid, "chart grid")
+                .on_hover_text("The whole chart's grid projected through the global homography");
+            residual_legend_ui(ui);
+        }
+    });
+}
+
+/// Zoom about the pointer (scroll), pan (drag) and fit (double-click): where the viewer
+/// now looks, kept in `viewer` for the next frame.
+fn navigate(
+    ui: &egui::Ui,
+    response: &egui::Response,
+    rect: Rect,
+    (width, height): (usize, usize),
+    viewer: &mut ViewerState,
+) -> SensorView {
+    let fit = (rect.width() / width as f32).min(rect.height() / height as f32);
+    let sensor_centre = [(width as f32 - 1.0) / 2.0, (height as f32 - 1.0) / 2.0];
     let fitted = viewer.sensor_px_per_point.is_none();
     let mut view = SensorView {
         rect,
@@ -235,46 +299,19 @@ fn shot_body_ui(
         viewer.sensor_px_per_point = Some(1.0 / view.points_per_px);
     }
     viewer.centre_sensor = view.centre;
+    view
+}
 
-    let painter = ui.painter_at(rect);
-    painter.rect_filled(rect, 0.0, super::image_backdrop(ui));
-    let tex_size = texture.size_vec2();
-    // Plane pixel (i, j) covers sensor [step·i + ox ± step/2]: the texture's outer edges.
-    let min = view.to_screen(ox - step / 2.0, oy - step / 2.0);
-    let max = view.to_screen(
-        ox + step * (f64::from(tex_size.x) - 0.5),
-        oy + step * (f64::from(tex_size.y) - 0.5),
-    );
-    painter.image(
-        texture.id(),
-        Rect::from_min_max(min, max),
-        Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)),
-        Color32::WHITE,
-    );
-    if let Some(det) = &detected {
-        let clicked = response
-            .clicked()
-            .then(|| response.interact_pointer_pos())
-            .flatten()
-            .map(|p| view.to_sensor(p));
-        let overlay = Overlay {
-            squares: viewer.show_squares,
-            circles: viewer.show_circles,
-            grid: viewer.show_grid,
-        };
-        if let Some(sq) = detection_overlay(
-            &painter,
-            &view,
-            det,
-            &session.chart,
-            overlay,
-            app.views.shot.square,
-            clicked,
-        ) {
-            out.push(Command::SelectSquare(sq));
-        }
-    }
-    if let Some(p) = response.hover_pos() {
+/// The value under the pointer, and the channel, zoom and controls in the corner.
+fn captions(
+    app: &StudioApp,
+    painter: &egui::Painter,
+    view: &SensorView,
+    plane: Option<&ChannelPlane>,
+    hover: Option<Pos2>,
+) {
+    let rect = view.rect;
+    if let Some(p) = hover {
         let [x, y] = view.to_sensor(p);
         let v = plane.and_then(|cp| {
             let [i, j] = cp.plane_from_sensor(f64::from(x), f64::from(y));
@@ -285,14 +322,14 @@ fn shot_body_ui(
             None => format!("x {x:.1}  y {y:.1}"),
         };
         caption(
-            &painter,
+            painter,
             rect.left_bottom() + Vec2::new(6.0, -6.0),
             egui::Align2::LEFT_BOTTOM,
             text,
         );
     }
     caption(
-        &painter,
+        painter,
         rect.right_top() + Vec2::new(-6.0, 6.0),
         egui::Align2::RIGHT_TOP,
         format!(

@@ -11,7 +11,7 @@ use super::super::view_data::{
     SWEEP_LOCATIONS, SweepKind, sweep_params, sweep_series, sweep_x_label, sweep_y_label,
 };
 use super::super::{Command, PlotId, StudioApp, SweepAxis};
-use super::{TIP_COR, TIP_CXX, TIP_CYY, setting_sliders_ui};
+use super::{Sliders, TIP_COR, TIP_CXX, TIP_CYY, setting_sliders_ui};
 use crate::simulate::VirtualLens;
 use egui::Color32;
 
@@ -35,8 +35,8 @@ pub(super) fn sweeps_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::
         ui.label("Measured points appear here after Kernels (Ctrl+K); model curves after Calibrate (Ctrl+M).");
         return;
     }
-    setting_sliders_ui(app, out, ui, &lens);
-    super::models::advice_ui(app, ui);
+    setting_sliders_ui(&Sliders::of(app, &lens), out, ui);
+    super::models::advice_ui(app.data.calibrated.as_ref(), ui);
     // One colour per location across the six plots, named once here rather than in six
     // legends that would cover the curves; the glyphs say which series is which.
     ui.horizontal_wrapped(|ui| {

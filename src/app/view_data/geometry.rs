@@ -6,7 +6,7 @@
 
 use super::{ColourScale, Same, StudioApp};
 use crate::app::JobOutput;
-use crate::app::jobs::JobScope;
+use crate::app::jobs::{JobKind, JobScope};
 use crate::chart::ChartSpec;
 use crate::correction::{
     CorrectionOptions, FocalGeometry, GeometryShot, LensCorrection, LensfunFrame, TcaModel,
@@ -14,6 +14,7 @@ use crate::correction::{
 };
 use crate::detect::Detection;
 use crate::plane::LensSetting;
+pub use crate::review::{ColourArrows, WarpedGrid};
 use crate::session::ShotId;
 use std::sync::Arc;
 
@@ -31,26 +32,6 @@ pub struct GeometryMeasure {
     key: MeasureKey,
     request: u64,
     pub result: Option<Result<Arc<LensCorrection>, String>>,
-}
-
-/// The lines of a regular grid over the frame, ideal and as the lens (exaggerated)
-/// draws them, sensor px.
-pub struct WarpedGrid {
-    pub ideal: Vec<Vec<[f32; 2]>>,
-    pub warped: Vec<Vec<[f32; 2]>>,
-    /// How much the displacement is exaggerated.
-    pub factor: f64,
-    /// The displacement at the frame corner, px (negative: inward, barrel).
-    pub corner_px: f64,
-}
-
-/// Red and blue against green at a grid of points, sensor px (tips exaggerated).
-pub struct ColourArrows {
-    /// Each point's green position and red and blue tips.
-    pub arrows: Vec<[[f32; 2]; 3]>,
-    pub factor: f64,
-    pub red_corner_px: f64,
-    pub blue_corner_px: f64,
 }
 
 /// The fall-off at one aperture as a map in stops.
@@ -147,7 +128,7 @@ fn spawn_measure(app: &mut StudioApp, key: MeasureKey) -> GeometryMeasure {
         .collect();
     let chart = key.chart.clone();
     let r = app.jobs.spawn_scoped(
-        "geometry",
+        JobKind::Geometry,
         JobScope::session(key.session),
         move |_ctx, out| {
             let geometry_shots: Vec<GeometryShot<'_>> = shots
@@ -242,8 +223,8 @@ fn refresh_display(app: &mut StudioApp) {
         focal_mm: correction.focal.iter().map(|f| f.focal_mm).collect(),
         focal: focal.focal_mm,
         f_numbers: vignetting.iter().map(|v| v.setting.f_number).collect(),
-        grid: warped_grid(&correction, focal),
-        colour: colour_arrows(&correction, focal),
+        grid: crate::review::warped_grid(&correction, focal),
+        colour: crate::review::colour_arrows(&correction, focal),
         falloff,
         fit_lines,
         warning,
@@ -252,162 +233,25 @@ fn refresh_display(app: &mut StudioApp) {
     app.data.geometry = Some(data);
 }
 
-/// The largest of 1, 2, 5 × 10ⁿ at most `x` (at least 1).
-fn nice_factor(x: f64) -> f64 {
-    if !(x.is_finite() && x > 1.0) {
-        return 1.0;
-    }
-    let p = 10f64.powf(x.log10().floor());
-    [5.0, 2.0, 1.0]
-        .into_iter()
-        .map(|m| m * p)
-        .find(|&v| v <= x)
-        .unwrap_or(p)
-}
-
-/// Lines of a 12 × 8 grid over the frame through the distortion, the displacement
-/// (beside the uniform scale the model's normalisation carries) exaggerated so the
-/// corner moves by about 15 % of the frame's short side.
-fn warped_grid(c: &LensCorrection, focal: &FocalGeometry) -> WarpedGrid {
-    let d = focal.distortion_fit(c.distortion_model);
-    let frame = &c.frame;
-    let (w, h) = ((c.width as f64 - 1.0), (c.height as f64 - 1.0));
-    let centre = frame.centre();
-    let g0 = d.model.eval(&d.coefficients, 0.0).0;
-    let displacement = |u: [f64; 2]| {
-        let p = d.distort(frame, u);
-        [
-            p[0] - (centre[0] + (u[0] - centre[0]) * g0),
-            p[1] - (centre[1] + (u[1] - centre[1]) * g0),
-        ]
-    };
-    let corner = displacement([0.0, 0.0]);
-    let corner_len = corner[0].hypot(corner[1]);
-    let factor = nice_factor(0.15 * w.min(h) / corner_len.max(1e-9));
-    let (nx, ny, samples) = (12, 8, 48);
-    let mut ideal = Vec::new();
-    let mut warped = Vec::new();
-    let mut line = |pts: Vec<[f64; 2]>| {
-        ideal.push(pts.iter().map(|p| [p[0] as f32, p[1] as f32]).collect());
-        warped.push(
-            pts.iter()
-                .map(|&p| {
-                    let dp = displacement(p);
-                    [
-                        (p[0] + factor * dp[0]) as f32,
-                        (p[1] + factor * dp[1]) as f32,
-                    ]
-                })
-                .collect(),
-        );
-    };
-    for i in 0..=nx {
-        let x = w * f64::from(i) / f64::from(nx);
-        line(
-            (0..=samples)
-                .map(|k| [x, h * f64::from(k) / f64::from(samples)])
-                .collect(),
-        );
-    }
-    for j in 0..=ny {
-        let y = h * f64::from(j) / f64::from(ny);
-        line(
-            (0..=samples)
-                .map(|k| [w * f64::from(k) / f64::from(samples), y])
-                .collect(),
-        );
-    }
-    WarpedGrid {
-        ideal,
-        warped,
-        factor,
-        corner_px: d.corner_displacement_px,
-    }
-}
-
-/// Red and blue against green at a 9 × 6 grid of points, exaggerated so the longest
-/// arrow spans about two thirds of the grid's step.
-fn colour_arrows(c: &LensCorrection, focal: &FocalGeometry) -> Option<ColourArrows> {
-    let t = focal.tca_fit(c.tca_model)?;
-    let frame = &c.frame;
-    let (w, h) = (c.width as f64, c.height as f64);
-    let (nx, ny) = (9, 6);
-    let points: Vec<[f64; 2]> = (0..ny)
-        .flat_map(|j| {
-            (0..nx).map(move |i| {
-                [
-                    w * (f64::from(i) + 0.5) / f64::from(nx),
-                    h * (f64::from(j) + 0.5) / f64::from(ny),
-                ]
-            })
-        })
-        .collect();
-    let shift = |p: [f64; 2], blue: bool| {
-        let q = t.channel_at(frame, p, blue);
-        [q[0] - p[0], q[1] - p[1]]
-    };
-    let longest = points
-        .iter()
-        .flat_map(|&p| [shift(p, false), shift(p, true)])
-        .map(|v| v[0].hypot(v[1]))
-        .fold(0.0, f64::max);
-    let factor = nice_factor(0.65 * (w / f64::from(nx)) / longest.max(1e-9));
-    let tip = |p: [f64; 2], blue: bool| {
-        let s = shift(p, blue);
-        [(p[0] + factor * s[0]) as f32, (p[1] + factor * s[1]) as f32]
-    };
-    Some(ColourArrows {
-        arrows: points
-            .iter()
-            .map(|&p| [[p[0] as f32, p[1] as f32], tip(p, false), tip(p, true)])
-            .collect(),
-        factor,
-        red_corner_px: t.red.corner_shift_px,
-        blue_corner_px: t.blue.corner_shift_px,
-    })
-}
-
-/// Light lost (stops) at sensor point `p`.
-fn stops_at(frame: &LensfunFrame, v: &VignettingFit, p: [f64; 2]) -> f64 {
-    let q = frame.to_vignetting(p);
-    -v.illumination(q[0].hypot(q[1])).max(1e-6).log2()
-}
-
-/// The fall-off over the frame, one texel per cell, in the core's palette.
+/// The fall-off over the frame (`review::falloff_map`), one texel per cell, in the
+/// core's palette.
 fn falloff(app: &StudioApp, frame: &LensfunFrame, v: &VignettingFit) -> Falloff {
-    let (w, h) = (frame.width as f64, frame.height as f64);
-    let gx = 60usize;
-    let gy = ((gx as f64 * h / w).round() as usize).max(2);
-    let cells: Vec<f64> = (0..gy)
-        .flat_map(|j| {
-            (0..gx).map(move |i| {
-                let p = [
-                    w * (i as f64 + 0.5) / gx as f64,
-                    h * (j as f64 + 0.5) / gy as f64,
-                ];
-                stops_at(frame, v, p)
-            })
-        })
-        .collect();
-    let hi = cells
-        .iter()
-        .copied()
-        .fold(v.corner_stops.max(0.1), f64::max);
-    let range = [0.0, hi];
+    let map = crate::review::falloff_map(frame, v, 60);
     let scale = ColourScale {
-        range,
+        range: map.range,
         diverging: false,
         title: format!("light lost at f/{}, stops", v.setting.f_number),
-        ticks: crate::review::nice_ticks(range, 5),
+        ticks: crate::review::nice_ticks(map.range, 5),
     };
-    let pixels: Vec<egui::Color32> = cells
+    let pixels: Vec<egui::Color32> = map
+        .stops
         .iter()
         .map(|&s| {
             let [r, g, b] = crate::review::palette_rgb(scale.position(s), false);
             egui::Color32::from_rgb(r, g, b)
         })
         .collect();
-    let image = egui::ColorImage::new([gx, gy], pixels);
+    let image = egui::ColorImage::new(map.cells, pixels);
     let texture = app
         .ctx
         .load_texture("fall-off map", image, egui::TextureOptions::LINEAR);

@@ -2,7 +2,7 @@
 //! textures, its measured kernel and, on the demo session, the true Gaussian.
 
 use super::{Same, is_demo};
-use crate::app::jobs::JobScope;
+use crate::app::jobs::{JobKind, JobScope};
 use crate::app::state::{InspectKey, InspectedSquare};
 use crate::app::{JobOutput, StudioApp};
 use crate::detect::inspect::SquareInspection;
@@ -108,7 +108,7 @@ fn spawn_inspection(app: &mut StudioApp, key: InspectKey) -> Inspecting {
     let job_key = key.clone();
     let r = app
         .jobs
-        .spawn_scoped("inspect square", scope, move |_ctx, out| {
+        .spawn_scoped(JobKind::InspectSquare, scope, move |_ctx, out| {
             let result = det
                 .squares
                 .iter()
