@@ -71,15 +71,7 @@ fn quad_rect(h: &Homography, quad: &[[f64; 2]; 4]) -> Rect {
 
 /// Observed samples of every plane inside `rect`, after an extra Gaussian blur of
 /// `extra_sigma_px` (sensor px) for the coarse levels, every `stride`-th plane pixel.
-/// With `clip`, a sample that is clipped, or that the extra blur mixes with a clipped
-/// pixel, is left out: it bounds the edge from below and no more.
-fn samples(
-    capture: &Capture,
-    rect: Rect,
-    extra_sigma_px: f64,
-    stride: usize,
-    clip: Option<f64>,
-) -> Vec<Sample> {
+fn samples(capture: &Capture, rect: Rect, extra_sigma_px: f64, stride: usize) -> Vec<Sample> {
     let mut out = Vec::new();
     for (k, cp) in capture.planes.iter().enumerate() {
         let step = cp.step as i64;
@@ -109,54 +101,27 @@ fn samples(
                 crop.push(f64::from(cp.plane.get(i as usize, j as usize)));
             }
         }
-        // 1 where a pixel is clipped, spread by the same blur as the values.
-        let mut touched: Option<Vec<f64>> = clip.map(|level| {
-            crop.iter()
-                .map(|&v| if v >= level { 1.0 } else { 0.0 })
-                .collect()
-        });
         if extra_sigma_px > 0.0 {
             crop = gaussian_blur(&crop, cw, ch, sigma_plane);
-            touched = touched.map(|t| gaussian_blur(&t, cw, ch, sigma_plane));
         }
         let s = stride as i64;
         let mut j = j0.max(0);
         while j <= j1.min(ph - 1) {
             let mut i = i0.max(0);
             while i <= i1.min(pw - 1) {
-                let at = ((j - cj0) as usize) * cw + (i - ci0) as usize;
-                if !touched.as_ref().is_some_and(|t| t[at] > 1e-4) {
-                    out.push(Sample {
-                        x: step * i + ox,
-                        y: step * j + oy,
-                        plane: k,
-                        value: crop[at],
-                    });
-                }
+                let v = crop[((j - cj0) as usize) * cw + (i - ci0) as usize];
+                out.push(Sample {
+                    x: step * i + ox,
+                    y: step * j + oy,
+                    plane: k,
+                    value: v,
+                });
                 i += s;
             }
             j += s;
         }
     }
     out
-}
-
-/// Half-width (px) of the band along a square's edges that [`align_square`] requires
-/// mostly unclipped: the steepest part of a blurred edge, where its position and the
-/// kernel's core show. Beyond it, on the black side, the edge's tails still measure the
-/// kernel's; on the white side clipping takes only what the black sides of the other
-/// edges also see.
-const EDGE_BAND_PX: f64 = 1.5;
-
-/// Distance, in chart squares, from a point of the unit square's frame (u, v) to the
-/// nearest of the square's four edges, as segments.
-fn edge_distance([u, v]: [f64; 2]) -> f64 {
-    let along = |t: f64| (-t).max(t - 1.0).max(0.0);
-    let to_line = |a: f64, b: f64| a.hypot(along(b));
-    to_line(u.abs(), v)
-        .min(to_line((u - 1.0).abs(), v))
-        .min(to_line(v.abs(), u))
-        .min(to_line((v - 1.0).abs(), u))
 }
 
 /// Black and white levels of a plane's square: the two histogram peaks.
@@ -485,14 +450,12 @@ pub fn align_square(
     wide_rect.y0 = wide_rect.y0.max(0);
     wide_rect.x1 = wide_rect.x1.min(capture.width as i64 - 1);
     wide_rect.y1 = wide_rect.y1.min(capture.height as i64 - 1);
-    let fine = samples(capture, wide_rect, 0.0, 1, None);
+    let fine = samples(capture, wide_rect, 0.0, 1);
     let np = capture.planes.len();
     let mut a = vec![0.0; np];
     let mut b = vec![1.0; np];
     let (mut black_sum, mut white_sum) = (0.0, 0.0);
     let mut per_plane: Vec<Vec<f64>> = vec![Vec::new(); np];
-    // Per plane, the pixels along the square's edges and how many of them are clipped.
-    let mut edge_clipped = vec![[0usize; 2]; np];
     for s in &fine {
         let c = chart_from_image.apply([s.x as f64, s.y as f64]);
         if c[0] >= col as f64 - wide_m
@@ -502,18 +465,17 @@ pub fn align_square(
         {
             per_plane[s.plane].push(s.value);
         }
-        if edge_distance([c[0] - col as f64, c[1] - row as f64]) * side_px <= EDGE_BAND_PX {
-            edge_clipped[s.plane][0] += 1;
-            edge_clipped[s.plane][1] += usize::from(s.value >= params.saturation_level);
-        }
     }
     for (k, inside) in per_plane.iter().enumerate() {
-        // Clipped pixels weigh nothing in the registration and the kernels; a square
-        // goes only when its edges themselves are lost.
-        let [along, clipped] = edge_clipped[k];
-        if clipped as f64 > params.max_clipped_edge_fraction * along as f64 {
+        let saturated = inside
+            .iter()
+            .filter(|&&v| v >= params.saturation_level)
+            .count();
+        if saturated as f64 > params.max_saturated_fraction * inside.len() as f64 {
             return Err(format!(
-                "saturated ({clipped} of the {along} pixels along its edges at or above {})",
+                "saturated ({} of {} pixels at or above {})",
+                saturated,
+                inside.len(),
                 params.saturation_level
             ));
         }
@@ -560,15 +522,9 @@ pub fn align_square(
         };
         let stride = 1usize << level.min(2);
         let smp = if level == 0 {
-            samples(capture, rect, 0.0, 1, Some(params.saturation_level))
+            samples(capture, rect, 0.0, 1)
         } else {
-            samples(
-                capture,
-                rect,
-                extra_sigma,
-                stride,
-                Some(params.saturation_level),
-            )
+            samples(capture, rect, extra_sigma, stride)
         };
         let extra_var = extra_sigma * extra_sigma;
         let tol = if level == 0 {
@@ -640,7 +596,7 @@ pub fn align_square(
     // Measured on every capture of several channels (lateral colour is measured from
     // it); the kernels take it only where `channel_shifts` asks.
     let per_channel: Vec<(Channel, State)> = if channels.len() > 1 {
-        let fine = samples(capture, rect, 0.0, 1, Some(params.saturation_level));
+        let fine = samples(capture, rect, 0.0, 1);
         channels
             .iter()
             .map(|&ch| {
