@@ -1,4 +1,6 @@
-//! Decoding a 24 MP RAW file: the decoder chain `load_capture` runs now (rawler first)
+//! Decoding a 24 MP RAW file: the decoder chain `load_capture` runs now (rawler first),
+//! in this process and in the worker process the command line and the studio use (the
+//! `lensblur` executable; the bytes go to it and the planes come back through pipes),
 //! against rawloader alone (the chain before rawler came in), on the two DNG forms a
 //! camera or Adobe's converter writes: uncompressed strips and lossless-JPEG tiles.
 //! The bytes are in memory, so this is the decoders' and the planes' time, not the
@@ -6,7 +8,7 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use lensblur::dng::{DngCompression, DngInfo, DngLayout, dng_bytes};
-use lensblur::raw::{Decoder, decode_raw, decode_raw_with};
+use lensblur::raw::{Decoder, Decoding, WorkerLimits, decode_raw, decode_raw_with, with_decoding};
 use std::hint::black_box;
 use std::path::Path;
 use std::time::Duration;
@@ -43,6 +45,13 @@ fn bench(c: &mut Criterion) {
         let bytes = dng_bytes(&cfa, w, h, &info);
         g.bench_function(format!("{name}/new_chain"), |b| {
             b.iter(|| black_box(decode_raw(path, &bytes).expect("decode")))
+        });
+        // The worker is started by the first decode and kept, as in a session.
+        let worker = Decoding::Worker(WorkerLimits::new(env!("CARGO_BIN_EXE_lensblur").into()));
+        g.bench_function(format!("{name}/new_chain_in_worker"), |b| {
+            with_decoding(&worker, || {
+                b.iter(|| black_box(decode_raw(path, &bytes).expect("decode")))
+            })
         });
         // rawloader refuses tiled uncompressed DNGs; our own reader read those before.
         if decode_raw_with(Decoder::Rawloader, path, &bytes).is_ok() {

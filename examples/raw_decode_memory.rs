@@ -5,12 +5,16 @@
 //! Usage:
 //!   cargo run --example raw_decode_memory -- write FILE.dng uncompressed|ljpeg
 //!   /usr/bin/time -v target/debug/examples/raw_decode_memory read FILE.dng chain|rawloader
+//!   target/debug/examples/raw_decode_memory read FILE.dng worker=target/debug/lensblur
 //!
 //! The mosaic is the one `benches/raw_decode.rs` times; `chain` is what `load_capture`
-//! runs (rawler first), `rawloader` the decoder alone (the chain before rawler).
+//! runs (rawler first), `rawloader` the decoder alone (the chain before rawler),
+//! `worker=PROGRAM` the chain in a worker process of that `lensblur` executable (what
+//! the command line and the studio do). Each read prints this process's own peak
+//! resident memory (VmHWM): `time -v` would report the worker's where it is larger.
 use anyhow::{Context, bail};
 use lensblur::dng::{DngCompression, DngInfo, DngLayout, dng_bytes};
-use lensblur::raw::{Decoder, decode_raw, decode_raw_with};
+use lensblur::raw::{Decoder, Decoding, WorkerLimits, decode_raw, decode_raw_with, with_decoding};
 use std::path::Path;
 
 /// The 6000 × 4000 RGGB mosaic both the decoding benchmark and the memory example use.
@@ -48,7 +52,13 @@ fn main() -> anyhow::Result<()> {
             let capture = match decoder {
                 "chain" => decode_raw(path, &bytes)?,
                 "rawloader" => decode_raw_with(Decoder::Rawloader, path, &bytes)?,
-                other => bail!("unknown decoder {other}"),
+                other => match other.strip_prefix("worker=") {
+                    Some(program) => {
+                        let worker = Decoding::Worker(WorkerLimits::new(program.into()));
+                        with_decoding(&worker, || decode_raw(path, &bytes))?
+                    }
+                    None => bail!("unknown decoder {other}"),
+                },
             };
             println!(
                 "{}: {} × {}, {} planes",
@@ -57,6 +67,10 @@ fn main() -> anyhow::Result<()> {
                 capture.height,
                 capture.planes.len()
             );
+            let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+            if let Some(peak) = status.lines().find(|l| l.starts_with("VmHWM:")) {
+                println!("this process's peak resident memory: {}", peak[6..].trim());
+            }
         }
         (other, _) => bail!("unknown mode {other}"),
     }

@@ -49,10 +49,17 @@ enum Command {
     Deblur(cli::deblur::Args),
     /// Reproduce the paper's experiments.
     Experiment(cli::experiment::Args),
+    /// Decode RAW files for another lensblur process (lensblur::raw::Decoding): not
+    /// for people.
+    #[command(name = lensblur::raw::WORKER_SUBCOMMAND, hide = true)]
+    DecodeWorker,
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // The command line and the studio decode RAW files in workers of this program, so
+    // a file that crashes a decoder costs that file alone.
+    lensblur::raw::set_decoding(lensblur::raw::Decoding::this_program());
     let result = match cli.command {
         None => cli::studio::run(cli::studio::Args::default()),
         Some(Command::Studio(a)) => cli::studio::run(a),
@@ -69,6 +76,7 @@ fn main() -> ExitCode {
         Some(Command::Sweeps(a)) => cli::sweeps::run(a),
         Some(Command::Deblur(a)) => cli::deblur::run(a),
         Some(Command::Experiment(a)) => cli::experiment::run(a),
+        Some(Command::DecodeWorker) => lensblur::raw::serve_worker().map_err(Into::into),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

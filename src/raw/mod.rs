@@ -8,7 +8,9 @@
 
 //!
 //! The parts: which reader a file goes to and the errors it meets (here); the RAW
-//! decoders and the words for their refusals (`decoders`, `damage`); our own TIFF and
+//! decoders and the words for their refusals (`decoders`, `damage`); the worker process
+//! they run in for the command line and the studio, and the bytes it answers in
+//! (`worker`, `wire`); our own TIFF and
 //! DNG reading (`tiff`, `dng_read`); the CFA planes every RAW decoder's answer becomes
 //! (`cfa`); EXIF (`exif`); PNG/TIFF/JPEG (`picture`); writing planes out (`save`).
 
@@ -25,6 +27,8 @@ mod info;
 mod picture;
 mod save;
 mod tiff;
+mod wire;
+mod worker;
 
 pub use decoders::{DecodedMeta, Decoder};
 pub use exif::{ExifInfo, read_exif};
@@ -34,6 +38,11 @@ pub use save::{SaveError, full_planes, save_like_original, save_planes};
 use tiff::{
     Ifd, TAG_COMPRESSION, first_tag, image_in_ifd0, is_raw_ifd, is_tiff, needs_own_reader,
     tiff_ifd0,
+};
+use wire::{Answer, Job};
+pub use worker::{
+    Decoding, WORKER_SUBCOMMAND, WorkerLimits, decoding, serve as serve_worker, set_decoding,
+    with_decoding,
 };
 
 #[derive(Debug, thiserror::Error)]
@@ -58,6 +67,10 @@ pub enum LoadError {
     NoImage { path: PathBuf, reason: String },
     #[error("{}: {reason}", path.display())]
     TooLarge { path: PathBuf, reason: String },
+    /// The RAW decoder's process ran out of memory, out of time, or crashed on the
+    /// file (see [`Decoding`]).
+    #[error("{}: {reason}", path.display())]
+    DecoderStopped { path: PathBuf, reason: String },
 }
 
 impl From<crate::io::ReadError> for LoadError {
@@ -135,13 +148,13 @@ fn decode_with_decoder(
     } else if is_tiff(bytes) {
         let ifd = tiff_ifd0(bytes).map_err(|reason| damaged(path, bytes, reason))?;
         if is_raw_ifd(&ifd) {
-            load_raw(path, bytes, Some(&ifd))?
+            load_raw(path, bytes)?
         } else if decoders::camera_raw(bytes) {
             // A camera's TIFF-based RAW (CR2, NEF, ARW, PEF, ...): its first directory
             // is a preview, the CFA is further in. Where the RAW decoders refuse it and
             // that first directory is a full-size picture of its own (a TIFF an editor
             // exported, which keeps the camera's Make), it is read as the picture.
-            match load_raw(path, bytes, None) {
+            match load_raw(path, bytes) {
                 Ok(found) => found,
                 Err(e) if image_in_ifd0(&ifd) => image(bytes).map_err(|_| e)?,
                 Err(e) => return Err(e),
@@ -152,7 +165,7 @@ fn decode_with_decoder(
     } else {
         // Every other camera format goes to the RAW decoders, which name what they
         // cannot read.
-        load_raw(path, bytes, None)?
+        load_raw(path, bytes)?
     };
     let mut exif = read_exif(bytes);
     exif.take_decoded(&meta);
@@ -243,9 +256,8 @@ fn raw_dimensions(
     bytes: &[u8],
     exif: &mut ExifInfo,
 ) -> Result<(usize, usize), LoadError> {
-    let (size, make, model) = match decoders::rawler_header(path, bytes)? {
-        Some(found) => found,
-        None => decoders::rawloader_header(path, bytes)?,
+    let Answer::Header((size, make, model)) = worker::run(Job::Header, path, bytes)? else {
+        return Err(worker_mixup(path));
     };
     let id = &mut exif.identity;
     id.make = id.make.take().or(make);
@@ -259,12 +271,10 @@ fn raw_dimensions(
 /// # Errors
 /// As [`load_capture`].
 pub fn decode_raw(path: &Path, bytes: &[u8]) -> Result<Capture, LoadError> {
-    let ifd = if is_tiff(bytes) {
-        Some(tiff_ifd0(bytes).map_err(|reason| damaged(path, bytes, reason))?)
-    } else {
-        None
-    };
-    load_raw(path, bytes, ifd.as_ref().filter(|i| is_raw_ifd(i))).map(|(c, _, _)| c)
+    if is_tiff(bytes) {
+        tiff_ifd0(bytes).map_err(|reason| damaged(path, bytes, reason))?;
+    }
+    load_raw(path, bytes).map(|(c, _, _)| c)
 }
 
 /// A TIFF whose first directory does not parse: damaged, said where it can be.
@@ -282,6 +292,53 @@ fn damaged(path: &Path, bytes: &[u8], reason: String) -> LoadError {
 /// # Errors
 /// As [`load_capture`], from that decoder alone.
 pub fn decode_raw_with(decoder: Decoder, path: &Path, bytes: &[u8]) -> Result<Capture, LoadError> {
+    if decoder == Decoder::Image {
+        return Err(LoadError::Unsupported {
+            path: path.to_path_buf(),
+            reason: "not a RAW decoder".into(),
+        });
+    }
+    match worker::run(Job::With(decoder), path, bytes)? {
+        Answer::With(capture) => Ok(capture),
+        _ => Err(worker_mixup(path)),
+    }
+}
+
+/// A RAW job in this process: what [`worker::run`] does here, or has a worker do.
+fn run_in_process(job: Job, path: &Path, bytes: &[u8]) -> Result<Answer, LoadError> {
+    Ok(match job {
+        Job::Load => {
+            let ifd = raw_ifd(bytes);
+            let (capture, decoder, meta) = load_raw_here(path, bytes, ifd.as_ref())?;
+            Answer::Load(capture, decoder, meta)
+        }
+        Job::Header => Answer::Header(match decoders::rawler_header(path, bytes)? {
+            Some(found) => found,
+            None => decoders::rawloader_header(path, bytes)?,
+        }),
+        Job::With(decoder) => Answer::With(decode_with_here(decoder, path, bytes)?),
+    })
+}
+
+/// A TIFF's first directory, where it holds the raw image (a DNG's, or a CFA TIFF's).
+fn raw_ifd(bytes: &[u8]) -> Option<Ifd> {
+    is_tiff(bytes)
+        .then(|| tiff_ifd0(bytes).ok())
+        .flatten()
+        .filter(is_raw_ifd)
+}
+
+/// A worker's answer to another question than the one asked: a bug of ours, said as
+/// one line all the same.
+fn worker_mixup(path: &Path) -> LoadError {
+    LoadError::DecoderStopped {
+        path: path.to_path_buf(),
+        reason: "the RAW decoder answered another request than this file's".into(),
+    }
+}
+
+/// [`decode_raw_with`] in this process.
+fn decode_with_here(decoder: Decoder, path: &Path, bytes: &[u8]) -> Result<Capture, LoadError> {
     let ifd = is_tiff(bytes).then(|| tiff_ifd0(bytes).ok()).flatten();
     let refused = |reason: &str| LoadError::Unsupported {
         path: path.to_path_buf(),
@@ -308,11 +365,19 @@ pub fn decode_raw_with(decoder: Decoder, path: &Path, bytes: &[u8]) -> Result<Ca
     Ok(capture)
 }
 
+/// A RAW file through the decoders, where [`decoding`] says (see [`load_raw_here`]).
+fn load_raw(path: &Path, bytes: &[u8]) -> Result<(Capture, Decoder, DecodedMeta), LoadError> {
+    match worker::run(Job::Load, path, bytes)? {
+        Answer::Load(capture, decoder, meta) => Ok((capture, decoder, meta)),
+        _ => Err(worker_mixup(path)),
+    }
+}
+
 /// A RAW file through the first decoder that reads it (rawler, then our own reader
 /// for the uncompressed DNGs rawloader would misread, then rawloader), each one's
 /// declared size checked against our limits before it allocates the image; and an
 /// image of one value throughout (image data missing, decoded as zeros) refused.
-fn load_raw(
+fn load_raw_here(
     path: &Path,
     bytes: &[u8],
     ifd: Option<&Ifd>,
@@ -354,7 +419,8 @@ fn fallback_words(e: &LoadError) -> String {
         | LoadError::Damaged { reason, .. }
         | LoadError::Unsupported { reason, .. }
         | LoadError::NoImage { reason, .. }
-        | LoadError::TooLarge { reason, .. } => reason.clone(),
+        | LoadError::TooLarge { reason, .. }
+        | LoadError::DecoderStopped { reason, .. } => reason.clone(),
     }
 }
 

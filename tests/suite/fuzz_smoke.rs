@@ -3,7 +3,12 @@
 //! and a bounded set of deterministic mutations of them. The long coverage-guided run
 //! is `scripts/fuzz.sh`; this keeps its findings fixed in CI.
 
+use crate::raw_worker::cli_worker;
 use lensblur::fuzz::{Target, mutants};
+use lensblur::raw::{
+    Decoding, LoadError, LoadOptions, WorkerLimits, decode_capture, decode_raw, with_decoding,
+};
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 fn files(dir: &Path) -> Vec<PathBuf> {
@@ -28,8 +33,14 @@ fn corpus(kind: &str, target: Target) -> Vec<PathBuf> {
     )
 }
 
+/// The RAW targets decode in the command line's worker, as the program does: in
+/// process, a mutant that makes a decoder abort would take the test binary with it.
 #[test]
 fn every_seed_is_accepted_and_no_mutant_or_finding_panics() {
+    with_decoding(&cli_worker(), every_seed_and_mutant);
+}
+
+fn every_seed_and_mutant() {
     for target in Target::ALL {
         let seeds = corpus("seeds", target);
         assert!(!seeds.is_empty(), "{}: no seed corpus", target.name());
@@ -91,77 +102,119 @@ fn a_compressed_raw_claiming_more_samples_than_it_has_bits_is_refused_before_dec
     );
 }
 
-/// The RAW readers' inputs beyond lensblur's own DNGs: the real camera files small
-/// enough to mutate by the thousand (tests/data/real/, every format there: CR2, CR3,
-/// CRW, NEF, RAF, MRW, RW2, ARW, DNG), and the DNG seeds.
-fn raw_inputs() -> Vec<Vec<u8>> {
-    let mut v: Vec<Vec<u8>> = files(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/real"))
+/// The RAW readers' inputs beyond lensblur's own DNGs, each with its container (its
+/// extension): the real camera files small enough to mutate by the thousand
+/// (tests/data/real/, every format there: CR2, CR3, CRW, NEF, RAF, MRW, RW2, ARW, DNG),
+/// and the DNG seeds.
+fn raw_inputs() -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<PathBuf> = files(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/real"))
         .into_iter()
         .filter(|p| !p.extension().is_some_and(|e| e == "md" || e == "tsv"))
         .filter(|p| std::fs::metadata(p).is_ok_and(|m| m.len() < 200_000))
-        .map(|p| std::fs::read(p).unwrap())
         .collect();
-    v.extend(
-        corpus("seeds", Target::Dng)
-            .iter()
-            .map(|p| std::fs::read(p).unwrap()),
-    );
-    v
-}
-
-/// Mutants of every RAW input through both RAW targets (rawler first, then the
-/// fallbacks); `per_target` mutants a target in all. Returns how many each accepted.
-fn mutate_raw_inputs(per_target: usize) -> Vec<(Target, usize, usize)> {
-    let inputs = raw_inputs();
-    let per_input = per_target.div_ceil(inputs.len());
-    [Target::Dng, Target::Load]
-        .into_iter()
-        .map(|target| {
-            let (mut ran, mut accepted) = (0, 0);
-            for (k, bytes) in inputs.iter().enumerate() {
-                for (j, m) in mutants(bytes, per_input, 0x5eed + k as u64)
-                    .into_iter()
-                    .enumerate()
-                {
-                    if std::env::var_os("LENSBLUR_FUZZ_TRACE").is_some() {
-                        eprintln!("{} input {k} mutant {j}", target.name());
-                    }
-                    ran += 1;
-                    accepted += usize::from(target.run(&m));
-                }
-            }
-            (target, ran, accepted)
+    v.extend(corpus("seeds", Target::Dng));
+    v.into_iter()
+        .map(|p| {
+            let ext = p.extension().unwrap().to_string_lossy().to_lowercase();
+            (ext, std::fs::read(p).unwrap())
         })
         .collect()
 }
 
-/// Mutants of the real files once made rawler loop or allocate past the machine's
-/// memory inside its own header parsing (an abort, no panic to catch): a box smaller
-/// than its header, a table counting more entries than its box holds, a TIFF's chain of
-/// directories linking back into itself. Such files are now refused before rawler
-/// reads them (`raw::damage::before_decoding`).
-#[test]
-fn mutated_real_camera_files_never_panic() {
-    for (target, ran, _) in mutate_raw_inputs(400) {
-        assert!(ran >= 400, "{}: {ran}", target.name());
-    }
+/// What became of one container's mutants.
+#[derive(Debug, Default)]
+struct Tally {
+    mutants: usize,
+    decoded: usize,
+    refused: usize,
+    /// Refusals that were a worker's death (memory, time, crash) said in one line.
+    worker_stopped: usize,
 }
 
-/// The long run: at least 10⁵ mutants per RAW target (`LENSBLUR_FUZZ_N` to change it).
-/// `cargo test --release --test suite -- --ignored mutated_real_camera_files_at_length`.
+/// `per_container` mutants of each container's inputs through `targets`' readers, in
+/// `decoding`'s worker: each is decoded, or refused in one line naming the file.
+/// `LENSBLUR_FUZZ_TRACE` prints each refusal as it comes.
+fn mutate_raw_inputs(
+    decoding: &Decoding,
+    targets: &[Target],
+    per_container: usize,
+) -> BTreeMap<String, Tally> {
+    let inputs = raw_inputs();
+    let mut tallies: BTreeMap<String, Tally> = BTreeMap::new();
+    let trace = std::env::var_os("LENSBLUR_FUZZ_TRACE").is_some();
+    with_decoding(decoding, || {
+        for (k, (ext, bytes)) in inputs.iter().enumerate() {
+            let of_kind = inputs.iter().filter(|(e, _)| e == ext).count();
+            let n = per_container.div_ceil(of_kind);
+            for (j, m) in mutants(bytes, n, 0x5eed + k as u64).into_iter().enumerate() {
+                for &target in targets {
+                    let name = format!("mutant-{}-{k}-{j}.{ext}", target.name());
+                    let path = Path::new(&name);
+                    let result = match target {
+                        Target::Dng => decode_raw(path, &m).map(drop),
+                        _ => decode_capture(path, &m, &LoadOptions::default()).map(drop),
+                    };
+                    let t = tallies.entry(ext.clone()).or_default();
+                    t.mutants += 1;
+                    match result {
+                        Ok(()) => t.decoded += 1,
+                        Err(e) => {
+                            let line = e.to_string();
+                            assert!(line.starts_with(&name) && !line.contains('\n'), "{line}");
+                            t.refused += 1;
+                            t.worker_stopped +=
+                                usize::from(matches!(e, LoadError::DecoderStopped { .. }));
+                            if trace {
+                                eprintln!("{line}");
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    });
+    tallies
+}
+
+/// Mutants of the real files through the command line's worker: each decoded or
+/// refused in one line, this process alive at the end whatever they did to the worker
+/// (some once made rawler loop, or allocate past the machine's memory, or abort).
 #[test]
-#[ignore = "minutes: run by hand"]
-fn mutated_real_camera_files_at_length() {
-    let n = std::env::var("LENSBLUR_FUZZ_N")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(100_000);
-    for (target, ran, accepted) in mutate_raw_inputs(n) {
-        eprintln!(
-            "{}: {ran} mutants, {accepted} accepted, no panic",
-            target.name()
+fn mutated_real_camera_files_are_decoded_or_refused_in_one_line() {
+    let tallies = mutate_raw_inputs(&cli_worker(), &[Target::Dng, Target::Load], 24);
+    for (ext, t) in &tallies {
+        assert!(
+            t.mutants >= 48 && t.decoded + t.refused == t.mutants,
+            "{ext}: {t:?}"
         );
-        assert!(ran >= n);
+    }
+    assert!(tallies.len() >= 9, "{:?}", tallies.keys());
+}
+
+/// The long run: `LENSBLUR_FUZZ_N` mutants per container (2.5 × 10⁵ unless said)
+/// through the whole load path, in workers under the command line's 4 GB limit and a
+/// time limit of `LENSBLUR_FUZZ_SECONDS` (10 unless said). Prints each container's
+/// tally; the parent's abort would end the run without it.
+/// `cargo test --test suite -- --ignored --nocapture mutated_real_camera_files_at_length`.
+#[test]
+#[ignore = "hours: run by hand"]
+fn mutated_real_camera_files_at_length() {
+    let number = |name: &str, default: u64| {
+        std::env::var(name)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(default)
+    };
+    let n = number("LENSBLUR_FUZZ_N", 250_000) as usize;
+    let mut limits = WorkerLimits::new(env!("CARGO_BIN_EXE_lensblur").into());
+    limits.time = std::time::Duration::from_secs(number("LENSBLUR_FUZZ_SECONDS", 10));
+    let tallies = mutate_raw_inputs(&Decoding::Worker(limits), &[Target::Load], n);
+    for (ext, t) in &tallies {
+        eprintln!(
+            "{ext}: {} mutants, {} decoded, {} refused in one line ({} of them a worker stopped), parent alive",
+            t.mutants, t.decoded, t.refused, t.worker_stopped
+        );
+        assert!(t.mutants >= n);
     }
 }
 

@@ -17,6 +17,7 @@ mod model;
 mod pipeline;
 mod positions;
 mod project;
+mod raw_worker;
 mod real_deblur;
 mod real_files;
 mod simulate;
