@@ -104,7 +104,6 @@ pub(super) fn rawler_capture(
     bytes: &[u8],
     ifd: Option<&Ifd>,
 ) -> Result<(Capture, DecodedMeta), RawlerRefusal> {
-    refuse_hazards(path, bytes).map_err(RawlerRefusal::Ours)?;
     let _quiet = QuietPanics::new();
     let source = rawler::rawsource::RawSource::new_from_slice(bytes);
     let params = rawler::decoders::RawDecodeParams::default();
@@ -435,30 +434,13 @@ pub(super) fn explain(
     }
 }
 
-/// A file whose structure rawler cannot survive (it would loop, or allocate by a count
-/// the file cannot hold: see [`super::damage::before_decoding`]) is refused as damaged
-/// before rawler sees it.
-fn refuse_hazards(path: &Path, bytes: &[u8]) -> Result<(), LoadError> {
-    match super::damage::before_decoding(bytes) {
-        Some(reason) => Err(LoadError::Damaged {
-            path: path.to_path_buf(),
-            reason,
-        }),
-        None => Ok(()),
-    }
-}
-
 /// What a decoder's header-only pass finds: the active area's size, the camera's make
 /// and model.
 pub(super) type RawHeader = ((usize, usize), Option<String>, Option<String>);
 
 /// rawler's header-only pass: the active area's size and the camera's names, or `None`
 /// where rawler does not read the file (or stops on it).
-///
-/// # Errors
-/// The file is damaged in a way rawler is not handed (see [`refuse_hazards`]).
-pub(super) fn rawler_header(path: &Path, bytes: &[u8]) -> Result<Option<RawHeader>, LoadError> {
-    refuse_hazards(path, bytes)?;
+pub(super) fn rawler_header(bytes: &[u8]) -> Option<RawHeader> {
     let _quiet = QuietPanics::new();
     let source = rawler::rawsource::RawSource::new_from_slice(bytes);
     let params = rawler::decoders::RawDecodeParams::default();
@@ -466,17 +448,13 @@ pub(super) fn rawler_header(path: &Path, bytes: &[u8]) -> Result<Option<RawHeade
         rawler::get_decoder(&source)?.raw_image(&source, &params, true)
     }));
     let Ok(Ok(head)) = head else {
-        return Ok(None);
+        return None;
     };
     let size = match &head.active_area {
         Some(r) if r.p.x + r.d.w <= head.width && r.p.y + r.d.h <= head.height => (r.d.w, r.d.h),
         _ => (head.width, head.height),
     };
-    Ok(Some((
-        size,
-        named(&head.clean_make),
-        named(&head.clean_model),
-    )))
+    Some((size, named(&head.clean_make), named(&head.clean_model)))
 }
 
 /// rawloader's header-only pass: the active area's size and the camera's names.

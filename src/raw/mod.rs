@@ -312,7 +312,7 @@ fn run_in_process(job: Job, path: &Path, bytes: &[u8]) -> Result<Answer, LoadErr
             let (capture, decoder, meta) = load_raw_here(path, bytes, ifd.as_ref())?;
             Answer::Load(capture, decoder, meta)
         }
-        Job::Header => Answer::Header(match decoders::rawler_header(path, bytes)? {
+        Job::Header => Answer::Header(match decoders::rawler_header(bytes) {
             Some(found) => found,
             None => decoders::rawloader_header(path, bytes)?,
         }),

@@ -133,7 +133,9 @@ pub(super) fn run(job: Job, path: &Path, bytes: &[u8]) -> Result<Answer, LoadErr
     }
 }
 
-/// Workers waiting for their next file, with the program each runs.
+/// Workers waiting for their next file, each with the program and limits it was
+/// started for (a worker's heap keeps what earlier files took, so one started under
+/// other limits is not reused).
 static IDLE: Mutex<Vec<Worker>> = Mutex::new(Vec::new());
 
 /// A job through a worker: an idle one of the same program if there is one, else a new
@@ -153,7 +155,7 @@ fn in_worker(
     let time = limits.time_for(bytes.len());
     let idle = {
         let mut idle = IDLE.lock().unwrap_or_else(PoisonError::into_inner);
-        let at = idle.iter().position(|w| w.program == limits.program);
+        let at = idle.iter().position(|w| w.limits == *limits);
         at.map(|at| idle.swap_remove(at))
     };
     let reused = idle.is_some();
@@ -185,7 +187,7 @@ fn in_worker(
 }
 
 fn start(limits: &WorkerLimits, path: &Path) -> Result<Worker, LoadError> {
-    Worker::start(&limits.program).map_err(|e| LoadError::Unreadable {
+    Worker::start(limits).map_err(|e| LoadError::Unreadable {
         path: path.to_path_buf(),
         reason: format!(
             "cannot start the RAW decoder ({} {WORKER_SUBCOMMAND}): {e}",
@@ -257,7 +259,7 @@ const STDERR_TAIL: usize = 4096;
 
 /// A running worker and its pipes.
 struct Worker {
-    program: PathBuf,
+    limits: WorkerLimits,
     child: Child,
     input: Option<BufWriter<ChildStdin>>,
     output: BufReader<ChildStdout>,
@@ -268,8 +270,8 @@ struct Worker {
 }
 
 impl Worker {
-    fn start(program: &Path) -> std::io::Result<Self> {
-        let mut child = Command::new(program)
+    fn start(limits: &WorkerLimits) -> std::io::Result<Self> {
+        let mut child = Command::new(&limits.program)
             .arg(WORKER_SUBCOMMAND)
             // glibc reserves address space per thread arena (64 MB each): on a machine
             // of many cores that alone would eat the limit.
@@ -296,7 +298,7 @@ impl Worker {
             }
         });
         Ok(Self {
-            program: program.to_path_buf(),
+            limits: limits.clone(),
             child,
             input: Some(BufWriter::with_capacity(1 << 16, input)),
             output: BufReader::with_capacity(1 << 16, output),
