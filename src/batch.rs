@@ -50,7 +50,7 @@ pub enum BatchError {
         path.display()
     )]
     OutputIsInput { path: PathBuf },
-    #[error("{}: no lens profile in this folder", path.display())]
+    #[error("{}: no lens profile in this folder or its subfolders", path.display())]
     NoProfiles { path: PathBuf },
 }
 
@@ -150,6 +150,39 @@ pub struct LibraryProfile {
     pub profile: Profile,
 }
 
+/// How many folders deep a profile library is searched: session folders inside a
+/// folder per lens or per camera, and no further (a library is not a whole disk).
+const LIBRARY_DEPTH: usize = 4;
+
+/// The `*.json` files of `dir` and, `depth` folders down, of its subfolders; hidden
+/// files and folders and the results caches left out. Only `dir` itself must be
+/// listable: a subfolder that cannot be read is passed over.
+fn json_files(dir: &Path, depth: usize, files: &mut Vec<PathBuf>) -> Result<(), BatchError> {
+    let entries = std::fs::read_dir(dir).map_err(|source| BatchError::Folder {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    for path in entries.flatten().map(|e| e.path()) {
+        let name = path
+            .file_name()
+            .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+        if name.starts_with('.') {
+            continue;
+        }
+        if path.is_dir() {
+            if depth > 0 && name != crate::pipeline::RESULTS_DIR {
+                let _ = json_files(&path, depth - 1, files);
+            }
+        } else if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+        {
+            files.push(path);
+        }
+    }
+    Ok(())
+}
+
 /// The profiles a batch picks from.
 #[derive(Clone, Debug, Default)]
 pub struct ProfileLibrary {
@@ -159,29 +192,17 @@ pub struct ProfileLibrary {
 }
 
 impl ProfileLibrary {
-    /// Every lensblur profile among a folder's `*.json` files (not recursively). Other
-    /// lensblur files and other JSON are ignored; a file that claims to be a profile
-    /// but does not load, or is not JSON at all, is one warning and left out.
+    /// Every lensblur profile among the `*.json` files of a folder and its subfolders
+    /// (a library of session folders, each with the `profile.json` the studio wrote,
+    /// is one; results caches and hidden folders are passed over). Other lensblur
+    /// files and other JSON are ignored; a file that claims to be a profile but does
+    /// not load, or is not JSON at all, is one warning and left out.
     ///
     /// # Errors
     /// The folder cannot be listed, or holds no usable profile.
     pub fn load(dir: &Path) -> Result<Self, BatchError> {
-        let entries = std::fs::read_dir(dir).map_err(|source| BatchError::Folder {
-            path: dir.to_path_buf(),
-            source,
-        })?;
-        let mut files: Vec<PathBuf> = entries
-            .flatten()
-            .map(|e| e.path())
-            .filter(|p| {
-                p.is_file()
-                    && p.extension()
-                        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
-                    && !p
-                        .file_name()
-                        .is_some_and(|n| n.to_string_lossy().starts_with('.'))
-            })
-            .collect();
+        let mut files = Vec::new();
+        json_files(dir, LIBRARY_DEPTH, &mut files)?;
         files.sort();
         let mut profiles = Vec::new();
         let mut warnings = Vec::new();
