@@ -81,9 +81,20 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            // One line: the outermost context first, then its causes.
-            let chain: Vec<String> = e.chain().map(ToString::to_string).collect();
-            eprintln!("lensblur: error: {}", chain.join(": "));
+            // One line: the outermost context first, then its causes, each once (an
+            // error that names its cause, as "cannot write: {source}" does, is not
+            // followed by that cause again).
+            let mut line = String::new();
+            for cause in e.chain().map(|c| c.to_string()) {
+                if line.contains(&cause) {
+                    continue;
+                }
+                if !line.is_empty() {
+                    line.push_str(": ");
+                }
+                line.push_str(&cause);
+            }
+            eprintln!("lensblur: error: {line}");
             ExitCode::FAILURE
         }
     }

@@ -285,6 +285,56 @@ impl LensSetting {
     }
 }
 
+/// "35 mm f/6.3": a setting as a photographer writes it (see [`focal_text`] and
+/// [`f_number_text`]); every message names settings this way.
+impl std::fmt::Display for LensSetting {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} {}",
+            focal_text(self.focal_mm),
+            f_number_text(self.f_number)
+        )
+    }
+}
+
+/// A focal length as a lens barrel writes it: whole millimetres ("35 mm"), a tenth
+/// below 10 mm ("4.5 mm").
+#[must_use]
+pub fn focal_text(mm: f64) -> String {
+    format!("{} mm", short_number(mm))
+}
+
+/// An f-number as a lens marks it: "f/2.8", "f/6.3", "f/10". A grid spaced in stops
+/// holds f/6.32455…, and EXIF rationals give f/10.000000000000002; both read as the
+/// camera shows them.
+#[must_use]
+pub fn f_number_text(n: f64) -> String {
+    format!("f/{}", short_number(n))
+}
+
+/// A printed length in millimetres to a tenth, without a trailing ".0": "10.5",
+/// "260".
+#[must_use]
+pub fn millimetres(v: f64) -> String {
+    let text = format!("{v:.1}");
+    text.strip_suffix(".0").map_or(text.clone(), str::to_string)
+}
+
+/// One decimal below 10, whole numbers from 10, never a trailing ".0".
+#[must_use]
+pub fn short_number(v: f64) -> String {
+    if !v.is_finite() {
+        return "unknown".into();
+    }
+    let text = if v.abs() < 9.95 {
+        format!("{v:.1}")
+    } else {
+        format!("{v:.0}")
+    };
+    text.strip_suffix(".0").map_or(text.clone(), str::to_string)
+}
+
 /// Who made the shot: read from EXIF where present. Used to refuse a profile made
 /// for another camera or lens unit.
 #[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -612,6 +662,20 @@ pub fn spaced(lo: f64, hi: f64, n: usize, log: bool) -> Vec<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn settings_read_as_a_camera_shows_them() {
+        let s = LensSetting {
+            focal_mm: 35.0,
+            f_number: 40f64.sqrt(),
+        };
+        assert_eq!(s.to_string(), "35 mm f/6.3");
+        assert_eq!(f_number_text(10.000_000_000_000_002), "f/10");
+        assert_eq!(f_number_text(2.8), "f/2.8");
+        assert_eq!(f_number_text(4.0), "f/4");
+        assert_eq!(focal_text(4.5), "4.5 mm");
+        assert_eq!(focal_text(104.6), "105 mm");
+    }
 
     #[test]
     fn bilinear_reproduces_a_plane() {

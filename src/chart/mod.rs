@@ -234,8 +234,26 @@ impl ChartSpec {
         let (w, h) = paper.landscape_mm();
         let m = 2.0 * self.margin;
         let across = (w - 2.0 * PRINTER_MARGIN_MM) / (self.cols as f64 + m);
-        let down = (h - 2.0 * PRINTER_MARGIN_MM) / (self.rows as f64 + m);
+        let down = (h - 2.0 * PRINTER_MARGIN_MM - NOTES_MM) / (self.rows as f64 + m);
         (across.min(down) * 2.0).floor() / 2.0
+    }
+
+    /// Whether the chart's paper, with the notes strip the PDF prints below it, fits
+    /// on `paper` in landscape inside the printer's margins.
+    #[must_use]
+    pub fn fits(&self, paper: Paper) -> bool {
+        let (w, h) = self.paper_mm();
+        let (pw, ph) = paper.landscape_mm();
+        // A hundredth of a millimetre for the rounding of the sheets' sizes.
+        w <= pw - 2.0 * PRINTER_MARGIN_MM + 0.01
+            && h + NOTES_MM <= ph - 2.0 * PRINTER_MARGIN_MM + 0.01
+    }
+
+    /// The first sheet of [`Paper::ALL`] the chart fits on ([`ChartSpec::fits`]);
+    /// `None` where it fits none.
+    #[must_use]
+    pub fn sheet(&self) -> Option<Paper> {
+        Paper::ALL.into_iter().find(|&p| self.fits(p))
     }
 
     /// Whether the chart point is white; `None` outside the paper. The reference
@@ -771,6 +789,10 @@ fn triangle_disc_area(a: [f64; 2], b: [f64; 2]) -> f64 {
 /// What printers leave blank at each edge of a sheet, at most.
 pub const PRINTER_MARGIN_MM: f64 = 10.0;
 
+/// The strip below the chart where the PDF prints how to print it and a 100 mm scale
+/// bar to check the print with.
+pub const NOTES_MM: f64 = 10.0;
+
 /// Paper sizes a chart can be fitted to (`lensblur chart --paper`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Paper {
@@ -804,6 +826,24 @@ impl Paper {
             Paper::Tabloid => (431.8, 279.4),
         }
     }
+
+    /// The sheet's name as printers' dialogs write it.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Paper::A4 => "A4",
+            Paper::A3 => "A3",
+            Paper::A2 => "A2",
+            Paper::Letter => "Letter",
+            Paper::Tabloid => "Tabloid",
+        }
+    }
+}
+
+impl std::fmt::Display for Paper {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
 }
 
 impl std::str::FromStr for Paper {
@@ -823,27 +863,39 @@ mod tests {
     #[test]
     fn the_default_chart_fills_each_sheet_inside_its_margins() {
         for (paper, want) in [
-            (Paper::A4, 10.5),
-            (Paper::A3, 15.0),
-            (Paper::A2, 22.0),
+            (Paper::A4, 10.0),
+            (Paper::A3, 14.5),
+            (Paper::A2, 21.5),
             (Paper::Letter, 9.5),
-            (Paper::Tabloid, 14.0),
+            (Paper::Tabloid, 13.5),
         ] {
             let chart = ChartSpec::default();
             let s = chart.square_to_fill(paper);
             assert_eq!(s, want, "{paper:?}");
-            let (w, h) = paper.landscape_mm();
-            let room = |side: f64| {
-                let (pw, ph) = ChartSpec {
-                    square_mm: side,
-                    ..ChartSpec::default()
-                }
-                .paper_mm();
-                pw <= w - 2.0 * PRINTER_MARGIN_MM && ph <= h - 2.0 * PRINTER_MARGIN_MM
+            let sized = |side: f64| ChartSpec {
+                square_mm: side,
+                ..ChartSpec::default()
             };
-            assert!(room(s), "{paper:?}");
-            assert!(!room(s + 0.5), "{paper:?}: half a millimetre more fits");
+            assert!(sized(s).fits(paper), "{paper:?}");
+            assert!(
+                !sized(s + 0.5).fits(paper),
+                "{paper:?}: half a millimetre more fits"
+            );
+            // The chart, its notes and the margins on the sheet, measured here
+            // rather than through `fits`.
+            let (w, h) = paper.landscape_mm();
+            let (pw, ph) = sized(s).paper_mm();
+            assert!(pw + 2.0 * PRINTER_MARGIN_MM <= w, "{paper:?}");
+            assert!(ph + NOTES_MM + 2.0 * PRINTER_MARGIN_MM <= h, "{paper:?}");
         }
+        // The default 20 mm chart (520 × 360 mm) fits A2 and no smaller sheet; a
+        // metre-wide one fits none.
+        assert_eq!(ChartSpec::default().sheet(), Some(Paper::A2));
+        let metre = ChartSpec {
+            square_mm: 40.0,
+            ..ChartSpec::default()
+        };
+        assert_eq!(metre.sheet(), None);
         assert_eq!("A3".parse::<Paper>(), Ok(Paper::A3));
         assert!("b5".parse::<Paper>().is_err());
     }

@@ -11,19 +11,28 @@ use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
 use lensblur::chart::ChartSpec;
 use lensblur::crossval::{CvOptions, HoldOut, ShapeCriterion, ShapeCvOptions};
 use lensblur::job::JobContext;
-use lensblur::model::{Dataset, LocalOptions};
+use lensblur::model::{Dataset, LocalOptions, ModelKind};
+use lensblur::pipeline::GivenSetting;
+use lensblur::plane::LensSetting;
+use lensblur::profile::trust::LARGE_ERROR_PCT;
 use lensblur::project::{MeasurePlan, Project, ShotEvent, Stages};
+use lensblur::session::ShotId;
 use std::path::{Path, PathBuf};
 
 /// Where a session's measurements come from (shared by calibrate, crossval, sweeps).
 #[derive(clap::Args, Default, Clone)]
 pub struct SessionArgs {
+    /// The session: a folder of shots (RAW, TIFF, PNG, JPEG; the settings from their
+    /// EXIF, the manifest inferred written there for the next run), a studio session
+    /// folder, or a manifest.
+    #[arg(conflicts_with_all = ["manifest", "kernels"])]
+    pub session: Option<PathBuf>,
     /// Session manifest (or a studio session folder or its session.json); every shot
     /// is measured, or taken from the cache in results/ beside it.
     #[arg(long, conflicts_with = "kernels")]
     pub manifest: Option<PathBuf>,
     /// Kernels files (lensblur.kernels/1), one per shot, instead of a manifest.
-    #[arg(long, num_args = 1.., required_unless_present = "manifest")]
+    #[arg(long, num_args = 1..)]
     pub kernels: Vec<PathBuf>,
     /// Chart spec, where another chart than the manifest's (or the default 24×16) was
     /// printed.
@@ -32,20 +41,32 @@ pub struct SessionArgs {
     /// Measure every shot again, ignoring (and replacing) cached results.
     #[arg(long)]
     pub no_cache: bool,
+    /// Stop when any shot fails, instead of listing the failed shots and going on
+    /// with the others.
+    #[arg(long)]
+    pub strict: bool,
 }
 
 /// Loads a session's measured Gaussians, measuring (or taking from the cache) every
 /// shot of a manifest.
 pub fn load_session(args: &SessionArgs) -> Result<(Dataset, Option<ChartSpec>)> {
-    load_session_locked(args).map(|(ds, chart, _)| (ds, chart))
+    load_session_locked(args, GivenSetting::default()).map(|(ds, chart, _)| (ds, chart))
 }
 
 /// [`load_session`], returning the project (which holds the session folder's lock)
 /// for a caller that goes on writing there.
+/// `given` is the setting of every shot of a plain folder of shots (see
+/// [`measure_project`]).
 pub fn load_session_locked(
     args: &SessionArgs,
+    given: GivenSetting,
 ) -> Result<(Dataset, Option<ChartSpec>, Option<Project>)> {
-    let Some(manifest_path) = &args.manifest else {
+    let Some(manifest_path) = args.session.as_ref().or(args.manifest.as_ref()) else {
+        if args.kernels.is_empty() {
+            anyhow::bail!(
+                "which session? give a folder of shots or a session folder (lensblur calibrate DIR), --manifest (a manifest), or --kernels (kernels files, one per shot)"
+            );
+        }
         let mut chart = None;
         if args.chart.is_some() {
             chart = Some(load_chart(args.chart.as_deref())?);
@@ -67,21 +88,27 @@ pub fn load_session_locked(
         chart,
         args.no_cache,
         plan,
+        args.strict,
+        given,
     )?;
     let ds = lensblur::pipeline::dataset(&project.measured_shots())?;
     let chart = project.session().chart.clone();
     Ok((ds, Some(chart), Some(project)))
 }
 
-/// Opens the session or manifest at `path` as a project, surveys it, and measures what
-/// `plan` asks (every shot again with `again`), printing each shot's events; fails
-/// naming the first shot that failed once every shot has been tried.
+/// Opens the session or manifest at `path` as a project (a plain folder of shots
+/// becomes one: see [`take_in_folder`]), surveys it, and measures what `plan` asks
+/// (every shot again with `again`), printing each shot's events. Every shot
+/// is tried; those that fail are listed afterwards, one line each with its own reason,
+/// and left out. Fails when none is left, or (with `strict`) when any failed.
 pub fn measure_project(
     path: &Path,
     who: &str,
     chart: Option<ChartSpec>,
     again: bool,
     plan: MeasurePlan,
+    strict: bool,
+    given: GivenSetting,
 ) -> Result<Project> {
     let (mut project, opened) = Project::open(path, who)?;
     if opened.swept > 0 {
@@ -94,7 +121,16 @@ pub fn measure_project(
     if let Some(chart) = chart {
         project.session_mut().chart = chart;
     }
+    if project.session().shots.is_empty() && path.is_dir() {
+        take_in_folder(&mut project, given)?;
+    }
     if project.session().shots.is_empty() {
+        if path.is_dir() {
+            anyhow::bail!(
+                "{}: no shots in this folder (RAW, TIFF, PNG or JPEG files), and no manifest",
+                path.display()
+            );
+        }
         anyhow::bail!("{}: the manifest lists no shots", path.display());
     }
     for line in project.survey(&JobContext::silent())? {
@@ -118,11 +154,10 @@ pub fn measure_project(
             .filter(|s| s.state.kernels.is_some())
             .count()
     };
-    // A shot that cannot be read fails the run as any other failure would, after the
-    // others are measured.
-    let mut failures: Vec<String> = project
+    // A shot that cannot be read is listed with those that fail while measured.
+    let mut failures: Vec<(ShotId, String)> = project
         .shots()
-        .filter_map(|s| s.state.unreadable.clone())
+        .filter_map(|s| Some((s.shot.id, s.state.unreadable.clone()?)))
         .collect();
     let mut measured = 0;
     let mut save_failed = None;
@@ -134,7 +169,9 @@ pub fn measure_project(
         }
         match &event {
             ShotEvent::Measured { .. } => measured += 1,
-            ShotEvent::Failed { reason, .. } => failures.push(reason.clone()),
+            ShotEvent::Failed { id, reason, .. } if failures.iter().all(|(f, _)| f != id) => {
+                failures.push((*id, reason.clone()));
+            }
             _ => {}
         }
         // Each shot's status is saved as it is measured, so the studio opens the
@@ -148,15 +185,104 @@ pub fn measure_project(
     if let Some(e) = save_failed {
         return Err(e.into());
     }
-    // A failure is the run's last line, on its own: it names the shot and the reason.
-    if let Some(first) = failures.first() {
-        match failures.len() {
-            1 => anyhow::bail!("{first}"),
-            n => anyhow::bail!("{first} (and {} more shots failed)", n - 1),
+    report_failures(&project, &failures);
+    let usable = project
+        .shots()
+        .filter(|s| failures.iter().all(|(id, _)| *id != s.shot.id))
+        .filter(|s| s.state.kernels.is_some() || s.state.detection.is_some())
+        .count();
+    let total = project.session().shots.len();
+    match failures.len() {
+        0 => eprintln!("{measured} shots measured, {cached} from the cache"),
+        n if strict => {
+            anyhow::bail!("{n} of {total} shots failed (listed above); stopped by --strict")
+        }
+        n if usable == 0 => {
+            anyhow::bail!("all {n} shots failed (listed above): nothing to go on with")
+        }
+        n => eprintln!(
+            "{measured} shots measured, {cached} from the cache; {n} of {total} failed and left out (--strict stops instead)"
+        ),
+    }
+    Ok(project)
+}
+
+/// A plain folder of shots as the session: its shots taken in, with the settings their
+/// EXIF records (or `given`, for all), and the manifest inferred written beside them
+/// for the next run (and for editing, where EXIF was wrong).
+fn take_in_folder(project: &mut Project, given: GivenSetting) -> Result<()> {
+    let taken = project.take_in_folder(given)?;
+    let folder = project.folder().display().to_string();
+    if !taken.skipped.is_empty() {
+        eprintln!(
+            "{folder}: skipped {} (not shots: RAW, TIFF, PNG or JPEG)",
+            taken.skipped.join(", ")
+        );
+    }
+    if taken.added == 0 {
+        return Ok(());
+    }
+    if !taken.no_setting.is_empty() {
+        eprintln!(
+            "{folder}: no focal length or aperture in the EXIF of {} (give --focal and --aperture, or write them in the manifest)",
+            taken.no_setting.join(", ")
+        );
+    }
+    let manifest = project.session().write_manifest()?;
+    let from = match (given.focal_mm, given.f_number) {
+        (Some(_), Some(_)) => "the settings given",
+        (None, None) => "settings from EXIF",
+        _ => "settings given and from EXIF",
+    };
+    eprintln!(
+        "{folder}: no manifest: took in {} shots ({from}); wrote {} for the next run",
+        taken.added,
+        manifest.display()
+    );
+    Ok(())
+}
+
+/// Lists every failed shot, one line each with its own reason, then what the session
+/// loses with them: each setting no shot is left at, and each setting left with fewer
+/// shots (fewer frame positions; the coverage notes say which parts of the frame).
+fn report_failures(project: &Project, failures: &[(ShotId, String)]) {
+    for (_, reason) in failures {
+        eprintln!("failed: {reason}");
+    }
+    let failed = |id: ShotId| failures.iter().any(|(f, _)| *f == id);
+    let setting_of = |s: &lensblur::project::ProjectShot<'_>| {
+        let k = s.state.kernels.as_deref();
+        Some(LensSetting {
+            focal_mm: s.shot.focal_mm.or(k.and_then(|k| k.focal_mm))?,
+            f_number: s.shot.f_number.or(k.and_then(|k| k.f_number))?,
+        })
+    };
+    let mut lost: Vec<(LensSetting, Vec<String>)> = Vec::new();
+    for s in project.shots().filter(|s| failed(s.shot.id)) {
+        let Some(setting) = setting_of(&s) else {
+            continue;
+        };
+        match lost.iter_mut().find(|(l, _)| l.same_as(setting)) {
+            Some((_, names)) => names.push(s.shot.name()),
+            None => lost.push((setting, vec![s.shot.name()])),
         }
     }
-    eprintln!("{measured} shots measured, {cached} from the cache");
-    Ok(project)
+    for (setting, names) in lost {
+        let kept = project
+            .shots()
+            .filter(|s| !failed(s.shot.id))
+            .filter(|s| setting_of(s).is_some_and(|k| k.same_as(setting)))
+            .count();
+        let names = names.join(", ");
+        if kept == 0 {
+            eprintln!("lost: no shot left at {setting} (with {names})");
+        } else {
+            let shots = if kept == 1 { "shot" } else { "shots" };
+            eprintln!(
+                "lost: {setting} keeps {kept} {shots} without {names}: fewer positions in the frame"
+            );
+        }
+    }
 }
 
 /// One line for a shot's event, as the command line prints it; `None` for events it
@@ -187,6 +313,14 @@ pub struct Args {
     /// Where to write the profile (lensblur.profile/4).
     #[arg(long)]
     pub out: PathBuf,
+    /// With a folder of shots and no manifest: every shot's focal length in mm,
+    /// instead of its EXIF's.
+    #[arg(long)]
+    pub focal: Option<f64>,
+    /// With a folder of shots and no manifest: every shot's aperture as an f-number,
+    /// instead of its EXIF's.
+    #[arg(long)]
+    pub aperture: Option<f64>,
     /// Which models to fit.
     #[arg(long, value_enum, default_value = "both")]
     pub model: ModelArg,
@@ -275,9 +409,17 @@ impl From<ModelArg> for Families {
 }
 
 pub fn run(args: Args) -> Result<()> {
+    for out in std::iter::once(&args.out).chain(&args.cv_out) {
+        super::common::check_out_folder(out)?;
+    }
     let t0 = std::time::Instant::now();
     // The folder stays locked until the profile is written (it may be written there).
-    let (ds, chart, _project) = load_session_locked(&args.session)?;
+    super::common::check_setting_args(args.focal, args.aperture)?;
+    let given = GivenSetting {
+        focal_mm: args.focal,
+        f_number: args.aperture,
+    };
+    let (ds, chart, _project) = load_session_locked(&args.session, given)?;
     // A small chart shot at several positions: say which parts of the frame a setting's
     // shots left out, before the models are fitted to what there is.
     for c in lensblur::review::coverage_of_dataset(&ds) {
@@ -311,6 +453,7 @@ pub fn run(args: Args) -> Result<()> {
     if let (Some(p), Some(r)) = (&args.cv_out, &report) {
         write_json(p, r)?;
     }
+    eprintln!("{}", verdict(&profile, ds.shots.len()));
     let describe = |k: &str, a: usize, b: usize, cv: Option<f64>| {
         let e = cv
             .map(|e| format!(", CV error {e:.2} % of range"))
@@ -365,6 +508,35 @@ pub fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
+/// The profile in a sentence: how well its preferred model predicts the blur of shots
+/// it was not fitted to, against what this method reaches and the error above which
+/// the profile warns ([`LARGE_ERROR_PCT`]).
+fn verdict(profile: &lensblur::profile::Profile, shots: usize) -> String {
+    let cv = profile.cv.as_ref().and_then(|c| match profile.preferred {
+        ModelKind::Global => c.global.as_ref(),
+        ModelKind::Local => c.local.as_ref(),
+    });
+    let Some(cv) = cv.filter(|c| c.mean_pct.is_finite()) else {
+        return format!(
+            "The profile was fitted to {shots} shot{} and nothing held out to check it against: trust it only at the settings it was shot at.",
+            if shots == 1 { "" } else { "s" }
+        );
+    };
+    let e = cv.mean_pct;
+    let how = if e <= 3.0 {
+        "good: as close as this method gets (1.4–3 % is typical)".to_string()
+    } else if e <= LARGE_ERROR_PCT {
+        "usable, though above the typical 1.4–3 %: more shots, or sharper and evenly lit ones, would tighten it".to_string()
+    } else {
+        format!(
+            "poor (above {LARGE_ERROR_PCT} %): the shots and the model disagree (noisy kernels, a shot unlike its neighbours, too few squares): check the shots' focus and light, and shoot again where they fall short"
+        )
+    };
+    format!(
+        "The profile predicts the blur of shots it was not fitted to within {e:.1} % of its range on average ({shots} shots, cross-validated): {how}."
+    )
+}
+
 /// Where the run's time went: the session's measurements (or the cache), the Gaussian
 /// models (their cross-validation and fits), the kernel shapes, and the writing.
 fn timings(load_s: f64, stages: &[(String, f64)], write_s: f64) -> String {
@@ -408,8 +580,9 @@ fn shape_summary(cv: &lensblur::crossval::ShapeCvReport) -> String {
     let gauss = said(&cv.gaussian);
     let verdict = match (&cv.best_shape, cv.shape_chosen) {
         (Some(b), true) => format!(
-            "kernel shapes: {} components, α = {}, β = {}: held-out {} against {gauss} for the Gaussians alone ({} kernels)",
+            "kernel shapes: {} component{}, α = {}, β = {}: held-out {} against {gauss} for the Gaussians alone ({} kernels)",
             b.components,
+            if b.components == 1 { "" } else { "s" },
             b.alpha,
             b.beta,
             said(b),

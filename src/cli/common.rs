@@ -88,3 +88,29 @@ pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     Ok(lensblur::io::write_atomic(path, bytes)?)
 }
+
+/// Refuses an output whose folder does not exist, before any work is done: a run of
+/// minutes should not end on "cannot write".
+pub fn check_out_folder(path: &Path) -> Result<()> {
+    let folder = path.parent().filter(|p| !p.as_os_str().is_empty());
+    match folder {
+        Some(f) if !f.is_dir() => anyhow::bail!(
+            "{}: the folder {} does not exist (create it first, or write elsewhere)",
+            path.display(),
+            f.display()
+        ),
+        _ => Ok(()),
+    }
+}
+
+/// `--focal` and `--aperture`, where given, as positive numbers.
+pub fn check_setting_args(focal: Option<f64>, aperture: Option<f64>) -> Result<()> {
+    for (name, v) in [("--focal", focal), ("--aperture", aperture)] {
+        if let Some(v) = v
+            && !(v.is_finite() && v > 0.0)
+        {
+            anyhow::bail!("{name} must be a positive number (got {v})");
+        }
+    }
+    Ok(())
+}

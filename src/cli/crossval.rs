@@ -49,6 +49,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> Result<()> {
+    super::common::check_out_folder(&args.out)?;
     if let Some(a) = args
         .global_alphas
         .iter()
@@ -74,6 +75,7 @@ pub fn run(args: Args) -> Result<()> {
     let mut report = cross_validate(&ds, &opts, &progress_job())?;
     if args.test_manifest.is_some() || !args.test_kernels.is_empty() {
         let test_args = SessionArgs {
+            session: None,
             manifest: args.test_manifest.clone(),
             kernels: args.test_kernels.clone(),
             ..args.session.clone()

@@ -199,17 +199,7 @@ pub fn run(args: Args) -> Result<()> {
             out.display()
         );
     }
-    let out_dir = out
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    if !out_dir.is_dir() {
-        bail!(
-            "{}: the folder {} does not exist",
-            out.display(),
-            out_dir.display()
-        );
-    }
+    super::common::check_out_folder(out)?;
     if same_file(photo, out) {
         bail!("{}: the output would overwrite the photo", out.display());
     }
@@ -249,12 +239,22 @@ pub fn run(args: Args) -> Result<()> {
             // and nothing else.
             let identity_warnings = profile
                 .check_identity(&capture.identity, args.force)
-                .with_context(|| format!("{} and {}", photo.display(), p.display()))?;
+                .map_err(|e| {
+                    anyhow::anyhow!(
+                        "{} and {}: {e} (--force to use it anyway)",
+                        photo.display(),
+                        p.display()
+                    )
+                })?;
             let setting = LensSetting { focal_mm, f_number };
             profile.allow_extrapolation = args.allow_extrapolation;
-            profile
-                .check_setting(setting)
-                .with_context(|| format!("{}: {}", photo.display(), p.display()))?;
+            profile.check_setting(setting).map_err(|e| {
+                anyhow::anyhow!(
+                    "{}: {}: {e} (--allow-extrapolation to deblur anyway)",
+                    photo.display(),
+                    p.display()
+                )
+            })?;
             if !identity_warnings.is_empty() {
                 eprintln!("lensblur: warning: {}", identity_warnings.join("; "));
             }
@@ -290,9 +290,12 @@ pub fn run(args: Args) -> Result<()> {
                 (photo_setting, file.focal_mm, file.f_number)
                 && ((pf - kf).abs() > 1e-6 * kf.abs() || (pa - ka).abs() > 1e-6 * ka.abs())
             {
+                let at = |focal_mm, f_number| LensSetting { focal_mm, f_number };
                 eprintln!(
-                    "lensblur: warning: {} was measured at f = {kf} mm, f/{ka} but the photo is at f = {pf} mm, f/{pa}",
-                    k.display()
+                    "lensblur: warning: {} was measured at {} but the photo is at {}",
+                    k.display(),
+                    at(kf, ka),
+                    at(pf, pa)
                 );
             }
             let prefer = match args.prefer {

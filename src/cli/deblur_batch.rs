@@ -7,7 +7,8 @@
 use super::common::progress_job;
 use anyhow::{Context, Result, bail};
 use lensblur::batch::{
-    BatchOptions, Outcome, OutputFormat, ProfileLibrary, collect_photos, plan, run as run_batch,
+    BatchOptions, Outcome, OutputFormat, ProfileLibrary, Skip, collect_photos, plan,
+    run as run_batch,
 };
 use lensblur::deblur::output::{
     DeblurWriteError, deblur_and_write, deblur_and_write_like, deblurred_note, output_supported,
@@ -169,10 +170,8 @@ pub fn run(
                 extrapolated,
             } => {
                 eprintln!(
-                    "{photo}: deblurred with {} at f = {} mm, f/{}{} to {}",
+                    "{photo}: deblurred with {} at {setting}{} to {}",
                     profile.display(),
-                    setting.focal_mm,
-                    setting.f_number,
                     if *extrapolated { " (extrapolated)" } else { "" },
                     o.output.display()
                 );
@@ -187,6 +186,9 @@ pub fn run(
                 if let Some(line) = trust {
                     eprintln!("{photo}: {line}");
                 }
+            }
+            Outcome::Skipped(s @ Skip::OutOfRange { .. }) => {
+                eprintln!("{photo}: skipped: {s} (--allow-extrapolation to deblur it anyway)");
             }
             Outcome::Skipped(s) => eprintln!("{photo}: skipped: {s}"),
             Outcome::Failed(e) => {

@@ -20,6 +20,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> Result<()> {
+    super::common::check_out_folder(&args.out)?;
     let spec = load_chart(args.chart.as_deref())?;
     let capture = load_capture(&args.shot, &LoadOptions::default())?;
     let job = progress_job();

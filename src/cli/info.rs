@@ -4,6 +4,7 @@
 //! docs/formats.md.
 
 use anyhow::Result;
+use lensblur::plane::{f_number_text, focal_text};
 use lensblur::raw::{FileInfo, FocusDistance, inspect};
 use std::path::PathBuf;
 
@@ -29,7 +30,6 @@ pub fn run(args: Args) -> Result<()> {
 fn text(i: &FileInfo) -> String {
     let unknown = || "not recorded".to_string();
     let or_unknown = |s: &Option<String>| s.clone().unwrap_or_else(unknown);
-    let number = |v: Option<f64>, unit: &str| v.map_or_else(unknown, |v| format!("{v}{unit}"));
     let levels = match (&i.cfa, i.black, i.white) {
         (Some(cfa), Some(b), Some(w)) => format!(
             "CFA {cfa}, black {} {} {} {}, white {w}",
@@ -43,15 +43,45 @@ fn text(i: &FileInfo) -> String {
         None => unknown(),
     };
     format!(
-        "file:      {}\ndecoder:   {}\nimage:     {} × {} px\nlevels:    {levels}\ncamera:    {} {}\nlens:      {}\nfocal:     {}\naperture:  {}\nfocus at:  {focus}\n",
+        "file:      {}\ndecoder:   {}\nimage:     {} × {} px\nlevels:    {levels}\ncamera:    {}\nlens:      {}\nfocal:     {}\naperture:  {}\nfocus at:  {focus}\n",
         i.file,
         i.decoder.name(),
         i.width,
         i.height,
-        or_unknown(&i.make),
-        or_unknown(&i.model),
+        camera_name(i.make.as_deref(), i.model.as_deref()).unwrap_or_else(unknown),
         or_unknown(&i.lens),
-        number(i.focal_length_mm, " mm"),
-        i.f_number.map_or_else(unknown, |f| format!("f/{f}")),
+        i.focal_length_mm.map_or_else(unknown, focal_text),
+        i.f_number.map_or_else(unknown, f_number_text),
     )
+}
+
+/// The camera as people name it: "Canon EOS 6D", not the make twice where the model
+/// already starts with it (as Canon and Nikon write theirs).
+fn camera_name(make: Option<&str>, model: Option<&str>) -> Option<String> {
+    match (make.map(str::trim), model.map(str::trim)) {
+        (Some(make), Some(model)) if model.to_lowercase().starts_with(&make.to_lowercase()) => {
+            Some(model.to_string())
+        }
+        (Some(make), Some(model)) => Some(format!("{make} {model}")),
+        (Some(one), None) | (None, Some(one)) => Some(one.to_string()),
+        (None, None) => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::camera_name;
+
+    #[test]
+    fn a_camera_is_named_once() {
+        assert_eq!(
+            camera_name(Some("Canon"), Some("Canon EOS 6D")).as_deref(),
+            Some("Canon EOS 6D")
+        );
+        assert_eq!(
+            camera_name(Some("SONY"), Some("ILCE-7M3")).as_deref(),
+            Some("SONY ILCE-7M3")
+        );
+        assert_eq!(camera_name(None, None), None);
+    }
 }

@@ -21,11 +21,17 @@ pub struct Args {
     /// A session folder (or its session.json, or a manifest): detect and measure every
     /// shot that has no kernels yet, caching the results in its results/ folder and
     /// recording each shot's status, as the studio does.
-    #[arg(long, conflicts_with_all = ["focal", "aperture", "oversample", "uniform_weights", "fft"])]
+    /// A plain folder of shots is a session: the settings from their EXIF (or
+    /// --focal and --aperture, for all), the manifest inferred written there.
+    #[arg(long, conflicts_with_all = ["oversample", "uniform_weights", "fft"])]
     pub session: Option<PathBuf>,
     /// With --session: measure every shot again, replacing its cached results.
     #[arg(long, requires = "session")]
     pub again: bool,
+    /// With --session: stop when any shot fails, instead of listing the failed shots
+    /// and measuring the others.
+    #[arg(long, requires = "session")]
+    pub strict: bool,
     /// Also write every kernel array (at the oversampling), not only its Gaussians.
     #[arg(long)]
     pub with_kernels: bool,
@@ -51,6 +57,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> Result<()> {
+    super::common::check_setting_args(args.focal, args.aperture)?;
     if let Some(session) = &args.session {
         let chart = match &args.chart {
             Some(p) => Some(load_chart(Some(p))?),
@@ -62,6 +69,11 @@ pub fn run(args: Args) -> Result<()> {
             chart,
             args.again,
             MeasurePlan::missing(Stages::All),
+            args.strict,
+            GivenSetting {
+                focal_mm: args.focal,
+                f_number: args.aperture,
+            },
         )?;
         let with = project
             .shots()
@@ -77,13 +89,7 @@ pub fn run(args: Args) -> Result<()> {
     let (Some(shot), Some(out)) = (&args.shot, &args.out) else {
         bail!("give a shot and --out, or --session");
     };
-    for (name, v) in [("--focal", args.focal), ("--aperture", args.aperture)] {
-        if let Some(v) = v
-            && !(v.is_finite() && v > 0.0)
-        {
-            bail!("{name} must be a positive number (got {v})");
-        }
-    }
+    super::common::check_out_folder(out)?;
     let spec = load_chart(args.chart.as_deref())?;
     let capture = pipeline::load(shot)?;
     let m = Measurement::new(

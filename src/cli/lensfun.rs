@@ -65,6 +65,10 @@ pub struct Args {
     /// Measure every shot again, ignoring (and replacing) cached results.
     #[arg(long)]
     pub no_cache: bool,
+    /// Stop when any shot fails, instead of listing the failed shots and going on
+    /// with the others.
+    #[arg(long)]
+    pub strict: bool,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy)]
@@ -103,6 +107,7 @@ fn parse_range(s: &str) -> Result<[f64; 2], String> {
 }
 
 pub fn run(args: Args) -> Result<()> {
+    super::common::check_out_folder(&args.out)?;
     let chart = match &args.chart {
         Some(_) => Some(load_chart(args.chart.as_deref())?),
         None => None,
@@ -117,6 +122,8 @@ pub fn run(args: Args) -> Result<()> {
         chart,
         args.no_cache,
         plan,
+        args.strict,
+        lensblur::pipeline::GivenSetting::default(),
     )?;
     let chart = project.session().chart.clone();
     let mut shots = Vec::new();
@@ -213,8 +220,8 @@ fn print_summary(c: &LensCorrection) {
             .map(|(n, (v, e))| format!("{n} {v:.6} ± {e:.6}"))
             .collect();
         let mut line = format!(
-            "{} mm ({} shots): {} {} — {:+.2} px at the corners, RMS {:.3} px over {} corners",
-            f.focal_mm,
+            "{} ({} shots): {} {} — {:+.2} px at the corners, RMS {:.3} px over {} corners",
+            lensblur::plane::focal_text(f.focal_mm),
             f.shots,
             d.model.name(),
             terms.join(", "),
@@ -235,9 +242,8 @@ fn print_summary(c: &LensCorrection) {
     }
     for v in &c.vignetting {
         println!(
-            "{} mm f/{}: fall-off {:.2} stops at the corners (chart reached r = {:.2}), residual {:.2} %, light gradient {:.2} stops{}",
-            v.setting.focal_mm,
-            v.setting.f_number,
+            "{}: fall-off {:.2} stops at the corners (chart reached r = {:.2}), residual {:.2} %, light gradient {:.2} stops{}",
+            v.setting,
             v.corner_stops,
             v.max_radius,
             100.0 * v.rms_relative,

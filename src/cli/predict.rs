@@ -101,6 +101,7 @@ struct PredSample {
 }
 
 pub fn run(args: Args) -> Result<()> {
+    super::common::check_out_folder(&args.out)?;
     let mut profile = Profile::load(&args.profile)?;
     profile.allow_extrapolation = args.allow_extrapolation;
     let setting = LensSetting {

@@ -2,7 +2,7 @@
 //! profile at a focal length and aperture (`--profile --focal --aperture`) or measured
 //! on one shot (`--kernels`); written as a PNG with its colour bar and as CSV.
 
-use super::common::write_atomic;
+use super::common::{check_out_folder, write_atomic};
 use anyhow::{Context, Result, bail};
 use lensblur::kernel::file::KernelsFile;
 use lensblur::plane::{Channel, LensSetting};
@@ -24,9 +24,14 @@ pub struct Args {
     /// Map what one shot's kernels file measured instead.
     #[arg(long)]
     pub kernels: Option<PathBuf>,
-    /// The colour channel.
-    #[arg(long, default_value = "g")]
-    pub channel: Channel,
+    /// Predict with --profile at a setting outside the calibrated ones (the models
+    /// extrapolate).
+    #[arg(long, requires = "profile")]
+    pub allow_extrapolation: bool,
+    /// The colour channel (default: G where the kernels have it, else the one they
+    /// have: Y for a greyscale chart).
+    #[arg(long, value_enum)]
+    pub channel: Option<ChannelArg>,
     /// Which MTF50: along the worst or best direction, or isotropic.
     #[arg(long, value_enum, default_value_t = DirectionArg::Worst)]
     pub direction: DirectionArg,
@@ -43,6 +48,36 @@ pub struct Args {
     /// Write the map as CSV, one row per cell.
     #[arg(long)]
     pub csv: Option<PathBuf>,
+}
+
+/// A colour channel, as the kernels name it.
+#[derive(clap::ValueEnum, Clone, Copy)]
+pub enum ChannelArg {
+    R,
+    G,
+    B,
+    /// Luminance: a greyscale chart's only channel.
+    Y,
+}
+
+impl From<ChannelArg> for Channel {
+    fn from(c: ChannelArg) -> Self {
+        match c {
+            ChannelArg::R => Channel::R,
+            ChannelArg::G => Channel::G,
+            ChannelArg::B => Channel::B,
+            ChannelArg::Y => Channel::Y,
+        }
+    }
+}
+
+/// The channel asked for, or G where the kernels have it, else the first they have.
+fn pick_channel(asked: Option<ChannelArg>, have: &[Channel]) -> Channel {
+    match asked {
+        Some(c) => c.into(),
+        None if have.contains(&Channel::G) || have.is_empty() => Channel::G,
+        None => have[0],
+    }
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Default)]
@@ -70,32 +105,44 @@ pub fn run(args: Args) -> Result<()> {
         UnitArg::LpPh => SharpnessUnit::LpPerPictureHeight,
         UnitArg::CyclesPx => SharpnessUnit::CyclesPerPixel,
     };
-    let map = match (&args.profile, &args.kernels) {
+    for out in [&args.png, &args.csv].into_iter().flatten() {
+        check_out_folder(out)?;
+    }
+    let (map, channel) = match (&args.profile, &args.kernels) {
         (Some(path), _) => {
             let (Some(focal_mm), Some(f_number)) = (args.focal, args.aperture) else {
                 bail!("--profile needs --focal and --aperture: the setting to map");
             };
-            let profile = Profile::load(path)?;
-            SharpnessMap::predicted(
-                &profile,
-                args.channel,
-                LensSetting { focal_mm, f_number },
-                direction,
-            )
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
+            let mut profile = Profile::load(path)?;
+            let setting = LensSetting { focal_mm, f_number };
+            profile.allow_extrapolation = args.allow_extrapolation;
+            profile.check_setting(setting).map_err(|e| {
+                anyhow::anyhow!(
+                    "{}: {e} (--allow-extrapolation to map it anyway)",
+                    path.display()
+                )
+            })?;
+            let channel = pick_channel(args.channel, &profile.channels());
+            let map = SharpnessMap::predicted(&profile, channel, setting, direction)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            (map, channel)
         }
         (None, Some(path)) => {
             let file = KernelsFile::load(path)?;
             let name = path
                 .file_name()
                 .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-            SharpnessMap::measured(
-                &file,
-                args.channel,
-                direction,
-                format!("measured on {name}"),
-            )
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
+            let mut have: Vec<Channel> = Vec::new();
+            for s in &file.samples {
+                if !have.contains(&s.channel) {
+                    have.push(s.channel);
+                }
+            }
+            let channel = pick_channel(args.channel, &have);
+            let map =
+                SharpnessMap::measured(&file, channel, direction, format!("measured on {name}"))
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            (map, channel)
         }
         (None, None) => bail!("give --profile (with --focal and --aperture) or --kernels"),
     };
@@ -112,13 +159,21 @@ pub fn run(args: Args) -> Result<()> {
             SharpnessUnit::LpPerPictureHeight => 1,
             SharpnessUnit::CyclesPerPixel => 4,
         };
+        // A measured map may not reach the centre or the corners: said in words.
+        let v = |x: f64, place: &str| {
+            if x.is_finite() {
+                format!("{place} {x:.d$}")
+            } else {
+                format!("{place} not covered")
+            }
+        };
         println!(
-            "MTF50 {} ({}), {}: centre {:.d$}, corners {:.d$}, from {:.d$} to {:.d$}, median {:.d$} {}",
+            "MTF50 {} ({}), {}: {}, {}, from {:.d$} to {:.d$}, median {:.d$} {}",
             direction.label(),
-            args.channel.name(),
+            channel.name(),
             map.title,
-            s.centre,
-            s.corners,
+            v(s.centre, "centre"),
+            v(s.corners, "corners"),
             s.min,
             s.max,
             s.median,

@@ -283,12 +283,10 @@ pub fn run(args: Args) -> Result<()> {
         );
         let file = format!("{name}.{}", format.extension());
         eprintln!(
-            "simulating {file} ({} of {total}): {} × {} at {} mm f/{}",
+            "simulating {file} ({} of {total}): {} × {} at {setting}",
             k + 1,
             args.width,
             args.height,
-            setting.focal_mm,
-            setting.f_number
         );
         let shot = simulate_shot(&chart, &lens, &params, &job)
             .with_context(|| format!("{}: simulating", args.out.join(&file).display()))?;

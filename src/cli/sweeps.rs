@@ -121,6 +121,7 @@ fn middle(values: &[f64], log: bool) -> Option<f64> {
 }
 
 pub fn run(args: Args) -> Result<()> {
+    super::common::check_out_folder(&args.out)?;
     let (ds, _) = load_session(&args.session)?;
     ds.validate()?;
     let (fs, as_) = ds.distinct_settings();
@@ -215,7 +216,11 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     if vs_a.iter().all(|s| s.measured.is_empty()) && vs_f.iter().all(|s| s.measured.is_empty()) {
-        bail!("no measured samples near the requested locations at f = {focal} mm or f/{aperture}");
+        bail!(
+            "no measured samples near the requested locations at {} or {}",
+            lensblur::plane::focal_text(focal),
+            lensblur::plane::f_number_text(aperture)
+        );
     }
     let out = Sweeps {
         schema: "lensblur.sweeps/1",

@@ -196,8 +196,5 @@ pub fn profile_described(
         Some(crate::model::LateralColour::Keep) => ", lateral colour kept for lensfun",
         None => "",
     };
-    format!(
-        "the profile {name} at {} mm, f/{}{shapes}{lateral}",
-        setting.focal_mm, setting.f_number
-    )
+    format!("the profile {name} at {setting}{shapes}{lateral}")
 }

@@ -152,7 +152,8 @@ pub enum DetectError {
     #[error("no chart found")]
     NoChart,
     #[error(
-        "the chart in the shot has at least {cols} × {rows} squares, more than the chart spec's {spec_cols} × {spec_rows} (wrong --chart?)"
+        "the chart in the shot has more squares than the chart spec's {spec_cols} × {spec_rows}{}: the spec does not match the printed chart (give the spec of the chart that was printed)",
+        found_squares(*cols, *rows, *spec_cols, *spec_rows)
     )]
     ChartTooLarge {
         cols: usize,
@@ -162,6 +163,20 @@ pub enum DetectError {
     },
     #[error("cancelled")]
     Cancelled(#[from] Cancelled),
+}
+
+/// The squares a lattice larger than the spec spans, where the count is one a chart
+/// could have: within twice the spec each way. Past that the lattice ran over other
+/// patterns in the scene (a 10 × 7 spec on a 24 × 16 chart spans "59 × 109"), and a
+/// count would mislead.
+fn found_squares(cols: usize, rows: usize, spec_cols: usize, spec_rows: usize) -> String {
+    let (big, small) = (cols.max(rows), cols.min(rows));
+    let (spec_big, spec_small) = (spec_cols.max(spec_rows), spec_cols.min(spec_rows));
+    if big <= 2 * spec_big && small <= 2 * spec_small {
+        format!(" (at least {cols} × {rows} found)")
+    } else {
+        String::new()
+    }
 }
 
 /// Finds and aligns every square of `spec` in `capture`.

@@ -21,7 +21,7 @@ use crate::model::{
     ModelKind, Normalisation, model_basis, to_gaussian,
 };
 use crate::model::{KernelModel, LateralColour, ShapeModel};
-use crate::plane::{CameraIdentity, Channel, LensSetting};
+use crate::plane::{CameraIdentity, Channel, LensSetting, f_number_text, focal_text, short_number};
 use crate::psf::{Gaussian2, Kernel};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -57,7 +57,7 @@ pub enum ProfileError {
     #[error("{path}: invalid profile: {reason}")]
     Invalid { path: String, reason: String },
     #[error(
-        "the profile is for another camera or lens: {field} is '{profile}' in the profile but '{photo}' in the photo (force to use it anyway)"
+        "the profile is for another camera or lens: {field} is '{profile}' in the profile but '{photo}' in the photo"
     )]
     IdentityMismatch {
         field: String,
@@ -65,7 +65,12 @@ pub enum ProfileError {
         photo: String,
     },
     #[error(
-        "f = {focal_mm} mm, f/{f_number} is outside the calibrated range {f0}–{f1} mm, f/{a0}–f/{a1} (allow extrapolation to predict anyway)"
+        "{} is outside the calibrated range {}–{}, {}–{}: the models would extrapolate",
+        LensSetting { focal_mm: *focal_mm, f_number: *f_number },
+        short_number(*f0),
+        focal_text(*f1),
+        f_number_text(*a0),
+        f_number_text(*a1)
     )]
     OutOfRange {
         focal_mm: f64,
@@ -76,7 +81,8 @@ pub enum ProfileError {
         a1: f64,
     },
     #[error(
-        "f = {focal_mm} mm, f/{f_number} is inside the calibrated ranges but not among the calibrated settings (outside their convex hull): the models would extrapolate (allow extrapolation to predict anyway)"
+        "{} is inside the calibrated ranges but not among the calibrated settings (outside their convex hull): the models would extrapolate",
+        LensSetting { focal_mm: *focal_mm, f_number: *f_number }
     )]
     BetweenRanges { focal_mm: f64, f_number: f64 },
     #[error("the profile holds no {0:?} model")]

@@ -74,6 +74,18 @@ pub enum ProjectError {
     Cancelled(#[from] Cancelled),
 }
 
+/// What [`Project::take_in_folder`] found in a plain folder of shots.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct TakenIn {
+    /// Shots added to the session.
+    pub added: usize,
+    /// Files that are not shots, by name.
+    pub skipped: Vec<String>,
+    /// Shots added without a focal length or an aperture (neither given nor in
+    /// their EXIF), by name.
+    pub no_setting: Vec<String>,
+}
+
 /// One stage of a shot's measurement.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Stage {
@@ -384,6 +396,68 @@ impl Project {
         let id = self.session.add_shot(path)?;
         self.states.insert(id, ShotState::default());
         Ok(id)
+    }
+
+    /// Takes in a plain folder of shots as the session: every shot file lying in the
+    /// session's folder (not in its subfolders), in name order, each with the setting
+    /// `given` where given, else the one its EXIF records. Files that are not shots
+    /// are skipped and named; lensblur's own files (JSON) and hidden ones are passed
+    /// over in silence. A shot already in the session is not added twice.
+    ///
+    /// # Errors
+    /// The folder cannot be listed.
+    pub fn take_in_folder(&mut self, given: GivenSetting) -> Result<TakenIn, ProjectError> {
+        let folder = self.session.folder().to_path_buf();
+        let listing = std::fs::read_dir(&folder).map_err(|source| SessionError::Read {
+            path: folder.clone(),
+            source,
+        })?;
+        let mut files: Vec<PathBuf> = listing
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .filter(|p| p.is_file())
+            .collect();
+        files.sort();
+        let mut taken = TakenIn::default();
+        for path in files {
+            let name = path
+                .file_name()
+                .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+            let ext = path
+                .extension()
+                .map(|e| e.to_string_lossy().to_ascii_lowercase())
+                .unwrap_or_default();
+            if name.starts_with('.') || ext == "json" {
+                continue;
+            }
+            if !crate::session::SHOT_EXTENSIONS.contains(&ext.as_str()) {
+                taken.skipped.push(name);
+                continue;
+            }
+            let Ok(id) = self.add_shot(&path) else {
+                continue;
+            };
+            // A file whose headers cannot be read is still a shot: measuring it says
+            // why it fails, with the others.
+            let exif = crate::raw::read_header(&path).ok().map(|h| h.exif);
+            let setting = GivenSetting {
+                focal_mm: given
+                    .focal_mm
+                    .or_else(|| exif.as_ref().and_then(|e| e.focal_mm)),
+                f_number: given
+                    .f_number
+                    .or_else(|| exif.as_ref().and_then(|e| e.f_number)),
+            };
+            if let Some(shot) = self.session.shot_mut(id) {
+                shot.focal_mm = setting.focal_mm;
+                shot.f_number = setting.f_number;
+            }
+            if setting.focal_mm.is_none() || setting.f_number.is_none() {
+                taken.no_setting.push(name);
+            }
+            taken.added += 1;
+        }
+        Ok(taken)
     }
 
     /// Adds shots made elsewhere under ids the session has not given yet (the demo,

@@ -24,7 +24,7 @@ fn assets_are_the_default_chart() {
         "assets/chart_24x16_20mm.svg is not what `lensblur chart` writes"
     );
     assert!(
-        asset("chart_24x16_20mm.pdf") == to_pdf(&spec).expect("pdf"),
+        asset("chart_24x16_20mm.pdf") == to_pdf(&spec, None).expect("pdf"),
         "assets/chart_24x16_20mm.pdf is not what `lensblur chart` writes"
     );
 }
@@ -44,7 +44,8 @@ fn the_sheet_charts_are_the_default_chart_sized_to_their_paper() {
         };
         assert_eq!(spec, sized, "{paper}");
         assert!(
-            asset(&format!("chart_{paper}.pdf")) == to_pdf(&spec).expect("pdf"),
+            asset(&format!("chart_{paper}.pdf"))
+                == to_pdf(&spec, Some(paper.parse().expect("a paper"))).expect("pdf"),
             "assets/chart_{paper}.pdf is not what `lensblur chart --paper {paper}` writes"
         );
     }

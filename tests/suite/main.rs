@@ -20,6 +20,7 @@ mod project;
 mod raw_worker;
 mod real_deblur;
 mod real_files;
+mod sessions;
 mod simulate;
 
 /// The global model of orders α, β calibrated on `ds`, given rather than chosen by

@@ -61,7 +61,11 @@ pub(super) fn apply_session(app: &mut StudioApp, command: Command) {
         Command::EditSettings(edit) => app.views.session.settings_edit = edit,
         Command::OpenSession(path) => match crate::session::Session::open(&path) {
             Ok(s) => {
+                let plain_folder = s.shots.is_empty() && path.is_dir();
                 if app.set_session(s) {
+                    if plain_folder {
+                        take_in_folder(app);
+                    }
                     save(app);
                 }
             }
@@ -171,6 +175,37 @@ fn add_shots(app: &mut StudioApp, files: &[PathBuf]) {
         app.views.shot.selected = Some(id);
         app.views.shot.viewer.sensor_px_per_point = None;
         save(app);
+    }
+}
+
+/// A folder of shots opened as a session takes its shots in, as the command line
+/// does, saying which files it skipped.
+fn take_in_folder(app: &mut StudioApp) {
+    let Some(p) = app.project.as_mut() else {
+        return;
+    };
+    match p.take_in_folder(crate::pipeline::GivenSetting::default()) {
+        Ok(taken) if taken.added > 0 || !taken.skipped.is_empty() => {
+            let first = p.session().shots.first().map(|shot| shot.id);
+            let mut line = format!("took in the folder's {} shots", taken.added);
+            if !taken.skipped.is_empty() {
+                line.push_str(&format!(
+                    "; skipped {} (not shots)",
+                    taken.skipped.join(", ")
+                ));
+            }
+            if !taken.no_setting.is_empty() {
+                line.push_str(&format!(
+                    "; no focal length or aperture in the EXIF of {}: type them in the shot panel",
+                    taken.no_setting.join(", ")
+                ));
+            }
+            app.info(line);
+            app.views.shot.selected = first;
+            read_results(app);
+        }
+        Ok(_) => {}
+        Err(e) => app.error(e.to_string()),
     }
 }
 
