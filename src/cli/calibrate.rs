@@ -185,13 +185,19 @@ pub fn measure_project(
     if let Some(e) = save_failed {
         return Err(e.into());
     }
-    report_failures(&project, &failures);
     let usable = project
         .shots()
         .filter(|s| failures.iter().all(|(id, _)| *id != s.shot.id))
         .filter(|s| s.state.kernels.is_some() || s.state.detection.is_some())
         .count();
     let total = project.session().shots.len();
+    // A run that stops on one failed shot says so in one line: the shot and why.
+    if let [(_, reason)] = failures.as_slice()
+        && (strict || usable == 0)
+    {
+        anyhow::bail!("{reason}");
+    }
+    report_failures(&project, &failures);
     match failures.len() {
         0 => eprintln!("{measured} shots measured, {cached} from the cache"),
         n if strict => {
