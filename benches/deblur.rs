@@ -5,6 +5,11 @@
 //!
 //! The GPU case runs on a hardware adapter; on a software one (llvmpipe) only with
 //! `LENSBLUR_BENCH_SOFTWARE_GPU=1` (minutes per run), and not at all without an adapter.
+//!
+//! Each case's per-stage breakdown ([`lensblur::timings`]) is printed once before
+//! it is timed. `LENSBLUR_BENCH_SWEEP=1,2,4,8,16` replaces criterion by a thread sweep:
+//! the photo deblurred in a rayon pool of each size (`LENSBLUR_BENCH_REPS` times, 3 by
+//! default), then on the GPU, one line each and the breakdowns (`scripts/device_bench.sh`).
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use lensblur::calibrate::{CalibrateOptions, Families, calibrate};
@@ -17,8 +22,108 @@ use lensblur::model::spaced;
 use lensblur::plane::{Capture, Channel, ChannelPlane, LensSetting};
 use lensblur::simulate::dead_leaves;
 use lensblur::simulate::{SimulatedSession, VirtualLens};
+use lensblur::timings::Timings;
 use std::hint::black_box;
-use std::time::Duration;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// One deblur of `capture` with its stage times noted, and the table printed.
+fn breakdown(
+    label: &str,
+    capture: &Capture,
+    source: &dyn KernelSource,
+    opts: &DeblurOptions,
+    job: &JobContext,
+) {
+    let timings = Arc::new(Timings::new());
+    black_box(
+        deblur_capture(
+            capture,
+            source,
+            opts,
+            &job.with_timings(Arc::clone(&timings)),
+        )
+        .expect("deblur"),
+    );
+    eprintln!(
+        "{label}, {} threads:\n{}\n",
+        rayon::current_num_threads(),
+        timings.table()
+    );
+}
+
+/// The sweep `LENSBLUR_BENCH_SWEEP` asks for, or `None`.
+fn sweep_threads() -> Option<Vec<usize>> {
+    let list = std::env::var("LENSBLUR_BENCH_SWEEP").ok()?;
+    Some(
+        list.split(',')
+            .filter_map(|t| t.trim().parse().ok())
+            .filter(|&t| t > 0)
+            .collect(),
+    )
+}
+
+/// Seconds of each of `reps` runs of `f`, sorted.
+fn times(reps: usize, mut f: impl FnMut()) -> Vec<f64> {
+    let mut out: Vec<f64> = (0..reps)
+        .map(|_| {
+            let t = Instant::now();
+            f();
+            t.elapsed().as_secs_f64()
+        })
+        .collect();
+    out.sort_by(f64::total_cmp);
+    out
+}
+
+/// The thread sweep: one line per pool size (and the GPU), then the breakdowns.
+fn sweep(threads: &[usize], capture: &Capture, source: &dyn KernelSource, job: &JobContext) {
+    let reps: usize = std::env::var("LENSBLUR_BENCH_REPS")
+        .ok()
+        .and_then(|r| r.parse().ok())
+        .unwrap_or(3)
+        .max(1);
+    let opts = DeblurOptions::default();
+    let run = |o: &DeblurOptions| {
+        black_box(deblur_capture(capture, source, o, job).expect("deblur"));
+    };
+    let mut one_thread = None;
+    for &n in threads {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .expect("thread pool");
+        pool.install(|| {
+            let t = times(reps, || run(&opts));
+            let median = t[t.len() / 2];
+            let base = *one_thread.get_or_insert(if n == 1 { median } else { f64::NAN });
+            println!(
+                "deblur_10mp_rgb_hqs cpu threads={n} median_s={median:.3} min_s={:.3} speedup_vs_1={:.2}",
+                t[0],
+                base / median
+            );
+            breakdown("CPU", capture, source, &opts, job);
+        });
+    }
+    let on_gpu = DeblurOptions {
+        device: Device::Gpu,
+        ..opts
+    };
+    match lensblur::deblur::gpu::shared() {
+        Ok(gpu) => {
+            run(&on_gpu);
+            let t = times(reps, || run(&on_gpu));
+            println!(
+                "deblur_10mp_rgb_hqs gpu adapter=\"{}\" median_s={:.3} min_s={:.3}",
+                gpu.adapter(),
+                t[t.len() / 2],
+                t[0]
+            );
+            breakdown("GPU", capture, source, &on_gpu, job);
+        }
+        Err(e) => println!("deblur_10mp_rgb_hqs gpu skipped=\"{e}\""),
+    }
+}
 
 fn bench(c: &mut Criterion) {
     let (w, h) = (3872, 2592);
@@ -90,6 +195,11 @@ fn bench(c: &mut Criterion) {
         );
     }
 
+    if let Some(threads) = sweep_threads() {
+        sweep(&threads, &capture, &source, &job);
+        return;
+    }
+    breakdown("CPU", &capture, &source, &deblur_opts, &job);
     let mut g = c.benchmark_group("deblur");
     g.sample_size(10);
     g.measurement_time(Duration::from_secs(60));
@@ -110,6 +220,7 @@ fn bench(c: &mut Criterion) {
             };
             // Pipelines are built and the first buffers made before timing starts.
             black_box(deblur_capture(&capture, &source, &on_gpu, &job).expect("deblur"));
+            breakdown("GPU", &capture, &source, &on_gpu, &job);
             g.bench_function("hqs_10mp_rgb_varying_field_gpu", |b| {
                 b.iter(|| {
                     black_box(deblur_capture(&capture, &source, &on_gpu, &job).expect("deblur"))

@@ -23,6 +23,8 @@ pub struct JobContext {
     /// ([`JobContext::part`]).
     outer: Option<Arc<AtomicBool>>,
     sink: Option<Sink>,
+    /// Where a deblur notes its stages' times, when the caller wants them.
+    timings: Option<Arc<crate::timings::Timings>>,
 }
 
 /// Returned by work that stopped because it was cancelled.
@@ -52,6 +54,7 @@ impl JobContext {
             cancel: Arc::new(AtomicBool::new(false)),
             outer: None,
             sink: None,
+            timings: None,
         }
     }
 
@@ -62,7 +65,23 @@ impl JobContext {
             cancel: Arc::new(AtomicBool::new(false)),
             outer: None,
             sink: Some(Arc::new(sink)),
+            timings: None,
         }
+    }
+
+    /// The same job, noting a deblur's stage times in `timings`.
+    #[must_use]
+    pub fn with_timings(&self, timings: Arc<crate::timings::Timings>) -> JobContext {
+        JobContext {
+            timings: Some(timings),
+            ..self.clone()
+        }
+    }
+
+    /// Where to note stage times, if anywhere.
+    #[must_use]
+    pub fn timings(&self) -> Option<&crate::timings::Timings> {
+        self.timings.as_deref()
     }
 
     pub fn cancel(&self) {
@@ -87,6 +106,7 @@ impl JobContext {
             cancel: flag,
             outer: Some(Arc::clone(&self.cancel)),
             sink: self.sink.clone(),
+            timings: self.timings.clone(),
         }
     }
 
@@ -121,6 +141,7 @@ impl JobContext {
         JobContext {
             cancel: Arc::clone(&self.cancel),
             outer: self.outer.clone(),
+            timings: self.timings.clone(),
             sink: Some(Arc::new(move |p: &Progress| {
                 parent(&Progress {
                     stage: format!("{prefix}{}", p.stage),

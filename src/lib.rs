@@ -45,3 +45,4 @@ pub mod review;
 pub mod session;
 pub mod shot_file;
 pub mod simulate;
+pub mod timings;

@@ -82,6 +82,9 @@ pub struct Args {
     /// Use a profile at a focal length or aperture outside its calibrated range.
     #[arg(long)]
     pub allow_extrapolation: bool,
+    /// Say where the deblur's time went, stage by stage (one photo).
+    #[arg(long)]
+    pub timings: bool,
     #[command(flatten)]
     pub batch: super::deblur_batch::BatchArgs,
 }
@@ -317,7 +320,12 @@ pub fn run(args: Args) -> Result<()> {
         let on = lensblur::deblur::gpu::describe(device, &method);
         eprintln!("lensblur: deblurring on the {on}");
     }
-    let job = progress_job();
+    let timings = std::sync::Arc::new(lensblur::timings::Timings::new());
+    let job = if args.timings {
+        progress_job().with_timings(std::sync::Arc::clone(&timings))
+    } else {
+        progress_job()
+    };
     if let Some(preview) = deblur_one(
         photo,
         &capture,
@@ -337,6 +345,9 @@ pub fn run(args: Args) -> Result<()> {
         method.name(),
         out.display()
     );
+    if args.timings {
+        eprintln!("{}", timings.table());
+    }
     Ok(())
 }
 

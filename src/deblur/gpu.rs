@@ -14,6 +14,7 @@ use super::{
 use crate::job::JobContext;
 use crate::plane::{ChannelPlane, Plane};
 use crate::psf::Kernel;
+use crate::timings::{Stage, Timings};
 use rayon::prelude::*;
 use std::sync::{Arc, Mutex, OnceLock};
 use wgpu::util::DeviceExt;
@@ -349,7 +350,10 @@ impl GpuDeblurrer {
         job: &JobContext,
     ) -> Result<Plane, DeblurError> {
         let solve = Solve::of(&opts.method)?;
+        let started = Timings::start(job.timings());
         let grid = plane_tile_grid(cp, sensor_width, sensor_height, source, opts)?;
+        Timings::stop(job.timings(), Stage::Grid, started);
+        let started = Timings::start(job.timings());
         let max_kernel = 2 * grid.x.margin_before.min(grid.y.margin_before) + 1;
         let total = grid.tiles();
         let kernels: Vec<Kernel> = (0..total)
@@ -367,6 +371,10 @@ impl GpuDeblurrer {
                 Ok(cropped(k, max_kernel).resampled(1))
             })
             .collect::<Result<_, _>>()?;
+        Timings::stop(job.timings(), Stage::Kernels, started);
+        if let Some(t) = job.timings() {
+            t.add_tiles(total);
+        }
         job.check()?;
         let _busy = self
             .busy
@@ -424,6 +432,7 @@ impl GpuDeblurrer {
             }
             .into());
         }
+        let upload = Timings::start(job.timings());
         let device = &self.device;
         let buffer = |label: &str, bytes: u64, usage: wgpu::BufferUsages| {
             device.create_buffer(&wgpu::BufferDescriptor {
@@ -594,6 +603,8 @@ impl GpuDeblurrer {
         let (lambda, alpha, nsr) = solve.constants();
         let mut done_tiles = 0;
         let mut first = 0;
+        Timings::stop(job.timings(), Stage::Upload, upload);
+        let passes = Timings::start(job.timings());
         while first < total {
             job.check()?;
             let tiles = per_batch.min(total - first);
@@ -727,7 +738,16 @@ impl GpuDeblurrer {
             first += tiles;
             job.report("deblur", done_tiles, total);
         }
+        if passes.is_some() {
+            // Timed, the passes are waited for here so the readback is its own.
+            self.device
+                .poll(wgpu::PollType::wait_indefinitely())
+                .map_err(|e| GpuError::Failed(e.to_string()))?;
+        }
+        Timings::stop(job.timings(), Stage::Gpu, passes);
+        let started = Timings::start(job.timings());
         let data = self.read_back(&output, plane_bytes)?;
+        Timings::stop(job.timings(), Stage::Readback, started);
         Ok(Plane {
             width: w,
             height: h,

@@ -26,6 +26,7 @@ use crate::fft::good_size;
 use crate::job::{Cancelled, JobContext};
 use crate::plane::{Capture, ChannelPlane, Plane, reflect};
 use crate::psf::Kernel;
+use crate::timings::{Stage, Timings};
 use rayon::prelude::*;
 use solve::Deconvolver;
 use std::sync::Mutex;
@@ -382,7 +383,9 @@ pub fn deblur_channel_plane(
     opts: &DeblurOptions,
     job: &JobContext,
 ) -> Result<Plane, DeblurError> {
+    let started = Timings::start(job.timings());
     let grid = plane_tile_grid(cp, sensor_width, sensor_height, source, opts)?;
+    Timings::stop(job.timings(), Stage::Grid, started);
     let at = |i: f64, j: f64| plane_kernel_at(cp, sensor_width, sensor_height, source, i, j);
     deblur_plane_on_grid(&cp.plane, &at, &grid, &opts.method, job)
 }
@@ -457,11 +460,15 @@ fn deblur_plane_on_grid(
     // Solver workspaces (plans and buffers, megabytes each) live for the whole plane:
     // a task takes one, or makes the first few, and gives it back.
     let pool: Mutex<Vec<Workspace>> = Mutex::new(Vec::new());
+    let timed = job.timings().is_some();
     let take = || {
-        pool.lock()
+        let mut ws = pool
+            .lock()
             .ok()
             .and_then(|mut p| p.pop())
-            .unwrap_or_else(|| Workspace::new(bw, bh))
+            .unwrap_or_else(|| Workspace::new(bw, bh));
+        ws.dec.clock.set_on(timed);
+        ws
     };
     let give = |ws: Workspace| {
         if let Ok(mut p) = pool.lock() {
@@ -476,9 +483,12 @@ fn deblur_plane_on_grid(
             .into_par_iter()
             .map(|tx| -> Result<TilePatch, DeblurError> {
                 job.check()?;
-                let k = cropped(kernel_at(grid.x.centre(tx), grid.y.centre(ty))?, max_kernel);
                 let mut ws = take();
                 let Workspace { dec, block, x } = &mut ws;
+                let started = dec.clock.start();
+                let k = cropped(kernel_at(grid.x.centre(tx), grid.y.centre(ty))?, max_kernel);
+                dec.clock.stop(Stage::Kernels, started);
+                let started = dec.clock.start();
                 read_block(
                     plane,
                     grid.x.block_start(tx),
@@ -487,7 +497,9 @@ fn deblur_plane_on_grid(
                     bh,
                     block,
                 );
+                dec.clock.stop(Stage::Convert, started);
                 dec.deconvolve_tapered(block, &k, grid.taper, method, x);
+                let started = dec.clock.start();
                 let wx = &windows_x[tx];
                 let (pw, ph) = (wx.len(), wy.len());
                 let (mx, my) = (grid.x.margin_before, grid.y.margin_before);
@@ -495,6 +507,11 @@ fn deblur_plane_on_grid(
                 for (j, &wyv) in wy.iter().enumerate() {
                     let row = &x[(j + my) * bw + mx..(j + my) * bw + mx + pw];
                     data.extend(row.iter().zip(wx).map(|(v, wxv)| (v * wxv * wyv) as f32));
+                }
+                dec.clock.stop(Stage::Blend, started);
+                dec.clock.tile_done();
+                if let Some(t) = job.timings() {
+                    t.absorb(&mut dec.clock);
                 }
                 give(ws);
                 let n = done.fetch_add(1, Ordering::Relaxed) + 1;
@@ -508,6 +525,7 @@ fn deblur_plane_on_grid(
                 })
             })
             .collect::<Result<_, _>>()?;
+        let started = Timings::start(job.timings());
         for p in &patches {
             for j in 0..p.height {
                 let y = p.y0 + j as isize;
@@ -523,6 +541,7 @@ fn deblur_plane_on_grid(
                 }
             }
         }
+        Timings::stop(job.timings(), Stage::Blend, started);
     }
     Ok(out)
 }
@@ -539,6 +558,7 @@ pub fn deblur_capture(
     opts: &DeblurOptions,
     job: &JobContext,
 ) -> Result<Capture, DeblurError> {
+    let wall = Timings::start(job.timings());
     let gpu = gpu::resolve(opts.device, &opts.method)?;
     let mut out = cap.clone();
     for cp in &mut out.planes {
@@ -546,11 +566,18 @@ pub fn deblur_capture(
             Some(g) => g.deblur_channel_plane(cp, (cap.width, cap.height), source, opts, job)?,
             None => deblur_channel_plane(cp, cap.width, cap.height, source, opts, job)?,
         };
+        let started = Timings::start(job.timings());
         opts.amount.apply(&cp.plane, &mut plane);
+        Timings::stop(job.timings(), Stage::Finish, started);
         cp.plane = plane;
     }
+    let started = Timings::start(job.timings());
     if opts.fringes == Fringes::Suppress && !cap.is_raw {
         suppress_fringes(cap, &mut out);
+    }
+    Timings::stop(job.timings(), Stage::Finish, started);
+    if let (Some(t), Some(w)) = (job.timings(), wall) {
+        t.add_wall(w.elapsed());
     }
     Ok(out)
 }

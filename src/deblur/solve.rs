@@ -8,6 +8,7 @@
 
 use crate::fft::Fft2;
 use crate::psf::Kernel;
+use crate::timings::{Clock, Stage};
 use rustfft::num_complex::Complex64;
 use serde::{Deserialize, Serialize};
 
@@ -129,6 +130,16 @@ pub struct Deconvolver {
     row_a: Vec<f64>,
     row_b: Vec<f64>,
     row_c: Vec<f64>,
+    /// This worker's stage times (off unless the deblur is timed).
+    pub clock: Clock,
+}
+
+/// Runs `f` with `clock` on `stage`.
+fn timed<R>(clock: &mut Clock, stage: Stage, f: impl FnOnce() -> R) -> R {
+    let started = clock.start();
+    let r = f();
+    clock.stop(stage, started);
+    r
 }
 
 impl Deconvolver {
@@ -148,6 +159,7 @@ impl Deconvolver {
             row_a: vec![0.0; width],
             row_b: vec![0.0; width],
             row_c: vec![0.0; width],
+            clock: Clock::default(),
             fft,
         }
     }
@@ -170,7 +182,10 @@ impl Deconvolver {
             k1 = k.resampled(1);
             &k1
         };
-        self.fft.otf_into(k, &mut self.real_a, &mut self.otf);
+        let (fft, real_a, otf) = (&mut self.fft, &mut self.real_a, &mut self.otf);
+        timed(&mut self.clock, Stage::Spectra, || {
+            fft.otf_into(k, real_a, otf)
+        });
     }
 
     /// Deconvolves the periodic block `y` (row-major, `width × height`) with the kernel
@@ -202,11 +217,20 @@ impl Deconvolver {
         let (w, h) = (self.width(), self.height());
         let taper = taper_px.min(w / 2).min(h / 2);
         if taper > 0 {
-            self.fft.forward(block, &mut self.spec);
+            let (fft, spec) = (&mut self.fft, &mut self.spec);
+            timed(&mut self.clock, Stage::ForwardFft, || {
+                fft.forward(block, spec)
+            });
+            let started = self.clock.start();
             for (s, o) in self.spec.iter_mut().zip(&self.otf) {
                 *s *= o;
             }
-            self.fft.inverse(&mut self.spec, &mut self.real_b);
+            self.clock.stop(Stage::Taper, started);
+            let (fft, spec, real_b) = (&mut self.fft, &mut self.spec, &mut self.real_b);
+            timed(&mut self.clock, Stage::InverseFft, || {
+                fft.inverse(spec, real_b)
+            });
+            let started = self.clock.start();
             let ramp = |t: usize, n: usize| -> f64 {
                 let d = t.min(n - 1 - t);
                 if d >= taper {
@@ -229,6 +253,7 @@ impl Deconvolver {
                     *b = a * *b + (1.0 - a) * blurred;
                 }
             }
+            self.clock.stop(Stage::Taper, started);
         }
         self.solve(block, method, x);
     }
@@ -243,12 +268,26 @@ impl Deconvolver {
         }
     }
 
+    /// The forward transform of `y` into `spec`, timed.
+    fn forward(&mut self, y: &[f64]) {
+        let (fft, spec) = (&mut self.fft, &mut self.spec);
+        timed(&mut self.clock, Stage::ForwardFft, || fft.forward(y, spec));
+    }
+
+    /// The inverse transform of `spec` into `x`, timed.
+    fn inverse(&mut self, x: &mut [f64]) {
+        let (fft, spec) = (&mut self.fft, &mut self.spec);
+        timed(&mut self.clock, Stage::InverseFft, || fft.inverse(spec, x));
+    }
+
     fn wiener(&mut self, y: &[f64], nsr: f64, x: &mut [f64]) {
-        self.fft.forward(y, &mut self.spec);
+        self.forward(y);
+        let started = self.clock.start();
         for ((s, o), g) in self.spec.iter_mut().zip(&self.otf).zip(&self.grad_energy) {
             *s = o.conj() * *s / (o.norm_sqr() + nsr * g);
         }
-        self.fft.inverse(&mut self.spec, x);
+        self.clock.stop(Stage::Solve, started);
+        self.inverse(x);
     }
 
     /// Krishnan & Fergus: alternate the per-pixel shrinkage of the gradients (w-step)
@@ -258,7 +297,8 @@ impl Deconvolver {
     /// inverse transform.
     fn hqs(&mut self, y: &[f64], p: &HqsParams, x: &mut [f64]) {
         let (w, h) = (self.width(), self.height());
-        self.fft.forward(y, &mut self.spec);
+        self.forward(y);
+        let started = self.clock.start();
         for ((num, s), o) in self.num.iter_mut().zip(&self.spec).zip(&self.otf) {
             *num = o.conj() * s * p.lambda;
         }
@@ -266,8 +306,10 @@ impl Deconvolver {
             *d = p.lambda * o.norm_sqr();
         }
         x.copy_from_slice(y);
+        self.clock.stop(Stage::Solve, started);
         let mut beta = p.beta_start;
         while beta <= p.beta_max * (1.0 + 1e-9) {
+            let started = self.clock.start();
             let lut = shared_lut(beta, p.alpha);
             // w-step and divergence Dxᵀwx + Dyᵀwy in one pass over the rows, with
             // (Dᵀg)(i) = g(i − 1) − g(i): a row's divergence needs its own shrunk
@@ -297,7 +339,12 @@ impl Deconvolver {
                 }
                 std::mem::swap(wy, wy_prev);
             }
-            self.fft.forward(&self.real_c, &mut self.spec);
+            self.clock.stop(Stage::Solve, started);
+            let (fft, real_c, spec) = (&mut self.fft, &self.real_c, &mut self.spec);
+            timed(&mut self.clock, Stage::ForwardFft, || {
+                fft.forward(real_c, spec)
+            });
+            let started = self.clock.start();
             for (((s, num), den), g) in self
                 .spec
                 .iter_mut()
@@ -307,7 +354,8 @@ impl Deconvolver {
             {
                 *s = (num + *s * beta) * (1.0 / (den + beta * g));
             }
-            self.fft.inverse(&mut self.spec, x);
+            self.clock.stop(Stage::Solve, started);
+            self.inverse(x);
             beta *= p.beta_rate;
         }
     }
@@ -349,14 +397,16 @@ impl Deconvolver {
         let (w, h) = (self.width(), self.height());
         let n = w * h;
         // Kᵀy.
-        self.fft.forward(y, &mut self.spec);
+        self.forward(y);
         for (s, o) in self.spec.iter_mut().zip(&self.otf) {
             *s *= o.conj();
         }
         let mut rhs = vec![0.0; n];
-        self.fft.inverse(&mut self.spec, &mut rhs);
+        self.inverse(&mut rhs);
         // A mildly regularised Wiener estimate starts the iterations near the answer.
         self.wiener(y, 0.01, x);
+        // The conjugate gradients, their transforms included, are the solver's passes.
+        let started = self.clock.start();
         let mu = p.alpha / p.lambda;
         let (mut wx, mut wy) = (vec![0.0; n], vec![0.0; n]);
         let (mut r, mut d, mut ad) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
@@ -399,6 +449,7 @@ impl Deconvolver {
                 }
             }
         }
+        self.clock.stop(Stage::Solve, started);
     }
 }
 
