@@ -88,6 +88,9 @@ mod sealed {
         /// `1 / n`, computed in this precision.
         #[doc(hidden)]
         fn recip(n: usize) -> Self;
+        /// `v` rounded to this precision.
+        #[doc(hidden)]
+        fn of_f64(v: f64) -> Self;
     }
 
     impl Precision for f32 {
@@ -97,6 +100,9 @@ mod sealed {
         fn recip(n: usize) -> Self {
             1.0 / n as f32
         }
+        fn of_f64(v: f64) -> Self {
+            v as f32
+        }
     }
 
     impl Precision for f64 {
@@ -105,6 +111,9 @@ mod sealed {
         }
         fn recip(n: usize) -> Self {
             1.0 / n as f64
+        }
+        fn of_f64(v: f64) -> Self {
+            v
         }
     }
 }
@@ -386,23 +395,23 @@ impl<T: Precision> Fft2<T> {
     }
 }
 
-impl Fft2<f64> {
+impl<T: Precision> Fft2<T> {
     /// Optical transfer function of a 1× kernel on this block: the kernel placed with
     /// its centre at (0, 0), wrapped around, transformed. `block` is scratch of
     /// `width × height` values.
     ///
     /// # Panics
     /// If the kernel is larger than the block, or on wrongly sized buffers.
-    pub fn otf_into(&mut self, k: &Kernel, block: &mut [f64], otf: &mut [Complex<f64>]) {
+    pub fn otf_into(&mut self, k: &Kernel, block: &mut [T], otf: &mut [Complex<T>]) {
         let (w, h) = (self.width, self.height);
         assert!(k.size <= w && k.size <= h, "kernel larger than block");
-        block.fill(0.0);
+        block.fill(T::zero());
         let c = (k.size / 2) as isize;
         for j in 0..k.size {
             let y = (j as isize - c).rem_euclid(h as isize) as usize;
             for i in 0..k.size {
                 let x = (i as isize - c).rem_euclid(w as isize) as usize;
-                block[y * w + x] += k.at(i, j);
+                block[y * w + x] = block[y * w + x] + T::of_f64(k.at(i, j));
             }
         }
         self.forward(block, otf);
@@ -410,8 +419,8 @@ impl Fft2<f64> {
 
     /// [`Self::otf_into`] with its own buffers.
     #[must_use]
-    pub fn otf(&mut self, k: &Kernel) -> Vec<Complex<f64>> {
-        let mut block = vec![0.0; self.width * self.height];
+    pub fn otf(&mut self, k: &Kernel) -> Vec<Complex<T>> {
+        let mut block = vec![T::zero(); self.width * self.height];
         let mut otf = self.new_spectrum();
         self.otf_into(k, &mut block, &mut otf);
         otf
@@ -420,7 +429,7 @@ impl Fft2<f64> {
     /// |D_x|² + |D_y|² of the forward differences x(i+1) − x(i) along x and y, per
     /// half-spectrum entry: |e^{iω} − 1|² = 2 − 2 cos ω at each axis's frequency ω.
     #[must_use]
-    pub fn gradient_energy(&self) -> Vec<f64> {
+    pub fn gradient_energy(&self) -> Vec<T> {
         let (w, h) = (self.width, self.height);
         let tau = std::f64::consts::TAU;
         let col: Vec<f64> = (0..h)
@@ -429,11 +438,13 @@ impl Fft2<f64> {
         let mut out = Vec::with_capacity(self.spectrum_len());
         for c in 0..self.half_width() {
             let gx = 2.0 - 2.0 * (tau * c as f64 / w as f64).cos();
-            out.extend(col.iter().map(|gy| gx + gy));
+            out.extend(col.iter().map(|gy| T::of_f64(gx + gy)));
         }
         out
     }
+}
 
+impl Fft2<f64> {
     /// Circular convolution of a real block with a 1× kernel (centred).
     #[must_use]
     pub fn convolve(&mut self, data: &[f64], k: &Kernel) -> Vec<f64> {

@@ -1,23 +1,26 @@
 //! The deblur on a GPU through wgpu compute shaders: the same tiles, kernels, edge
 //! taper, solver and blend as the CPU path ([`super::deblur_channel_plane`]), in
-//! single precision, on a batch of tiles at a time.
+//! single precision, a photo at a time ([`photo`]: every plane uploaded once, batches
+//! of tiles solved without a host round trip, one readback).
 //!
 //! The CPU path stays the reference and the fallback. A [`GpuDeblurrer`] wraps a wgpu
 //! device: its own (the command line) or one lent by the caller (the studio lends the
 //! device its window draws with, so the preview does not open a second one). One is
 //! shared by the process ([`shared`]); [`Device`] says whether a deblur may use it.
 
+mod photo;
+
 use super::{
     DeblurError, DeblurOptions, KernelSource, Method, TileGrid, cropped, plane_kernel_at,
     plane_tile_grid,
 };
 use crate::job::JobContext;
-use crate::plane::{ChannelPlane, Plane};
+use crate::plane::{Capture, Plane};
 use crate::psf::Kernel;
 use crate::timings::{Stage, Timings};
+use photo::PlaneJob;
 use rayon::prelude::*;
 use std::sync::{Arc, Mutex, OnceLock};
-use wgpu::util::DeviceExt;
 
 /// Where a deblur runs.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -82,9 +85,6 @@ pub const MAX_LINE: usize = 2048;
 const WORKGROUP: u32 = 256;
 /// Lines up to this long take the FFT with 64 invocations per workgroup.
 const SHORT_LINE: usize = 512;
-/// The tile buffers of one batch (four per pixel: 28 bytes) stay under this, so a
-/// large photo runs in several batches instead of asking for gigabytes.
-const BATCH_BYTES: u64 = 1 << 30;
 
 /// What one adapter is, for messages.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -126,8 +126,8 @@ pub struct GpuDeblurrer {
     main_layout: wgpu::BindGroupLayout,
     step_layout: wgpu::BindGroupLayout,
     stages: Stages,
-    /// One plane at a time: the device's memory holds one plane's batch.
-    busy: Mutex<()>,
+    /// One photo at a time, in the buffers kept from the last one.
+    kept: Mutex<photo::Kept>,
 }
 
 struct Stages {
@@ -325,7 +325,7 @@ impl GpuDeblurrer {
             main_layout,
             step_layout,
             stages,
-            busy: Mutex::new(()),
+            kept: Mutex::new(photo::Kept::default()),
         })
     }
 
@@ -335,440 +335,65 @@ impl GpuDeblurrer {
         &self.adapter
     }
 
-    /// Deblurs one channel plane of a capture with the kernels of `source`: the GPU twin
-    /// of [`super::deblur_channel_plane`] (the same grid and kernels).
+    /// Deblurs every plane of a capture with the kernels of `source`: the GPU twin of
+    /// the CPU path (the same grids and kernels), one photo's planes at a time.
     ///
     /// # Errors
     /// A source that cannot supply a kernel, cancellation, a method the GPU path lacks
     /// (IRLS), blocks or planes beyond the device, or a device failure.
-    pub fn deblur_channel_plane(
+    pub fn deblur_planes(
         &self,
-        cp: &ChannelPlane,
-        (sensor_width, sensor_height): (usize, usize),
+        cap: &Capture,
         source: &dyn KernelSource,
         opts: &DeblurOptions,
         job: &JobContext,
-    ) -> Result<Plane, DeblurError> {
+    ) -> Result<Vec<Plane>, DeblurError> {
         let solve = Solve::of(&opts.method)?;
-        let started = Timings::start(job.timings());
-        let grid = plane_tile_grid(cp, sensor_width, sensor_height, source, opts)?;
-        Timings::stop(job.timings(), Stage::Grid, started);
-        let started = Timings::start(job.timings());
-        let max_kernel = 2 * grid.x.margin_before.min(grid.y.margin_before) + 1;
-        let total = grid.tiles();
-        let kernels: Vec<Kernel> = (0..total)
-            .into_par_iter()
-            .map(|g| -> Result<Kernel, DeblurError> {
-                let (tx, ty) = (g % grid.x.count, g / grid.x.count);
-                let k = plane_kernel_at(
-                    cp,
-                    sensor_width,
-                    sensor_height,
-                    source,
-                    grid.x.centre(tx),
-                    grid.y.centre(ty),
-                )?;
-                Ok(cropped(k, max_kernel).resampled(1))
-            })
-            .collect::<Result<_, _>>()?;
-        Timings::stop(job.timings(), Stage::Kernels, started);
-        if let Some(t) = job.timings() {
-            t.add_tiles(total);
-        }
+        let jobs = plane_jobs(cap, source, opts, job)?;
         job.check()?;
-        let _busy = self
-            .busy
+        let mut kept = self
+            .kept
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
         let scope_oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let out = self.run(&cp.plane, &grid, &kernels, &solve, job);
-        let validation = pollster::block_on(scope.pop());
-        let oom = pollster::block_on(scope_oom.pop());
-        if let Some(e) = validation.or(oom) {
-            return Err(GpuError::Failed(e.to_string()).into());
-        }
-        out
-    }
-
-    #[allow(clippy::too_many_lines)]
-    fn run(
-        &self,
-        plane: &Plane,
-        grid: &TileGrid,
-        kernels: &[Kernel],
-        solve: &Solve,
-        job: &JobContext,
-    ) -> Result<Plane, DeblurError> {
-        let (w, h) = (plane.width, plane.height);
-        let (bw, bh) = (grid.x.block, grid.y.block);
-        if bw > MAX_LINE || bh > MAX_LINE {
-            return Err(GpuError::Block {
-                width: bw,
-                height: bh,
-            }
-            .into());
-        }
+        // All planes in one run when one buffer holds them, else one plane at a time.
         let limits = self.device.limits();
         let max_buffer = limits
             .max_storage_buffer_binding_size
             .min(limits.max_buffer_size);
-        let plane_bytes = (w * h * 4) as u64;
-        if plane_bytes > max_buffer {
-            return Err(GpuError::Plane {
-                width: w,
-                height: h,
-            }
-            .into());
-        }
-        let block_px = (bw * bh) as u64;
-        let total = grid.tiles();
-        let per_batch = ((max_buffer / (8 * block_px)).min(BATCH_BYTES / (28 * block_px)) as usize)
-            .clamp(1, total);
-        if 8 * block_px > max_buffer {
-            return Err(GpuError::Block {
-                width: bw,
-                height: bh,
-            }
-            .into());
-        }
-        let upload = Timings::start(job.timings());
-        let device = &self.device;
-        let buffer = |label: &str, bytes: u64, usage: wgpu::BufferUsages| {
-            device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: bytes.max(16),
-                usage,
-                mapped_at_creation: false,
-            })
+        let pixels: usize = jobs.iter().map(|j| j.plane.data.len()).sum();
+        let size = if 4 * pixels as u64 <= max_buffer {
+            jobs.len().max(1)
+        } else {
+            1
         };
-        let rw = wgpu::BufferUsages::STORAGE;
-        let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("plane"),
-            contents: bytemuck::cast_slice(&plane.data),
-            usage: rw,
-        });
-        let output = buffer(
-            "deblurred plane",
-            plane_bytes,
-            rw | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
-        );
-        let batch_px = per_batch as u64 * block_px;
-        let est_a = buffer("estimate a", 8 * batch_px, rw);
-        let est_b = buffer("estimate b", 8 * batch_px, rw);
-        let num = buffer("numerator", 8 * batch_px, rw);
-        let den = buffer("denominator", 4 * batch_px, rw);
-        // The windows after the largest batch's kernels in `aux`.
-        let windows: Vec<f32> = (0..grid.x.count)
-            .flat_map(|t| grid.x.window(t))
-            .chain((0..grid.y.count).flat_map(|t| grid.y.window(t)))
-            .map(|v| v as f32)
-            .collect();
-        let kernel_room = kernels
-            .chunks(per_batch)
-            .map(|b| b.iter().map(|k| k.data.len()).sum::<usize>())
-            .max()
-            .unwrap_or(0);
-        let kinfo = buffer(
-            "kernel offsets",
-            8 * per_batch as u64,
-            rw | wgpu::BufferUsages::COPY_DST,
-        );
-        let params = buffer(
-            "params",
-            std::mem::size_of::<Params>() as u64,
-            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-        );
-        let fft_params = |n: usize, elem: usize, line: usize, sign: f32, scale: f32| {
-            let p = FftParams {
-                n: n as u32,
-                elem_stride: elem as u32,
-                line_stride: line as u32,
-                tile_stride: (bw * bh) as u32,
-                sign,
-                scale,
-                pad: [0; 2],
-            };
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("fft params"),
-                contents: bytemuck::bytes_of(&p),
-                usage: wgpu::BufferUsages::UNIFORM,
-            })
-        };
-        let inv_n = 1.0 / (bw * bh) as f32;
-        // Rows then columns, forward and inverse; the inverse scales on its last pass.
-        let passes = [
-            [
-                fft_params(bw, 1, bw, -1.0, 1.0),
-                fft_params(bh, bw, 1, -1.0, 1.0),
-            ],
-            [
-                fft_params(bw, 1, bw, 1.0, 1.0),
-                fft_params(bh, bw, 1, 1.0, inv_n),
-            ],
-        ];
-        let roots = |n: usize| {
-            let table: Vec<[f32; 2]> = (0..n)
-                .map(|k| {
-                    let t = -std::f64::consts::TAU * k as f64 / n as f64;
-                    [t.cos() as f32, t.sin() as f32]
-                })
-                .collect();
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("fft roots"),
-                contents: bytemuck::cast_slice(&table),
-                usage: wgpu::BufferUsages::STORAGE,
-            })
-        };
-        // Rows are bw long, columns bh.
-        let line_roots = [roots(bw), roots(bh)];
-        let fft_group = |data: &wgpu::Buffer, p: &wgpu::Buffer, r: &wgpu::Buffer| {
-            device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("fft"),
-                layout: &self.fft_layout,
-                entries: &[entry(0, data), entry(1, p), entry(2, r)],
-            })
-        };
-        let fft_groups = |data: &wgpu::Buffer| -> [[wgpu::BindGroup; 2]; 2] {
-            passes.each_ref().map(|dir| {
-                [
-                    fft_group(data, &dir[0], &line_roots[0]),
-                    fft_group(data, &dir[1], &line_roots[1]),
-                ]
-            })
-        };
-        let (fft_a, fft_b, fft_num) = (fft_groups(&est_a), fft_groups(&est_b), fft_groups(&num));
-        let step_group = |s: &StepParams| {
-            let b = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("step"),
-                contents: bytemuck::bytes_of(s),
-                usage: wgpu::BufferUsages::UNIFORM,
-            });
-            device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("step"),
-                layout: &self.step_layout,
-                entries: &[entry(0, &b)],
-            })
-        };
-        let tables_at = kernel_room + windows.len();
-        let mut tables: Vec<f32> = Vec::new();
-        let steps: Vec<wgpu::BindGroup> = solve
-            .betas()
-            .iter()
-            .map(|&beta| {
-                let (range, inv_step, values) = super::solve::shrink_table(beta, solve.alpha());
-                let s = StepParams {
-                    beta: beta as f32,
-                    range: range as f32,
-                    inv_step: inv_step as f32,
-                    last: (values.len() - 1) as f32,
-                    table: (tables_at + tables.len()) as u32,
-                    pad: [0; 3],
-                };
-                tables.extend(values.iter().map(|&v| v as f32));
-                step_group(&s)
-            })
-            .collect();
-        // Group 1 for the stages that take no step.
-        let no_step = step_group(&bytemuck::Zeroable::zeroed());
-        let aux = buffer(
-            "kernels, windows and tables",
-            4 * (tables_at + tables.len()) as u64,
-            rw | wgpu::BufferUsages::COPY_DST,
-        );
-        self.queue
-            .write_buffer(&aux, 4 * kernel_room as u64, bytemuck::cast_slice(&windows));
-        self.queue
-            .write_buffer(&aux, 4 * tables_at as u64, bytemuck::cast_slice(&tables));
-        let main_group = |src: &wgpu::Buffer, dst: &wgpu::Buffer| {
-            device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("deblur"),
-                layout: &self.main_layout,
-                entries: &[
-                    entry(0, &params),
-                    entry(1, &input),
-                    entry(2, src),
-                    entry(3, dst),
-                    entry(4, &num),
-                    entry(5, &den),
-                    entry(6, &kinfo),
-                    entry(7, &aux),
-                    entry(8, &output),
-                ],
-            })
-        };
-        // a → b: estimate in a, the block being transformed in b; and the reverse.
-        let ab = main_group(&est_a, &est_b);
-        let ba = main_group(&est_b, &est_a);
-        let (lambda, alpha, nsr) = solve.constants();
-        let mut done_tiles = 0;
-        let mut first = 0;
-        Timings::stop(job.timings(), Stage::Upload, upload);
-        let passes = Timings::start(job.timings());
-        while first < total {
-            job.check()?;
-            let tiles = per_batch.min(total - first);
-            let batch = &kernels[first..first + tiles];
-            let mut info = Vec::with_capacity(2 * tiles);
-            let mut taps = Vec::with_capacity(kernel_room);
-            for k in batch {
-                info.extend([taps.len() as u32, k.size as u32]);
-                taps.extend(k.data.iter().map(|&v| v as f32));
-            }
-            self.queue
-                .write_buffer(&kinfo, 0, bytemuck::cast_slice(&info));
-            self.queue
-                .write_buffer(&aux, 0, bytemuck::cast_slice(&taps));
-            let (ty0, ty1) = (first / grid.x.count, (first + tiles - 1) / grid.x.count);
-            let row0 = grid.y.window_start(ty0).max(0) as usize;
-            let row1 =
-                ((grid.y.window_start(ty1) + grid.y.window_len() as isize).max(0) as usize).min(h);
-            let p = Params {
-                bw: bw as u32,
-                bh: bh as u32,
-                tiles: tiles as u32,
-                tile0: first as u32,
-                count_x: grid.x.count as u32,
-                count_y: grid.y.count as u32,
-                plane_w: w as u32,
-                plane_h: h as u32,
-                step_x: grid.x.step as u32,
-                step_y: grid.y.step as u32,
-                ramp_x: grid.x.ramp as u32,
-                ramp_y: grid.y.ramp as u32,
-                margin_x: grid.x.margin_before as u32,
-                margin_y: grid.y.margin_before as u32,
-                win_x: grid.x.window_len() as u32,
-                win_y: grid.y.window_len() as u32,
-                taper: grid.taper as u32,
-                row0: row0 as u32,
-                rows: row1.saturating_sub(row0) as u32,
-                wins_y: (kernel_room + grid.x.count * grid.x.window_len()) as u32,
-                wins_x: kernel_room as u32,
-                lambda,
-                alpha,
-                nsr,
-            };
-            self.queue.write_buffer(&params, 0, bytemuck::bytes_of(&p));
-            let mut enc = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("deblur batch"),
-            });
-            {
-                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("deblur batch"),
-                    timestamp_writes: None,
-                });
-                let t = tiles as u32;
-                let blocks_2d = [(bw as u32).div_ceil(16), (bh as u32).div_ceil(16), t];
-                let elements = [(block_px as u32).div_ceil(WORKGROUP), t, 1];
-                let stage = |pass: &mut wgpu::ComputePass<'_>,
-                             pipeline: &wgpu::ComputePipeline,
-                             group: &wgpu::BindGroup,
-                             step: &wgpu::BindGroup,
-                             size: [u32; 3]| {
-                    pass.set_pipeline(pipeline);
-                    pass.set_bind_group(0, group, &[]);
-                    pass.set_bind_group(1, step, &[]);
-                    pass.dispatch_workgroups(size[0], size[1], size[2]);
-                };
-                let fft = |pass: &mut wgpu::ComputePass<'_>,
-                           groups: &[[wgpu::BindGroup; 2]; 2],
-                           inverse: bool| {
-                    let g = &groups[usize::from(inverse)];
-                    let fft_for = |n: usize| {
-                        if n <= SHORT_LINE {
-                            &self.fft_short
-                        } else {
-                            &self.fft_long
-                        }
-                    };
-                    pass.set_pipeline(fft_for(bw));
-                    pass.set_bind_group(0, &g[0], &[]);
-                    pass.dispatch_workgroups(bh as u32, t, 1);
-                    pass.set_pipeline(fft_for(bh));
-                    pass.set_bind_group(0, &g[1], &[]);
-                    pass.dispatch_workgroups(bw as u32, t, 1);
-                };
-                let s = &self.stages;
-                stage(&mut pass, &s.load, &ab, &no_step, blocks_2d);
-                fft(&mut pass, &fft_num, false);
-                if grid.taper > 0 {
-                    fft(&mut pass, &fft_b, false);
-                    stage(&mut pass, &s.blur, &ab, &no_step, elements);
-                    fft(&mut pass, &fft_b, true);
-                    stage(&mut pass, &s.taper, &ab, &no_step, blocks_2d);
+        let mut out = Vec::with_capacity(jobs.len());
+        let mut failed = None;
+        for group in jobs.chunks(size) {
+            match self.run_photo(group, &solve, &mut kept, job) {
+                Ok(planes) => out.extend(planes),
+                Err(e) => {
+                    failed = Some(e);
+                    break;
                 }
-                fft(&mut pass, &fft_b, false);
-                // Which buffer holds the estimate at the end.
-                let last = match solve {
-                    Solve::Wiener { .. } => {
-                        stage(&mut pass, &s.wiener, &ab, &no_step, elements);
-                        fft(&mut pass, &fft_b, true);
-                        &ba
-                    }
-                    Solve::Hqs { .. } => {
-                        stage(&mut pass, &s.prepare, &ab, &no_step, elements);
-                        let mut estimate_in_a = true;
-                        for step in &steps {
-                            let (group, groups) = if estimate_in_a {
-                                (&ab, &fft_b)
-                            } else {
-                                (&ba, &fft_a)
-                            };
-                            stage(&mut pass, &s.divergence, group, step, blocks_2d);
-                            fft(&mut pass, groups, false);
-                            stage(&mut pass, &s.update, group, step, elements);
-                            fft(&mut pass, groups, true);
-                            estimate_in_a = !estimate_in_a;
-                        }
-                        if estimate_in_a { &ab } else { &ba }
-                    }
-                };
-                let rows = row1.saturating_sub(row0) as u32;
-                stage(
-                    &mut pass,
-                    &s.blend,
-                    last,
-                    &no_step,
-                    [(w as u32).div_ceil(16), rows.div_ceil(16), 1],
-                );
             }
-            self.queue.submit([enc.finish()]);
-            done_tiles += tiles;
-            first += tiles;
-            job.report("deblur", done_tiles, total);
         }
-        if passes.is_some() {
-            // Timed, the passes are waited for here so the readback is its own.
-            self.device
-                .poll(wgpu::PollType::wait_indefinitely())
-                .map_err(|e| GpuError::Failed(e.to_string()))?;
+        let validation = pollster::block_on(scope.pop());
+        let oom = pollster::block_on(scope_oom.pop());
+        if let Some(e) = validation.or(oom) {
+            // What the device holds after a failure is not to be trusted again.
+            *kept = photo::Kept::default();
+            return Err(GpuError::Failed(e.to_string()).into());
         }
-        Timings::stop(job.timings(), Stage::Gpu, passes);
-        let started = Timings::start(job.timings());
-        let data = self.read_back(&output, plane_bytes)?;
-        Timings::stop(job.timings(), Stage::Readback, started);
-        Ok(Plane {
-            width: w,
-            height: h,
-            data,
-        })
+        match failed {
+            Some(e) => Err(e),
+            None => Ok(out),
+        }
     }
 
-    fn read_back(&self, output: &wgpu::Buffer, bytes: u64) -> Result<Vec<f32>, DeblurError> {
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("read back"),
-            size: bytes.max(16),
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut enc = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("read back"),
-            });
-        enc.copy_buffer_to_buffer(output, 0, &staging, 0, bytes);
-        self.queue.submit([enc.finish()]);
+    /// The first `bytes` of `staging` (the passes that fill it submitted).
+    fn read_back(&self, staging: &wgpu::Buffer, bytes: u64) -> Result<Vec<f32>, DeblurError> {
         let slice = staging.slice(..bytes);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
@@ -798,6 +423,59 @@ fn entry(binding: u32, buffer: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
         binding,
         resource: buffer.as_entire_binding(),
     }
+}
+
+/// Every plane's grid and every tile's 1× kernel: the grids one per plane, the kernels
+/// of all planes' tiles in one parallel pass.
+fn plane_jobs<'c>(
+    cap: &'c Capture,
+    source: &dyn KernelSource,
+    opts: &DeblurOptions,
+    job: &JobContext,
+) -> Result<Vec<PlaneJob<'c>>, DeblurError> {
+    let (w, h) = (cap.width, cap.height);
+    let grids: Vec<TileGrid> = cap
+        .planes
+        .par_iter()
+        .map(|cp| {
+            let started = Timings::start(job.timings());
+            let grid = plane_tile_grid(cp, w, h, source, opts);
+            Timings::stop(job.timings(), Stage::Grid, started);
+            grid
+        })
+        .collect::<Result<_, _>>()?;
+    let tiles: Vec<(usize, usize)> = grids
+        .iter()
+        .enumerate()
+        .flat_map(|(p, g)| (0..g.tiles()).map(move |t| (p, t)))
+        .collect();
+    if let Some(t) = job.timings() {
+        t.add_tiles(tiles.len());
+    }
+    let kernels: Vec<Kernel> = tiles
+        .into_par_iter()
+        .map(|(p, t)| -> Result<Kernel, DeblurError> {
+            let started = Timings::start(job.timings());
+            let g = &grids[p];
+            let max_kernel = 2 * g.x.margin_before.min(g.y.margin_before) + 1;
+            let (tx, ty) = (t % g.x.count, t / g.x.count);
+            let k = plane_kernel_at(&cap.planes[p], w, h, source, g.x.centre(tx), g.y.centre(ty))?;
+            let k = cropped(k, max_kernel).resampled(1);
+            Timings::stop(job.timings(), Stage::Kernels, started);
+            Ok(k)
+        })
+        .collect::<Result<_, _>>()?;
+    let mut kernels = kernels.into_iter();
+    Ok(cap
+        .planes
+        .iter()
+        .zip(grids)
+        .map(|(cp, grid)| PlaneJob {
+            plane: &cp.plane,
+            grid,
+            kernels: kernels.by_ref().take(grid.tiles()).collect(),
+        })
+        .collect())
 }
 
 /// The solver as the shaders run it.
@@ -884,6 +562,11 @@ struct Params {
     lambda: f32,
     alpha: f32,
     nsr: f32,
+    /// This plane's first pixel in the planes and output buffers.
+    plane0: u32,
+    /// The batch's first tile in the kernel offsets.
+    kinfo0: u32,
+    pad: [u32; 2],
 }
 
 /// `deblur.wgsl`'s `Step`.

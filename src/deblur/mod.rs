@@ -6,15 +6,15 @@
 //! the image border and edge-tapered) with the kernel at its centre, then blended with
 //! its neighbours by windows that are flat inside the tile and cross-fade over a short
 //! ramp at each shared border; the windows sum to one, so no seam shows. Tiles are
-//! independent: one row of them runs in parallel, each worker reusing its own FFT
-//! buffers (the plans are shared by the whole process), and only that row's results
-//! are held before they are summed in.
+//! independent: every tile of every plane runs in one parallel pass ([`tiles`]), each
+//! worker reusing its own solver (the FFT plans are shared by the whole process).
 
 pub mod chroma;
 pub mod gpu;
 pub mod output;
 pub mod solve;
 pub mod source;
+mod tiles;
 
 pub use gpu::{Device, GpuError};
 pub use solve::{HqsParams, IrlsParams, Method, WienerParams};
@@ -24,13 +24,11 @@ pub use source::{
 
 use crate::fft::good_size;
 use crate::job::{Cancelled, JobContext};
-use crate::plane::{Capture, ChannelPlane, Plane, reflect};
+use crate::plane::{Capture, ChannelPlane, Plane};
 use crate::psf::Kernel;
 use crate::timings::{Stage, Timings};
 use rayon::prelude::*;
-use solve::Deconvolver;
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use tiles::PlaneWork;
 
 #[derive(Debug, thiserror::Error)]
 pub enum DeblurError {
@@ -106,9 +104,15 @@ impl Amount {
             return;
         }
         let a = self.0 as f32;
-        for (d, &o) in deblurred.data.iter_mut().zip(&original.data) {
-            *d = o + a * (*d - o);
-        }
+        deblurred
+            .data
+            .par_chunks_mut(1 << 16)
+            .zip(original.data.par_chunks(1 << 16))
+            .for_each(|(d, o)| {
+                for (d, &o) in d.iter_mut().zip(o) {
+                    *d = o + a * (*d - o);
+                }
+            });
     }
 }
 
@@ -312,13 +316,17 @@ pub fn deblur_plane_invariant(
     }
     let k = k.resampled(1);
     let grid = TileGrid::for_plane(plane.width, plane.height, k.size / 2, opts.tile_step_px);
-    deblur_plane_on_grid(
+    let work = PlaneWork {
         plane,
-        &|_x: f64, _y: f64| Ok(k.clone()),
-        &grid,
-        &opts.method,
-        job,
-    )
+        grid,
+        kernel_at: &|_x: f64, _y: f64| Ok(k.clone()),
+    };
+    one_plane(tiles::deblur_planes(&[work], &opts.method, job)?)
+}
+
+/// The one plane of a one-plane deblur.
+fn one_plane(mut planes: Vec<Plane>) -> Result<Plane, DeblurError> {
+    planes.pop().ok_or(DeblurError::Empty)
 }
 
 /// The 1× plane-resolution kernel of `source` at plane pixel (i, j) of `cp`.
@@ -387,164 +395,52 @@ pub fn deblur_channel_plane(
     let grid = plane_tile_grid(cp, sensor_width, sensor_height, source, opts)?;
     Timings::stop(job.timings(), Stage::Grid, started);
     let at = |i: f64, j: f64| plane_kernel_at(cp, sensor_width, sensor_height, source, i, j);
-    deblur_plane_on_grid(&cp.plane, &at, &grid, &opts.method, job)
+    let work = PlaneWork {
+        plane: &cp.plane,
+        grid,
+        kernel_at: &at,
+    };
+    one_plane(tiles::deblur_planes(&[work], &opts.method, job)?)
 }
 
-type KernelAt<'a> = dyn Fn(f64, f64) -> Result<Kernel, DeblurError> + Sync + 'a;
-
-/// Reads the `block_w × block_h` region with top-left plane pixel (x0, y0), reflected
-/// where it leaves the plane.
-fn read_block(
-    plane: &Plane,
-    x0: isize,
-    y0: isize,
-    block_w: usize,
-    block_h: usize,
-    out: &mut [f64],
-) {
-    let xs: Vec<usize> = (0..block_w)
-        .map(|i| reflect(x0 + i as isize, plane.width))
-        .collect();
-    for j in 0..block_h {
-        let sy = reflect(y0 + j as isize, plane.height);
-        let row = &plane.data[sy * plane.width..(sy + 1) * plane.width];
-        for (o, &sx) in out[j * block_w..(j + 1) * block_w].iter_mut().zip(&xs) {
-            *o = f64::from(row[sx]);
-        }
-    }
-}
-
-/// What one tile's solve needs: the deconvolver and its input and output blocks.
-struct Workspace {
-    dec: Deconvolver,
-    block: Vec<f64>,
-    x: Vec<f64>,
-}
-
-impl Workspace {
-    fn new(bw: usize, bh: usize) -> Self {
-        Self {
-            dec: Deconvolver::new(bw, bh),
-            block: vec![0.0; bw * bh],
-            x: vec![0.0; bw * bh],
-        }
-    }
-}
-
-/// A tile's result: its window-weighted pixels over the window's extent.
-struct TilePatch {
-    x0: isize,
-    y0: isize,
-    width: usize,
-    height: usize,
-    data: Vec<f32>,
-}
-
-fn deblur_plane_on_grid(
-    plane: &Plane,
-    kernel_at: &KernelAt<'_>,
-    grid: &TileGrid,
-    method: &Method,
+/// Every plane of a capture on the CPU, all tiles of all planes in one pass.
+fn deblur_planes_cpu(
+    cap: &Capture,
+    source: &dyn KernelSource,
+    opts: &DeblurOptions,
     job: &JobContext,
-) -> Result<Plane, DeblurError> {
-    let (w, h) = (plane.width, plane.height);
-    if w == 0 || h == 0 {
-        return Err(DeblurError::Empty);
-    }
-    let (bw, bh) = (grid.x.block, grid.y.block);
-    let max_kernel = 2 * grid.x.margin_before.min(grid.y.margin_before) + 1;
-    let windows_x: Vec<Vec<f64>> = (0..grid.x.count).map(|t| grid.x.window(t)).collect();
-    let windows_y: Vec<Vec<f64>> = (0..grid.y.count).map(|t| grid.y.window(t)).collect();
-    let total = grid.tiles();
-    let done = AtomicUsize::new(0);
-    // Solver workspaces (plans and buffers, megabytes each) live for the whole plane:
-    // a task takes one, or makes the first few, and gives it back.
-    let pool: Mutex<Vec<Workspace>> = Mutex::new(Vec::new());
-    let timed = job.timings().is_some();
-    let take = || {
-        let mut ws = pool
-            .lock()
-            .ok()
-            .and_then(|mut p| p.pop())
-            .unwrap_or_else(|| Workspace::new(bw, bh));
-        ws.dec.clock.set_on(timed);
-        ws
-    };
-    let give = |ws: Workspace| {
-        if let Ok(mut p) = pool.lock() {
-            p.push(ws);
-        }
-    };
-    let mut out = Plane::new(w, h);
-    // One row of tiles at a time: memory holds one strip of patches, never the whole
-    // plane's, and the sum into `out` runs in a fixed order (deterministic output).
-    for (ty, wy) in windows_y.iter().enumerate() {
-        let patches: Vec<TilePatch> = (0..grid.x.count)
-            .into_par_iter()
-            .map(|tx| -> Result<TilePatch, DeblurError> {
-                job.check()?;
-                let mut ws = take();
-                let Workspace { dec, block, x } = &mut ws;
-                let started = dec.clock.start();
-                let k = cropped(kernel_at(grid.x.centre(tx), grid.y.centre(ty))?, max_kernel);
-                dec.clock.stop(Stage::Kernels, started);
-                let started = dec.clock.start();
-                read_block(
-                    plane,
-                    grid.x.block_start(tx),
-                    grid.y.block_start(ty),
-                    bw,
-                    bh,
-                    block,
-                );
-                dec.clock.stop(Stage::Convert, started);
-                dec.deconvolve_tapered(block, &k, grid.taper, method, x);
-                let started = dec.clock.start();
-                let wx = &windows_x[tx];
-                let (pw, ph) = (wx.len(), wy.len());
-                let (mx, my) = (grid.x.margin_before, grid.y.margin_before);
-                let mut data = Vec::with_capacity(pw * ph);
-                for (j, &wyv) in wy.iter().enumerate() {
-                    let row = &x[(j + my) * bw + mx..(j + my) * bw + mx + pw];
-                    data.extend(row.iter().zip(wx).map(|(v, wxv)| (v * wxv * wyv) as f32));
-                }
-                dec.clock.stop(Stage::Blend, started);
-                dec.clock.tile_done();
-                if let Some(t) = job.timings() {
-                    t.absorb(&mut dec.clock);
-                }
-                give(ws);
-                let n = done.fetch_add(1, Ordering::Relaxed) + 1;
-                job.report("deblur", n, total);
-                Ok(TilePatch {
-                    x0: grid.x.window_start(tx),
-                    y0: grid.y.window_start(ty),
-                    width: pw,
-                    height: ph,
-                    data,
-                })
-            })
-            .collect::<Result<_, _>>()?;
-        let started = Timings::start(job.timings());
-        for p in &patches {
-            for j in 0..p.height {
-                let y = p.y0 + j as isize;
-                if y < 0 || y >= h as isize {
-                    continue;
-                }
-                let orow = &mut out.data[y as usize * w..(y as usize + 1) * w];
-                for (i, &v) in p.data[j * p.width..(j + 1) * p.width].iter().enumerate() {
-                    let x = p.x0 + i as isize;
-                    if x >= 0 && x < w as isize {
-                        orow[x as usize] += v;
-                    }
-                }
-            }
-        }
-        Timings::stop(job.timings(), Stage::Blend, started);
-    }
-    Ok(out)
+) -> Result<Vec<Plane>, DeblurError> {
+    let (w, h) = (cap.width, cap.height);
+    let grids: Vec<TileGrid> = cap
+        .planes
+        .par_iter()
+        .map(|cp| {
+            let started = Timings::start(job.timings());
+            let grid = plane_tile_grid(cp, w, h, source, opts);
+            Timings::stop(job.timings(), Stage::Grid, started);
+            grid
+        })
+        .collect::<Result<_, _>>()?;
+    let kernels: Vec<_> = cap
+        .planes
+        .iter()
+        .map(|cp| move |i: f64, j: f64| plane_kernel_at(cp, w, h, source, i, j))
+        .collect();
+    let work: Vec<PlaneWork<'_>> = cap
+        .planes
+        .iter()
+        .zip(grids)
+        .zip(&kernels)
+        .map(|((cp, grid), at)| PlaneWork {
+            plane: &cp.plane,
+            grid,
+            kernel_at: at,
+        })
+        .collect();
+    tiles::deblur_planes(&work, &opts.method, job)
 }
+
+pub(crate) type KernelAt<'a> = dyn Fn(f64, f64) -> Result<Kernel, DeblurError> + Sync + 'a;
 
 /// Deblurs every plane of a capture (each CFA plane on its own for RAW, before any
 /// colour processing), on the device `opts` asks for.
@@ -560,17 +456,16 @@ pub fn deblur_capture(
 ) -> Result<Capture, DeblurError> {
     let wall = Timings::start(job.timings());
     let gpu = gpu::resolve(opts.device, &opts.method)?;
-    let mut out = cap.clone();
-    for cp in &mut out.planes {
-        let mut plane = match &gpu {
-            Some(g) => g.deblur_channel_plane(cp, (cap.width, cap.height), source, opts, job)?,
-            None => deblur_channel_plane(cp, cap.width, cap.height, source, opts, job)?,
-        };
-        let started = Timings::start(job.timings());
-        opts.amount.apply(&cp.plane, &mut plane);
-        Timings::stop(job.timings(), Stage::Finish, started);
-        cp.plane = plane;
+    let planes = match &gpu {
+        Some(g) => g.deblur_planes(cap, source, opts, job)?,
+        None => deblur_planes_cpu(cap, source, opts, job)?,
+    };
+    let started = Timings::start(job.timings());
+    let mut out = with_planes(cap, planes);
+    for (cp, original) in out.planes.iter_mut().zip(&cap.planes) {
+        opts.amount.apply(&original.plane, &mut cp.plane);
     }
+    Timings::stop(job.timings(), Stage::Finish, started);
     let started = Timings::start(job.timings());
     if opts.fringes == Fringes::Suppress && !cap.is_raw {
         suppress_fringes(cap, &mut out);
@@ -580,6 +475,43 @@ pub fn deblur_capture(
         t.add_wall(w.elapsed());
     }
     Ok(out)
+}
+
+/// `cap` with each plane's pixels replaced by `planes`' (the same sizes), without
+/// copying its own.
+fn with_planes(cap: &Capture, planes: Vec<Plane>) -> Capture {
+    let Capture {
+        width,
+        height,
+        planes: own,
+        setting_focal_mm,
+        setting_f_number,
+        setting_focus_m,
+        identity,
+        is_raw,
+        raw,
+    } = cap;
+    Capture {
+        width: *width,
+        height: *height,
+        planes: own
+            .iter()
+            .zip(planes)
+            .map(|(cp, plane)| ChannelPlane {
+                plane,
+                channel: cp.channel,
+                step: cp.step,
+                offset_x: cp.offset_x,
+                offset_y: cp.offset_y,
+            })
+            .collect(),
+        setting_focal_mm: *setting_focal_mm,
+        setting_f_number: *setting_f_number,
+        setting_focus_m: *setting_focus_m,
+        identity: identity.clone(),
+        is_raw: *is_raw,
+        raw: raw.clone(),
+    }
 }
 
 /// [`chroma::clamp_chroma`] on an RGB capture's R, G and B planes (nothing otherwise).

@@ -6,10 +6,11 @@
 //! λ/2 ‖k ∗ x − y‖² + Σ |∇x|^α with circular boundaries; the tiler makes blocks periodic
 //! (reflection padding plus an edge taper) before they get here.
 
-use crate::fft::Fft2;
+use crate::fft::{Fft2, Precision};
 use crate::psf::Kernel;
 use crate::timings::{Clock, Stage};
-use rustfft::num_complex::Complex64;
+use rustfft::num_complex::Complex;
+use rustfft::num_traits::{Float, NumAssign};
 use serde::{Deserialize, Serialize};
 
 /// Half-quadratic splitting parameters.
@@ -112,24 +113,91 @@ impl Method {
     }
 }
 
+/// The precisions the deconvolver runs in: `f32` for the tiler's HQS and Wiener (the
+/// GPU's precision, which agrees with double to SSIM 1.0000), `f64` for IRLS's
+/// conjugate gradients and for the reference solves.
+pub trait Real:
+    Precision + Float + NumAssign + std::iter::Sum + Send + Sync + Default + 'static
+{
+    /// `v` rounded to this precision.
+    fn of(v: f64) -> Self;
+    fn of_f32(v: f32) -> Self;
+    fn of_i64(v: i64) -> Self;
+    fn as_f32(self) -> f32;
+    fn as_f64(self) -> f64;
+    /// Truncated toward zero (one instruction, unlike `usize`'s conversion).
+    fn trunc_i64(self) -> i64;
+    /// The shrinkage table's nodes in this precision.
+    #[doc(hidden)]
+    fn nodes(lut: &ShrinkLut) -> &[[Self; 2]];
+}
+
+impl Real for f32 {
+    fn of(v: f64) -> Self {
+        v as f32
+    }
+    fn of_f32(v: f32) -> Self {
+        v
+    }
+    fn of_i64(v: i64) -> Self {
+        v as f32
+    }
+    fn as_f32(self) -> f32 {
+        self
+    }
+    fn as_f64(self) -> f64 {
+        f64::from(self)
+    }
+    fn trunc_i64(self) -> i64 {
+        self as i64
+    }
+    fn nodes(lut: &ShrinkLut) -> &[[Self; 2]] {
+        &lut.nodes32
+    }
+}
+
+impl Real for f64 {
+    fn of(v: f64) -> Self {
+        v
+    }
+    fn of_f32(v: f32) -> Self {
+        f64::from(v)
+    }
+    fn of_i64(v: i64) -> Self {
+        v as f64
+    }
+    fn as_f32(self) -> f32 {
+        self as f32
+    }
+    fn as_f64(self) -> f64 {
+        self
+    }
+    fn trunc_i64(self) -> i64 {
+        self as i64
+    }
+    fn nodes(lut: &ShrinkLut) -> &[[Self; 2]] {
+        &lut.nodes
+    }
+}
+
 /// Deconvolves periodic blocks of one size: FFT plans, the gradient spectrum and every
 /// buffer a solve needs, allocated once and reused block after block. One per worker
 /// thread.
 #[derive(Clone, Debug)]
-pub struct Deconvolver {
-    fft: Fft2,
+pub struct Deconvolver<T: Real = f64> {
+    fft: Fft2<T>,
     /// |D_x|² + |D_y|² per half-spectrum entry: the same for every block of this size.
-    grad_energy: Vec<f64>,
-    otf: Vec<Complex64>,
-    spec: Vec<Complex64>,
-    num: Vec<Complex64>,
-    den: Vec<f64>,
-    real_a: Vec<f64>,
-    real_b: Vec<f64>,
-    real_c: Vec<f64>,
-    row_a: Vec<f64>,
-    row_b: Vec<f64>,
-    row_c: Vec<f64>,
+    grad_energy: Vec<T>,
+    otf: Vec<Complex<T>>,
+    spec: Vec<Complex<T>>,
+    num: Vec<Complex<T>>,
+    den: Vec<T>,
+    real_a: Vec<T>,
+    real_b: Vec<T>,
+    real_c: Vec<T>,
+    row_a: Vec<T>,
+    row_b: Vec<T>,
+    row_c: Vec<T>,
     /// This worker's stage times (off unless the deblur is timed).
     pub clock: Clock,
 }
@@ -142,23 +210,24 @@ fn timed<R>(clock: &mut Clock, stage: Stage, f: impl FnOnce() -> R) -> R {
     r
 }
 
-impl Deconvolver {
+impl<T: Real> Deconvolver<T> {
     #[must_use]
     pub fn new(width: usize, height: usize) -> Self {
         let fft = Fft2::new(width, height);
         let n = width * height;
+        let zero = T::zero();
         Self {
             grad_energy: fft.gradient_energy(),
             otf: fft.new_spectrum(),
             spec: fft.new_spectrum(),
             num: fft.new_spectrum(),
-            den: vec![0.0; fft.spectrum_len()],
-            real_a: vec![0.0; n],
-            real_b: vec![0.0; n],
-            real_c: vec![0.0; n],
-            row_a: vec![0.0; width],
-            row_b: vec![0.0; width],
-            row_c: vec![0.0; width],
+            den: vec![zero; fft.spectrum_len()],
+            real_a: vec![zero; n],
+            real_b: vec![zero; n],
+            real_c: vec![zero; n],
+            row_a: vec![zero; width],
+            row_b: vec![zero; width],
+            row_c: vec![zero; width],
             clock: Clock::default(),
             fft,
         }
@@ -193,7 +262,7 @@ impl Deconvolver {
     ///
     /// # Panics
     /// On wrongly sized buffers, or a kernel larger than the block.
-    pub fn deconvolve(&mut self, y: &[f64], k: &Kernel, method: &Method, x: &mut [f64]) {
+    pub fn deconvolve(&mut self, y: &[T], k: &Kernel, method: &Method, x: &mut [T]) {
         self.set_kernel(k);
         self.solve(y, method, x);
     }
@@ -207,11 +276,11 @@ impl Deconvolver {
     /// As [`Self::deconvolve`].
     pub fn deconvolve_tapered(
         &mut self,
-        block: &mut [f64],
+        block: &mut [T],
         k: &Kernel,
         taper_px: usize,
         method: &Method,
-        x: &mut [f64],
+        x: &mut [T],
     ) {
         self.set_kernel(k);
         let (w, h) = (self.width(), self.height());
@@ -231,26 +300,33 @@ impl Deconvolver {
                 fft.inverse(spec, real_b)
             });
             let started = self.clock.start();
-            let ramp = |t: usize, n: usize| -> f64 {
+            let ramp = |t: usize, n: usize| -> T {
                 let d = t.min(n - 1 - t);
                 if d >= taper {
-                    1.0
+                    T::one()
                 } else {
-                    (std::f64::consts::FRAC_PI_2 * (d as f64 + 0.5) / taper as f64)
-                        .sin()
-                        .powi(2)
+                    T::of(
+                        (std::f64::consts::FRAC_PI_2 * (d as f64 + 0.5) / taper as f64)
+                            .sin()
+                            .powi(2),
+                    )
                 }
             };
+            // The ramp along a row, once per block rather than once per pixel.
+            let row_ramp = &mut self.row_a;
+            for (i, r) in row_ramp.iter_mut().enumerate() {
+                *r = ramp(i, w);
+            }
             for j in 0..h {
                 let ry = ramp(j, h);
                 let row = j * w..(j + 1) * w;
-                for (i, (b, &blurred)) in block[row.clone()]
+                for ((b, &blurred), &rx) in block[row.clone()]
                     .iter_mut()
                     .zip(&self.real_b[row])
-                    .enumerate()
+                    .zip(row_ramp.iter())
                 {
-                    let a = ry * ramp(i, w);
-                    *b = a * *b + (1.0 - a) * blurred;
+                    let a = ry * rx;
+                    *b = a * *b + (T::one() - a) * blurred;
                 }
             }
             self.clock.stop(Stage::Taper, started);
@@ -258,32 +334,32 @@ impl Deconvolver {
         self.solve(block, method, x);
     }
 
-    fn solve(&mut self, y: &[f64], method: &Method, x: &mut [f64]) {
+    fn solve(&mut self, y: &[T], method: &Method, x: &mut [T]) {
         let n = self.width() * self.height();
         assert!(y.len() == n && x.len() == n, "block sizes");
         match method {
-            Method::Wiener(p) => self.wiener(y, p.nsr, x),
+            Method::Wiener(p) => self.wiener(y, T::of(p.nsr), x),
             Method::Hqs(p) => self.hqs(y, p, x),
             Method::Irls(p) => self.irls(y, p, x),
         }
     }
 
     /// The forward transform of `y` into `spec`, timed.
-    fn forward(&mut self, y: &[f64]) {
+    fn forward(&mut self, y: &[T]) {
         let (fft, spec) = (&mut self.fft, &mut self.spec);
         timed(&mut self.clock, Stage::ForwardFft, || fft.forward(y, spec));
     }
 
     /// The inverse transform of `spec` into `x`, timed.
-    fn inverse(&mut self, x: &mut [f64]) {
+    fn inverse(&mut self, x: &mut [T]) {
         let (fft, spec) = (&mut self.fft, &mut self.spec);
         timed(&mut self.clock, Stage::InverseFft, || fft.inverse(spec, x));
     }
 
-    fn wiener(&mut self, y: &[f64], nsr: f64, x: &mut [f64]) {
+    fn wiener(&mut self, y: &[T], nsr: T, x: &mut [T]) {
         self.forward(y);
         let started = self.clock.start();
-        for ((s, o), g) in self.spec.iter_mut().zip(&self.otf).zip(&self.grad_energy) {
+        for ((s, o), &g) in self.spec.iter_mut().zip(&self.otf).zip(&self.grad_energy) {
             *s = o.conj() * *s / (o.norm_sqr() + nsr * g);
         }
         self.clock.stop(Stage::Solve, started);
@@ -295,15 +371,16 @@ impl Deconvolver {
     /// X = (λ K̄Y + β Σ D̄ W) / (λ|K|² + β Σ|D|²). Σ D̄ W is the spectrum of the
     /// divergence Σ Dᵀw, formed in space, so each step costs one forward and one
     /// inverse transform.
-    fn hqs(&mut self, y: &[f64], p: &HqsParams, x: &mut [f64]) {
+    fn hqs(&mut self, y: &[T], p: &HqsParams, x: &mut [T]) {
         let (w, h) = (self.width(), self.height());
         self.forward(y);
         let started = self.clock.start();
+        let lambda = T::of(p.lambda);
         for ((num, s), o) in self.num.iter_mut().zip(&self.spec).zip(&self.otf) {
-            *num = o.conj() * s * p.lambda;
+            *num = o.conj() * s * lambda;
         }
         for (d, o) in self.den.iter_mut().zip(&self.otf) {
-            *d = p.lambda * o.norm_sqr();
+            *d = lambda * o.norm_sqr();
         }
         x.copy_from_slice(y);
         self.clock.stop(Stage::Solve, started);
@@ -311,6 +388,7 @@ impl Deconvolver {
         while beta <= p.beta_max * (1.0 + 1e-9) {
             let started = self.clock.start();
             let lut = shared_lut(beta, p.alpha);
+            let lut = Lookup::<T>::new(&lut);
             // w-step and divergence Dxᵀwx + Dyᵀwy in one pass over the rows, with
             // (Dᵀg)(i) = g(i − 1) − g(i): a row's divergence needs its own shrunk
             // gradients and the previous row's wy, which wraps to the last row's.
@@ -345,14 +423,15 @@ impl Deconvolver {
                 fft.forward(real_c, spec)
             });
             let started = self.clock.start();
-            for (((s, num), den), g) in self
+            let b = T::of(beta);
+            for (((s, &num), &den), &g) in self
                 .spec
                 .iter_mut()
                 .zip(&self.num)
                 .zip(&self.den)
                 .zip(&self.grad_energy)
             {
-                *s = (num + *s * beta) * (1.0 / (den + beta * g));
+                *s = (num + *s * b) * (T::one() / (den + b * g));
             }
             self.clock.stop(Stage::Solve, started);
             self.inverse(x);
@@ -361,7 +440,7 @@ impl Deconvolver {
     }
 
     /// Applies KᵀK + μ Σ Dᵀ W D to `v` (into `out`), W the IRLS weights.
-    fn irls_apply(&mut self, v: &[f64], wx: &[f64], wy: &[f64], mu: f64, out: &mut [f64]) {
+    fn irls_apply(&mut self, v: &[T], wx: &[T], wy: &[T], mu: T, out: &mut [T]) {
         let (w, h) = (self.width(), self.height());
         self.fft.forward(v, &mut self.spec);
         for (s, o) in self.spec.iter_mut().zip(&self.otf) {
@@ -393,7 +472,7 @@ impl Deconvolver {
     /// Levin et al.: minimise λ/2‖k ∗ x − y‖² + Σ|∇x|^α by reweighted least squares,
     /// each reweighted system (KᵀK + (α/λ) Σ Dᵀ W D) x = Kᵀy solved by conjugate
     /// gradients from the previous estimate.
-    fn irls(&mut self, y: &[f64], p: &IrlsParams, x: &mut [f64]) {
+    fn irls(&mut self, y: &[T], p: &IrlsParams, x: &mut [T]) {
         let (w, h) = (self.width(), self.height());
         let n = w * h;
         // Kᵀy.
@@ -401,17 +480,19 @@ impl Deconvolver {
         for (s, o) in self.spec.iter_mut().zip(&self.otf) {
             *s *= o.conj();
         }
-        let mut rhs = vec![0.0; n];
+        let zero = T::zero();
+        let mut rhs = vec![zero; n];
         self.inverse(&mut rhs);
         // A mildly regularised Wiener estimate starts the iterations near the answer.
-        self.wiener(y, 0.01, x);
+        self.wiener(y, T::of(0.01), x);
         // The conjugate gradients, their transforms included, are the solver's passes.
         let started = self.clock.start();
-        let mu = p.alpha / p.lambda;
-        let (mut wx, mut wy) = (vec![0.0; n], vec![0.0; n]);
-        let (mut r, mut d, mut ad) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        let mu = T::of(p.alpha / p.lambda);
+        let (eps, power) = (T::of(p.epsilon), T::of(p.alpha - 2.0));
+        let (mut wx, mut wy) = (vec![zero; n], vec![zero; n]);
+        let (mut r, mut d, mut ad) = (vec![zero; n], vec![zero; n], vec![zero; n]);
         for _ in 0..p.outer {
-            let weight = |g: f64| g.abs().max(p.epsilon).powf(p.alpha - 2.0);
+            let weight = |g: T| g.abs().max(eps).powf(power);
             for row in 0..h {
                 let rn = if row + 1 == h { 0 } else { row + 1 };
                 for c in 0..w {
@@ -426,14 +507,14 @@ impl Deconvolver {
                 r[i] = rhs[i] - ad[i];
             }
             d.copy_from_slice(&r);
-            let mut rr: f64 = r.iter().map(|v| v * v).sum();
+            let mut rr: T = r.iter().map(|&v| v * v).sum();
             for _ in 0..p.cg_iterations {
-                if rr < 1e-20 {
+                if rr < T::of(1e-20) {
                     break;
                 }
                 self.irls_apply(&d, &wx, &wy, mu, &mut ad);
-                let dad: f64 = d.iter().zip(&ad).map(|(a, b)| a * b).sum();
-                if dad <= 0.0 {
+                let dad: T = d.iter().zip(&ad).map(|(&a, &b)| a * b).sum();
+                if dad <= zero {
                     break;
                 }
                 let step = rr / dad;
@@ -441,7 +522,7 @@ impl Deconvolver {
                     x[i] += step * d[i];
                     r[i] -= step * ad[i];
                 }
-                let rr_new: f64 = r.iter().map(|v| v * v).sum();
+                let rr_new: T = r.iter().map(|&v| v * v).sum();
                 let b = rr_new / rr;
                 rr = rr_new;
                 for i in 0..n {
@@ -537,11 +618,15 @@ pub(crate) fn shrink_table(beta: f64, alpha: f64) -> (f64, f64, Vec<f64>) {
     (lut.range, lut.inv_step, values)
 }
 
-struct ShrinkLut {
+/// The shrinkage of one (β, α) at evenly spaced nodes, in both precisions.
+#[doc(hidden)]
+pub struct ShrinkLut {
     inv_step: f64,
     range: f64,
     /// Interpolation nodes as (value, slope to the next node): one load per lookup.
     nodes: Vec<[f64; 2]>,
+    /// The same nodes rounded to single precision.
+    nodes32: Vec<[f32; 2]>,
     /// Index of the last node, as a float: the lookup's bound.
     last: f64,
     beta: f64,
@@ -558,29 +643,56 @@ impl ShrinkLut {
         let values: Vec<f64> = (0..=n)
             .map(|i| shrink_hyper_laplacian(-range + i as f64 * step, beta, alpha))
             .collect();
-        let nodes = values.windows(2).map(|p| [p[0], p[1] - p[0]]).collect();
+        let nodes: Vec<[f64; 2]> = values.windows(2).map(|p| [p[0], p[1] - p[0]]).collect();
+        let nodes32 = nodes.iter().map(|&[a, b]| [a as f32, b as f32]).collect();
         Self {
             inv_step: 1.0 / step,
             range,
             nodes,
+            nodes32,
             last: n as f64,
             beta,
             alpha,
         }
     }
+}
+
+/// A [`ShrinkLut`] read in one precision.
+struct Lookup<'a, T: Real> {
+    inv_step: T,
+    range: T,
+    last: T,
+    nodes: &'a [[T; 2]],
+    lut: &'a ShrinkLut,
+}
+
+impl<'a, T: Real> Lookup<'a, T> {
+    fn new(lut: &'a ShrinkLut) -> Self {
+        Self {
+            inv_step: T::of(lut.inv_step),
+            range: T::of(lut.range),
+            last: T::of(lut.last),
+            nodes: T::nodes(lut),
+            lut,
+        }
+    }
 
     #[inline]
-    fn eval(&self, v: f64) -> f64 {
+    fn eval(&self, v: T) -> T {
         let t = (v + self.range) * self.inv_step;
         // Written so NaN fails the test and takes the exact path (which maps it to 0).
-        if t >= 0.0 && t < self.last {
+        if t >= T::zero() && t < self.last {
             // Through i64: the conversions to and from it are single instructions on
             // every x86-64, those of usize are not.
-            let i = t as i64;
+            let i = t.trunc_i64();
             let [a, slope] = self.nodes[i as usize];
-            a + slope * (t - i as f64)
+            a + slope * (t - T::of_i64(i))
         } else {
-            shrink_hyper_laplacian(v, self.beta, self.alpha)
+            T::of(shrink_hyper_laplacian(
+                v.as_f64(),
+                self.lut.beta,
+                self.lut.alpha,
+            ))
         }
     }
 }

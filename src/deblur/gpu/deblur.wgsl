@@ -31,6 +31,12 @@ struct Params {
     lambda: f32,
     alpha: f32,
     nsr: f32,
+    // This plane's first pixel in `plane` and `out_plane` (a photo's planes share them),
+    // and the batch's first tile in `kinfo`.
+    plane0: u32,
+    kinfo0: u32,
+    pad0: u32,
+    pad1: u32,
 }
 
 // One HQS step: its β and where its shrinkage table lies in `aux`.
@@ -54,10 +60,10 @@ struct Step {
 @group(0) @binding(4) var<storage, read_write> num: array<vec2<f32>>;
 // λ·|K|².
 @group(0) @binding(5) var<storage, read_write> den: array<f32>;
-// Per tile of the batch: (offset of its kernel in `aux`, kernel side).
+// Per tile of the photo: (offset of its kernel in `aux`, kernel side).
 @group(0) @binding(6) var<storage, read> kinfo: array<vec2<u32>>;
-// The batch's kernels, then the blend windows along x, then along y, then the steps'
-// shrinkage tables.
+// The photo's kernels, then each plane's blend windows along x and along y, then the
+// steps' shrinkage tables.
 @group(0) @binding(7) var<storage, read> aux: array<f32>;
 @group(0) @binding(8) var<storage, read_write> out_plane: array<f32>;
 @group(1) @binding(0) var<uniform> S: Step;
@@ -128,11 +134,11 @@ fn load(@builtin(global_invocation_id) gid: vec3<u32>) {
     let by = i32(ty * P.step_y) - i32(P.ramp_y / 2u) - i32(P.margin_y);
     let sx = reflect_index(bx + i32(i), P.plane_w);
     let sy = reflect_index(by + i32(j), P.plane_h);
-    let v = vec2<f32>(plane[sy * P.plane_w + sx], 0.0);
+    let v = vec2<f32>(plane[P.plane0 + sy * P.plane_w + sx], 0.0);
     let idx = t * block_len() + j * P.bw + i;
     src[idx] = v;
     dst[idx] = v;
-    let ki = kinfo[t];
+    let ki = kinfo[P.kinfo0 + t];
     let c = ki.y / 2u;
     let ii = wrap_tap(i, P.bw, ki.y, c);
     let jj = wrap_tap(j, P.bh, ki.y, c);
@@ -331,5 +337,5 @@ fn blend(@builtin(global_invocation_id) gid: vec3<u32>) {
             acc += v * w;
         }
     }
-    out_plane[y * P.plane_w + x] += acc;
+    out_plane[P.plane0 + y * P.plane_w + x] += acc;
 }
