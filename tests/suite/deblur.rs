@@ -1158,7 +1158,14 @@ fn deblur_command_writes_a_raw_photo_back_as_a_dng_with_its_metadata() {
 
     // The planes read back are the ones written: the same deblurring in this process,
     // quantised as the writer does.
-    let source = ProfileKernels::new(profile, setting);
+    // The profile as the command read it back from its file, and the setting as it
+    // read it from the photo's EXIF: the same inputs, so the same pixels to the bit.
+    let profile = Profile::load(&profile_path).expect("the profile file");
+    let read = LensSetting {
+        focal_mm: original.setting_focal_mm.expect("focal length in EXIF"),
+        f_number: original.setting_f_number.expect("f-number in EXIF"),
+    };
+    let source = ProfileKernels::new(profile, read);
     let deblurred = lensblur::deblur::deblur_capture(
         &original,
         &source,
