@@ -10,10 +10,7 @@
 
 mod photo;
 
-use super::{
-    DeblurError, DeblurOptions, KernelSource, Method, TileGrid, cropped, plane_kernel_at,
-    plane_tile_grid,
-};
+use super::{DeblurError, DeblurOptions, KernelSource, Method, cropped, plane_kernel_at};
 use crate::job::JobContext;
 use crate::plane::{Capture, Plane};
 use crate::psf::Kernel;
@@ -434,16 +431,7 @@ fn plane_jobs<'c>(
     job: &JobContext,
 ) -> Result<Vec<PlaneJob<'c>>, DeblurError> {
     let (w, h) = (cap.width, cap.height);
-    let grids: Vec<TileGrid> = cap
-        .planes
-        .par_iter()
-        .map(|cp| {
-            let started = Timings::start(job.timings());
-            let grid = plane_tile_grid(cp, w, h, source, opts);
-            Timings::stop(job.timings(), Stage::Grid, started);
-            grid
-        })
-        .collect::<Result<_, _>>()?;
+    let grids = super::tile_grids(cap, source, opts, job)?;
     let tiles: Vec<(usize, usize)> = grids
         .iter()
         .enumerate()

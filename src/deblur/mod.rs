@@ -403,6 +403,26 @@ pub fn deblur_channel_plane(
     one_plane(tiles::deblur_planes(&[work], &opts.method, job)?)
 }
 
+/// Each plane's tile grid (the kernels it is deblurred with), the planes in parallel:
+/// the first step of the CPU and the GPU paths alike.
+pub(crate) fn tile_grids(
+    cap: &Capture,
+    source: &dyn KernelSource,
+    opts: &DeblurOptions,
+    job: &JobContext,
+) -> Result<Vec<TileGrid>, DeblurError> {
+    let (w, h) = (cap.width, cap.height);
+    cap.planes
+        .par_iter()
+        .map(|cp| {
+            let started = Timings::start(job.timings());
+            let grid = plane_tile_grid(cp, w, h, source, opts);
+            Timings::stop(job.timings(), Stage::Grid, started);
+            grid
+        })
+        .collect()
+}
+
 /// Every plane of a capture on the CPU, all tiles of all planes in one pass.
 fn deblur_planes_cpu(
     cap: &Capture,
@@ -411,16 +431,7 @@ fn deblur_planes_cpu(
     job: &JobContext,
 ) -> Result<Vec<Plane>, DeblurError> {
     let (w, h) = (cap.width, cap.height);
-    let grids: Vec<TileGrid> = cap
-        .planes
-        .par_iter()
-        .map(|cp| {
-            let started = Timings::start(job.timings());
-            let grid = plane_tile_grid(cp, w, h, source, opts);
-            Timings::stop(job.timings(), Stage::Grid, started);
-            grid
-        })
-        .collect::<Result<_, _>>()?;
+    let grids = tile_grids(cap, source, opts, job)?;
     let kernels: Vec<_> = cap
         .planes
         .iter()
