@@ -5,9 +5,11 @@
 use super::calibrate::{SessionArgs, load_session};
 use super::common::{write_atomic, write_json};
 use anyhow::{Context, Result, bail};
-use lensblur::model::{Dataset, FittedModel, LocalOptions, ModelKind, ShotInfo, fit_model, spaced};
+use lensblur::model::{Dataset, FittedModel, LocalOptions, ModelKind, fit_model};
 use lensblur::plane::{Channel, LensSetting};
 use lensblur::profile::Profile;
+use lensblur::psf::Gaussian2;
+use lensblur::review;
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -56,14 +58,13 @@ enum Curves {
 }
 
 impl Curves {
-    /// C_xx, C_yy, C_or at (channel, x, y, setting).
-    fn predict(&self, channel: Channel, x: f64, y: f64, s: LensSetting) -> Option<[f64; 3]> {
+    /// The Gaussian at (channel, x, y, setting), if the curve reaches it.
+    fn predict(&self, channel: Channel, x: f64, y: f64, s: LensSetting) -> Option<Gaussian2> {
         match self {
-            Self::Profile(p) => p
+            Self::Profile(p) => p.predict(channel, x, y, s).ok(),
+            Self::Fitted(m) => m
                 .predict(channel, x, y, s)
-                .ok()
-                .map(|g| [g.sigma_x, g.sigma_y, g.rho]),
-            Self::Fitted(m) => m.predict(channel, x, y, s),
+                .map(|[cxx, cyy, cor]| Gaussian2::new(cxx, cyy, cor)),
         }
     }
 }
@@ -77,6 +78,19 @@ struct Point {
     cor: f64,
     #[serde(skip_serializing_if = "Option::is_none")]
     shot: Option<String>,
+}
+
+impl Point {
+    fn new(s: LensSetting, g: &Gaussian2, shot: Option<String>) -> Self {
+        Self {
+            focal_mm: s.focal_mm,
+            f_number: s.f_number,
+            cxx: g.sigma_x,
+            cyy: g.sigma_y,
+            cor: g.rho,
+            shot,
+        }
+    }
 }
 
 #[derive(Serialize)]
@@ -107,6 +121,7 @@ struct Sweeps {
     vs_focal: Sweep,
 }
 
+/// The calibrated value nearest the middle of `values`' range (in stops when `log`).
 fn middle(values: &[f64], log: bool) -> Option<f64> {
     let (lo, hi) = (*values.first()?, *values.last()?);
     let mid = if log {
@@ -114,10 +129,62 @@ fn middle(values: &[f64], log: bool) -> Option<f64> {
     } else {
         0.5 * (lo + hi)
     };
-    values
-        .iter()
-        .copied()
-        .min_by(|a, b| (a - mid).abs().total_cmp(&(b - mid).abs()))
+    review::nearest_value(values, mid)
+}
+
+/// The sensor locations asked for, or the centre and four off-axis points.
+fn locations(args: &Args, ds: &Dataset) -> Result<Vec<[f64; 2]>> {
+    if let Some(p) = &args.points {
+        let t =
+            std::fs::read_to_string(p).with_context(|| format!("{}: cannot read", p.display()))?;
+        return serde_json::from_str(&t)
+            .with_context(|| format!("{}: expected [[x, y], ...]", p.display()));
+    }
+    let (w, h) = ((ds.width - 1) as f64, (ds.height - 1) as f64);
+    Ok(vec![
+        [0.5 * w, 0.5 * h],
+        [0.12 * w, 0.12 * h],
+        [0.88 * w, 0.12 * h],
+        [0.12 * w, 0.88 * h],
+        [0.88 * w, 0.88 * h],
+    ])
+}
+
+/// One sweep at every location and channel: the measured points (the studio's rule,
+/// `review::sweep_points`) and the model curve over `settings`.
+fn sweep(
+    ds: &Dataset,
+    curves: &Curves,
+    locations: &[[f64; 2]],
+    vs_aperture: bool,
+    fixed: f64,
+    settings: &[LensSetting],
+) -> Vec<Series> {
+    let mut out = Vec::new();
+    for ch in ds.channels() {
+        for (location, &[x, y]) in locations.iter().enumerate() {
+            let measured = review::sweep_points(ds, ch, (x, y), vs_aperture, fixed)
+                .into_iter()
+                .map(|p| {
+                    let shot = ds.shots.get(p.shot).map(|s| s.name.clone());
+                    Point::new(p.setting, &p.gaussian, shot)
+                })
+                .collect();
+            let model = settings
+                .iter()
+                .filter_map(|&s| Some(Point::new(s, &curves.predict(ch, x, y, s)?, None)))
+                .collect();
+            out.push(Series {
+                location,
+                x,
+                y,
+                channel: ch,
+                measured,
+                model,
+            });
+        }
+    }
+    out
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -136,24 +203,7 @@ pub fn run(args: Args) -> Result<()> {
         let name = m.name();
         (Curves::Fitted(m), name)
     };
-    let locations: Vec<[f64; 2]> = match &args.points {
-        Some(p) => {
-            let t = std::fs::read_to_string(p)
-                .with_context(|| format!("{}: cannot read", p.display()))?;
-            serde_json::from_str(&t)
-                .with_context(|| format!("{}: expected [[x, y], ...]", p.display()))?
-        }
-        None => {
-            let (w, h) = ((ds.width - 1) as f64, (ds.height - 1) as f64);
-            vec![
-                [0.5 * w, 0.5 * h],
-                [0.12 * w, 0.12 * h],
-                [0.88 * w, 0.12 * h],
-                [0.12 * w, 0.88 * h],
-                [0.88 * w, 0.88 * h],
-            ]
-        }
-    };
+    let locations = locations(&args, &ds)?;
     let focal = match args.focal {
         Some(f) => f,
         None => middle(&fs, false).context("no focal lengths in the session")?,
@@ -162,59 +212,11 @@ pub fn run(args: Args) -> Result<()> {
         Some(a) => a,
         None => middle(&as_, true).context("no apertures in the session")?,
     };
-    let near_px = 0.75 * ds.largest_square_px();
-    let steps = args.steps.max(2);
-    let a_curve = spaced(as_[0], as_[as_.len() - 1], steps, true);
-    let f_curve = spaced(fs[0], fs[fs.len() - 1], steps, false);
-    let mut vs_a = Vec::new();
-    let mut vs_f = Vec::new();
-    for ch in ds.channels() {
-        for (li, &[x, y]) in locations.iter().enumerate() {
-            let series = |fixed_is_focal: bool| {
-                let measured = measured_near(&ds, ch, x, y, near_px, |s| {
-                    if fixed_is_focal {
-                        LensSetting::same_value(s.focal_mm, focal)
-                    } else {
-                        LensSetting::same_value(s.f_number, aperture)
-                    }
-                });
-                let model: Vec<Point> = if fixed_is_focal { &a_curve } else { &f_curve }
-                    .iter()
-                    .filter_map(|&v| {
-                        let s = if fixed_is_focal {
-                            LensSetting {
-                                focal_mm: focal,
-                                f_number: v,
-                            }
-                        } else {
-                            LensSetting {
-                                focal_mm: v,
-                                f_number: aperture,
-                            }
-                        };
-                        curves.predict(ch, x, y, s).map(|p| Point {
-                            focal_mm: s.focal_mm,
-                            f_number: s.f_number,
-                            cxx: p[0],
-                            cyy: p[1],
-                            cor: p[2],
-                            shot: None,
-                        })
-                    })
-                    .collect();
-                Series {
-                    location: li,
-                    x,
-                    y,
-                    channel: ch,
-                    measured,
-                    model,
-                }
-            };
-            vs_a.push(series(true));
-            vs_f.push(series(false));
-        }
-    }
+    let steps = args.steps.max(2) - 1;
+    let a_curve = review::sweep_settings([as_[0], as_[as_.len() - 1]], focal, true, steps);
+    let f_curve = review::sweep_settings([fs[0], fs[fs.len() - 1]], aperture, false, steps);
+    let vs_a = sweep(&ds, &curves, &locations, true, focal, &a_curve);
+    let vs_f = sweep(&ds, &curves, &locations, false, aperture, &f_curve);
     if vs_a.iter().all(|s| s.measured.is_empty()) && vs_f.iter().all(|s| s.measured.is_empty()) {
         bail!(
             "no measured samples near the requested locations at {} or {}",
@@ -241,76 +243,39 @@ pub fn run(args: Args) -> Result<()> {
     };
     write_json(&args.out, &out)?;
     if args.csv {
-        let mut csv =
-            String::from("sweep,location,x,y,channel,kind,focal_mm,f_number,cxx,cyy,cor\n");
-        for (sweep, sw) in [
-            ("vs_aperture", &out.vs_aperture),
-            ("vs_focal", &out.vs_focal),
-        ] {
-            for s in &sw.series {
-                for (kind, pts) in [("measured", &s.measured), ("model", &s.model)] {
-                    for p in pts {
-                        let _ = writeln!(
-                            csv,
-                            "{sweep},{},{:.1},{:.1},{},{kind},{},{},{:.5},{:.5},{:.5}",
-                            s.location,
-                            s.x,
-                            s.y,
-                            s.channel,
-                            p.focal_mm,
-                            p.f_number,
-                            p.cxx,
-                            p.cyy,
-                            p.cor
-                        );
-                    }
-                }
-            }
-        }
         let mut p = args.out.as_os_str().to_owned();
         p.push(".csv");
-        write_atomic(&PathBuf::from(p), csv.as_bytes())?;
+        write_atomic(&PathBuf::from(p), csv(&out).as_bytes())?;
     }
     Ok(())
 }
 
-/// Per shot passing `keep`, the sample of `channel` nearest (x, y) within `near_px`.
-fn measured_near(
-    ds: &Dataset,
-    channel: Channel,
-    x: f64,
-    y: f64,
-    near_px: f64,
-    keep: impl Fn(&ShotInfo) -> bool,
-) -> Vec<Point> {
-    let mut out = Vec::new();
-    for (i, shot) in ds.shots.iter().enumerate() {
-        if !keep(shot) {
-            continue;
-        }
-        let best = ds
-            .samples
-            .iter()
-            .filter(|s| s.shot == i && s.channel == channel)
-            .map(|s| ((s.x - x).hypot(s.y - y), s))
-            .filter(|(d, _)| *d <= near_px)
-            .min_by(|a, b| a.0.total_cmp(&b.0));
-        if let Some((_, s)) = best {
-            let p = s.params();
-            out.push(Point {
-                focal_mm: shot.focal_mm,
-                f_number: shot.f_number,
-                cxx: p[0],
-                cyy: p[1],
-                cor: p[2],
-                shot: Some(shot.name.clone()),
-            });
+/// The sweeps as CSV, one row per point.
+fn csv(out: &Sweeps) -> String {
+    let mut csv = String::from("sweep,location,x,y,channel,kind,focal_mm,f_number,cxx,cyy,cor\n");
+    for (sweep, sw) in [
+        ("vs_aperture", &out.vs_aperture),
+        ("vs_focal", &out.vs_focal),
+    ] {
+        for s in &sw.series {
+            for (kind, pts) in [("measured", &s.measured), ("model", &s.model)] {
+                for p in pts {
+                    let _ = writeln!(
+                        csv,
+                        "{sweep},{},{:.1},{:.1},{},{kind},{},{},{:.5},{:.5},{:.5}",
+                        s.location,
+                        s.x,
+                        s.y,
+                        s.channel,
+                        p.focal_mm,
+                        p.f_number,
+                        p.cxx,
+                        p.cyy,
+                        p.cor
+                    );
+                }
+            }
         }
     }
-    out.sort_by(|a, b| {
-        a.f_number
-            .total_cmp(&b.f_number)
-            .then(a.focal_mm.total_cmp(&b.focal_mm))
-    });
-    out
+    csv
 }

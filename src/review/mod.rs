@@ -62,7 +62,8 @@ pub use plot::{
 };
 pub use sharpness::{MapSummary, Mtf50Direction, SharpnessMap, SharpnessUnit, map_grid};
 pub use sweeps::{
-    SweepPoint, model_curve, nearest_value, sweep_points, sweep_settings, truth_curve,
+    SWEEP_REACH_SQUARES, SweepPoint, model_curve, nearest_value, sweep_points, sweep_settings,
+    truth_curve,
 };
 
 #[cfg(test)]

@@ -78,6 +78,8 @@ pub fn truth_curve(
 /// One measured point of a sweep.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SweepPoint {
+    /// The shot it was measured in (an index into the dataset's shots).
+    pub shot: usize,
     pub setting: LensSetting,
     /// Where the square it was measured on lies, sensor px.
     pub x: f64,
@@ -85,9 +87,16 @@ pub struct SweepPoint {
     pub gaussian: Gaussian2,
 }
 
+/// How far from the asked point a sample may lie, in widths of the dataset's largest
+/// square. Where the chart covers the point, the nearest square's centre is at most
+/// half a diagonal (0.71 widths) away; a sample farther off was measured at another
+/// place of the lens, and the blur changes across the frame, so it is not shown there.
+pub const SWEEP_REACH_SQUARES: f64 = 0.75;
+
 /// Measured points of one sweep: for every shot on the sweep (its focal length equals
 /// `fixed` when `vs_aperture`, its f-number otherwise), the `channel` sample nearest
-/// sensor point (x, y). Sorted by the varying setting.
+/// sensor point (x, y), if one lies within [`SWEEP_REACH_SQUARES`]. Sorted by the
+/// varying setting. The studio's Sweeps view and `lensblur sweeps` both use it.
 #[must_use]
 pub fn sweep_points(
     ds: &Dataset,
@@ -96,6 +105,7 @@ pub fn sweep_points(
     vs_aperture: bool,
     fixed: f64,
 ) -> Vec<SweepPoint> {
+    let reach = SWEEP_REACH_SQUARES * ds.largest_square_px();
     let mut out: Vec<SweepPoint> = ds
         .shots
         .iter()
@@ -108,16 +118,14 @@ pub fn sweep_points(
             }
         })
         .filter_map(|(k, info)| {
-            let s = ds
+            let (distance, s) = ds
                 .samples
                 .iter()
                 .filter(|s| s.shot == k && s.channel == channel)
-                .min_by(|a, b| {
-                    let da = (a.x - x).powi(2) + (a.y - y).powi(2);
-                    let db = (b.x - x).powi(2) + (b.y - y).powi(2);
-                    da.total_cmp(&db)
-                })?;
-            Some(SweepPoint {
+                .map(|s| ((s.x - x).hypot(s.y - y), s))
+                .min_by(|a, b| a.0.total_cmp(&b.0))?;
+            (distance <= reach).then_some(SweepPoint {
+                shot: k,
                 setting: LensSetting {
                     focal_mm: info.focal_mm,
                     f_number: info.f_number,

@@ -234,6 +234,10 @@ fn sweep_points_follow_the_fixed_setting() {
         [24.0, 50.0]
     );
     assert!(sweep_points(&ds, Channel::R, (0.0, 0.0), false, 4.0).is_empty());
+    // The squares are 113 px apart: a point 155 px from the nearest is another place
+    // of the lens, and no shot has a sample there.
+    assert!(sweep_points(&ds, Channel::G, (-100.0, -100.0), true, 24.0).is_empty());
+    assert_eq!(p.iter().map(|p| p.shot).collect::<Vec<_>>(), [0, 1]);
     assert_eq!(nearest_value(&[4.0, 5.6, 10.0], 6.0), Some(5.6));
 }
 
