@@ -24,8 +24,8 @@
 //! 6. a best profile that does not cover the photo's setting skips it, unless
 //!    extrapolation is allowed.
 
-use crate::deblur::output::{deblur_and_write, deblur_and_write_like, deblurred_note};
-use crate::deblur::{DeblurOptions, KernelSource, ProfileKernels};
+use crate::deblur::output::{deblurred_note, write_deblurred, write_like_original};
+use crate::deblur::{DeblurOptions, ProfileKernels, deblur_capture};
 use crate::job::JobContext;
 use crate::plane::{CameraIdentity, Capture, LensSetting};
 use crate::profile::Profile;
@@ -624,16 +624,34 @@ impl BatchReport {
     }
 }
 
-/// The one step a batch leaves to its caller: deblur this photo (already loaded) with
-/// this source and write `output` atomically. The command line adds its own reporting;
-/// [`deblur_photos`] runs the core's [`crate::deblur::output::deblur_and_write`].
-pub type DeblurOne<'a> = dyn Fn(&Path, &Capture, &dyn KernelSource, &Path, &str, &JobContext) -> Result<(), String>
-    + Sync
-    + 'a;
+/// The step a batch leaves to its caller: write this deblurred photo (`photo`'s, with
+/// the kernels `described` names) to `output` atomically. The command line adds its own
+/// reporting; [`deblur_photos`] runs [`write_photo`].
+pub type WriteOne<'a> = dyn Fn(&Path, &Capture, &Path, &str) -> Result<(), String> + Sync + 'a;
 
-/// Plans and runs a batch with the core's own step
-/// ([`crate::deblur::output::deblur_and_write`], its errors as text): what the studio's
-/// export of a set of photos runs.
+/// Writes a deblurred photo as a batch in `format` does: [`OutputFormat::Auto`] as its
+/// original is ([`write_like_original`]), the others by `output`'s extension
+/// ([`write_deblurred`]), with the note of what was done.
+///
+/// # Errors
+/// The output cannot be written.
+pub fn write_photo(
+    photo: &Path,
+    deblurred: &Capture,
+    output: &Path,
+    note: &str,
+    format: OutputFormat,
+) -> Result<crate::deblur::output::Written, crate::deblur::output::OutputError> {
+    if format == OutputFormat::Auto {
+        write_like_original(output, photo, deblurred, note)
+    } else {
+        let name = photo.file_name().map(|n| n.to_string_lossy().into_owned());
+        write_deblurred(output, name, deblurred, note)
+    }
+}
+
+/// Plans and runs a batch with the core's own writer ([`write_photo`], its errors as
+/// text): what the studio's export of a set of photos runs.
 #[must_use]
 pub fn deblur_photos(
     photos: &[PathBuf],
@@ -642,21 +660,17 @@ pub fn deblur_photos(
     job: &JobContext,
 ) -> BatchReport {
     let planned = plan(photos, library, opts);
-    let deblur = opts.deblur;
+    let method = opts.deblur.method;
     run(
         &planned,
         library,
         opts,
         job,
-        &|photo, capture, source, out, described, job| {
-            let note = deblurred_note(deblur.method, described);
-            if opts.format == OutputFormat::Auto {
-                deblur_and_write_like(capture, source, &deblur, out, photo, &note, job)
-            } else {
-                deblur_and_write(capture, source, &deblur, out, None, &note, job)
-            }
-            .map(|_| ())
-            .map_err(|e| e.to_string())
+        &|photo, deblurred, out, described| {
+            let note = deblurred_note(method, described);
+            write_photo(photo, deblurred, out, &note, opts.format)
+                .map(|_| ())
+                .map_err(|e| e.to_string())
         },
     )
 }
@@ -717,11 +731,140 @@ impl Budget {
     }
 }
 
-/// Runs a planned batch: the photos to deblur on up to one worker per core, within the
-/// memory budget (see [`Budget`]; without a budget, one at a time), reporting
-/// "deblur" progress per photo finished. Each photo is loaded, checked against its
-/// header, and handed with its profile's kernels to `deblur_one`. A photo's failure is
-/// recorded and the batch goes on; after a cancel, photos not started are
+/// A photo decoded, with its kernels, on its way to the deblur stage.
+struct Loaded {
+    index: usize,
+    capture: Capture,
+    source: ProfileKernels,
+    described: String,
+    done: Outcome,
+}
+
+/// A photo deblurred, on its way to be written.
+struct Deblurred {
+    index: usize,
+    capture: Capture,
+    described: String,
+    done: Outcome,
+}
+
+/// What the stages share: the plan, the memory budget and the outcomes.
+struct Stages<'a> {
+    planned: &'a [Planned],
+    library: &'a ProfileLibrary,
+    opts: &'a BatchOptions,
+    job: &'a JobContext,
+    budget: Budget,
+    results: Mutex<Vec<Option<Outcome>>>,
+    finished: AtomicUsize,
+    todo: usize,
+}
+
+impl Stages<'_> {
+    /// Records a photo's outcome, frees its share of the budget, and reports progress.
+    fn record(&self, index: usize, outcome: Outcome) {
+        if let Action::Deblur { pixels, .. } = self.planned[index].action {
+            self.budget.give(peak_bytes(pixels));
+        }
+        if let Ok(mut r) = self.results.lock() {
+            r[index] = Some(outcome);
+        }
+        let n = self.finished.fetch_add(1, Ordering::Relaxed) + 1;
+        self.job.report("deblur", n, self.todo);
+    }
+
+    /// The first stage: a photo decoded and checked against its header, its kernels
+    /// made; or its outcome recorded (a failure, a cancel) and `None`.
+    fn decode(&self, index: usize) -> Option<Loaded> {
+        let p = &self.planned[index];
+        let Action::Deblur { pick, pixels } = p.action else {
+            return None;
+        };
+        if self.job.is_cancelled() {
+            self.record(index, Outcome::Cancelled);
+            return None;
+        }
+        self.budget.take(peak_bytes(pixels));
+        match load_photo(p, pick, self.library, self.opts) {
+            Ok((capture, source, described, profile)) => Some(Loaded {
+                index,
+                done: Outcome::Done {
+                    profile,
+                    setting: pick.setting,
+                    focus_m: capture.setting_focus_m,
+                    extrapolated: pick.extrapolated,
+                },
+                capture,
+                source,
+                described,
+            }),
+            Err(e) => {
+                self.record(index, Outcome::Failed(e));
+                None
+            }
+        }
+    }
+
+    /// The second stage, one photo at a time on every core (or the GPU).
+    fn deblur(&self, l: Loaded) -> Option<Deblurred> {
+        let quiet = self.job.without_progress();
+        match deblur_capture(&l.capture, &l.source, &self.opts.deblur, &quiet) {
+            Ok(capture) => Some(Deblurred {
+                index: l.index,
+                capture,
+                described: l.described,
+                done: l.done,
+            }),
+            Err(_) if self.job.is_cancelled() => {
+                self.record(l.index, Outcome::Cancelled);
+                None
+            }
+            Err(e) => {
+                self.record(l.index, Outcome::Failed(e.to_string()));
+                None
+            }
+        }
+    }
+
+    /// The third stage: the caller's writer.
+    fn write(&self, d: Deblurred, write_one: &WriteOne<'_>) {
+        let p = &self.planned[d.index];
+        let outcome = match write_one(&p.photo, &d.capture, &p.output, &d.described) {
+            Ok(()) => d.done,
+            Err(e) => Outcome::Failed(e),
+        };
+        drop(d.capture);
+        self.record(d.index, outcome);
+    }
+}
+
+/// Photos decoded at once, and photos written at once: one each per four cores (at
+/// least one, at most `max_parallel`), enough to keep the deblur fed where it is several
+/// times faster than a decode or a write (on many cores, on a GPU) without photos decoded
+/// far ahead waiting in memory; one each without a memory budget.
+fn lanes(opts: &BatchOptions, budget: Option<u64>, todo: usize) -> usize {
+    let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
+    match budget {
+        Some(_) => opts
+            .max_parallel
+            .unwrap_or(cores.div_ceil(4))
+            .clamp(1, cores),
+        None => 1,
+    }
+    .min(todo)
+    .max(1)
+}
+
+/// Runs a planned batch as a three-stage pipeline, so that the decoding, deblurring and
+/// writing of successive photos overlap and a batch runs at the speed of its slowest
+/// stage, not their sum: [`lanes`] threads decode photos (each checked against its
+/// header, with its profile's kernels), one deblurs them in turn on the calling thread
+/// (every core of its rayon pool, or the GPU), and [`lanes`] threads hand them to
+/// `write_one`. Stages pass photos through channels of one place, and a photo takes its
+/// [`peak_bytes`] of the memory budget (see [`Budget`]; without one, one lane each) from
+/// its decode to its write, so memory stays bounded whatever the batch's length.
+/// "deblur" progress is reported per photo finished. A photo's failure is its outcome
+/// and the batch goes on; after a cancel, photos not started are
 /// [`Outcome::Cancelled`].
 #[must_use]
 pub fn run(
@@ -729,7 +872,7 @@ pub fn run(
     library: &ProfileLibrary,
     opts: &BatchOptions,
     job: &JobContext,
-    deblur_one: &DeblurOne<'_>,
+    write_one: &WriteOne<'_>,
 ) -> BatchReport {
     let todo: Vec<usize> = (0..planned.len())
         .filter(|&i| matches!(planned[i].action, Action::Deblur { .. }))
@@ -737,52 +880,66 @@ pub fn run(
     let budget = opts
         .memory_budget
         .or_else(|| memory_available().map(|m| m / 4 * 3));
-    let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
-    let workers = match budget {
-        Some(_) => opts.max_parallel.unwrap_or(cores).clamp(1, cores.max(1)),
-        None => 1,
-    }
-    .min(todo.len())
-    .max(1);
-    let budget = Budget {
-        limit: budget.unwrap_or(u64::MAX),
-        used: Mutex::new(0),
-        freed: Condvar::new(),
+    let lanes = lanes(opts, budget, todo.len());
+    let stages = Stages {
+        planned,
+        library,
+        opts,
+        job,
+        budget: Budget {
+            limit: budget.unwrap_or(u64::MAX),
+            used: Mutex::new(0),
+            freed: Condvar::new(),
+        },
+        results: Mutex::new(vec![None; planned.len()]),
+        finished: AtomicUsize::new(0),
+        todo: todo.len(),
     };
-    let results: Mutex<Vec<Option<Outcome>>> = Mutex::new(vec![None; planned.len()]);
-    let next = AtomicUsize::new(0);
-    let finished = AtomicUsize::new(0);
     job.report("deblur", 0, todo.len());
-    let quiet = job.without_progress();
+    let next = AtomicUsize::new(0);
+    let (to_deblur, decoded) = std::sync::mpsc::sync_channel::<Loaded>(1);
+    let (to_write, deblurred) = std::sync::mpsc::sync_channel::<Deblurred>(1);
+    let deblurred = Mutex::new(deblurred);
     std::thread::scope(|s| {
-        for _ in 0..workers {
-            s.spawn(|| {
-                loop {
-                    let k = next.fetch_add(1, Ordering::Relaxed);
-                    let Some(&i) = todo.get(k) else { break };
-                    let p = &planned[i];
-                    let Action::Deblur { pick, pixels } = p.action else {
-                        continue;
-                    };
-                    let outcome = if job.is_cancelled() {
-                        Outcome::Cancelled
-                    } else {
-                        let need = peak_bytes(pixels);
-                        budget.take(need);
-                        let o = deblur_photo(p, pick, library, opts, &quiet, deblur_one);
-                        budget.give(need);
-                        o
-                    };
-                    if let Ok(mut r) = results.lock() {
-                        r[i] = Some(outcome);
+        for _ in 0..lanes {
+            let to_deblur = to_deblur.clone();
+            let (stages, next, todo) = (&stages, &next, &todo);
+            s.spawn(move || {
+                while let Some(&i) = todo.get(next.fetch_add(1, Ordering::Relaxed)) {
+                    if let Some(l) = stages.decode(i)
+                        && to_deblur.send(l).is_err()
+                    {
+                        break;
                     }
-                    let n = finished.fetch_add(1, Ordering::Relaxed) + 1;
-                    job.report("deblur", n, todo.len());
                 }
             });
         }
+        drop(to_deblur);
+        for _ in 0..lanes {
+            let (stages, deblurred) = (&stages, &deblurred);
+            s.spawn(move || {
+                loop {
+                    let d = match deblurred.lock() {
+                        Ok(rx) => rx.recv(),
+                        Err(_) => break,
+                    };
+                    let Ok(d) = d else { break };
+                    stages.write(d, write_one);
+                }
+            });
+        }
+        // On this thread, so the deblur runs in the caller's rayon pool.
+        for l in decoded {
+            if let Some(d) = stages.deblur(l)
+                && to_write.send(d).is_err()
+            {
+                break;
+            }
+        }
+        drop(to_write);
     });
-    let results = results
+    let results = stages
+        .results
         .into_inner()
         .unwrap_or_else(std::sync::PoisonError::into_inner);
     let outcomes = planned
@@ -800,27 +957,26 @@ pub fn run(
         .collect();
     BatchReport {
         outcomes,
-        parallel: workers,
+        parallel: lanes,
     }
 }
 
-fn deblur_photo(
+/// A photo decoded and checked against the size its header declared, with its
+/// profile's kernels at its setting, how they are described, and the profile's file.
+fn load_photo(
     p: &Planned,
     pick: Pick,
     library: &ProfileLibrary,
     opts: &BatchOptions,
-    job: &JobContext,
-    deblur_one: &DeblurOne<'_>,
-) -> Outcome {
-    let Some(entry) = library.profiles.get(pick.index) else {
-        return Outcome::Failed(format!("no profile {} in the library", pick.index));
-    };
-    let capture = match crate::raw::load_capture(&p.photo, &LoadOptions::default()) {
-        Ok(c) => c,
-        Err(e) => return Outcome::Failed(e.to_string()),
-    };
+) -> Result<(Capture, ProfileKernels, String, PathBuf), String> {
+    let entry = library
+        .profiles
+        .get(pick.index)
+        .ok_or_else(|| format!("no profile {} in the library", pick.index))?;
+    let capture =
+        crate::raw::load_capture(&p.photo, &LoadOptions::default()).map_err(|e| e.to_string())?;
     if (capture.width, capture.height) != (entry.profile.norm.width, entry.profile.norm.height) {
-        return Outcome::Failed(format!(
+        return Err(format!(
             "decodes to {} × {}, not the size its header declared",
             capture.width, capture.height
         ));
@@ -828,26 +984,16 @@ fn deblur_photo(
     let mut profile = entry.profile.clone();
     profile.allow_extrapolation = opts.allow_extrapolation;
     let model = opts.kernel_model.unwrap_or_else(|| profile.kernel_model());
-    let source = match ProfileKernels::with_model(profile, pick.setting, model) {
-        Ok(s) => s.with_lateral(opts.lateral_colour),
-        Err(e) => return Outcome::Failed(format!("{}: {e}", entry.path.display())),
-    };
+    let source = ProfileKernels::with_model(profile, pick.setting, model)
+        .map_err(|e| format!("{}: {e}", entry.path.display()))?
+        .with_lateral(opts.lateral_colour);
     let described = crate::deblur::output::profile_described(
         &entry.path,
         pick.setting,
         model,
         source.lateral_colour(),
     );
-    match deblur_one(&p.photo, &capture, &source, &p.output, &described, job) {
-        Ok(()) => Outcome::Done {
-            profile: entry.path.clone(),
-            setting: pick.setting,
-            focus_m: capture.setting_focus_m,
-            extrapolated: pick.extrapolated,
-        },
-        Err(_) if job.is_cancelled() => Outcome::Cancelled,
-        Err(e) => Outcome::Failed(e),
-    }
+    Ok((capture, source, described, entry.path.clone()))
 }
 
 #[cfg(test)]
@@ -1066,6 +1212,87 @@ mod tests {
             ProfileLibrary::load(empty.path()),
             Err(BatchError::NoProfiles { .. })
         ));
+    }
+
+    fn plane_sum(c: &Capture) -> f64 {
+        c.planes[0].plane.data.iter().map(|&v| f64::from(v)).sum()
+    }
+
+    /// Four RAW photos of the 64 × 48 sensor at 35 mm f/5.6, each a different scene; the
+    /// third written by a `write_one` that fails, under a budget of one photo at a time
+    /// and then of all at once: the same outcomes, the pixels each photo's own.
+    #[test]
+    fn a_pipelined_batch_keeps_each_photo_its_own_and_goes_on_past_a_failure() {
+        let dir = tempfile::tempdir().unwrap();
+        let who = id("Acme", "A1", "Zoom 24-70", None);
+        let mut info = crate::dng::DngInfo::simulated(
+            "Acme",
+            "A1",
+            512,
+            16383,
+            Some(setting(35.0, 5.6)),
+            crate::dng::DngLayout::default(),
+        );
+        info.identity = who.clone();
+        let photos: Vec<PathBuf> = (0..4)
+            .map(|k| {
+                let cfa: Vec<u16> = (0..64 * 48)
+                    .map(|i| 600 + (i * (k + 1)) as u16 % 9000)
+                    .collect();
+                let path = dir.path().join(format!("p{k}.dng"));
+                crate::dng::write_dng(&path, &cfa, 64, 48, &info).unwrap();
+                path
+            })
+            .collect();
+        let lib = library(vec![("zoom.json", profile(who))]);
+        let one_photo = peak_bytes(64 * 48);
+        for budget in [one_photo, 4 * one_photo] {
+            let opts = BatchOptions {
+                out_dir: dir.path().join("out"),
+                memory_budget: Some(budget),
+                max_parallel: Some(2),
+                ..BatchOptions::default()
+            };
+            let planned = plan(&photos, &lib, &opts);
+            let sums = Mutex::new(Vec::new());
+            let report = run(
+                &planned,
+                &lib,
+                &opts,
+                &JobContext::silent(),
+                &|photo, d, _, _| {
+                    sums.lock()
+                        .unwrap()
+                        .push((photo.to_path_buf(), plane_sum(d)));
+                    if photo.ends_with("p2.dng") {
+                        Err("disk full".into())
+                    } else {
+                        Ok(())
+                    }
+                },
+            );
+            let outcomes: Vec<&Outcome> = report.outcomes.iter().map(|o| &o.outcome).collect();
+            assert!(matches!(outcomes[0], Outcome::Done { .. }), "{outcomes:?}");
+            assert!(matches!(outcomes[1], Outcome::Done { .. }), "{outcomes:?}");
+            assert_eq!(outcomes[2], &Outcome::Failed("disk full".into()));
+            assert!(matches!(outcomes[3], Outcome::Done { .. }), "{outcomes:?}");
+            // Each photo written once, with its own pixels: the scenes differ, and so
+            // do the sums of their deblurred planes.
+            let mut sums = sums.into_inner().unwrap();
+            sums.sort_by(|a, b| a.0.cmp(&b.0));
+            assert_eq!(sums.len(), 4);
+            for (k, a) in sums.iter().enumerate() {
+                assert!(sums[k + 1..].iter().all(|b| b.1 != a.1), "{sums:?}");
+            }
+            for (k, (path, first)) in sums.iter().enumerate() {
+                let alone = crate::raw::load_capture(path, &LoadOptions::default()).unwrap();
+                let source =
+                    ProfileKernels::new(lib.profiles[0].profile.clone(), setting(35.0, 5.6));
+                let own =
+                    deblur_capture(&alone, &source, &opts.deblur, &JobContext::silent()).unwrap();
+                assert_eq!(*first, plane_sum(&own), "photo {k}");
+            }
+        }
     }
 
     #[test]

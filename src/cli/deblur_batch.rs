@@ -11,9 +11,9 @@ use lensblur::batch::{
     run as run_batch,
 };
 use lensblur::deblur::output::{
-    DeblurWriteError, deblur_and_write, deblur_and_write_like, deblurred_note, output_supported,
+    deblurred_note, output_supported, write_deblurred, write_like_original,
 };
-use lensblur::deblur::{DeblurOptions, KernelSource};
+use lensblur::deblur::{DeblurOptions, KernelSource, Method, deblur_capture};
 use lensblur::job::JobContext;
 use lensblur::model::{KernelModel, LateralColour};
 use lensblur::plane::Capture;
@@ -39,7 +39,8 @@ pub struct BatchArgs {
     /// photos only, others skipped.
     #[arg(long, value_enum, default_value = "auto")]
     pub format: FormatArg,
-    /// Batch: photos deblurred at once at most (default: one per core, as memory allows).
+    /// Batch: photos decoded, and photos written, at once while one deblurs on every
+    /// core (default: one per four cores, as memory allows).
     #[arg(long)]
     pub jobs: Option<usize>,
 }
@@ -53,9 +54,10 @@ pub enum FormatArg {
     Dng,
 }
 
-/// Deblurs one loaded photo with a chosen source and writes it: the step the single
-/// photo and every photo of a batch go through. `described` names the kernels (a
-/// DNG's note of what was done says it). Returns the preview written, if any.
+/// Deblurs one loaded photo with a chosen source and writes it: the single photo's
+/// step ([`write_one`] is the writing half, which every photo of a batch goes through).
+/// `described` names the kernels (a DNG's note of what was done says it). Returns the
+/// preview written, if any.
 ///
 /// # Errors
 /// The deblurring failed, or the output cannot be written.
@@ -70,26 +72,37 @@ pub fn deblur_one(
     like_original: bool,
     job: &JobContext,
 ) -> Result<Option<PathBuf>> {
-    let note = deblurred_note(opts.method, described);
+    let deblurred =
+        deblur_capture(capture, source, opts, job).with_context(|| photo.display().to_string())?;
+    write_one(
+        photo,
+        &deblurred,
+        opts.method,
+        out,
+        described,
+        like_original,
+    )
+}
+
+/// Writes a deblurred photo: as its original is (`like_original`), or by `out`'s
+/// extension with the original's file name in a DNG; a preview's warning printed.
+/// Returns the preview written, if any.
+///
+/// # Errors
+/// The output cannot be written.
+pub fn write_one(
+    photo: &Path,
+    deblurred: &Capture,
+    method: Method,
+    out: &Path,
+    described: &str,
+    like_original: bool,
+) -> Result<Option<PathBuf>> {
+    let note = deblurred_note(method, described);
     let written = if like_original {
-        deblur_and_write_like(capture, source, opts, out, photo, &note, job)
+        write_like_original(out, photo, deblurred, &note)?
     } else {
-        deblur_and_write(
-            capture,
-            source,
-            opts,
-            out,
-            Some(file_name(photo)),
-            &note,
-            job,
-        )
-    };
-    let written = match written {
-        Ok(w) => w,
-        Err(DeblurWriteError::Deblur(e)) => {
-            return Err(e).with_context(|| photo.display().to_string());
-        }
-        Err(DeblurWriteError::Output(e)) => return Err(e.into()),
+        write_deblurred(out, Some(file_name(photo)), deblurred, &note)?
     };
     if let Some(w) = &written.warning {
         eprintln!("lensblur: warning: {}: {w}", photo.display());
@@ -153,9 +166,9 @@ pub fn run(
         &library,
         &opts,
         &job,
-        &|photo, capture, source, out, described, job| {
+        &|photo, deblurred, out, described| {
             let like = format == OutputFormat::Auto;
-            deblur_one(photo, capture, source, deblur, out, described, like, job)
+            write_one(photo, deblurred, deblur.method, out, described, like)
                 .map(|_| ())
                 .map_err(|e| format!("{e:#}"))
         },

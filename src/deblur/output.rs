@@ -1,6 +1,8 @@
 //! Writing a deblurred photo: the one place that picks the file format from the output
-//! name, and the one "deblur, then write" step ([`deblur_and_write`]), for the command
-//! line (one photo or a batch), the core's batch and the studio's export.
+//! name, the writers of a deblurred photo (by its name, [`write_deblurred`], or as its
+//! original is, [`write_like_original`]) and the "deblur, then write" step
+//! ([`deblur_and_write`]), for the command line (one photo or a batch), the core's batch
+//! and the studio's export.
 
 use super::{DeblurError, DeblurOptions, KernelSource, Method};
 use crate::develop::{Orient, develop, save_png};
@@ -52,30 +54,25 @@ pub fn deblur_and_write(
     Ok(write_deblurred(out, original_file_name, &deblurred, note)?)
 }
 
-/// Deblurs a capture and writes it as its original photo is: a RAW photo as
+/// Writes a deblurred capture as its original photo is: a RAW photo as
 /// [`write_deblurred`] does by `out`'s extension (a DNG, for the RAW editor), an RGB
 /// photo in its original's format, bit depth, encoding, ICC profile and EXIF
 /// ([`crate::raw::save_like_original`]): a JPEG in, a JPEG out that a viewer shows as
 /// it showed the original.
 ///
 /// # Errors
-/// The deblurring failed or was cancelled, the original cannot be read again, or the
-/// output cannot be written.
-pub fn deblur_and_write_like(
-    capture: &Capture,
-    source: &dyn KernelSource,
-    opts: &DeblurOptions,
+/// The original cannot be read again, or the output cannot be written.
+pub fn write_like_original(
     out: &Path,
     original: &Path,
+    deblurred: &Capture,
     note: &str,
-    job: &JobContext,
-) -> Result<Written, DeblurWriteError> {
-    let deblurred = super::deblur_capture(capture, source, opts, job)?;
+) -> Result<Written, OutputError> {
     if deblurred.is_raw {
         let name = original
             .file_name()
             .map(|n| n.to_string_lossy().into_owned());
-        return Ok(write_deblurred(out, name, &deblurred, note)?);
+        return write_deblurred(out, name, deblurred, note);
     }
     if is_dng(out) {
         return Err(OutputError::Save(crate::raw::SaveError {
@@ -83,8 +80,7 @@ pub fn deblur_and_write_like(
             reason: "a linear (demosaiced) RAW photo is not written back as a DNG: \
                      ask for --format tiff"
                 .into(),
-        })
-        .into());
+        }));
     }
     let bytes =
         crate::io::read_limited(original, crate::limits::MAX_IMAGE_FILE_BYTES).map_err(|e| {
@@ -93,8 +89,7 @@ pub fn deblur_and_write_like(
                 reason: format!("reading the original again: {e}"),
             })
         })?;
-    crate::raw::save_like_original(out, &crate::raw::full_planes(&deblurred), &bytes)
-        .map_err(OutputError::Save)?;
+    crate::raw::save_like_original(out, &crate::raw::full_planes(deblurred), &bytes)?;
     Ok(Written::default())
 }
 
@@ -116,7 +111,7 @@ pub fn output_supported(ext: &str) -> bool {
 }
 
 /// Whether `out` names a JPEG, which is only written as its original photo was
-/// ([`deblur_and_write_like`]): 8-bit sRGB has no linear form.
+/// ([`write_like_original`]): 8-bit sRGB has no linear form.
 #[must_use]
 pub fn is_jpeg(out: &Path) -> bool {
     out.extension()
