@@ -219,10 +219,6 @@ pub fn cross_validate_shape(
     opts: &ShapeCvOptions,
     job: &JobContext,
 ) -> Result<ShapeCvReport, ModelError> {
-    use crate::model::{
-        PreparedKernels, RestorationError, deployed_kernel_side, kernel_with_residual, relative_l2,
-        to_gaussian,
-    };
     use rayon::prelude::*;
     ds.validate()?;
     if ds.shots.len() < 2 {
@@ -239,7 +235,7 @@ pub fn cross_validate_shape(
     let has_kernel = |i: usize| residuals.iter().all(|(_, r)| r[i].is_some());
     let (fold_of_shot, folds) = assign_folds(ds, cv.folds, cv.hold_out, cv.seed);
     let tried = Tried::new(opts, residuals.iter().map(|r| r.0).collect(), beta);
-    let (components, combos, k_max) = (&tried.components, &tried.combos, tried.k_max);
+    let (combos, k_max) = (&tried.combos, tried.k_max);
     // The held-out kernels of each fold; a fold with none, or with no training
     // samples, is not judged.
     let tests: Vec<Vec<usize>> = (0..folds)
@@ -279,30 +275,7 @@ pub fn cross_validate_shape(
         .collect();
     let mut usable = vec![true; combos.len()];
     let mut held: Held = Vec::new();
-    // Per fold and space: the shape components learnt without the fold, as the
-    // session's are (from its training residuals, in session order). Not linear in the
-    // residuals, so learnt per fold; the folds in parallel.
-    let fold_bases: Vec<Vec<Option<Vec<Vec<f64>>>>> = (0..folds)
-        .into_par_iter()
-        .map(|fold| {
-            if gaussian_models[fold].is_none() {
-                return Vec::new();
-            }
-            residuals
-                .iter()
-                .map(|(_, res)| {
-                    let rows: Vec<&[f32]> = ds
-                        .samples
-                        .iter()
-                        .zip(res)
-                        .filter(|(s, _)| fold_of_shot[s.shot] != fold)
-                        .filter_map(|(_, r)| r.as_deref())
-                        .collect();
-                    (!rows.is_empty()).then(|| crate::model::shape_basis(&rows, k_max))
-                })
-                .collect()
-        })
-        .collect();
+    let fold_bases = fold_bases(ds, residuals, &fold_of_shot, &gaussian_models, k_max);
     for fold in 0..folds {
         job.check()?;
         job.report("kernel shapes", fold, folds);
@@ -323,116 +296,177 @@ pub fn cross_validate_shape(
         for (u, m) in usable.iter_mut().zip(&models) {
             *u &= m.is_some();
         }
+        let judge = FoldJudge {
+            residuals,
+            bases,
+            tried: &tried,
+            models: &models,
+            gaussian_model: gaussian_model.as_ref(),
+        };
         let scored: Held = tests[fold]
             .par_iter()
-            .filter_map(|&i| {
-                let s = &ds.samples[i];
-                let measured = s.kernel.as_ref()?;
-                let setting = s.setting();
-                let g = to_gaussian(gaussian_model.predict(s.channel, s.x, s.y, setting)?);
-                let (os, size) = (measured.oversample, measured.size);
-                if size % 2 == 0 {
-                    // Not a kernel the measured chain makes (they are odd-sized, and
-                    // the prepared grids are the measured one); judged as the
-                    // Gaussian alone.
-                    let plain = kernel_with_residual(&g, None, os, Some(size))?;
-                    let row = vec![KernelErrors::NONE; components.len()];
-                    return Some(HeldKernel {
-                        f_number: s.f_number,
-                        gaussian: KernelErrors {
-                            rel_l2: relative_l2(&plain, measured),
-                            restoration: f64::NAN,
-                        },
-                        per_combo: vec![row; combos.len()],
-                    });
-                }
-                let (grid, measured) = judged_grid(measured, &g, &tried.spaces)?;
-                let mut restoration = RestorationError::new(&measured, crate::model::WIENER_NSR)?;
-                // Each space's kernels as deblurring renders them, on the common grid,
-                // prepared once for every model.
-                let prepared: Vec<PreparedKernels> = residuals
-                    .iter()
-                    .zip(bases)
-                    .map(|((space, _), b)| {
-                        let deployed = deployed_kernel_side(*space, &g, os)?;
-                        let b = b.as_deref().unwrap_or(&[]);
-                        PreparedKernels::new(*space, &g, b, os, grid, deployed)
-                    })
-                    .collect::<Option<_>>()?;
-                // The Gaussian alone: its density on its own support, which is the
-                // whitened space's base where that space is tried.
-                let whitened = crate::model::ShapeSpace::Whitened;
-                let plain: std::borrow::Cow<'_, [f64]> =
-                    match residuals.iter().position(|(space, _)| *space == whitened) {
-                        Some(i) => prepared[i].base().into(),
-                        None => {
-                            let deployed = deployed_kernel_side(whitened, &g, os)?;
-                            PreparedKernels::new(whitened, &g, &[], os, grid, deployed)?
-                                .base()
-                                .to_vec()
-                                .into()
-                        }
-                    };
-                let e_gauss = KernelErrors {
-                    rel_l2: PreparedKernels::relative_l2(&plain, &measured),
-                    restoration: restoration.of_values(&plain),
-                };
-                let linear: Vec<Linear1x> = prepared
-                    .iter()
-                    .map(|p| Linear1x::new(&mut restoration, p))
-                    .collect();
-                let mut values = Vec::new();
-                let per_combo = models
-                    .iter()
-                    .zip(combos)
-                    .map(|(m, &(si, _))| {
-                        let nan = || vec![KernelErrors::NONE; components.len()];
-                        let Some(m) = m else {
-                            return nan();
-                        };
-                        let Some(c) = m.coefficients(s.channel, s.x, s.y, setting) else {
-                            return nan();
-                        };
-                        let (p, lin) = (&prepared[si], &linear[si]);
-                        values.clear();
-                        values.extend_from_slice(p.base());
-                        let (mut samples, mut spectrum) = lin.base.clone();
-                        let mut used = 0;
-                        components
-                            .iter()
-                            .map(|&k| {
-                                if k > c.len() {
-                                    return KernelErrors::NONE;
-                                }
-                                p.add(&mut values, used..k, &c);
-                                lin.add(&mut samples, &mut spectrum, used..k, &c);
-                                used = k;
-                                // Where clipping at zero changes nothing, the kernel's
-                                // spectrum is the weighted sum already at hand.
-                                let restoration = if samples.iter().all(|v| *v >= 0.0) {
-                                    restoration.of_spectrum(&spectrum)
-                                } else {
-                                    restoration.of_values(&values)
-                                };
-                                KernelErrors {
-                                    rel_l2: PreparedKernels::relative_l2(&values, &measured),
-                                    restoration,
-                                }
-                            })
-                            .collect()
-                    })
-                    .collect();
-                Some(HeldKernel {
-                    f_number: s.f_number,
-                    gaussian: e_gauss,
-                    per_combo,
-                })
-            })
+            .filter_map(|&i| judge.held_kernel(&ds.samples[i]))
             .collect();
         held.extend(scored);
     }
     job.report("kernel shapes", folds, folds);
     report(&tried, &held, &usable, kind, (alpha, beta), folds)
+}
+
+/// Per fold and space: the shape components learnt without the fold, as the
+/// session's are (from its training residuals, in session order). Not linear in the
+/// residuals, so learnt per fold; the folds in parallel. Empty for a fold not judged.
+fn fold_bases(
+    ds: &Dataset,
+    residuals: &[(crate::model::ShapeSpace, Vec<Option<Vec<f32>>>)],
+    fold_of_shot: &[usize],
+    gaussian_models: &[Option<Box<dyn crate::model::FittedModel>>],
+    k_max: usize,
+) -> Vec<Vec<Option<Vec<Vec<f64>>>>> {
+    use rayon::prelude::*;
+    (0..gaussian_models.len())
+        .into_par_iter()
+        .map(|fold| {
+            if gaussian_models[fold].is_none() {
+                return Vec::new();
+            }
+            residuals
+                .iter()
+                .map(|(_, res)| {
+                    let rows: Vec<&[f32]> = ds
+                        .samples
+                        .iter()
+                        .zip(res)
+                        .filter(|(s, _)| fold_of_shot[s.shot] != fold)
+                        .filter_map(|(_, r)| r.as_deref())
+                        .collect();
+                    (!rows.is_empty()).then(|| crate::model::shape_basis(&rows, k_max))
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// What one fold judges its held-out kernels with: the fold's Gaussian model, its shape
+/// bases per space and the shape models tried.
+struct FoldJudge<'a> {
+    residuals: &'a [(crate::model::ShapeSpace, Vec<Option<Vec<f32>>>)],
+    bases: &'a [Option<Vec<Vec<f64>>>],
+    tried: &'a Tried,
+    models: &'a [Option<crate::model::ShapeModel>],
+    gaussian_model: &'a dyn crate::model::FittedModel,
+}
+
+impl FoldJudge<'_> {
+    /// The errors of the Gaussian and of every model tried on held-out sample `s`.
+    fn held_kernel(&self, s: &crate::model::BlurSample) -> Option<HeldKernel> {
+        use crate::model::{
+            PreparedKernels, RestorationError, deployed_kernel_side, kernel_with_residual,
+            relative_l2, to_gaussian,
+        };
+        let (tried, residuals, bases) = (self.tried, self.residuals, self.bases);
+        let components = &tried.components;
+        let measured = s.kernel.as_ref()?;
+        let setting = s.setting();
+        let g = to_gaussian(self.gaussian_model.predict(s.channel, s.x, s.y, setting)?);
+        let (os, size) = (measured.oversample, measured.size);
+        if size % 2 == 0 {
+            // Not a kernel the measured chain makes (they are odd-sized, and the
+            // prepared grids are the measured one); judged as the Gaussian alone.
+            let plain = kernel_with_residual(&g, None, os, Some(size))?;
+            let row = vec![KernelErrors::NONE; components.len()];
+            return Some(HeldKernel {
+                f_number: s.f_number,
+                gaussian: KernelErrors {
+                    rel_l2: relative_l2(&plain, measured),
+                    restoration: f64::NAN,
+                },
+                per_combo: vec![row; tried.combos.len()],
+            });
+        }
+        let (grid, measured) = judged_grid(measured, &g, &tried.spaces)?;
+        let mut restoration = RestorationError::new(&measured, crate::model::WIENER_NSR)?;
+        // Each space's kernels as deblurring renders them, on the common grid, prepared
+        // once for every model.
+        let prepared: Vec<PreparedKernels> = residuals
+            .iter()
+            .zip(bases)
+            .map(|((space, _), b)| {
+                let deployed = deployed_kernel_side(*space, &g, os)?;
+                let b = b.as_deref().unwrap_or(&[]);
+                PreparedKernels::new(*space, &g, b, os, grid, deployed)
+            })
+            .collect::<Option<_>>()?;
+        // The Gaussian alone: its density on its own support, which is the whitened
+        // space's base where that space is tried.
+        let whitened = crate::model::ShapeSpace::Whitened;
+        let plain: std::borrow::Cow<'_, [f64]> =
+            match residuals.iter().position(|(space, _)| *space == whitened) {
+                Some(i) => prepared[i].base().into(),
+                None => {
+                    let deployed = deployed_kernel_side(whitened, &g, os)?;
+                    PreparedKernels::new(whitened, &g, &[], os, grid, deployed)?
+                        .base()
+                        .to_vec()
+                        .into()
+                }
+            };
+        let gaussian = KernelErrors {
+            rel_l2: PreparedKernels::relative_l2(&plain, &measured),
+            restoration: restoration.of_values(&plain),
+        };
+        let linear: Vec<Linear1x> = prepared
+            .iter()
+            .map(|p| Linear1x::new(&mut restoration, p))
+            .collect();
+        let mut values = Vec::new();
+        let per_combo = self
+            .models
+            .iter()
+            .zip(&tried.combos)
+            .map(|(m, &(si, _))| {
+                let none = || vec![KernelErrors::NONE; components.len()];
+                let Some(c) = m
+                    .as_ref()
+                    .and_then(|m| m.coefficients(s.channel, s.x, s.y, setting))
+                else {
+                    return none();
+                };
+                let (p, lin) = (&prepared[si], &linear[si]);
+                values.clear();
+                values.extend_from_slice(p.base());
+                let (mut samples, mut spectrum) = lin.base.clone();
+                let mut used = 0;
+                components
+                    .iter()
+                    .map(|&k| {
+                        if k > c.len() {
+                            return KernelErrors::NONE;
+                        }
+                        p.add(&mut values, used..k, &c);
+                        lin.add(&mut samples, &mut spectrum, used..k, &c);
+                        used = k;
+                        // Where clipping at zero changes nothing, the kernel's spectrum
+                        // is the weighted sum already at hand.
+                        let restoration = if samples.iter().all(|v| *v >= 0.0) {
+                            restoration.of_spectrum(&spectrum)
+                        } else {
+                            restoration.of_values(&values)
+                        };
+                        KernelErrors {
+                            rel_l2: PreparedKernels::relative_l2(&values, &measured),
+                            restoration,
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        Some(HeldKernel {
+            f_number: s.f_number,
+            gaussian,
+            per_combo,
+        })
+    }
 }
 
 /// One space's prepared kernels ([`crate::model::PreparedKernels`]) at 1×, the base and each
