@@ -314,24 +314,28 @@ fn exif_tags(info: &DngInfo) -> Vec<(u16, Val)> {
     tags
 }
 
-/// The DNG file's bytes for a `width × height` Bayer mosaic (row-major, black level
-/// included) with `info`'s metadata.
-///
-/// # Panics
-/// Never for sizes [`write_dng`] accepts: sizes past 4 GiB of samples would not fit a
-/// TIFF, and lossless JPEG needs an even width (a CFA's) and a strip or tile of at most
-/// 65535 rows and 2 × 65535 columns.
-#[must_use]
-pub fn dng_bytes(cfa: &[u16], width: usize, height: usize, info: &DngInfo) -> Vec<u8> {
-    let (w, h) = (width as u32, height as u32);
-    let raw = &info.raw;
-    // Image data first (after the 8-byte header), then the directories and their values.
+/// The mosaic's strips or tiles as the file holds them, from byte `base` on.
+struct ImageData {
+    data: Vec<u8>,
+    offsets: Vec<u32>,
+    counts: Vec<u32>,
+    rows_per_strip: usize,
+}
+
+/// The mosaic cut into `info`'s strips or tiles, each uncompressed or lossless JPEG of
+/// `bits` bits, at even offsets from `base`.
+fn image_data(
+    cfa: &[u16],
+    width: usize,
+    height: usize,
+    info: &DngInfo,
+    base: u32,
+    bits: ljpeg::Bitdepth,
+) -> ImageData {
     let mut data: Vec<u8> = Vec::with_capacity(cfa.len() * 2);
     let mut offsets = Vec::new();
     let mut counts = Vec::new();
-    let base = 8u32;
     let ljpeg = info.layout.compression == DngCompression::LosslessJpeg;
-    let bits = ljpeg_bits(cfa.iter().copied().max().unwrap_or(0).max(raw.white));
     let mut put = |block: &[u16], w: usize, h: usize| {
         offsets.push(base + data.len() as u32);
         let before = data.len();
@@ -375,6 +379,18 @@ pub fn dng_bytes(cfa: &[u16], width: usize, height: usize, info: &DngInfo) -> Ve
             }
         }
     }
+    ImageData {
+        data,
+        offsets,
+        counts,
+        rows_per_strip,
+    }
+}
+
+/// IFD0's tags that describe the mosaic and the camera (not where its data lies).
+fn mosaic_tags(info: &DngInfo, w: u32, h: u32, bits: ljpeg::Bitdepth) -> Vec<(u16, Val)> {
+    let raw = &info.raw;
+    let ljpeg = info.layout.compression == DngCompression::LosslessJpeg;
     let make = info.identity.make.clone().unwrap_or_default();
     let model = info.identity.model.clone().unwrap_or_default();
     let unique = format!("{make} {model}").trim().to_string();
@@ -440,6 +456,28 @@ pub fn dng_bytes(cfa: &[u16], width: usize, height: usize, info: &DngInfo) -> Ve
     if let Some(name) = &info.original_file_name {
         tags.push((50827, Val::Ascii(name.clone())));
     }
+    tags
+}
+
+/// The DNG file's bytes for a `width × height` Bayer mosaic (row-major, black level
+/// included) with `info`'s metadata.
+///
+/// # Panics
+/// Never for sizes [`write_dng`] accepts: sizes past 4 GiB of samples would not fit a
+/// TIFF, and lossless JPEG needs an even width (a CFA's) and a strip or tile of at most
+/// 65535 rows and 2 × 65535 columns.
+#[must_use]
+pub fn dng_bytes(cfa: &[u16], width: usize, height: usize, info: &DngInfo) -> Vec<u8> {
+    let base = 8u32;
+    let bits = ljpeg_bits(cfa.iter().copied().max().unwrap_or(0).max(info.raw.white));
+    // Image data first (after the 8-byte header), then the directories and their values.
+    let ImageData {
+        data,
+        offsets,
+        counts,
+        rows_per_strip,
+    } = image_data(cfa, width, height, info, base, bits);
+    let mut tags = mosaic_tags(info, width as u32, height as u32, bits);
     match info.layout.tile {
         Some(t) => {
             tags.push((322, Val::Long(vec![t as u32])));
