@@ -3,8 +3,9 @@
 //! profile predicts, by HQS (the default) on the CPU and on the GPU; and one tile of
 //! that photo by each solver (in single precision), the unit the whole is made of.
 //!
-//! The GPU case runs on a hardware adapter; on a software one (llvmpipe) only with
-//! `LENSBLUR_BENCH_SOFTWARE_GPU=1` (minutes per run), and not at all without an adapter.
+//! The GPU case (in criterion and in the sweep) runs on a hardware adapter; on a
+//! software one (llvmpipe) only with `LENSBLUR_BENCH_SOFTWARE_GPU=1` (minutes per run),
+//! and not at all without an adapter.
 //!
 //! Each case's per-stage breakdown ([`lensblur::timings`]) is printed once before
 //! it is timed. `LENSBLUR_BENCH_SWEEP=1,2,4,8,16` replaces criterion by a thread sweep:
@@ -63,6 +64,11 @@ fn sweep_threads() -> Option<Vec<usize>> {
     )
 }
 
+/// Whether the GPU case should run on a software adapter too (minutes a run).
+fn software_gpu_asked() -> bool {
+    std::env::var_os("LENSBLUR_BENCH_SOFTWARE_GPU").is_some()
+}
+
 /// Seconds of each of `reps` runs of `f`, sorted.
 fn times(reps: usize, mut f: impl FnMut()) -> Vec<f64> {
     let mut out: Vec<f64> = (0..reps)
@@ -110,6 +116,10 @@ fn sweep(threads: &[usize], capture: &Capture, source: &dyn KernelSource, job: &
         ..opts
     };
     match lensblur::deblur::gpu::shared() {
+        Ok(gpu) if gpu.adapter().software && !software_gpu_asked() => println!(
+            "deblur_10mp_rgb_hqs gpu skipped=\"{} is a software adapter (LENSBLUR_BENCH_SOFTWARE_GPU=1 runs it)\"",
+            gpu.adapter()
+        ),
         Ok(gpu) => {
             run(&on_gpu);
             let t = times(reps, || run(&on_gpu));
@@ -209,10 +219,7 @@ fn bench(c: &mut Criterion) {
         });
     });
     match lensblur::deblur::gpu::shared() {
-        Ok(gpu)
-            if !gpu.adapter().software
-                || std::env::var_os("LENSBLUR_BENCH_SOFTWARE_GPU").is_some() =>
-        {
+        Ok(gpu) if !gpu.adapter().software || software_gpu_asked() => {
             eprintln!("GPU: {}", gpu.adapter());
             let on_gpu = DeblurOptions {
                 device: Device::Gpu,

@@ -13,6 +13,10 @@
 # - deblur: benches/deblur.rs's 10 MP RGB photo (3872 × 2592, HQS, the profile's
 #   varying field) in rayon pools of each size of THREADS, then on the GPU, with each
 #   run's per-stage breakdown (LENSBLUR_BENCH_SWEEP, LENSBLUR_BENCH_REPS);
+# - batch: benches/batch.rs's batch of simulated RAW photos (BATCH_PHOTOS of BATCH_MP
+#   megapixels, 8 of 24 by default) to DNGs, every core, BATCH_REPS timed batches (1)
+#   on the CPU and then on the GPU, each in photos per minute, with one photo's stages
+#   timed alone in the log;
 # - kernels: benches/kernels.rs (every kernel of the 2400 × 1600 shot, 1152 kernels),
 #   once per pool size through RAYON_NUM_THREADS (largest first, while the budget
 #   lasts), criterion's quick mode;
@@ -22,7 +26,7 @@ set -u
 cd "$(dirname "$0")/.." || exit 1
 THREADS=${THREADS:-1,2,4,8,16}
 BUDGET_S=${BUDGET_S:-280}
-BENCHES=(deblur kernels)
+BENCHES=(deblur batch kernels)
 
 prepare() {
     set -e
@@ -49,6 +53,15 @@ for line in sys.stdin:
     apt-get "${o[@]}" update >/dev/null
     (cd .gl && apt-get "${o[@]}" download libvulkan1 libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2 >/dev/null)
     echo "prepared .gl/ ($(ls .gl | wc -l) packages); carry .bench and .gl"
+    # What a run carries to the device travels with the working tree, 64 MiB in all.
+    local carry tree
+    carry=$(du -sb .bench .gl | awk '{s += $1} END {print s}')
+    tree=$(git ls-files -z | xargs -0 du -cb 2>/dev/null | tail -1 | cut -f1)
+    echo "carry: $((carry >> 20)) MiB of .bench and .gl, $((tree >> 20)) MiB of tracked files (64 MiB in all)"
+    if [ $((carry + tree)) -gt $((64 << 20)) ]; then
+        echo "too large to carry with the working tree" >&2
+        exit 1
+    fi
 }
 
 START=$(date +%s)
@@ -85,6 +98,18 @@ run() {
         while read -r line; do rows+=("$line"); done <"$log.deblur"
     else
         rows+=("deblur: no prebuilt binary (.bench/deblur.gz)")
+    fi
+    if [ -x "$bin/batch" ] && [ "$(left)" -lt 60 ]; then
+        rows+=("batch skipped=time")
+    elif [ -x "$bin/batch" ]; then
+        echo "== batch" | tee -a "$log"
+        LENSBLUR_BENCH_REPS=${BATCH_REPS:-1} LENSBLUR_BENCH_BATCH_MP=${BATCH_MP:-24} \
+            LENSBLUR_BENCH_BATCH_PHOTOS=${BATCH_PHOTOS:-8} \
+            timeout "$(left)" "$bin/batch" --bench >"$log.batch" 2>>"$log"
+        cat "$log.batch" | tee -a "$log"
+        while read -r line; do rows+=("$line"); done <"$log.batch"
+    else
+        rows+=("batch: no prebuilt binary (.bench/batch.gz)")
     fi
     if [ -x "$bin/kernels" ]; then
         echo "== kernels" | tee -a "$log"
