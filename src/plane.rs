@@ -6,6 +6,11 @@
 
 use serde::{Deserialize, Serialize};
 
+/// A value at or above this (white = 1) is clipped: the sensor or the file could not
+/// hold the light there, so the pixel says only that the truth is at least this. Kernels
+/// give it no weight and detection counts it against a square (one rule for both).
+pub const CLIPPED_FROM: f64 = 0.995;
+
 /// A row-major single-channel image of `f32` values (linear, normally in [0, 1]).
 #[derive(Clone, Debug, PartialEq, Default)]
 pub struct Plane {

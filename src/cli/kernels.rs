@@ -116,6 +116,20 @@ pub fn run(args: Args) -> Result<()> {
         f_number: args.aperture,
     };
     let file = pipeline::estimate(&capture, &det, shot, given, &m, args.with_kernels, &job)?;
+    let clipping = lensblur::detect::clipping_advice(&det, &m.detect);
+    if let Some(advice) = &clipping {
+        eprintln!("{}: {advice}", shot.display());
+    }
+    if file.samples.is_empty() {
+        let why = match (&clipping, file.failed.first()) {
+            (Some(_), _) => "clipping left no square to measure".to_string(),
+            (None, Some(f)) => format!("every square failed (the first: {})", f.reason),
+            (None, None) => "no square of the chart could be aligned".to_string(),
+        };
+        // The failures are still worth keeping: each square's reason is in the file.
+        write_json(out, &file)?;
+        bail!("{}: no kernel measured: {why}", shot.display());
+    }
     let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v.get(v.len() / 2).copied().unwrap_or(f64::NAN)

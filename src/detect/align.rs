@@ -71,7 +71,17 @@ fn quad_rect(h: &Homography, quad: &[[f64; 2]; 4]) -> Rect {
 
 /// Observed samples of every plane inside `rect`, after an extra Gaussian blur of
 /// `extra_sigma_px` (sensor px) for the coarse levels, every `stride`-th plane pixel.
-fn samples(capture: &Capture, rect: Rect, extra_sigma_px: f64, stride: usize) -> Vec<Sample> {
+/// With `clip`, a clipped sample is left out: it bounds the edge from below and no
+/// more. Only the fine level takes it: a coarse level's blur would mix each clipped
+/// pixel into its neighbours (see [`align_square`]).
+fn samples(
+    capture: &Capture,
+    rect: Rect,
+    extra_sigma_px: f64,
+    stride: usize,
+    clip: Option<f64>,
+) -> Vec<Sample> {
+    debug_assert!(clip.is_none() || extra_sigma_px == 0.0);
     let mut out = Vec::new();
     for (k, cp) in capture.planes.iter().enumerate() {
         let step = cp.step as i64;
@@ -110,18 +120,38 @@ fn samples(capture: &Capture, rect: Rect, extra_sigma_px: f64, stride: usize) ->
             let mut i = i0.max(0);
             while i <= i1.min(pw - 1) {
                 let v = crop[((j - cj0) as usize) * cw + (i - ci0) as usize];
-                out.push(Sample {
-                    x: step * i + ox,
-                    y: step * j + oy,
-                    plane: k,
-                    value: v,
-                });
+                if clip.is_none_or(|level| v < level) {
+                    out.push(Sample {
+                        x: step * i + ox,
+                        y: step * j + oy,
+                        plane: k,
+                        value: v,
+                    });
+                }
                 i += s;
             }
             j += s;
         }
     }
     out
+}
+
+/// Half-width (px) of the band along a square's edges that [`align_square`] requires
+/// mostly unclipped: the steepest part of a blurred edge, where its position and the
+/// kernel's core show. Beyond it, on the black side, the edge's tails still measure the
+/// kernel's; on the white side clipping takes only what the black sides of the other
+/// edges also see.
+const EDGE_BAND_PX: f64 = 1.5;
+
+/// Distance, in chart squares, from a point of the unit square's frame (u, v) to the
+/// nearest of the square's four edges, as segments.
+fn edge_distance([u, v]: [f64; 2]) -> f64 {
+    let along = |t: f64| (-t).max(t - 1.0).max(0.0);
+    let to_line = |a: f64, b: f64| a.hypot(along(b));
+    to_line(u.abs(), v)
+        .min(to_line((u - 1.0).abs(), v))
+        .min(to_line(v.abs(), u))
+        .min(to_line((v - 1.0).abs(), u))
 }
 
 /// Black and white levels of a plane's square: the two histogram peaks.
@@ -450,12 +480,14 @@ pub fn align_square(
     wide_rect.y0 = wide_rect.y0.max(0);
     wide_rect.x1 = wide_rect.x1.min(capture.width as i64 - 1);
     wide_rect.y1 = wide_rect.y1.min(capture.height as i64 - 1);
-    let fine = samples(capture, wide_rect, 0.0, 1);
+    let fine = samples(capture, wide_rect, 0.0, 1, None);
     let np = capture.planes.len();
     let mut a = vec![0.0; np];
     let mut b = vec![1.0; np];
     let (mut black_sum, mut white_sum) = (0.0, 0.0);
     let mut per_plane: Vec<Vec<f64>> = vec![Vec::new(); np];
+    // Per plane, the pixels along the square's edges and how many of them are clipped.
+    let mut edge_clipped = vec![[0usize; 2]; np];
     for s in &fine {
         let c = chart_from_image.apply([s.x as f64, s.y as f64]);
         if c[0] >= col as f64 - wide_m
@@ -465,17 +497,18 @@ pub fn align_square(
         {
             per_plane[s.plane].push(s.value);
         }
+        if edge_distance([c[0] - col as f64, c[1] - row as f64]) * side_px <= EDGE_BAND_PX {
+            edge_clipped[s.plane][0] += 1;
+            edge_clipped[s.plane][1] += usize::from(s.value >= params.saturation_level);
+        }
     }
     for (k, inside) in per_plane.iter().enumerate() {
-        let saturated = inside
-            .iter()
-            .filter(|&&v| v >= params.saturation_level)
-            .count();
-        if saturated as f64 > params.max_saturated_fraction * inside.len() as f64 {
+        // Clipped pixels weigh nothing in the registration and the kernels; a square
+        // goes only when its edges themselves are lost.
+        let [along, clipped] = edge_clipped[k];
+        if clipped as f64 > params.max_clipped_edge_fraction * along as f64 {
             return Err(format!(
-                "saturated ({} of {} pixels at or above {})",
-                saturated,
-                inside.len(),
+                "saturated ({clipped} of the {along} pixels along its edges at or above {})",
                 params.saturation_level
             ));
         }
@@ -492,6 +525,18 @@ pub fn align_square(
         black_sum += lo;
         white_sum += hi;
     }
+    // A coarse level blurs the pixels before it samples them, which spreads each
+    // clipped pixel over the blur's reach: leaving out every sample it touches leaves
+    // none near the edges of a clipped white, keeping them biases the edges. A coarse
+    // level with its edges masked away constrains nothing, and Gauss–Newton then walks
+    // where rounding takes it: a square kept or lost by chance, differently in the same
+    // photo turned. Where the window clips, the fine level alone registers the square,
+    // every pixel the same whichever way the shot is turned.
+    let levels = if fine.iter().any(|s| s.value >= params.saturation_level) {
+        1
+    } else {
+        levels
+    };
     let centre = bootstrap.apply([col as f64 + 0.5, row as f64 + 0.5]);
     let scale = side_px / 2.0;
     let mut st = State {
@@ -522,9 +567,9 @@ pub fn align_square(
         };
         let stride = 1usize << level.min(2);
         let smp = if level == 0 {
-            samples(capture, rect, 0.0, 1)
+            samples(capture, rect, 0.0, 1, Some(params.saturation_level))
         } else {
-            samples(capture, rect, extra_sigma, stride)
+            samples(capture, rect, extra_sigma, stride, None)
         };
         let extra_var = extra_sigma * extra_sigma;
         let tol = if level == 0 {
@@ -596,7 +641,7 @@ pub fn align_square(
     // Measured on every capture of several channels (lateral colour is measured from
     // it); the kernels take it only where `channel_shifts` asks.
     let per_channel: Vec<(Channel, State)> = if channels.len() > 1 {
-        let fine = samples(capture, rect, 0.0, 1);
+        let fine = samples(capture, rect, 0.0, 1, Some(params.saturation_level));
         channels
             .iter()
             .map(|&ch| {

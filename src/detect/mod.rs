@@ -49,10 +49,12 @@ pub struct DetectParams {
     pub tolerance_px: f64,
     /// Refinement that moves a corner further than this from its bootstrap is rejected, px.
     pub max_refine_shift_px: f64,
-    /// Values at or above this (normalised units) count as clipped.
+    /// Values at or above this (normalised units) count as clipped: they weigh
+    /// nothing in the registration.
     pub saturation_level: f64,
-    /// A square with more clipped pixels than this fraction is skipped.
-    pub max_saturated_fraction: f64,
+    /// A square with more than this fraction of the pixels along its edges clipped is
+    /// skipped (its blur is no longer measured there).
+    pub max_clipped_edge_fraction: f64,
     /// Centre each colour channel's kernels on that square's own registration of the
     /// channel, however noisy. Off by default: on a lens without lateral colour one
     /// square's registration of a RAW shot's quarter-resolution red and blue planes
@@ -77,8 +79,8 @@ impl Default for DetectParams {
             max_iterations: 30,
             tolerance_px: 1e-3,
             max_refine_shift_px: 3.0,
-            saturation_level: 0.995,
-            max_saturated_fraction: 0.01,
+            saturation_level: crate::plane::CLIPPED_FROM,
+            max_clipped_edge_fraction: 0.5,
             channel_shifts: false,
             min_contrast: 0.05,
         }
@@ -239,6 +241,57 @@ pub fn detect(
         squares,
         global: lattice.image_from_chart,
     })
+}
+
+/// Whether a square was set aside because its edges are clipped.
+#[must_use]
+pub fn is_clipped(square: &SquareAlignment) -> bool {
+    square
+        .reason
+        .as_deref()
+        .is_some_and(|r| r.starts_with("saturated"))
+}
+
+/// When clipping cost a shot most of its squares in frame, what to do about it, in
+/// words: how many were lost and how much darker to expose. A square goes when more
+/// than half the pixels along its edges are clipped, that is when the middle of its
+/// edges, halfway from black (b) to white (w), is at or above the top of the range (c):
+/// then w ≥ 2c − b, and only an exposure (2c − b)/c times lower brings it below c.
+#[must_use]
+pub fn clipping_advice(det: &Detection, params: &DetectParams) -> Option<String> {
+    let in_frame = det
+        .squares
+        .iter()
+        .filter(|s| s.reason.as_deref() != Some("partly out of frame"))
+        .count();
+    let clipped = det.squares.iter().filter(|s| is_clipped(s)).count();
+    if clipped == 0 || 2 * clipped <= in_frame {
+        return None;
+    }
+    let mut blacks: Vec<f64> = det
+        .ok_squares()
+        .map(|s| s.black_level)
+        .filter(|b| b.is_finite())
+        .collect();
+    blacks.sort_by(f64::total_cmp);
+    let black = blacks
+        .get(blacks.len() / 2)
+        .copied()
+        .unwrap_or(0.0)
+        .max(0.0);
+    let c = params.saturation_level;
+    let stops = ((2.0 * c - black) / c).log2();
+    // In thirds of a stop, as cameras step their exposure, rounded up.
+    let thirds = (stops * 3.0 - 1e-9).ceil().max(1.0);
+    let darker = if thirds % 3.0 == 0.0 {
+        format!("{}", thirds / 3.0)
+    } else {
+        format!("{:.1}", thirds / 3.0)
+    };
+    Some(format!(
+        "{clipped} of the {in_frame} squares in frame are set aside because their whites are clipped: expose at least {darker} stop{} darker",
+        if thirds > 3.0 { "s" } else { "" }
+    ))
 }
 
 /// Bootstrap position of chart corner (c, r): its junction when found (then `true`),

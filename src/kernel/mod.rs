@@ -2,7 +2,13 @@
 //! and their Gaussian fits (paper §2.3, in [`crate::gaussian`]).
 //!
 //! For one square and channel we solve min ‖W(A_r k − U b)‖² by conjugate gradients on
-//! the normal equations. A_r convolves with the sharp chart rasterised at `oversample`×
+//! the normal equations. W weighs the observed pixel centres; a clipped pixel (at or
+//! above [`KernelParams::clip_level`]) is a missing observation and weighs nothing, so a
+//! square whose whites touch the top of the range keeps the rest of its edges. (Its
+//! unclipped neighbours keep their weight: those whose truth lies within the noise of
+//! the top are a sample biased low, but on simulated shots weighing nothing within a
+//! pixel of a clipped one cost more, p95 σ error 4.6–5.9 % → 4.6–46 %, than the bias
+//! does.) A_r convolves with the sharp chart rasterised at `oversample`×
 //! from the square's refined homography; every product with A_r or A_rᵀ is an FFT
 //! (never a matrix). The raster extends past the observed region by the kernel radius,
 //! so the convolution is the valid part of a linear one: the FFT side is at least the
@@ -82,6 +88,9 @@ pub struct KernelParams {
     /// A kernel with more than this fraction of its mass in its outermost pixel-wide
     /// ring is reported as clipped by its support.
     pub clipped_fraction: f64,
+    /// An observed value at or above this (white = 1) is clipped and has zero weight
+    /// (Kee's W): it bounds the blurred edge from below and no more.
+    pub clip_level: f64,
 }
 
 impl Default for KernelParams {
@@ -97,6 +106,7 @@ impl Default for KernelParams {
             threshold: crate::gaussian::CLEAN_THRESHOLD,
             max_support_px: 40.0,
             clipped_fraction: 0.02,
+            clip_level: crate::plane::CLIPPED_FROM,
         }
     }
 }
@@ -572,28 +582,31 @@ fn solve(
     // patch starts in the raster, and its value. The patch under pixel x is centred on
     // its raster sample (x − bx0)·s + r_sub, so it starts at (x − bx0)·s.
     let pixel_centres = || {
-        planes().flat_map(move |cp| {
-            // The plane's pixels inside the window [b·0, b·1] along one axis.
-            let span = move |lo: usize, hi: usize, offset: usize, n: usize| {
-                let first = lo.saturating_sub(offset).div_ceil(cp.step);
-                let end = if hi < offset {
-                    0
-                } else {
-                    ((hi - offset) / cp.step + 1).min(n)
+        planes()
+            .flat_map(move |cp| {
+                // The plane's pixels inside the window [b·0, b·1] along one axis.
+                let span = move |lo: usize, hi: usize, offset: usize, n: usize| {
+                    let first = lo.saturating_sub(offset).div_ceil(cp.step);
+                    let end = if hi < offset {
+                        0
+                    } else {
+                        ((hi - offset) / cp.step + 1).min(n)
+                    };
+                    first..end.max(first)
                 };
-                first..end.max(first)
-            };
-            span(prep.by0, prep.by1, cp.offset_y, cp.plane.height).flat_map(move |j| {
-                span(prep.bx0, prep.bx1, cp.offset_x, cp.plane.width).map(move |i| {
-                    let (x, y) = (cp.step * i + cp.offset_x, cp.step * j + cp.offset_y);
-                    (
-                        (x - prep.bx0) * os,
-                        (y - prep.by0) * os,
-                        f64::from(cp.plane.get(i, j)),
-                    )
+                span(prep.by0, prep.by1, cp.offset_y, cp.plane.height).flat_map(move |j| {
+                    span(prep.bx0, prep.bx1, cp.offset_x, cp.plane.width).map(move |i| {
+                        let (x, y) = (cp.step * i + cp.offset_x, cp.step * j + cp.offset_y);
+                        (
+                            (x - prep.bx0) * os,
+                            (y - prep.by0) * os,
+                            f64::from(cp.plane.get(i, j)),
+                        )
+                    })
                 })
             })
-        })
+            // A clipped pixel is a missing observation, not a value: zero weight.
+            .filter(|&(_, _, v)| v < params.clip_level)
     };
     // The FFT forms decide on the shading unknowns as the direct one does.
     let fft_shading = |problem: &mut LeastSquares| {
@@ -656,7 +669,9 @@ fn solve(
                     for q_x in 0..=(prep.bx1 - prep.bx0) * os {
                         let x = prep.bx0 as f64 + q_x as f64 / s;
                         let [pi, pj] = cp.plane_from_sensor(x, y);
-                        if let Some(v) = cp.plane.bilinear(pi, pj) {
+                        if let Some(v) = cp.plane.bilinear(pi, pj)
+                            && !touches_clipped(&cp.plane, pi, pj, params.clip_level)
+                        {
                             problem.observe(q_x + 2 * r_sub, q_y + 2 * r_sub, f64::from(v));
                             count += 1;
                         }
@@ -683,6 +698,14 @@ fn solve(
         },
         iterations: solution.iterations,
         residual: solution.relative_residual,
+    })
+}
+
+/// Whether a bilinear sample at plane point (x, y) draws on a clipped pixel.
+fn touches_clipped(plane: &crate::plane::Plane, x: f64, y: f64, clip_level: f64) -> bool {
+    let (x0, y0) = (x.floor().max(0.0) as usize, y.floor().max(0.0) as usize);
+    (y0..=(y0 + 1).min(plane.height - 1)).any(|j| {
+        (x0..=(x0 + 1).min(plane.width - 1)).any(|i| f64::from(plane.get(i, j)) >= clip_level)
     })
 }
 

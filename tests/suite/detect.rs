@@ -566,6 +566,53 @@ fn cli_writes_detect_json_and_fails_without_a_chart() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("no chart found"));
 }
 
+/// A shot whose whites clip so far that no square keeps half of its edges (the paper
+/// at three times the top of the range): `kernels` says how many squares clipping set
+/// aside and how much darker to expose, and fails in words, with no NaN summary.
+#[test]
+fn cli_kernels_on_a_clipped_shot_says_expose_darker() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let spec = ChartSpec {
+        cols: 6,
+        rows: 4,
+        ..ChartSpec::default()
+    };
+    let chart_path = dir.path().join("chart.json");
+    std::fs::write(&chart_path, serde_json::to_string(&spec).expect("spec"))
+        .expect("chart written");
+    let (w, h) = (300, 220);
+    let truth = pose(&spec, w, h, 36.0, 0.5);
+    let mut bright = shot(&spec, &truth, w, h, 1.0, 41, None);
+    for v in &mut bright.data {
+        *v *= 3.0;
+    }
+    let shot_path = dir.path().join("bright.png");
+    write_png16(&shot_path, &bright);
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_lensblur"))
+        .args([
+            "kernels",
+            shot_path.to_str().unwrap_or_default(),
+            "--out",
+            dir.path().join("kernels.json").to_str().unwrap_or_default(),
+            "--chart",
+            chart_path.to_str().unwrap_or_default(),
+        ])
+        .output()
+        .expect("runs");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(
+        err.contains("24 of the 24 squares in frame are set aside because their whites are clipped: expose at least"),
+        "{err}"
+    );
+    assert!(err.contains("darker"), "{err}");
+    assert!(
+        err.contains("no kernel measured: clipping left no square to measure"),
+        "{err}"
+    );
+    assert!(!err.contains("NaN"), "{err}");
+}
+
 /// The case: 2400 × 1600 simulated shots of the 24 × 16 chart (rotated, mild
 /// perspective, realistic noise) at the demo lens's two extreme settings, written as a
 /// DNG and as a 16-bit RGB PNG and read back through the loader. Every fully visible
