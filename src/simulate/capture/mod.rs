@@ -381,23 +381,8 @@ pub fn simulate_shot(
     params: &CaptureParams,
     job: &JobContext,
 ) -> Result<SimulatedShot, SimulateError> {
+    check_params(lens, params)?;
     let (w, h) = (params.width, params.height);
-    if !(16..=20000).contains(&w) || !(16..=20000).contains(&h) {
-        return Err(SimulateError::Invalid(format!(
-            "size {w} × {h} out of range"
-        )));
-    }
-    if !(1..=16).contains(&params.oversample) || !(4..=512).contains(&params.tile_px) {
-        return Err(SimulateError::Invalid(
-            "oversample must be 1–16 and tile_px 4–512".into(),
-        ));
-    }
-    if params.white_level <= params.black_level {
-        return Err(SimulateError::Invalid(
-            "white level must exceed the black level".into(),
-        ));
-    }
-    lens.geometry.validate().map_err(SimulateError::Invalid)?;
     let s = params.oversample;
     let tile = params.tile_px;
     let image_from_chart = params.pose.image_from_chart(spec, w, h);
@@ -413,34 +398,8 @@ pub fn simulate_shot(
         .iter()
         .flat_map(|&cy| xs.iter().map(move |&cx| (cx, cy)))
         .collect();
-    let centres: Vec<PsfCentre> = grid
-        .par_iter()
-        .map(|&(cx, cy)| {
-            let (u, v) = VirtualLens::normalised(cx, cy, w, h);
-            let psfs = CHANNELS.map(|ch| {
-                if lens.shape == PsfShape::Gaussian {
-                    let g = lens.gaussian_uv(ch, u, v, params.setting);
-                    CentrePsf {
-                        cov: [g.sigma_x.powi(2), g.sigma_y.powi(2), g.cov_xy()],
-                        radius_px: g.radius_px(4.0),
-                    }
-                } else {
-                    let k = lens.optical_kernel_uv(ch, u, v, params.setting, s);
-                    let m = k.moments();
-                    CentrePsf {
-                        cov: [m.var_x, m.var_y, m.cov_xy],
-                        radius_px: k.radius_px() + m.var_x.max(m.var_y).sqrt(),
-                    }
-                }
-            });
-            PsfCentre { x: cx, psfs }
-        })
-        .collect();
-    let mut radius_px: f64 = 1.0;
-    for p in centres.iter().flat_map(|c| &c.psfs) {
-        radius_px = radius_px.max(p.radius_px);
-    }
-    let margin = radius_px.ceil() as usize + 2;
+    let centres = psf_centres(lens, params, &grid);
+    let margin = window_margin(&centres);
     let m = good_size(2 * tile + 1 + 2 * margin);
     let n = m * s;
     let chart_from_ideal = match &maps {
@@ -449,46 +408,16 @@ pub fn simulate_shot(
             .ok_or_else(|| SimulateError::Invalid("degenerate chart pose".into()))?,
         None => Homography::identity(),
     };
-    // The distinct mappings to render and which one each channel sees: one render for
-    // all three when no channel is magnified against another.
-    let bent: Option<(Vec<SensorMapping>, [usize; 3], usize)> = maps.as_ref().map(|maps| {
-        let mut distinct: Vec<SensorMapping> = Vec::new();
-        let which = std::array::from_fn(|ci| {
-            distinct
-                .iter()
-                .position(|d| *d == maps[ci])
-                .unwrap_or_else(|| {
-                    distinct.push(maps[ci]);
-                    distinct.len() - 1
-                })
-        });
-        // The farthest any window reaches from the optical centre bounds the curvature.
-        let reach = (tile + margin) as f64 + 1.0;
-        let block = distinct
-            .iter()
-            .map(|d| block_px(d, w as f64 + 2.0 * reach, h as f64 + 2.0 * reach))
-            .min()
-            .unwrap_or(1);
-        (distinct, which, block * s)
-    });
+    let bent = maps
+        .as_ref()
+        .map(|maps| distinct_mappings(maps, (tile + margin) as f64 + 1.0, w, h, s));
     // The oversampled window's transform and the pixel-resolution inverse; each worker
     // clones its own (the plans are shared, the scratch is not).
     let window_fft = Fft2::<f32>::new(n, n);
     let pixel_fft = Fft2::<f32>::new(m, m);
     let sf = s as f64;
 
-    // Transfer function of the s-point sub-pixel average that makes pixel j of the
-    // window from sub-pixels s·j … s·j+s−1 (a forward-looking average).
-    let box_tf: Vec<Complex32> = (0..n)
-        .map(|k| {
-            let mut acc = Complex32::new(0.0, 0.0);
-            for u in 0..s {
-                let ph = 2.0 * std::f64::consts::PI * (k * u) as f64 / n as f64;
-                acc += Complex32::new(ph.cos() as f32, ph.sin() as f32);
-            }
-            acc / s as f32
-        })
-        .collect();
+    let box_tf = box_transfer(n, s);
 
     let mut strips = bent.as_ref().map(|(distinct, _, block)| BentStrips {
         spec,
@@ -522,14 +451,7 @@ pub fn simulate_shot(
                     let cx = c.x;
                     let x0 = cx as i64 - tile as i64 - margin as i64;
                     let y0 = cy as i64 - tile as i64 - margin as i64;
-                    // Sub-pixel (a, b) of the window has its centre at sensor
-                    // (x0 + (a − (s−1)/2)/s, …).
-                    let off = (sf - 1.0) / (2.0 * sf);
-                    let sensor_from_sub = Homography::translation(x0 as f64 - off, y0 as f64 - off)
-                        .compose(&Homography::scaling(1.0 / sf, 1.0 / sf));
-                    let sub_from_sensor = sensor_from_sub
-                        .inverse()
-                        .unwrap_or_else(Homography::identity);
+                    let sub_from_sensor = sub_from_sensor(x0, y0, s);
                     let sharps: Vec<Plane> = match strips {
                         None => vec![rasterize(
                             spec,
@@ -557,64 +479,16 @@ pub fn simulate_shot(
                         let spectrum = &spectra[bent.as_ref().map_or(0, |b| b.1[ci])];
                         let kernel = (lens.shape != PsfShape::Gaussian)
                             .then(|| lens.optical_kernel_uv(CHANNELS[ci], u, v, params.setting, s));
-                        let kernel_tf: Option<Vec<Complex32>> = kernel.as_ref().map(|k| {
-                            let mut buf = vec![Complex32::new(0.0, 0.0); n * n];
-                            let half = k.size / 2;
-                            for j in 0..k.size {
-                                for i in 0..k.size {
-                                    let a = (i + n - half % n) % n;
-                                    let b = (j + n - half % n) % n;
-                                    buf[b * n + a] += Complex32::new(k.at(i, j) as f32, 0.0);
-                                }
-                            }
-                            window_fft.forward_complex(&mut buf);
-                            buf
-                        });
-                        // σ in sub-pixels for the analytic Gaussian transfer function.
-                        let [vx, vy, cxy] = psf.cov;
-                        let (vx, vy, cxy) = (vx * sf * sf, vy * sf * sf, cxy * sf * sf);
-                        small.iter_mut().for_each(|v| *v = Complex32::new(0.0, 0.0));
-                        let two_pi2 = 2.0 * std::f64::consts::PI.powi(2);
-                        // Beyond these frequencies the Gaussian's transfer is below e^−18
-                        // (the quadratic form is at least the conditional variance × f²).
-                        const CUTOFF: f64 = 18.0;
-                        let cond_x = (vx - cxy * cxy / vy.max(1e-12)).max(1e-12);
-                        let cond_y = (vy - cxy * cxy / vx.max(1e-12)).max(1e-12);
-                        let (fx_max, fy_max) = match &kernel_tf {
-                            Some(_) => (1.0, 1.0),
-                            None => (
-                                (CUTOFF / (two_pi2 * cond_x)).sqrt(),
-                                (CUTOFF / (two_pi2 * cond_y)).sqrt(),
-                            ),
-                        };
-                        let ex: Vec<f64> = (0..n)
-                            .map(|k| (-two_pi2 * vx * freq(k, n).powi(2)).exp())
-                            .collect();
-                        for kb in 0..n {
-                            let fy = freq(kb, n);
-                            if fy.abs() > fy_max {
-                                continue;
-                            }
-                            let ey = (-two_pi2 * vy * fy * fy).exp();
-                            let row_tf = box_tf[kb];
-                            let dst_row = fold[kb] * m;
-                            let cross = -2.0 * two_pi2 * cxy * fy;
-                            for ka in 0..n {
-                                let fx = freq(ka, n);
-                                if fx.abs() > fx_max {
-                                    continue;
-                                }
-                                let t = match &kernel_tf {
-                                    Some(tf) => tf[kb * n + ka],
-                                    None => {
-                                        let e = ex[ka] * ey * (cross * fx).exp();
-                                        Complex32::new(e as f32, 0.0)
-                                    }
-                                };
-                                let v = spectrum[kb * n + ka] * t * box_tf[ka] * row_tf;
-                                small[dst_row + fold[ka]] += v;
-                            }
-                        }
+                        let kernel_tf = kernel.as_ref().map(|k| kernel_transfer(k, n, window_fft));
+                        blur_window(
+                            spectrum,
+                            psf,
+                            kernel_tf.as_deref(),
+                            &box_tf,
+                            &fold,
+                            sf,
+                            &mut small,
+                        );
                         pixel_fft.inverse_complex(&mut small);
                         // 1/n² from the inverse DFT of size n, folded into m² bins: the
                         // decimated image is (1/(s² m²)) Σ, i.e. 1/n².
@@ -626,46 +500,11 @@ pub fn simulate_shot(
             )
             .collect();
         for (ix, results, x0, y0) in row {
-            let cx = xs[ix];
-            let lo_x = (cx as i64 - tile as i64 + 1).max(0);
-            let hi_x = (cx as i64 + tile as i64 - 1).min(w as i64 - 1);
-            let lo_y = (cy as i64 - tile as i64 + 1).max(0);
-            let hi_y = (cy as i64 + tile as i64 - 1).min(h as i64 - 1);
-            for y in lo_y..=hi_y {
-                let wy = hat_weight_of(&ys, tile as f64, y as f64, jy);
-                if wy == 0.0 {
-                    continue;
-                }
-                for x in lo_x..=hi_x {
-                    let wx = hat_weight_of(&xs, tile as f64, x as f64, ix);
-                    if wx == 0.0 {
-                        continue;
-                    }
-                    let idx = ((y - y0) as usize) * m + (x - x0) as usize;
-                    for ci in 0..3 {
-                        out[ci].data[y as usize * w + x as usize] +=
-                            (wx * wy) as f32 * results[ci][idx];
-                    }
-                }
-            }
+            add_window(&mut out, &results, (x0, y0), m, (&xs, ix), (&ys, jy), tile);
         }
     }
     job.report("simulate", total_rows, total_rows);
-    if lens.geometry.vignetting_stops != [0.0; 2] || params.light_gradient_stops != [0.0; 2] {
-        let map = lens.sensor_mapping(Channel::G, params.setting, w, h);
-        let (cx, cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
-        let half_diagonal = cx.hypot(cy).max(1.0);
-        let [gx, gy] = params.light_gradient_stops;
-        for y in 0..h {
-            for x in 0..w {
-                let light = ((gx * (x as f64 - cx) + gy * (y as f64 - cy)) / half_diagonal).exp2();
-                let gain = (map.illumination([x as f64, y as f64]) * light) as f32;
-                for plane in &mut out {
-                    plane.data[y * w + x] *= gain;
-                }
-            }
-        }
-    }
+    apply_light(&mut out, lens, params);
 
     let (capture, cfa) = sensor_readout(&out, params, lens);
     let truth = shot_truth(spec, lens, params, &image_from_chart, &xs, &ys, &centres);
@@ -684,6 +523,293 @@ pub fn simulate_shot(
             lens.f_number_range[0],
         ],
     })
+}
+
+/// Refuses a capture the simulator cannot make.
+fn check_params(lens: &VirtualLens, params: &CaptureParams) -> Result<(), SimulateError> {
+    let (w, h) = (params.width, params.height);
+    if !(16..=20000).contains(&w) || !(16..=20000).contains(&h) {
+        return Err(SimulateError::Invalid(format!(
+            "size {w} × {h} out of range"
+        )));
+    }
+    if !(1..=16).contains(&params.oversample) || !(4..=512).contains(&params.tile_px) {
+        return Err(SimulateError::Invalid(
+            "oversample must be 1–16 and tile_px 4–512".into(),
+        ));
+    }
+    if params.white_level <= params.black_level {
+        return Err(SimulateError::Invalid(
+            "white level must exceed the black level".into(),
+        ));
+    }
+    lens.geometry.validate().map_err(SimulateError::Invalid)?;
+    Ok(())
+}
+
+/// The PSF moments and reach at every centre of `grid` (sensor px).
+fn psf_centres(lens: &VirtualLens, params: &CaptureParams, grid: &[(f64, f64)]) -> Vec<PsfCentre> {
+    let (w, h, s) = (params.width, params.height, params.oversample);
+    grid.par_iter()
+        .map(|&(cx, cy)| {
+            let (u, v) = VirtualLens::normalised(cx, cy, w, h);
+            let psfs = CHANNELS.map(|ch| {
+                if lens.shape == PsfShape::Gaussian {
+                    let g = lens.gaussian_uv(ch, u, v, params.setting);
+                    CentrePsf {
+                        cov: [g.sigma_x.powi(2), g.sigma_y.powi(2), g.cov_xy()],
+                        radius_px: g.radius_px(4.0),
+                    }
+                } else {
+                    let k = lens.optical_kernel_uv(ch, u, v, params.setting, s);
+                    let m = k.moments();
+                    CentrePsf {
+                        cov: [m.var_x, m.var_y, m.cov_xy],
+                        radius_px: k.radius_px() + m.var_x.max(m.var_y).sqrt(),
+                    }
+                }
+            });
+            PsfCentre { x: cx, psfs }
+        })
+        .collect()
+}
+
+/// Transfer function of the s-point sub-pixel average that makes pixel j of the
+/// window from sub-pixels s·j … s·j+s−1 (a forward-looking average), length `n`.
+fn box_transfer(n: usize, s: usize) -> Vec<Complex32> {
+    (0..n)
+        .map(|k| {
+            let mut acc = Complex32::new(0.0, 0.0);
+            for u in 0..s {
+                let ph = 2.0 * std::f64::consts::PI * (k * u) as f64 / n as f64;
+                acc += Complex32::new(ph.cos() as f32, ph.sin() as f32);
+            }
+            acc / s as f32
+        })
+        .collect()
+}
+
+/// One channel's blurred window folded to pixel resolution, before the inverse
+/// transform: the `n × n` window `spectrum` times the PSF's transfer function (the
+/// kernel's, else the Gaussian of `psf`'s covariance) and the sub-pixel box, summed
+/// into the `m × m` bins of `small` (`fold[k]` = k mod m).
+fn blur_window(
+    spectrum: &[Complex32],
+    psf: &CentrePsf,
+    kernel_tf: Option<&[Complex32]>,
+    box_tf: &[Complex32],
+    fold: &[usize],
+    sf: f64,
+    small: &mut [Complex32],
+) {
+    let n = box_tf.len();
+    let m = (small.len() as f64).sqrt().round() as usize;
+    debug_assert_eq!(m * m, small.len(), "the folded window is square");
+    // σ in sub-pixels for the analytic Gaussian transfer function.
+    let [vx, vy, cxy] = psf.cov;
+    let (vx, vy, cxy) = (vx * sf * sf, vy * sf * sf, cxy * sf * sf);
+    small.iter_mut().for_each(|v| *v = Complex32::new(0.0, 0.0));
+    let two_pi2 = 2.0 * std::f64::consts::PI.powi(2);
+    // Beyond these frequencies the Gaussian's transfer is below e^−18
+    // (the quadratic form is at least the conditional variance × f²).
+    const CUTOFF: f64 = 18.0;
+    let cond_x = (vx - cxy * cxy / vy.max(1e-12)).max(1e-12);
+    let cond_y = (vy - cxy * cxy / vx.max(1e-12)).max(1e-12);
+    let (fx_max, fy_max) = match kernel_tf {
+        Some(_) => (1.0, 1.0),
+        None => (
+            (CUTOFF / (two_pi2 * cond_x)).sqrt(),
+            (CUTOFF / (two_pi2 * cond_y)).sqrt(),
+        ),
+    };
+    let ex: Vec<f64> = (0..n)
+        .map(|k| (-two_pi2 * vx * freq(k, n).powi(2)).exp())
+        .collect();
+    for kb in 0..n {
+        let fy = freq(kb, n);
+        if fy.abs() > fy_max {
+            continue;
+        }
+        let ey = (-two_pi2 * vy * fy * fy).exp();
+        let row_tf = box_tf[kb];
+        let dst_row = fold[kb] * m;
+        let cross = -2.0 * two_pi2 * cxy * fy;
+        for ka in 0..n {
+            let fx = freq(ka, n);
+            if fx.abs() > fx_max {
+                continue;
+            }
+            let t = match kernel_tf {
+                Some(tf) => tf[kb * n + ka],
+                None => {
+                    let e = ex[ka] * ey * (cross * fx).exp();
+                    Complex32::new(e as f32, 0.0)
+                }
+            };
+            let v = spectrum[kb * n + ka] * t * box_tf[ka] * row_tf;
+            small[dst_row + fold[ka]] += v;
+        }
+    }
+}
+
+/// The lens's fall-off and the light's gradient over the rendered planes.
+fn apply_light(out: &mut [Plane], lens: &VirtualLens, params: &CaptureParams) {
+    let (w, h) = (params.width, params.height);
+    if lens.geometry.vignetting_stops != [0.0; 2] || params.light_gradient_stops != [0.0; 2] {
+        let map = lens.sensor_mapping(Channel::G, params.setting, w, h);
+        let (cx, cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+        let half_diagonal = cx.hypot(cy).max(1.0);
+        let [gx, gy] = params.light_gradient_stops;
+        for y in 0..h {
+            for x in 0..w {
+                let light = ((gx * (x as f64 - cx) + gy * (y as f64 - cy)) / half_diagonal).exp2();
+                let gain = (map.illumination([x as f64, y as f64]) * light) as f32;
+                for plane in out.iter_mut() {
+                    plane.data[y * w + x] *= gain;
+                }
+            }
+        }
+    }
+}
+
+/// The transfer function of an oversampled kernel centred on an `n × n` window.
+fn kernel_transfer(k: &crate::psf::Kernel, n: usize, window_fft: &mut Fft2<f32>) -> Vec<Complex32> {
+    let mut buf = vec![Complex32::new(0.0, 0.0); n * n];
+    let half = k.size / 2;
+    for j in 0..k.size {
+        for i in 0..k.size {
+            let a = (i + n - half % n) % n;
+            let b = (j + n - half % n) % n;
+            buf[b * n + a] += Complex32::new(k.at(i, j) as f32, 0.0);
+        }
+    }
+    window_fft.forward_complex(&mut buf);
+    buf
+}
+
+/// Adds the window rendered around centre (`xs[ix]`, `ys[jy]`), whose pixel (0, 0) is
+/// sensor (x0, y0) and which is `m` pixels wide, to `out` under the centre's hat weights.
+fn add_window(
+    out: &mut [Plane],
+    results: &[Vec<f32>; 3],
+    (x0, y0): (i64, i64),
+    m: usize,
+    (xs, ix): (&[f64], usize),
+    (ys, jy): (&[f64], usize),
+    tile: usize,
+) {
+    let (w, h) = (out[0].width, out[0].height);
+    let (cx, cy) = (xs[ix], ys[jy]);
+    let lo_x = (cx as i64 - tile as i64 + 1).max(0);
+    let hi_x = (cx as i64 + tile as i64 - 1).min(w as i64 - 1);
+    let lo_y = (cy as i64 - tile as i64 + 1).max(0);
+    let hi_y = (cy as i64 + tile as i64 - 1).min(h as i64 - 1);
+    for y in lo_y..=hi_y {
+        let wy = hat_weight_of(ys, tile as f64, y as f64, jy);
+        if wy == 0.0 {
+            continue;
+        }
+        for x in lo_x..=hi_x {
+            let wx = hat_weight_of(xs, tile as f64, x as f64, ix);
+            if wx == 0.0 {
+                continue;
+            }
+            let idx = ((y - y0) as usize) * m + (x - x0) as usize;
+            for ci in 0..3 {
+                out[ci].data[y as usize * w + x as usize] += (wx * wy) as f32 * results[ci][idx];
+            }
+        }
+    }
+}
+
+/// The distinct mappings to render, which one each channel sees (one render for all
+/// three when no channel is magnified against another), and the sub-pixel block the
+/// mappings are interpolated over. `reach`: the farthest any window reaches beyond the
+/// frame, px, which bounds the curvature.
+fn distinct_mappings(
+    maps: &[SensorMapping; 3],
+    reach: f64,
+    w: usize,
+    h: usize,
+    s: usize,
+) -> (Vec<SensorMapping>, [usize; 3], usize) {
+    let mut distinct: Vec<SensorMapping> = Vec::new();
+    let which = std::array::from_fn(|ci| {
+        distinct
+            .iter()
+            .position(|d| *d == maps[ci])
+            .unwrap_or_else(|| {
+                distinct.push(maps[ci]);
+                distinct.len() - 1
+            })
+    });
+    let block = distinct
+        .iter()
+        .map(|d| block_px(d, w as f64 + 2.0 * reach, h as f64 + 2.0 * reach))
+        .min()
+        .unwrap_or(1);
+    (distinct, which, block * s)
+}
+
+/// How far past its tile a window reaches, px: the widest PSF's reach and two more.
+fn window_margin(centres: &[PsfCentre]) -> usize {
+    let mut radius_px: f64 = 1.0;
+    for p in centres.iter().flat_map(|c| &c.psfs) {
+        radius_px = radius_px.max(p.radius_px);
+    }
+    radius_px.ceil() as usize + 2
+}
+
+/// From sensor px to the sub-pixels of a window whose pixel (0, 0) is sensor (x0, y0),
+/// `s` sub-pixels a side: sub-pixel (a, b) has its centre at sensor
+/// (x0 + (a − (s−1)/2)/s, …).
+fn sub_from_sensor(x0: i64, y0: i64, s: usize) -> Homography {
+    let sf = s as f64;
+    let off = (sf - 1.0) / (2.0 * sf);
+    Homography::translation(x0 as f64 - off, y0 as f64 - off)
+        .compose(&Homography::scaling(1.0 / sf, 1.0 / sf))
+        .inverse()
+        .unwrap_or_else(Homography::identity)
+}
+
+/// Per chart row, the (channel, column, row) of the centres whose fine kernels its
+/// squares blend. Neighbouring squares share centres, so each fine kernel is made once,
+/// when the first row that needs it comes, and dropped after the last: at 12× they are
+/// megabytes each, and all of a 2400 × 1600 shot's at once were gigabytes.
+fn fine_kernels_needed(
+    spec: &ChartSpec,
+    lens: &VirtualLens,
+    image_from_chart: &Homography,
+    maps: Option<&[SensorMapping; 3]>,
+    xs: &[f64],
+    ys: &[f64],
+    tile: f64,
+) -> Vec<BTreeSet<(usize, usize, usize)>> {
+    (0..spec.rows)
+        .map(|row| {
+            let mut need = BTreeSet::new();
+            if lens.shape == PsfShape::Gaussian {
+                return need;
+            }
+            for col in 0..spec.cols {
+                let ideal = image_from_chart.apply([col as f64 + 0.5, row as f64 + 0.5]);
+                for ci in 0..CHANNELS.len() {
+                    // Each channel's square sits where its own mapping puts it.
+                    let centre = maps
+                        .and_then(|m| m.get(ci))
+                        .map_or(ideal, |m| m.sensor_from_ideal(ideal));
+                    for &(j, wyj) in &hat_weights(ys, tile, centre[1]) {
+                        for &(i, wxi) in &hat_weights(xs, tile, centre[0]) {
+                            if wxi * wyj > 0.0 {
+                                need.insert((ci, i, j));
+                            }
+                        }
+                    }
+                }
+            }
+            need
+        })
+        .collect()
 }
 
 fn hat_weight_of(grid: &[f64], tile: f64, p: f64, node: usize) -> f64 {
@@ -863,36 +989,7 @@ fn shot_truth(
             .map(|(ci, &ch)| (ch, centres.iter().map(|c| c.psfs[ci].cov).collect()))
             .collect(),
     };
-    // The centres whose fine kernels each chart row's squares blend. Neighbouring
-    // squares share centres, so each fine kernel is made once, when the first row that
-    // needs it comes, and dropped after the last: at 12× they are megabytes each, and
-    // all of a 2400 × 1600 shot's at once were gigabytes.
-    let row_needs: Vec<BTreeSet<(usize, usize, usize)>> = (0..spec.rows)
-        .map(|row| {
-            let mut need = BTreeSet::new();
-            if lens.shape == PsfShape::Gaussian {
-                return need;
-            }
-            for col in 0..spec.cols {
-                let ideal = image_from_chart.apply([col as f64 + 0.5, row as f64 + 0.5]);
-                for ci in 0..CHANNELS.len() {
-                    // Each channel's square sits where its own mapping puts it.
-                    let centre = maps
-                        .as_ref()
-                        .and_then(|m| m.get(ci))
-                        .map_or(ideal, |m| m.sensor_from_ideal(ideal));
-                    for &(j, wyj) in &hat_weights(ys, tile, centre[1]) {
-                        for &(i, wxi) in &hat_weights(xs, tile, centre[0]) {
-                            if wxi * wyj > 0.0 {
-                                need.insert((ci, i, j));
-                            }
-                        }
-                    }
-                }
-            }
-            need
-        })
-        .collect();
+    let row_needs = fine_kernels_needed(spec, lens, image_from_chart, maps.as_ref(), xs, ys, tile);
     let mut last_row: HashMap<(usize, usize, usize), usize> = HashMap::new();
     for (row, need) in row_needs.iter().enumerate() {
         for &key in need {
