@@ -8,7 +8,8 @@
 //! Plots the series `view_data` made for the sliders' setting; computes nothing.
 
 use super::super::view_data::{
-    SWEEP_LOCATIONS, SweepKind, sweep_params, sweep_series, sweep_x_label, sweep_y_label,
+    SWEEP_LOCATIONS, SweepKind, SweepSeries, sweep_params, sweep_series, sweep_x_label,
+    sweep_y_label,
 };
 use super::super::{Command, PlotId, StudioApp, SweepAxis};
 use super::{Sliders, TIP_COR, TIP_CXX, TIP_CYY, setting_sliders_ui};
@@ -27,7 +28,7 @@ const LOCATION_COLORS: [Color32; 5] = [
 ];
 
 pub(super) fn sweeps_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
-    use egui_plot::{Line, LineStyle, MarkerShape, Plot, PlotPoints, Points, VLine};
+    use egui_plot::Plot;
     ui.heading("Sweeps");
     let is_demo = app.session().is_some_and(|s| s.is_demo);
     let lens = VirtualLens::demo();
@@ -141,46 +142,59 @@ pub(super) fn sweeps_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::
                         plot
                     };
                     super::show_plot(ui, id, plot, move |plot| {
-                        for v in shot_at {
-                            let v = if vs_aperture {
-                                crate::review::aperture_stops(v)
-                            } else {
-                                v
-                            };
-                            // Unnamed: out of the legend and the CSV.
-                            plot.vline(
-                                VLine::new("", v)
-                                    .color(mark)
-                                    .style(LineStyle::dotted_loose())
-                                    .width(1.0),
-                            );
-                        }
-                        for s in series {
-                            let color = LOCATION_COLORS[s.location % LOCATION_COLORS.len()];
-                            let pts = PlotPoints::from(s.points);
-                            match s.kind {
-                                SweepKind::Measured => plot.points(
-                                    Points::new(s.name, pts)
-                                        .shape(MarkerShape::Circle)
-                                        .filled(true)
-                                        .color(color)
-                                        .radius(3.5),
-                                ),
-                                SweepKind::Model => {
-                                    plot.line(Line::new(s.name, pts).color(color).width(1.5));
-                                }
-                                SweepKind::Truth => plot.line(
-                                    Line::new(s.name, pts)
-                                        .color(color.gamma_multiply(0.7))
-                                        .style(LineStyle::dashed_loose())
-                                        .width(1.0),
-                                ),
-                            }
-                        }
+                        draw_sweep(plot, shot_at, series, vs_aperture, mark);
                     });
                 });
             }
         });
+    }
+}
+
+/// The settings with shots as dotted verticals (unnamed: out of the legend and the
+/// CSV), then each series: measured as dots, the model as a line, the truth dashed.
+fn draw_sweep(
+    plot: &mut egui_plot::PlotUi<'_>,
+    shot_at: Vec<f64>,
+    series: Vec<SweepSeries>,
+    vs_aperture: bool,
+    mark: Color32,
+) {
+    use egui_plot::{Line, LineStyle, MarkerShape, PlotPoints, Points, VLine};
+    for v in shot_at {
+        let v = if vs_aperture {
+            crate::review::aperture_stops(v)
+        } else {
+            v
+        };
+        // Unnamed: out of the legend and the CSV.
+        plot.vline(
+            VLine::new("", v)
+                .color(mark)
+                .style(LineStyle::dotted_loose())
+                .width(1.0),
+        );
+    }
+    for s in series {
+        let color = LOCATION_COLORS[s.location % LOCATION_COLORS.len()];
+        let pts = PlotPoints::from(s.points);
+        match s.kind {
+            SweepKind::Measured => plot.points(
+                Points::new(s.name, pts)
+                    .shape(MarkerShape::Circle)
+                    .filled(true)
+                    .color(color)
+                    .radius(3.5),
+            ),
+            SweepKind::Model => {
+                plot.line(Line::new(s.name, pts).color(color).width(1.5));
+            }
+            SweepKind::Truth => plot.line(
+                Line::new(s.name, pts)
+                    .color(color.gamma_multiply(0.7))
+                    .style(LineStyle::dashed_loose())
+                    .width(1.0),
+            ),
+        }
     }
 }
 
