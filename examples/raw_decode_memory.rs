@@ -1,6 +1,8 @@
 //! The peak memory of decoding one 24 MP DNG, for `/usr/bin/time -v`: writing the file
 //! and reading it are separate runs, so the reading run holds only what decoding it
-//! takes (the file's bytes, the decoder's image, the planes).
+//! takes (the file's bytes, the decoder's image, the planes). `chain` and `worker=`
+//! load the file as the command line does (`load_capture`: in a worker, the worker
+//! reads the file itself and hands back the 16-bit mosaic).
 //!
 //! Usage:
 //!   cargo run --example raw_decode_memory -- write FILE.dng uncompressed|ljpeg
@@ -14,7 +16,9 @@
 //! resident memory (VmHWM): `time -v` would report the worker's where it is larger.
 use anyhow::{Context, bail};
 use lensblur::dng::{DngCompression, DngInfo, DngLayout, dng_bytes};
-use lensblur::raw::{Decoder, Decoding, WorkerLimits, decode_raw, decode_raw_with, with_decoding};
+use lensblur::raw::{
+    Decoder, Decoding, LoadOptions, WorkerLimits, decode_raw_with, load_capture, with_decoding,
+};
 use std::path::Path;
 
 /// The 6000 × 4000 RGGB mosaic both the decoding benchmark and the memory example use.
@@ -48,14 +52,17 @@ fn main() -> anyhow::Result<()> {
                 .with_context(|| path.display().to_string())?;
         }
         ("read", decoder) => {
-            let bytes = std::fs::read(path).with_context(|| path.display().to_string())?;
+            let options = LoadOptions::default();
             let capture = match decoder {
-                "chain" => decode_raw(path, &bytes)?,
-                "rawloader" => decode_raw_with(Decoder::Rawloader, path, &bytes)?,
+                "chain" => load_capture(path, &options)?,
+                "rawloader" => {
+                    let bytes = std::fs::read(path).with_context(|| path.display().to_string())?;
+                    decode_raw_with(Decoder::Rawloader, path, &bytes)?
+                }
                 other => match other.strip_prefix("worker=") {
                     Some(program) => {
                         let worker = Decoding::Worker(WorkerLimits::new(program.into()));
-                        with_decoding(&worker, || decode_raw(path, &bytes))?
+                        with_decoding(&worker, || load_capture(path, &options))?
                     }
                     None => bail!("unknown decoder {other}"),
                 },

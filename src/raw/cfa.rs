@@ -16,17 +16,91 @@ fn cfa_channel(c: usize) -> Option<Channel> {
     }
 }
 
-/// Normalised CFA planes: one per position of the 2 × 2 pattern, black subtracted,
-/// divided by white − black (the same arithmetic the simulator uses, so a round trip is
-/// exact).
-fn cfa_capture(
+/// A CFA mosaic as its decoder read it: the active area's samples and what makes them
+/// lensblur's planes ([`MosaicLayout`]). Kept so until the planes are made: it is half
+/// their size, which is what a worker process hands its parent (`wire`).
+#[derive(Clone, Debug, PartialEq)]
+pub(super) struct Mosaic {
+    pub layout: MosaicLayout,
+    pub values: Vec<u16>,
+}
+
+/// A mosaic's size and its 2 × 2 sites (in [`RawMeta::site`] order): each one's
+/// channel, black level, and the white level they share.
+#[derive(Clone, Debug, PartialEq)]
+pub(super) struct MosaicLayout {
+    pub width: usize,
+    pub height: usize,
+    pub channels: [Channel; 4],
+    pub black: [f32; 4],
+    pub white: f32,
+}
+
+impl MosaicLayout {
+    /// Normalised CFA planes of `values` (`width × height` samples, row by row): one per
+    /// site, black subtracted, divided by white − black (the same arithmetic the
+    /// simulator uses, so a round trip is exact).
+    pub(super) fn planes(&self, values: &[u16]) -> Vec<ChannelPlane> {
+        let (w, h) = (self.width, self.height);
+        debug_assert!(values.len() >= w * h);
+        [(0, 0), (1, 0), (0, 1), (1, 1)]
+            .into_iter()
+            .map(|(ox, oy)| {
+                let site = RawMeta::site(ox, oy);
+                let black = self.black[site];
+                let range = (self.white - black).max(1.0);
+                let plane = Plane::from_fn((w + 1 - ox) / 2, (h + 1 - oy) / 2, |i, j| {
+                    (f32::from(values[(2 * j + oy) * w + 2 * i + ox]) - black) / range
+                });
+                ChannelPlane {
+                    channel: self.channels[site],
+                    plane,
+                    step: 2,
+                    offset_x: ox,
+                    offset_y: oy,
+                }
+            })
+            .collect()
+    }
+}
+
+/// What a decoder gives: a capture, whose planes are still a [`Mosaic`] where it read
+/// one (the capture's own planes are then empty).
+#[derive(Debug)]
+pub(super) struct Decoded {
+    pub capture: Capture,
+    pub mosaic: Option<Mosaic>,
+}
+
+impl Decoded {
+    /// A capture whose planes are made already.
+    pub(super) fn planes(capture: Capture) -> Self {
+        Self {
+            capture,
+            mosaic: None,
+        }
+    }
+
+    /// The capture with its planes.
+    pub(super) fn into_capture(self) -> Capture {
+        let mut capture = self.capture;
+        if let Some(m) = self.mosaic {
+            capture.planes = m.layout.planes(&m.values);
+        }
+        capture
+    }
+}
+
+/// A mosaic of `values` and the capture it will be, planes to come; refused where it
+/// is too large, short of samples, or not an RGB Bayer pattern.
+fn cfa_mosaic(
     path: &Path,
-    values: &[u16],
+    values: Vec<u16>,
     (w, h): (usize, usize),
     color_at: &dyn Fn(usize, usize) -> usize,
     black: &dyn Fn(usize, usize) -> f32,
     white: f32,
-) -> Result<Capture, LoadError> {
+) -> Result<Decoded, LoadError> {
     check_size(path, w, h)?;
     if values.len() < w * h {
         return Err(LoadError::Corrupt {
@@ -34,30 +108,25 @@ fn cfa_capture(
             reason: format!("{} samples for a {w} × {h} sensor", values.len()),
         });
     }
-    let mut planes = Vec::with_capacity(4);
-    for (ox, oy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-        let Some(channel) = cfa_channel(color_at(ox, oy)) else {
-            return Err(LoadError::Corrupt {
-                path: path.to_path_buf(),
-                reason: "unsupported CFA colour (only RGB Bayer patterns)".into(),
-            });
-        };
-        let black_f = black(ox, oy);
-        let range = (white - black_f).max(1.0);
-        let pw = (w + 1 - ox) / 2;
-        let ph = (h + 1 - oy) / 2;
-        let plane = Plane::from_fn(pw, ph, |i, j| {
-            (f32::from(values[(2 * j + oy) * w + 2 * i + ox]) - black_f) / range
-        });
-        planes.push(ChannelPlane {
-            channel,
-            plane,
-            step: 2,
-            offset_x: ox,
-            offset_y: oy,
-        });
+    let sites = [(0, 0), (1, 0), (0, 1), (1, 1)];
+    let mut channels = [Channel::G; 4];
+    for (site, (x, y)) in channels.iter_mut().zip(sites) {
+        *site = cfa_channel(color_at(x, y)).ok_or_else(|| LoadError::Corrupt {
+            path: path.to_path_buf(),
+            reason: "unsupported CFA colour (only RGB Bayer patterns)".into(),
+        })?;
     }
-    Ok(Capture::of_planes(w, h, planes, true))
+    let layout = MosaicLayout {
+        width: w,
+        height: h,
+        channels,
+        black: sites.map(|(x, y)| black(x, y)),
+        white,
+    };
+    Ok(Decoded {
+        capture: Capture::of_planes(w, h, Vec::new(), true),
+        mosaic: Some(Mosaic { layout, values }),
+    })
 }
 
 /// What a decoder read of a mosaic's colour beyond its samples.
@@ -71,7 +140,7 @@ pub(super) struct DecoderColour {
     pub orientation: u16,
 }
 
-/// A mosaic's planes ([`cfa_capture`]) and its [`RawMeta`]: the one place a decoder's
+/// A mosaic ([`cfa_mosaic`]) and its [`RawMeta`]: the one place a decoder's
 /// answer becomes the levels and colour a DNG is written back with. A DNG's own colour
 /// tags (`ifd`: its first directory, where its raw image is) win over the decoder's,
 /// which rounds them to f32 or reads none; an unknown orientation is 1 (as stored).
@@ -79,15 +148,15 @@ pub(super) struct DecoderColour {
 #[allow(clippy::too_many_arguments)]
 pub(super) fn mosaic_capture(
     path: &Path,
-    values: &[u16],
+    values: Vec<u16>,
     size: (usize, usize),
     color_at: &dyn Fn(usize, usize) -> usize,
     black: &dyn Fn(usize, usize) -> f32,
     white: f32,
     ifd: Option<&Ifd>,
     decoded: DecoderColour,
-) -> Result<Capture, LoadError> {
-    let mut c = cfa_capture(path, values, size, color_at, black, white)?;
+) -> Result<Decoded, LoadError> {
+    let mut d = cfa_mosaic(path, values, size, color_at, black, white)?;
     let sites = [(0, 0), (1, 0), (0, 1), (1, 1)];
     let usable = |m: &[[f64; 3]; 3]| {
         m.iter().flatten().all(|v| v.is_finite()) && m.iter().flatten().any(|v| *v != 0.0)
@@ -99,7 +168,7 @@ pub(super) fn mosaic_capture(
             [g / f64::from(wb[0]), 1.0, g / f64::from(wb[2])]
         })
     };
-    c.raw = Some(RawMeta {
+    d.capture.raw = Some(RawMeta {
         cfa: sites.map(|(x, y)| color_at(x, y).min(3) as u8),
         black: sites.map(|(x, y)| black(x, y).clamp(0.0, 65535.0) as u16),
         white: white.clamp(0.0, 65535.0) as u16,
@@ -115,5 +184,5 @@ pub(super) fn mosaic_capture(
         },
         ..RawMeta::default()
     });
-    Ok(c)
+    Ok(d)
 }

@@ -5,7 +5,7 @@
 //! answer becomes the same normalised CFA planes; and where every one refuses, the
 //! refusal is explained in words a photographer can act on (see [`explain`]).
 
-use super::cfa::{DecoderColour, mosaic_capture};
+use super::cfa::{Decoded, DecoderColour, mosaic_capture};
 use super::tiff::{Ifd, TAG_DNG_VERSION, TAG_PHOTOMETRIC, first_tag, site_black_levels};
 use super::{LoadError, check_size};
 use crate::plane::{Capture, Channel, ChannelPlane, Plane, RawMeta};
@@ -103,7 +103,7 @@ pub(super) fn rawler_capture(
     path: &Path,
     bytes: &[u8],
     ifd: Option<&Ifd>,
-) -> Result<(Capture, DecodedMeta), RawlerRefusal> {
+) -> Result<(Decoded, DecodedMeta), RawlerRefusal> {
     let _quiet = QuietPanics::new();
     let source = rawler::rawsource::RawSource::new_from_slice(bytes);
     let params = rawler::decoders::RawDecodeParams::default();
@@ -202,14 +202,14 @@ fn decoded_meta(meta: Option<&rawler::decoders::RawMetadata>) -> DecodedMeta {
     }
 }
 
-/// rawler's image as our planes: a 2 × 2 CFA mosaic as [`cfa_capture`] makes it (the
+/// rawler's image as our planes: a 2 × 2 CFA mosaic as [`mosaic_capture`] keeps it (the
 /// active area, black per CFA site, white), linear (demosaiced) RGB data as three
 /// full-resolution linear planes.
 fn from_rawler(
     path: &Path,
     img: &rawler::RawImage,
     ifd: Option<&Ifd>,
-) -> Result<Capture, LoadError> {
+) -> Result<Decoded, LoadError> {
     let corrupt = |reason: String| LoadError::Corrupt {
         path: path.to_path_buf(),
         reason,
@@ -253,7 +253,7 @@ fn from_rawler(
             .or(img.whitelevel.0.first())
             .map_or(65535.0, |&v| v.min(65535) as f32)
     };
-    let mut capture = match (&img.photometric, cpp) {
+    let mut decoded = match (&img.photometric, cpp) {
         (rawler::rawimage::RawPhotometricInterpretation::Cfa(config), 1) => {
             let cfa = &config.cfa;
             if (cfa.width, cfa.height) != (2, 2) {
@@ -278,7 +278,7 @@ fn from_rawler(
                 orientation: img.orientation.to_u16(),
             };
             let (white, size) = (white_of(0), (w, h));
-            mosaic_capture(path, &values, size, &color_at, &black, white, ifd, colour)?
+            mosaic_capture(path, values, size, &color_at, &black, white, ifd, colour)?
         }
         (_, 3) => {
             // Linear (already demosaiced) camera RGB, as phones and Adobe's converter's
@@ -303,7 +303,7 @@ fn from_rawler(
                     }
                 })
                 .collect();
-            Capture::of_planes(w, h, planes, false)
+            Decoded::planes(Capture::of_planes(w, h, planes, false))
         }
         (_, 1) => {
             let black = black_at(0, 0, 0);
@@ -311,7 +311,7 @@ fn from_rawler(
             let plane = Plane::from_fn(w, h, |x, y| {
                 (f32::from(data[(y + top) * img.width + x + left]) - black_at(x, y, 0)) / range
             });
-            Capture::of_planes(
+            Decoded::planes(Capture::of_planes(
                 w,
                 h,
                 vec![ChannelPlane {
@@ -322,7 +322,7 @@ fn from_rawler(
                     offset_y: 0,
                 }],
                 false,
-            )
+            ))
         }
         (_, n) => {
             return Err(LoadError::Unsupported {
@@ -331,9 +331,9 @@ fn from_rawler(
             });
         }
     };
-    capture.identity.make = named(&img.clean_make);
-    capture.identity.model = named(&img.clean_model);
-    Ok(capture)
+    decoded.capture.identity.make = named(&img.clean_make);
+    decoded.capture.identity.model = named(&img.clean_model);
+    Ok(decoded)
 }
 
 /// rawler's XYZ → camera matrix for D65 (else the first it has), 3 × 3.
@@ -525,7 +525,7 @@ pub(super) fn rawloader_capture(
     path: &Path,
     bytes: &[u8],
     ifd: Option<&Ifd>,
-) -> Result<Capture, LoadError> {
+) -> Result<Decoded, LoadError> {
     let head = rawloader_head(path, bytes)?;
     check_size(path, head.width, head.height)?;
     // No lossless coding spends less than a bit on a sample: a file that claims more
@@ -636,7 +636,7 @@ fn from_rawloader(
     path: &Path,
     img: &rawloader::RawImage,
     ifd: Option<&Ifd>,
-) -> Result<Capture, LoadError> {
+) -> Result<Decoded, LoadError> {
     if img.cpp != 1 {
         return Err(LoadError::Corrupt {
             path: path.to_path_buf(),
@@ -684,10 +684,10 @@ fn from_rawloader(
         orientation: img.orientation.to_u16(),
     };
     let white = f32::from(img.whitelevels[0]);
-    let mut c = mosaic_capture(path, &values, (w, h), &color_at, &black, white, ifd, colour)?;
-    c.identity.make = named(&img.clean_make);
-    c.identity.model = named(&img.clean_model);
-    Ok(c)
+    let mut d = mosaic_capture(path, values, (w, h), &color_at, &black, white, ifd, colour)?;
+    d.capture.identity.make = named(&img.clean_make);
+    d.capture.identity.model = named(&img.clean_model);
+    Ok(d)
 }
 
 /// A decoder's cleaned-up camera name, `None` where it has none.

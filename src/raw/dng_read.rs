@@ -1,13 +1,12 @@
 //! lensblur's own reader of the uncompressed 16-bit DNGs rawloader misreads: tiled
 //! ones, and strips that do not follow one another in the file.
 
-use super::cfa::{DecoderColour, mosaic_capture};
+use super::cfa::{Decoded, DecoderColour, mosaic_capture};
 use super::tiff::{
     Ifd, TAG_ORIENTATION, TAG_ROWS_PER_STRIP, TAG_STRIP_OFFSETS, TAG_TILE_OFFSETS, first_tag,
 };
 use super::{LoadError, check_size};
 use crate::limits;
-use crate::plane::Capture;
 use std::path::Path;
 
 /// An uncompressed 16-bit CFA DNG whose raw image is in the first directory, in tiles
@@ -16,7 +15,7 @@ pub(super) fn read_uncompressed_dng(
     path: &Path,
     b: &[u8],
     ifd: &Ifd,
-) -> Result<Capture, LoadError> {
+) -> Result<Decoded, LoadError> {
     let err = |reason: String| LoadError::Corrupt {
         path: path.to_path_buf(),
         reason,
@@ -115,7 +114,7 @@ pub(super) fn read_uncompressed_dng(
     };
     mosaic_capture(
         path,
-        &values,
+        values,
         (w, h),
         &color_at,
         &black,

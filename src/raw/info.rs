@@ -3,7 +3,7 @@
 //! where it was focused, and which decoder read it. The pixels are decoded, so a file
 //! whose image is missing is refused here as everywhere else, not reported as fine.
 
-use super::{Decoder, LoadError, LoadOptions, decode_with_decoder, refuse_blank};
+use super::{Decoder, LoadError, LoadOptions, OnDisk, decode_with_decoder, refuse_blank};
 use crate::limits;
 use std::path::Path;
 
@@ -85,7 +85,7 @@ pub struct FileInfo {
 /// data missing) is refused.
 pub fn inspect(path: &Path) -> Result<FileInfo, LoadError> {
     let bytes = crate::io::read_limited(path, limits::MAX_IMAGE_FILE_BYTES)?;
-    inspect_bytes(path, &bytes)
+    inspect_of(path, &bytes, OnDisk(true))
 }
 
 /// [`inspect`] on a file's bytes; `path` names the file.
@@ -93,7 +93,12 @@ pub fn inspect(path: &Path) -> Result<FileInfo, LoadError> {
 /// # Errors
 /// As [`inspect`].
 pub fn inspect_bytes(path: &Path, bytes: &[u8]) -> Result<FileInfo, LoadError> {
-    let (capture, decoder, exif) = decode_with_decoder(path, bytes, &LoadOptions::default())?;
+    inspect_of(path, bytes, OnDisk(false))
+}
+
+fn inspect_of(path: &Path, bytes: &[u8], on_disk: OnDisk) -> Result<FileInfo, LoadError> {
+    let (capture, decoder, exif) =
+        decode_with_decoder(path, bytes, on_disk, &LoadOptions::default())?;
     // RAW files are refused blank as they load; a PNG, TIFF or JPEG of one value is a
     // picture of nothing all the same.
     refuse_blank(path, &capture)?;

@@ -30,6 +30,7 @@ mod tiff;
 mod wire;
 mod worker;
 
+use cfa::Decoded;
 pub use decoders::{DecodedMeta, Decoder};
 pub use exif::{ExifInfo, read_exif};
 pub use info::{FileInfo, FocusDistance, INFO_SCHEMA, inspect, inspect_bytes};
@@ -111,8 +112,13 @@ pub struct LoadOptions {
 /// an image outside [`limits::check_image_size`], or is not an image we read.
 pub fn load_capture(path: &Path, options: &LoadOptions) -> Result<Capture, LoadError> {
     let bytes = crate::io::read_limited(path, limits::MAX_IMAGE_FILE_BYTES)?;
-    decode_capture(path, &bytes, options)
+    decode_with_decoder(path, &bytes, OnDisk(true), options).map(|(c, _, _)| c)
 }
+
+/// Whether a file's bytes are the whole file at its path, as read just now: a RAW
+/// decoding worker then reads the file itself rather than be sent them.
+#[derive(Clone, Copy, Debug)]
+struct OnDisk(bool);
 
 /// [`load_capture`] on a file's bytes; `path` only names the file in messages.
 ///
@@ -123,13 +129,14 @@ pub fn decode_capture(
     bytes: &[u8],
     options: &LoadOptions,
 ) -> Result<Capture, LoadError> {
-    decode_with_decoder(path, bytes, options).map(|(c, _, _)| c)
+    decode_with_decoder(path, bytes, OnDisk(false), options).map(|(c, _, _)| c)
 }
 
 /// [`decode_capture`], and which decoder read the file, and what it and EXIF say.
 fn decode_with_decoder(
     path: &Path,
     bytes: &[u8],
+    on_disk: OnDisk,
     options: &LoadOptions,
 ) -> Result<(Capture, Decoder, ExifInfo), LoadError> {
     if bytes.is_empty() {
@@ -148,13 +155,13 @@ fn decode_with_decoder(
     } else if is_tiff(bytes) {
         let ifd = tiff_ifd0(bytes).map_err(|reason| damaged(path, bytes, reason))?;
         if is_raw_ifd(&ifd) {
-            load_raw(path, bytes)?
+            load_raw(path, bytes, on_disk)?
         } else if decoders::camera_raw(bytes) {
             // A camera's TIFF-based RAW (CR2, NEF, ARW, PEF, ...): its first directory
             // is a preview, the CFA is further in. Where the RAW decoders refuse it and
             // that first directory is a full-size picture of its own (a TIFF an editor
             // exported, which keeps the camera's Make), it is read as the picture.
-            match load_raw(path, bytes) {
+            match load_raw(path, bytes, on_disk) {
                 Ok(found) => found,
                 Err(e) if image_in_ifd0(&ifd) => image(bytes).map_err(|_| e)?,
                 Err(e) => return Err(e),
@@ -165,7 +172,7 @@ fn decode_with_decoder(
     } else {
         // Every other camera format goes to the RAW decoders, which name what they
         // cannot read.
-        load_raw(path, bytes)?
+        load_raw(path, bytes, on_disk)?
     };
     let mut exif = read_exif(bytes);
     exif.take_decoded(&meta);
@@ -192,7 +199,7 @@ pub struct Header {
 /// As [`load_capture`], for what the headers show.
 pub fn read_header(path: &Path) -> Result<Header, LoadError> {
     let bytes = crate::io::read_limited(path, limits::MAX_IMAGE_FILE_BYTES)?;
-    decode_header(path, &bytes)
+    header_of(path, &bytes, OnDisk(true))
 }
 
 /// [`read_header`] on a file's bytes; `path` only names the file in messages.
@@ -200,6 +207,10 @@ pub fn read_header(path: &Path) -> Result<Header, LoadError> {
 /// # Errors
 /// As [`read_header`].
 pub fn decode_header(path: &Path, bytes: &[u8]) -> Result<Header, LoadError> {
+    header_of(path, bytes, OnDisk(false))
+}
+
+fn header_of(path: &Path, bytes: &[u8], on_disk: OnDisk) -> Result<Header, LoadError> {
     if bytes.is_empty() {
         return Err(LoadError::Corrupt {
             path: path.to_path_buf(),
@@ -217,7 +228,7 @@ pub fn decode_header(path: &Path, bytes: &[u8]) -> Result<Header, LoadError> {
         } else if is_tiff(bytes) {
             let ifd = tiff_ifd0(bytes).map_err(|reason| damaged(path, bytes, reason))?;
             if !is_raw_ifd(&ifd) && decoders::camera_raw(bytes) {
-                match raw_dimensions(path, bytes, &mut exif) {
+                match raw_dimensions(path, bytes, on_disk, &mut exif) {
                     Ok(size) => (size, true),
                     Err(e) if image_in_ifd0(&ifd) => {
                         (image_dimensions(path, bytes).map_err(|_| e)?, false)
@@ -234,10 +245,10 @@ pub fn decode_header(path: &Path, bytes: &[u8]) -> Result<Header, LoadError> {
                 };
                 ((one(256)? as usize, one(257)? as usize), true)
             } else {
-                (raw_dimensions(path, bytes, &mut exif)?, true)
+                (raw_dimensions(path, bytes, on_disk, &mut exif)?, true)
             }
         } else {
-            (raw_dimensions(path, bytes, &mut exif)?, true)
+            (raw_dimensions(path, bytes, on_disk, &mut exif)?, true)
         };
     check_size(path, width, height)?;
     Ok(Header {
@@ -254,9 +265,11 @@ pub fn decode_header(path: &Path, bytes: &[u8]) -> Result<Header, LoadError> {
 fn raw_dimensions(
     path: &Path,
     bytes: &[u8],
+    on_disk: OnDisk,
     exif: &mut ExifInfo,
 ) -> Result<(usize, usize), LoadError> {
-    let Answer::Header((size, make, model)) = worker::run(Job::Header, path, bytes)? else {
+    let Answer::Header((size, make, model)) = worker::run(Job::Header, path, bytes, on_disk)?
+    else {
         return Err(worker_mixup(path));
     };
     let id = &mut exif.identity;
@@ -274,7 +287,7 @@ pub fn decode_raw(path: &Path, bytes: &[u8]) -> Result<Capture, LoadError> {
     if is_tiff(bytes) {
         tiff_ifd0(bytes).map_err(|reason| damaged(path, bytes, reason))?;
     }
-    load_raw(path, bytes).map(|(c, _, _)| c)
+    load_raw(path, bytes, OnDisk(false)).map(|(c, _, _)| c)
 }
 
 /// A TIFF whose first directory does not parse: damaged, said where it can be.
@@ -298,8 +311,12 @@ pub fn decode_raw_with(decoder: Decoder, path: &Path, bytes: &[u8]) -> Result<Ca
             reason: "not a RAW decoder".into(),
         });
     }
-    match worker::run(Job::With(decoder), path, bytes)? {
-        Answer::With(capture) => Ok(capture),
+    match worker::run(Job::With(decoder), path, bytes, OnDisk(false))? {
+        Answer::With(decoded) => {
+            let capture = decoded.into_capture();
+            refuse_blank(path, &capture)?;
+            Ok(capture)
+        }
         _ => Err(worker_mixup(path)),
     }
 }
@@ -338,13 +355,13 @@ fn worker_mixup(path: &Path) -> LoadError {
 }
 
 /// [`decode_raw_with`] in this process.
-fn decode_with_here(decoder: Decoder, path: &Path, bytes: &[u8]) -> Result<Capture, LoadError> {
+fn decode_with_here(decoder: Decoder, path: &Path, bytes: &[u8]) -> Result<Decoded, LoadError> {
     let ifd = is_tiff(bytes).then(|| tiff_ifd0(bytes).ok()).flatten();
     let refused = |reason: &str| LoadError::Unsupported {
         path: path.to_path_buf(),
         reason: reason.into(),
     };
-    let capture = match decoder {
+    Ok(match decoder {
         Decoder::Rawler => decoders::rawler_capture(path, bytes, ifd.as_ref())
             .map(|(c, _)| c)
             .map_err(|refusal| decoders::explain(path, bytes, refusal, None))?,
@@ -360,29 +377,35 @@ fn decode_with_here(decoder: Decoder, path: &Path, bytes: &[u8]) -> Result<Captu
             }
         },
         Decoder::Image => return Err(refused("not a RAW decoder")),
-    };
-    refuse_blank(path, &capture)?;
-    Ok(capture)
+    })
 }
 
-/// A RAW file through the decoders, where [`decoding`] says (see [`load_raw_here`]).
-fn load_raw(path: &Path, bytes: &[u8]) -> Result<(Capture, Decoder, DecodedMeta), LoadError> {
-    match worker::run(Job::Load, path, bytes)? {
-        Answer::Load(capture, decoder, meta) => Ok((capture, decoder, meta)),
+/// A RAW file through the decoders, where [`decoding`] says (see [`load_raw_here`]);
+/// an image of one value throughout (image data missing, decoded as zeros) refused.
+fn load_raw(
+    path: &Path,
+    bytes: &[u8],
+    on_disk: OnDisk,
+) -> Result<(Capture, Decoder, DecodedMeta), LoadError> {
+    match worker::run(Job::Load, path, bytes, on_disk)? {
+        Answer::Load(decoded, decoder, meta) => {
+            let capture = decoded.into_capture();
+            refuse_blank(path, &capture)?;
+            Ok((capture, decoder, meta))
+        }
         _ => Err(worker_mixup(path)),
     }
 }
 
 /// A RAW file through the first decoder that reads it (rawler, then our own reader
 /// for the uncompressed DNGs rawloader would misread, then rawloader), each one's
-/// declared size checked against our limits before it allocates the image; and an
-/// image of one value throughout (image data missing, decoded as zeros) refused.
+/// declared size checked against our limits before it allocates the image.
 fn load_raw_here(
     path: &Path,
     bytes: &[u8],
     ifd: Option<&Ifd>,
-) -> Result<(Capture, Decoder, DecodedMeta), LoadError> {
-    let (capture, decoder, meta) = match decoders::rawler_capture(path, bytes, ifd) {
+) -> Result<(Decoded, Decoder, DecodedMeta), LoadError> {
+    Ok(match decoders::rawler_capture(path, bytes, ifd) {
         Ok((c, meta)) => (c, Decoder::Rawler, meta),
         Err(refusal) => {
             if let decoders::RawlerRefusal::Ours(e) = refusal {
@@ -405,9 +428,7 @@ fn load_raw_here(
                 }
             }
         }
-    };
-    refuse_blank(path, &capture)?;
-    Ok((capture, decoder, meta))
+    })
 }
 
 /// The reason inside a fallback decoder's error, for the message that explains why

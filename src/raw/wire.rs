@@ -1,16 +1,21 @@
 //! The bytes a RAW decoding worker and its parent exchange (see [`super::worker`]): one
-//! request (what to do, the file's name and bytes, the memory the worker may take) and
-//! one answer (a capture, a header, or a refusal) at a time, over the worker's standard
-//! input and output. Both ends are the same build of this program, so numbers are in
-//! the machine's own byte order and the planes' samples go over as they lie in memory.
+//! request (what to do, the file's name, and its bytes or only its length where the
+//! worker reads the file itself; the memory the worker may take) and one answer (a
+//! capture, a header, or a refusal) at a time, over the worker's standard input and
+//! output. A mosaic goes over as its 16-bit samples, half the size of the planes the
+//! parent makes of them; through a shared memory file where the parent gave the worker
+//! one, else on the pipe. Both ends are the same build of this program, so numbers are
+//! in the machine's own byte order and samples go over as they lie in memory.
 //! What the parent reads is still checked against [`crate::limits`] before it is
 //! allocated: a worker that stopped halfway through an answer must not make the parent
 //! allocate by a count it never finished writing.
 
 use super::LoadError;
+use super::cfa::{Decoded, MosaicLayout};
 use super::decoders::{DecodedMeta, Decoder, RawHeader};
 use crate::limits;
 use crate::plane::{CameraIdentity, Capture, Channel, ChannelPlane, Plane, RawMeta};
+use std::fs::File;
 use std::io::{self, Read, Write};
 use std::path::{Path, PathBuf};
 
@@ -25,21 +30,32 @@ pub(super) enum Job {
     With(Decoder),
 }
 
-/// What the worker answers, as the in-process decode would have returned it.
+/// What the worker answers, as the in-process decode would have returned it (as the
+/// parent reads it, a mosaic's planes are made).
 #[derive(Debug)]
 pub(super) enum Answer {
-    Load(Capture, Decoder, DecodedMeta),
+    Load(Decoded, Decoder, DecodedMeta),
     Header(RawHeader),
-    With(Capture),
+    With(Decoded),
 }
 
-/// The request: job, memory limit (bytes of address space), the file's name for
-/// messages, and its bytes.
+/// The request: job, memory limit (bytes of address space), the file's name, and
+/// what the worker decodes.
 pub(super) struct Request<'a> {
     pub job: Job,
     pub memory_bytes: u64,
     pub path: &'a Path,
-    pub bytes: &'a [u8],
+    pub input: Input<'a>,
+}
+
+/// What the worker decodes.
+#[derive(Clone, Copy)]
+pub(super) enum Input<'a> {
+    /// These bytes (the parent holds no file of them, or not as it is on disk).
+    Bytes(&'a [u8]),
+    /// The file at the request's path (absolute), which had this length when the
+    /// parent read it.
+    File { len: u64 },
 }
 
 const REQUEST: &[u8; 4] = b"LBrq";
@@ -191,9 +207,47 @@ pub(super) fn write_request<W: Write>(w: W, r: &Request<'_>) -> io::Result<()> {
     o.u8(job)?;
     o.u8(decoder)?;
     o.u64(r.memory_bytes)?;
-    o.str(&r.path.to_string_lossy())?;
-    o.bytes(r.bytes)?;
+    o.bytes(&path_bytes(r.path))?;
+    match r.input {
+        Input::Bytes(bytes) => {
+            o.u8(0)?;
+            o.bytes(bytes)?;
+        }
+        Input::File { len } => {
+            o.u8(1)?;
+            o.u64(len)?;
+        }
+    }
     o.0.flush()
+}
+
+/// A path as bytes, exactly where the system allows (a name need not be UTF-8).
+#[cfg(unix)]
+fn path_bytes(path: &Path) -> Vec<u8> {
+    std::os::unix::ffi::OsStrExt::as_bytes(path.as_os_str()).to_vec()
+}
+
+#[cfg(not(unix))]
+fn path_bytes(path: &Path) -> Vec<u8> {
+    path.to_string_lossy().into_owned().into_bytes()
+}
+
+#[cfg(unix)]
+fn path_of(bytes: Vec<u8>) -> io::Result<PathBuf> {
+    let name: std::ffi::OsString = std::os::unix::ffi::OsStringExt::from_vec(bytes);
+    Ok(name.into())
+}
+
+#[cfg(not(unix))]
+fn path_of(bytes: Vec<u8>) -> io::Result<PathBuf> {
+    String::from_utf8(bytes)
+        .map(PathBuf::from)
+        .map_err(|_| bad("path"))
+}
+
+/// Whether the worker can be handed `path` to read itself: the name goes over exactly.
+pub(super) fn path_goes_over(path: &Path) -> bool {
+    cfg!(unix) || path.to_str().is_some()
 }
 
 /// A [`Request`] as the worker reads it.
@@ -201,7 +255,13 @@ pub(super) struct Received {
     pub job: Job,
     pub memory_bytes: u64,
     pub path: PathBuf,
-    pub bytes: Vec<u8>,
+    pub input: ReceivedInput,
+}
+
+/// [`Input`] as the worker reads it.
+pub(super) enum ReceivedInput {
+    Bytes(Vec<u8>),
+    File { len: u64 },
 }
 
 /// A request as the worker reads it; `None` at the end of the input (the parent is
@@ -223,17 +283,26 @@ pub(super) fn read_request<R: Read>(r: R) -> io::Result<Option<Received>> {
         _ => return Err(bad("job")),
     };
     let memory_bytes = i.u64()?;
-    let path = PathBuf::from(i.string()?);
-    let bytes = i.bytes(limits::MAX_IMAGE_FILE_BYTES)?;
+    let path = path_of(i.bytes(MAX_STRING)?)?;
+    let input = match i.u8()? {
+        0 => ReceivedInput::Bytes(i.bytes(limits::MAX_IMAGE_FILE_BYTES)?),
+        1 => ReceivedInput::File { len: i.u64()? },
+        _ => return Err(bad("input")),
+    };
     Ok(Some(Received {
         job,
         memory_bytes,
         path,
-        bytes,
+        input,
     }))
 }
 
-pub(super) fn write_answer<W: Write>(w: W, answer: &Result<Answer, LoadError>) -> io::Result<()> {
+/// Writes an answer; a mosaic's samples into `shared` where there is one.
+pub(super) fn write_answer<W: Write>(
+    w: W,
+    answer: &Result<Answer, LoadError>,
+    shared: Option<&File>,
+) -> io::Result<()> {
     let mut o = Out(w);
     o.0.write_all(ANSWER)?;
     match answer {
@@ -243,9 +312,9 @@ pub(super) fn write_answer<W: Write>(w: W, answer: &Result<Answer, LoadError>) -
             o.u8(kind)?;
             o.str(reason)?;
         }
-        Ok(Answer::Load(capture, decoder, meta)) => {
+        Ok(Answer::Load(decoded, decoder, meta)) => {
             o.u8(1)?;
-            put_capture(&mut o, capture)?;
+            put_decoded(&mut o, decoded, shared)?;
             o.u8(decoder_code(*decoder))?;
             o.opt_f64(meta.focal_mm)?;
             o.opt_f64(meta.f_number)?;
@@ -259,17 +328,22 @@ pub(super) fn write_answer<W: Write>(w: W, answer: &Result<Answer, LoadError>) -
             o.opt_str(make.as_deref())?;
             o.opt_str(model.as_deref())?;
         }
-        Ok(Answer::With(capture)) => {
+        Ok(Answer::With(decoded)) => {
             o.u8(3)?;
-            put_capture(&mut o, capture)?;
+            put_decoded(&mut o, decoded, shared)?;
         }
     }
     o.0.flush()
 }
 
-/// The answer as the parent reads it; a refusal names `path`, the parent's own name
-/// for the file.
-pub(super) fn read_answer<R: Read>(r: R, path: &Path) -> io::Result<Result<Answer, LoadError>> {
+/// The answer as the parent reads it, a mosaic made planes (its samples read from
+/// `shared` where the worker put them there); a refusal names `path`, the parent's own
+/// name for the file.
+pub(super) fn read_answer<R: Read>(
+    r: R,
+    path: &Path,
+    shared: Option<&File>,
+) -> io::Result<Result<Answer, LoadError>> {
     let mut i = In(r);
     if &i.array::<4>()? != ANSWER {
         return Err(bad("answer"));
@@ -281,7 +355,7 @@ pub(super) fn read_answer<R: Read>(r: R, path: &Path) -> io::Result<Result<Answe
             return Ok(Err(error_of(kind, path, reason)?));
         }
         1 => {
-            let capture = get_capture(&mut i)?;
+            let capture = get_decoded(&mut i, shared)?;
             let decoder = decoder_of(i.u8()?)?;
             let meta = DecodedMeta {
                 focal_mm: i.opt_f64()?,
@@ -296,7 +370,7 @@ pub(super) fn read_answer<R: Read>(r: R, path: &Path) -> io::Result<Result<Answe
             let size = (i.usize(side)?, i.usize(side)?);
             Answer::Header((size, i.opt_string()?, i.opt_string()?))
         }
-        3 => Answer::With(get_capture(&mut i)?),
+        3 => Answer::With(get_decoded(&mut i, shared)?),
         _ => return Err(bad("answer")),
     }))
 }
@@ -424,6 +498,111 @@ fn get_capture<R: Read>(i: &mut In<R>) -> io::Result<Capture> {
     Ok(c)
 }
 
+/// A decoder's answer: its capture, then its mosaic where it has one.
+fn put_decoded<W: Write>(o: &mut Out<W>, d: &Decoded, shared: Option<&File>) -> io::Result<()> {
+    put_capture(o, &d.capture)?;
+    o.opt(d.mosaic.as_ref(), |o, m| {
+        let l = &m.layout;
+        o.usize(l.width)?;
+        o.usize(l.height)?;
+        for (&c, &b) in l.channels.iter().zip(&l.black) {
+            o.u8(channel_code(c))?;
+            o.f64(f64::from(b))?;
+        }
+        o.f64(f64::from(l.white))?;
+        let samples: &[u8] = bytemuck::cast_slice(&m.values);
+        match shared {
+            Some(file) => {
+                o.u8(1)?;
+                o.usize(m.values.len())?;
+                put_shared(file, samples)
+            }
+            None => {
+                o.u8(0)?;
+                o.bytes(samples)
+            }
+        }
+    })
+}
+
+/// What [`put_decoded`] wrote, its mosaic made planes in one pass over its samples.
+fn get_decoded<R: Read>(i: &mut In<R>, shared: Option<&File>) -> io::Result<Decoded> {
+    let mut capture = get_capture(i)?;
+    let mosaic = i.opt(|i| {
+        let side = limits::MAX_IMAGE_SIDE as u64;
+        let (width, height) = (i.usize(side)?, i.usize(side)?);
+        let (mut channels, mut black) = ([Channel::G; 4], [0f32; 4]);
+        for (c, b) in channels.iter_mut().zip(&mut black) {
+            *c = channel_of(i.u8()?)?;
+            *b = i.f64()? as f32;
+        }
+        let layout = MosaicLayout {
+            width,
+            height,
+            channels,
+            black,
+            white: i.f64()? as f32,
+        };
+        let in_shared = match i.u8()? {
+            0 => false,
+            1 => true,
+            _ => return Err(bad("mosaic")),
+        };
+        let n = i.usize(limits::MAX_IMAGE_PIXELS as u64)?;
+        if n != width * height {
+            return Err(bad("mosaic"));
+        }
+        if in_shared {
+            let file = shared.ok_or_else(|| bad("mosaic"))?;
+            get_shared(file, n, |values| layout.planes(values))
+        } else if i.usize(2 * limits::MAX_IMAGE_PIXELS as u64)? == 2 * n {
+            let mut values = vec![0u16; n];
+            i.0.read_exact(bytemuck::cast_slice_mut(&mut values))?;
+            Ok(layout.planes(&values))
+        } else {
+            Err(bad("mosaic"))
+        }
+    })?;
+    if let Some(planes) = mosaic {
+        capture.planes = planes;
+    }
+    Ok(Decoded::planes(capture))
+}
+
+/// The samples into the shared file, from its start (it holds nothing else).
+#[cfg(unix)]
+fn put_shared(file: &File, samples: &[u8]) -> io::Result<()> {
+    use std::os::unix::fs::FileExt;
+    file.set_len(0)?;
+    file.write_all_at(samples, 0)
+}
+
+#[cfg(not(unix))]
+fn put_shared(_: &File, _: &[u8]) -> io::Result<()> {
+    Err(io::Error::other("no shared memory file on this system"))
+}
+
+/// `n` samples from the shared file, mapped rather than copied, handed to `f`; the file
+/// emptied after (its memory is the system's again while the worker waits).
+fn get_shared<T>(file: &File, n: usize, f: impl FnOnce(&[u16]) -> T) -> io::Result<T> {
+    let len = 2 * n;
+    if file.metadata()?.len() < len as u64 {
+        return Err(bad("mosaic"));
+    }
+    let made = if n == 0 {
+        f(&[])
+    } else {
+        // SAFETY: the file is the parent's own memory file; the worker wrote it before
+        // answering and touches it again only for the next request, which comes after
+        // this mapping is gone; its length was checked just above.
+        let map = unsafe { memmap2::MmapOptions::new().len(len).populate().map(file)? };
+        let values: &[u16] = bytemuck::try_cast_slice(&map[..]).map_err(|_| bad("mosaic"))?;
+        f(values)
+    };
+    file.set_len(0)?;
+    Ok(made)
+}
+
 fn put_raw_meta<W: Write>(o: &mut Out<W>, m: &RawMeta) -> io::Result<()> {
     o.0.write_all(&m.cfa)?;
     m.black.iter().try_for_each(|&b| o.u16(b))?;
@@ -500,13 +679,20 @@ mod tests {
         let mut buf = Vec::new();
         write_answer(
             &mut buf,
-            &Ok(Answer::Load(c.clone(), Decoder::Rawler, decoded.clone())),
+            &Ok(Answer::Load(
+                Decoded::planes(c.clone()),
+                Decoder::Rawler,
+                decoded.clone(),
+            )),
+            None,
         )
         .unwrap();
-        let Ok(Answer::Load(back, d, m)) = read_answer(buf.as_slice(), Path::new("x")).unwrap()
+        let Ok(Answer::Load(back, d, m)) =
+            read_answer(buf.as_slice(), Path::new("x"), None).unwrap()
         else {
             panic!("not a load answer");
         };
+        let back = back.into_capture();
         assert_eq!(
             (back.width, back.height, &back.planes),
             (c.width, c.height, &c.planes)
@@ -526,12 +712,12 @@ mod tests {
             reason: "truncated at byte 9".into(),
         };
         let mut buf = Vec::new();
-        write_answer(&mut buf, &Err(refusal)).unwrap();
-        let e = read_answer(buf.as_slice(), Path::new("shot.cr2"))
+        write_answer(&mut buf, &Err(refusal), None).unwrap();
+        let e = read_answer(buf.as_slice(), Path::new("shot.cr2"), None)
             .unwrap()
             .unwrap_err();
         assert_eq!(e.to_string(), "shot.cr2: damaged file: truncated at byte 9");
         // An answer cut short is an error of the exchange, not a refusal.
-        assert!(read_answer(&buf[..buf.len() - 1], Path::new("x")).is_err());
+        assert!(read_answer(&buf[..buf.len() - 1], Path::new("x"), None).is_err());
     }
 }

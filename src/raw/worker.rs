@@ -8,12 +8,16 @@
 //! refusal naming the file; the parent goes on.
 //!
 //! Workers are kept between files (idle ones wait on their input), so a batch pays one
-//! start-up per concurrent decode, not one per file; one that died is replaced.
+//! start-up per concurrent decode, not one per file; one that died is replaced. A worker
+//! reads a file on disk itself (mapped, its address-space limit sized from the file's
+//! length) and hands back a mosaic as its 16-bit samples in a memory file the parent
+//! maps (`wire`): the parent makes the planes in one pass, as it would in process.
 //! Library users decode in process unless they choose a worker ([`set_decoding`]): the
 //! worker is a program, and only the caller knows where one is.
 
-use super::LoadError;
-use super::wire::{self, Answer, Job, Request};
+use super::wire::{self, Answer, Input, Job, ReceivedInput, Request};
+use super::{LoadError, OnDisk};
+use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
@@ -125,11 +129,33 @@ pub fn decoding() -> Decoding {
     })
 }
 
-/// A job on a RAW file's bytes, where [`decoding`] says.
-pub(super) fn run(job: Job, path: &Path, bytes: &[u8]) -> Result<Answer, LoadError> {
+/// A job on a RAW file's bytes, where [`decoding`] says. A worker reads the file
+/// itself where the bytes are the file on disk (`on_disk`): they need not go through
+/// a pipe.
+pub(super) fn run(
+    job: Job,
+    path: &Path,
+    bytes: &[u8],
+    on_disk: OnDisk,
+) -> Result<Answer, LoadError> {
     match decoding() {
         Decoding::InProcess => super::run_in_process(job, path, bytes),
-        Decoding::Worker(limits) => in_worker(&limits, job, path, bytes),
+        Decoding::Worker(limits) => {
+            let absolute = std::path::absolute(path).ok();
+            let input = match &absolute {
+                Some(at) if on_disk.0 && wire::path_goes_over(at) => Input::File {
+                    len: bytes.len() as u64,
+                },
+                _ => Input::Bytes(bytes),
+            };
+            let request = Request {
+                job,
+                memory_bytes: limits.memory_for(bytes.len()),
+                path: absolute.as_deref().unwrap_or(path),
+                input,
+            };
+            in_worker(&limits, &request, path, limits.time_for(bytes.len()))
+        }
     }
 }
 
@@ -138,21 +164,15 @@ pub(super) fn run(job: Job, path: &Path, bytes: &[u8]) -> Result<Answer, LoadErr
 /// other limits is not reused).
 static IDLE: Mutex<Vec<Worker>> = Mutex::new(Vec::new());
 
-/// A job through a worker: an idle one of the same program if there is one, else a new
-/// one; kept for the next file if it answered.
+/// A request through a worker, within `time`: an idle one of the same program if there
+/// is one, else a new one; kept for the next file if it answered. `path` is the file's
+/// name in messages.
 fn in_worker(
     limits: &WorkerLimits,
-    job: Job,
+    request: &Request<'_>,
     path: &Path,
-    bytes: &[u8],
+    time: Duration,
 ) -> Result<Answer, LoadError> {
-    let request = Request {
-        job,
-        memory_bytes: limits.memory_for(bytes.len()),
-        path,
-        bytes,
-    };
-    let time = limits.time_for(bytes.len());
     let idle = {
         let mut idle = IDLE.lock().unwrap_or_else(PoisonError::into_inner);
         let at = idle.iter().position(|w| w.limits == *limits);
@@ -163,12 +183,12 @@ fn in_worker(
         Some(w) => w,
         None => start(limits, path)?,
     };
-    let mut answer = worker.exchange(&request, time);
+    let mut answer = worker.exchange(request, path, time);
     // A worker kept from an earlier file may have been ended meanwhile (by a signal
     // from outside): the file is judged by a fresh one.
     if reused && matches!(answer, Err(Death::Ended { .. })) {
         worker = start(limits, path)?;
-        answer = worker.exchange(&request, time);
+        answer = worker.exchange(request, path, time);
     }
     match answer {
         Ok(answer) => {
@@ -233,6 +253,11 @@ impl Death {
                 ..
             } => "the RAW decoder crashed on it (its stack overflowed)".to_string(),
             Death::Ended { status, .. } => match status.and_then(signal) {
+                // The file is mapped as it is read: one cut short meanwhile is a bus error.
+                #[cfg(unix)]
+                Some(libc::SIGBUS) => "the file was cut short while the RAW decoder read it: \
+                                       open it again once it is whole"
+                    .to_string(),
                 Some(s) => format!("the RAW decoder crashed on it (signal {s})"),
                 None => format!(
                     "the RAW decoder stopped on it without an answer ({})",
@@ -263,6 +288,8 @@ struct Worker {
     child: Child,
     input: Option<BufWriter<ChildStdin>>,
     output: BufReader<ChildStdout>,
+    /// The memory file it writes mosaics' samples into, where the system has them.
+    shared: Option<File>,
     /// The end of what it wrote to standard error (where a failed allocation says so),
     /// gathered by `stderr_reader` until it exits.
     stderr: Arc<Mutex<Vec<u8>>>,
@@ -271,15 +298,17 @@ struct Worker {
 
 impl Worker {
     fn start(limits: &WorkerLimits) -> std::io::Result<Self> {
-        let mut child = Command::new(&limits.program)
+        let mut command = Command::new(&limits.program);
+        command
             .arg(WORKER_SUBCOMMAND)
             // glibc reserves address space per thread arena (64 MB each): on a machine
             // of many cores that alone would eat the limit.
             .env("MALLOC_ARENA_MAX", "2")
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()?;
+            .stderr(Stdio::piped());
+        let shared = shared_memory(&mut command);
+        let mut child = command.spawn()?;
         let missing = || std::io::Error::other("no pipe to the worker");
         let input = child.stdin.take().ok_or_else(missing)?;
         let output = child.stdout.take().ok_or_else(missing)?;
@@ -302,27 +331,30 @@ impl Worker {
             child,
             input: Some(BufWriter::with_capacity(1 << 16, input)),
             output: BufReader::with_capacity(1 << 16, output),
+            shared,
             stderr,
             stderr_reader: Some(stderr_reader),
         })
     }
 
-    /// Sends the request and reads the answer within `time`; a worker that does not
-    /// answer is stopped (if it still runs) and what became of it said.
+    /// Sends the request and reads the answer within `time` (a refusal naming `path`);
+    /// a worker that does not answer is stopped (if it still runs) and what became of
+    /// it said.
     fn exchange(
         &mut self,
         request: &Request<'_>,
+        path: &Path,
         time: Duration,
     ) -> Result<Result<Answer, LoadError>, Death> {
         let Some(input) = self.input.as_mut() else {
             return Err(self.ended());
         };
-        let output = &mut self.output;
+        let (output, shared) = (&mut self.output, self.shared.as_ref());
         let answered = std::thread::scope(|s| {
             let (tx, rx) = std::sync::mpsc::channel();
             s.spawn(move || {
                 let answer = wire::write_request(&mut *input, request)
-                    .and_then(|()| wire::read_answer(&mut *output, request.path));
+                    .and_then(|()| wire::read_answer(&mut *output, path, shared));
                 let _ = tx.send(answer);
             });
             match rx.recv_timeout(time) {
@@ -400,16 +432,114 @@ fn widen_pipe<T>(_: &T) {}
 /// The input is not a request, or the output cannot be written (the parent is gone).
 pub fn serve() -> std::io::Result<()> {
     let answers = answer_channel()?;
+    let shared = shared_memory_given();
     let mut out = BufWriter::with_capacity(1 << 16, answers);
     let mut input = std::io::BufReader::with_capacity(1 << 16, std::io::stdin().lock());
     while let Some(r) = wire::read_request(&mut input)? {
         limit_address_space(r.memory_bytes)?;
-        let answer = super::run_in_process(r.job, &r.path, &r.bytes);
-        drop(r);
-        wire::write_answer(&mut out, &answer)?;
+        let answer = match r.input {
+            ReceivedInput::Bytes(bytes) => super::run_in_process(r.job, &r.path, &bytes),
+            ReceivedInput::File { len } => match map_file(&r.path, len) {
+                Ok(map) => super::run_in_process(r.job, &r.path, map.as_deref().unwrap_or(&[])),
+                Err(e) => Err(e),
+            },
+        };
+        wire::write_answer(&mut out, &answer, shared.as_ref())?;
         out.flush()?;
     }
     Ok(())
+}
+
+/// The file a request names, mapped (not copied: the decoders read it as a slice);
+/// `None` for an empty file. Refused if its length is not what the parent read.
+fn map_file(path: &Path, len: u64) -> Result<Option<memmap2::Mmap>, LoadError> {
+    let unreadable = |reason: String| LoadError::Unreadable {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let file = File::open(path).map_err(|e| unreadable(e.to_string()))?;
+    let now = file
+        .metadata()
+        .map_err(|e| unreadable(e.to_string()))?
+        .len();
+    if now != len {
+        return Err(unreadable(format!(
+            "the file changed while it was read ({len} bytes, then {now}); open it again \
+             once it is written"
+        )));
+    }
+    if len == 0 {
+        return Ok(None);
+    }
+    // SAFETY: a file a user gave us, read-only. Were it cut short while mapped, reading
+    // past its new end would end this worker with SIGBUS, which its parent reports as
+    // a crash on the file: the one process a damaged read may take down is this one.
+    unsafe { memmap2::Mmap::map(&file) }
+        .map(Some)
+        .map_err(|e| unreadable(e.to_string()))
+}
+
+/// The environment variable that tells a worker the descriptor of its shared memory
+/// file.
+const SHARED_FD_VAR: &str = "LENSBLUR_DECODE_SHARED_FD";
+/// The descriptor a worker's shared memory file has in the worker.
+#[cfg(target_os = "linux")]
+const SHARED_FD: i32 = 3;
+
+/// A memory file for the worker `command` starts to hand mosaics back in, given to it
+/// as descriptor [`SHARED_FD`]; `None` where the system has none (the pipe then
+/// carries them).
+#[cfg(target_os = "linux")]
+fn shared_memory(command: &mut Command) -> Option<File> {
+    use std::os::fd::{AsRawFd, FromRawFd};
+    use std::os::unix::process::CommandExt;
+    // SAFETY: memfd_create returns a new descriptor (owned by the File alone) or -1.
+    let fd = unsafe { libc::memfd_create(c"lensblur-mosaic".as_ptr(), libc::MFD_CLOEXEC) };
+    if fd < 0 {
+        return None;
+    }
+    // SAFETY: as above.
+    let file = unsafe { File::from_raw_fd(fd) };
+    let raw = file.as_raw_fd();
+    // SAFETY: between fork and exec only dup2 and fcntl run, both async-signal-safe;
+    // the descriptor stays open in the parent until the spawn returns.
+    unsafe {
+        command.pre_exec(move || {
+            let done = if raw == SHARED_FD {
+                libc::fcntl(raw, libc::F_SETFD, 0)
+            } else {
+                libc::dup2(raw, SHARED_FD)
+            };
+            if done < 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    command.env(SHARED_FD_VAR, SHARED_FD.to_string());
+    Some(file)
+}
+
+#[cfg(not(target_os = "linux"))]
+fn shared_memory(_: &mut Command) -> Option<File> {
+    None
+}
+
+/// The worker's shared memory file, where its parent gave it one: the descriptor
+/// [`SHARED_FD_VAR`] names, if it is a memory file (one started by hand has none).
+#[cfg(target_os = "linux")]
+fn shared_memory_given() -> Option<File> {
+    use std::os::fd::FromRawFd;
+    let fd: i32 = std::env::var(SHARED_FD_VAR).ok()?.parse().ok()?;
+    // SAFETY: F_GET_SEALS only reads; it succeeds on memory files alone, so the
+    // descriptor is the parent's memory file, which this process then owns.
+    (fd == SHARED_FD && unsafe { libc::fcntl(fd, libc::F_GET_SEALS) } >= 0)
+        .then(|| unsafe { File::from_raw_fd(fd) })
+}
+
+#[cfg(not(target_os = "linux"))]
+fn shared_memory_given() -> Option<File> {
+    None
 }
 
 /// Standard output, moved to a descriptor of its own, and standard error put in its
