@@ -347,6 +347,12 @@ fn rawler_matrix(img: &rawler::RawImage) -> Option<[[f64; 3]; 3]> {
         .then(|| std::array::from_fn(|r| std::array::from_fn(|k| f64::from(m[3 * r + k]))))
 }
 
+/// Why a DNG of lossy-JPEG mosaic tiles is refused, and what to do.
+pub(super) const LOSSY_MOSAIC: &str = "its raw image is stored in lossy-compressed \
+     (DCT JPEG) tiles, as Blackmagic cameras record CinemaDNG at 3:1 and above, and no \
+     decoder here reads those; lossy compression also alters the fine detail blur is \
+     measured from: record the calibration shots as uncompressed or lossless CinemaDNG";
+
 /// Every decoder refused the file: why, in words that say what to do. A camera the
 /// decoders do not know is named (convert it to DNG); a file that ends before its own
 /// directories or image data say it does is damaged, and where it was cut is said.
@@ -374,6 +380,13 @@ pub(super) fn explain(
                 make.trim(),
                 model.trim(),
             ),
+        };
+    }
+    // A DNG whose mosaic is lossy JPEG: well formed, but no decoder here reads it.
+    if super::raw_ifd(bytes).is_some_and(|ifd| super::tiff::lossy_jpeg_mosaic(bytes, &ifd)) {
+        return LoadError::Unsupported {
+            path: path.to_path_buf(),
+            reason: LOSSY_MOSAIC.into(),
         };
     }
     // The fallback decoder's own finding, where it located the damage or the missing

@@ -342,3 +342,35 @@ pub(super) fn matrix_illuminant(ifd: &Ifd) -> u16 {
         .filter(|v| (1.0..=255.0).contains(v))
         .map_or(21, |v| v as u16)
 }
+
+/// Whether the first directory holds a CFA image in JPEG tiles or strips coded with the
+/// DCT (a baseline, extended or progressive frame: lossy) rather than lossless JPEG, the
+/// one JPEG the DNG specification allows for a mosaic: what Blackmagic cameras record
+/// as CinemaDNG at 3:1 and above. Read from the first tile's markers up to its frame.
+pub(super) fn lossy_jpeg_mosaic(b: &[u8], ifd: &Ifd) -> bool {
+    if first_tag(ifd, TAG_PHOTOMETRIC) != Some(32803.0)
+        || first_tag(ifd, TAG_COMPRESSION) != Some(7.0)
+    {
+        return false;
+    }
+    let Some(mut at) = first_tag(ifd, TAG_TILE_OFFSETS)
+        .or_else(|| first_tag(ifd, TAG_STRIP_OFFSETS))
+        .filter(|o| o.is_finite() && *o >= 0.0)
+        .map(|o| o as usize)
+    else {
+        return false;
+    };
+    if b.get(at..at + 2) != Some(&[0xFF, 0xD8]) {
+        return false;
+    }
+    at += 2;
+    // Each segment: FF, its marker, a big-endian length counting itself.
+    while let Some(&[0xFF, marker, hi, lo]) = b.get(at..at + 4) {
+        match marker {
+            0xC0..=0xC2 | 0xC9 | 0xCA => return true,
+            0xC3 | 0xDA | 0xD9 => return false,
+            _ => at += 2 + usize::from(u16::from_be_bytes([hi, lo])),
+        }
+    }
+    false
+}

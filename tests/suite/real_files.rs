@@ -382,3 +382,84 @@ fn a_jpeg_photo_is_written_back_as_a_jpeg_that_looks_like_it() {
         );
     }
 }
+
+/// A CinemaDNG frame as Blackmagic cameras record it at 3:1 and above: a CFA image in
+/// JPEG tiles coded with the DCT (lossy) where the DNG specification has lossless JPEG.
+/// Made here (no such frame is small enough to keep): a little-endian DNG whose first
+/// directory is the mosaic, 64 × 32 in two 32 × 32 tiles, each a real baseline JPEG of
+/// a mosaic-like pattern (Blackmagic's are 12-bit extended DCT frames: both are DCT).
+fn lossy_cinema_dng() -> Vec<u8> {
+    let tile = |shift: u32| {
+        let px: Vec<u8> = (0..32 * 32)
+            .map(|i: u32| ((i % 32) * 5 + (i / 32) * 3 + shift) as u8)
+            .collect();
+        let mut jpeg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90)
+            .encode(&px, 32, 32, image::ExtendedColorType::L8)
+            .unwrap();
+        jpeg
+    };
+    let tiles = [tile(0), tile(40)];
+    // (tag, type, count, value or offset): SHORT 3, LONG 4, BYTE 1, ASCII 2.
+    let make = b"Blackmagic Design\0";
+    let model = b"Blackmagic Pocket Cinema Camera 4K\0";
+    let n = 19u16;
+    let ifd_end = 8 + 2 + 12 * usize::from(n) + 4;
+    let make_at = ifd_end;
+    let model_at = make_at + make.len();
+    let offsets_at = model_at + model.len();
+    let counts_at = offsets_at + 8;
+    let first_tile = counts_at + 8;
+    let second_tile = first_tile + tiles[0].len();
+    let entries: [(u16, u16, u32, u32); 19] = [
+        (254, 4, 1, 0),
+        (256, 4, 1, 64),
+        (257, 4, 1, 32),
+        (258, 3, 1, 12),
+        (259, 3, 1, 7),
+        (262, 3, 1, 32803),
+        (271, 2, make.len() as u32, make_at as u32),
+        (272, 2, model.len() as u32, model_at as u32),
+        (277, 3, 1, 1),
+        (284, 3, 1, 1),
+        (322, 4, 1, 32),
+        (323, 4, 1, 32),
+        (324, 4, 2, offsets_at as u32),
+        (325, 4, 2, counts_at as u32),
+        (33421, 3, 2, 2 | 2 << 16),
+        (33422, 1, 4, u32::from_le_bytes([0, 1, 1, 2])),
+        (50706, 1, 4, u32::from_le_bytes([1, 4, 0, 0])),
+        (50708, 2, model.len() as u32, model_at as u32),
+        (50717, 3, 1, 4095),
+    ];
+    let mut b = b"II*\0\x08\0\0\0".to_vec();
+    b.extend(n.to_le_bytes());
+    for (tag, kind, count, value) in entries {
+        b.extend(tag.to_le_bytes());
+        b.extend(kind.to_le_bytes());
+        b.extend(count.to_le_bytes());
+        b.extend(value.to_le_bytes());
+    }
+    b.extend(0u32.to_le_bytes());
+    b.extend(make);
+    b.extend(model);
+    for v in [first_tile, second_tile, tiles[0].len(), tiles[1].len()] {
+        b.extend((v as u32).to_le_bytes());
+    }
+    tiles.iter().for_each(|t| b.extend(t));
+    b
+}
+
+#[test]
+fn a_cinema_dng_of_lossy_jpeg_tiles_is_refused_in_plain_words() {
+    let path = Path::new("A001_C001_000001.dng");
+    let e = inspect_bytes(path, &lossy_cinema_dng()).unwrap_err();
+    let m = one_line(&e, path);
+    assert!(matches!(e, LoadError::Unsupported { .. }), "{m}");
+    assert!(
+        m.contains("lossy-compressed") && m.contains("uncompressed or lossless CinemaDNG"),
+        "{m}"
+    );
+    // The decoders' own words stay inside.
+    assert!(!m.contains("ljpeg") && !m.contains("DQT"), "{m}");
+}
