@@ -347,6 +347,13 @@ fn rawler_matrix(img: &rawler::RawImage) -> Option<[[f64; 3]; 3]> {
         .then(|| std::array::from_fn(|r| std::array::from_fn(|k| f64::from(m[3 * r + k]))))
 }
 
+/// A decoder refused a whole file in words of its own internals: what that means, and
+/// what to do.
+const UNREADABLE: &str = "the RAW decoder could not make sense of it (a directory, a \
+     record or the image data in it is corrupt, or written in a form the decoder does not \
+     know): copy it from the card again, or convert the original to DNG with Adobe DNG \
+     Converter or `dnglab convert` and open the DNG";
+
 /// Why a DNG of lossy-JPEG mosaic tiles is refused, and what to do.
 pub(super) const LOSSY_MOSAIC: &str = "its raw image is stored in lossy-compressed \
      (DCT JPEG) tiles, as Blackmagic cameras record CinemaDNG at 3:1 and above, and no \
@@ -419,7 +426,8 @@ pub(super) fn explain(
                     ),
                 };
             }
-            m.split(". Please").next().unwrap_or_default().to_string()
+            // The decoder's own words name its internals, not what to do.
+            UNREADABLE.to_string()
         }
         Err(stage) => stage.words(),
     };
@@ -436,11 +444,10 @@ pub(super) fn explain(
             {
                 super::fallback_words(&e)
             }
-            Some(e) if rawler_words.starts_with("not a RAW") => format!(
-                "{rawler_words} ({}); if it is a camera's RAW file, convert it to DNG with \
+            Some(_) if rawler_words.starts_with("not a RAW") => format!(
+                "{rawler_words}; if it is a camera's RAW file, convert it to DNG with \
                  Adobe DNG Converter or `dnglab convert` and open the DNG (PNG, TIFF and \
-                 JPEG are read as they are)",
-                super::fallback_words(&e)
+                 JPEG are read as they are)"
             ),
             _ => rawler_words,
         },
@@ -591,7 +598,7 @@ fn rawloader_error(path: &Path, e: &rawloader::RawLoaderError, stage: Stopped) -
     } else {
         LoadError::Corrupt {
             path: path.to_path_buf(),
-            reason: format!("RAW decoder: {m}"),
+            reason: UNREADABLE.into(),
         }
     }
 }
