@@ -579,7 +579,7 @@ pub struct PhotoOutcome {
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct BatchReport {
     pub outcomes: Vec<PhotoOutcome>,
-    /// Photos deblurred at once at most.
+    /// Photos decoded, and photos written, at once at most (one deblurs at a time).
     pub parallel: usize,
 }
 
