@@ -142,6 +142,7 @@ pub fn calibrate(
     )
     .ok_or(ModelError::Empty)?;
     profile.focus_range = crate::profile::FocusRange::of_dataset(ds);
+    profile.measured_on = ds.picture;
     // Where the profile is trusted: the preferred model's held-out errors, by setting
     // and zone, from the same folds its orders were chosen by.
     if ds.shots.len() >= 2 {

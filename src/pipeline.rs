@@ -37,7 +37,7 @@ pub enum PipelineError {
     #[error("{}: {reason}", path.display())]
     Stage { path: PathBuf, reason: String },
     #[error(
-        "{}: no {missing} in the manifest or the file's EXIF; give the shot's \"focal_mm\" and \"f_number\" (manifest), type them (studio) or pass --focal and --aperture",
+        "{}: no {missing} in the manifest or the file's EXIF; give the shot's \"focal_mm\" and \"f_number\" (manifest), type them (studio) or pass --focal and --aperture (lensblur calibrate and kernels)",
         path.display()
     )]
     NoSetting {
@@ -303,6 +303,7 @@ pub fn estimate(
     file.focus_distance_m = capture
         .setting_focus_m
         .and_then(crate::raw::FocusDistance::from_metres);
+    file.picture = Some(capture.picture_kind());
     Ok(file)
 }
 

@@ -477,6 +477,60 @@ impl CameraIdentity {
     }
 }
 
+/// What a shot or photo's pixels are, as far as blur goes: a profile measured on one
+/// kind describes the blur of that kind only.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PictureKind {
+    /// A RAW file's CFA planes: linear light, before any processing.
+    Raw,
+    /// A 16-bit or floating-point picture read as linear light (what `lensblur
+    /// simulate` writes): the blur is the lens's, as in a RAW file.
+    Linear,
+    /// An 8-bit picture (a camera's or an editor's JPEG, an 8-bit PNG or TIFF): sRGB-
+    /// decoded, but demosaiced, sharpened and tone-mapped in ways nobody recorded, which
+    /// change the blur and add patterns of their own.
+    Developed,
+}
+
+impl PictureKind {
+    /// Whether a profile measured on `self` describes the blur of a photo of kind
+    /// `photo`: RAW and linear pictures are both the lens's own blur in linear light.
+    #[must_use]
+    pub fn matches(self, photo: Self) -> bool {
+        (self == Self::Developed) == (photo == Self::Developed)
+    }
+
+    /// One of this kind, for messages: "a RAW file", "a developed 8-bit picture".
+    #[must_use]
+    pub fn one(self) -> &'static str {
+        match self {
+            Self::Raw => "a RAW file",
+            Self::Linear => "a linear 16-bit picture",
+            Self::Developed => "a developed 8-bit picture",
+        }
+    }
+
+    /// For messages, the kind in the plural.
+    #[must_use]
+    pub fn describe(self) -> &'static str {
+        match self {
+            Self::Raw => "RAW files (their CFA planes)",
+            Self::Linear => "linear 16-bit pictures",
+            Self::Developed => "developed 8-bit pictures (JPEG, or 8-bit PNG/TIFF)",
+        }
+    }
+}
+
+/// Whether `v` is one of the 256 values an 8-bit sample decodes to (sRGB or as it is),
+/// to the last bit of the `f32` the loader made of it.
+#[must_use]
+pub fn is_eight_bit_level(v: f32) -> bool {
+    let on = |decoded: f32| (decoded - v).abs() <= 1e-7 + 1e-6 * v.abs();
+    let code = |e: f32| (e.clamp(0.0, 1.0) * 255.0).round() / 255.0;
+    on(srgb_decode(code(srgb_encode(v.clamp(0.0, 1.0))))) || on(code(v))
+}
+
 /// A loaded shot: its channel planes in linear units (black 0, white 1), the sensor
 /// size, and what is known of its settings and origin.
 #[derive(Clone, Debug)]
@@ -526,6 +580,26 @@ impl Capture {
             .into_iter()
             .filter(|&ch| self.planes.iter().any(|p| p.channel == ch))
             .collect()
+    }
+
+    /// What its pixels are: a RAW file's CFA planes, or a picture told apart by its
+    /// values alone: one whose every sample (of up to 65 536 spread over each plane) is
+    /// an 8-bit level is an 8-bit picture, whatever file it came from.
+    #[must_use]
+    pub fn picture_kind(&self) -> PictureKind {
+        if self.is_raw {
+            return PictureKind::Raw;
+        }
+        let eight_bit = self.planes.iter().all(|cp| {
+            let data = &cp.plane.data;
+            let stride = (data.len() / 65_536).max(1);
+            data.iter().step_by(stride).all(|&v| is_eight_bit_level(v))
+        });
+        if eight_bit && !self.planes.is_empty() {
+            PictureKind::Developed
+        } else {
+            PictureKind::Linear
+        }
     }
 
     /// A full-resolution grey image for detection: an RGB/mono image's mean channel, or

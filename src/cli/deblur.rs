@@ -18,8 +18,10 @@ use std::path::{Path, PathBuf};
 
 #[derive(clap::Args, Default)]
 pub struct Args {
-    /// The photo: a RAW file, or a linear 16-bit PNG/TIFF (8-bit images are sRGB-decoded).
-    /// With --out-dir: photos and folders of photos.
+    /// The photo: a RAW file, a linear 16-bit PNG/TIFF, or an 8-bit JPEG/PNG/TIFF
+    /// (sRGB-decoded; deblurred as far as its noise and compression allow, best with a
+    /// profile calibrated from the same kind of pictures). With --out-dir: photos and
+    /// folders of photos.
     #[arg(required = true, num_args = 1..)]
     pub photos: Vec<PathBuf>,
     /// Where to write the result: .tiff/.tif or .png (16-bit linear RGB), or, for a RAW
@@ -260,6 +262,11 @@ pub fn run(args: Args) -> Result<()> {
             })?;
             if !identity_warnings.is_empty() {
                 eprintln!("lensblur: warning: {}", identity_warnings.join("; "));
+            }
+            // A JPEG deblurred with a RAW profile (or the other way round): said once.
+            let names = (photo.display().to_string(), p.display().to_string());
+            if let Some(w) = profile.picture_warning(capture.picture_kind(), &names.0, &names.1) {
+                eprintln!("lensblur: warning: {w}");
             }
             // Outside the shots' range (only reached with --allow-extrapolation), far
             // from any shot, where the profile recorded a large held-out error, or

@@ -603,6 +603,7 @@ fn shots_subset(ds: &Dataset, keep: impl Fn(usize) -> bool) -> (Dataset, Vec<usi
         width: ds.width,
         height: ds.height,
         identity: ds.identity.clone(),
+        picture: ds.picture,
         samples: idx.iter().map(|&i| ds.samples[i].clone()).collect(),
         shots: ds.shots.clone(),
     };

@@ -11,6 +11,7 @@
 
 pub mod chroma;
 pub mod gpu;
+pub mod noise;
 pub mod output;
 pub mod solve;
 pub mod source;
@@ -454,7 +455,8 @@ fn deblur_planes_cpu(
 pub(crate) type KernelAt<'a> = dyn Fn(f64, f64) -> Result<Kernel, DeblurError> + Sync + 'a;
 
 /// Deblurs every plane of a capture (each CFA plane on its own for RAW, before any
-/// colour processing), on the device `opts` asks for.
+/// colour processing), on the device `opts` asks for, the method's regularisation
+/// raised for the capture's own noise, quantisation and blocks ([`noise`]).
 ///
 /// # Errors
 /// As [`deblur_channel_plane`]; with [`Device::Gpu`], also when no adapter can run the
@@ -466,6 +468,12 @@ pub fn deblur_capture(
     job: &JobContext,
 ) -> Result<Capture, DeblurError> {
     let wall = Timings::start(job.timings());
+    // The method's strength is tuned for a clean RAW or linear photo; a noisier picture,
+    // an 8-bit or a compressed one is held back as far as its own pixels say it must be.
+    let opts = &DeblurOptions {
+        method: noise::estimate(cap).regularised(&opts.method),
+        ..*opts
+    };
     let gpu = gpu::resolve(opts.device, &opts.method)?;
     let planes = match &gpu {
         Some(g) => g.deblur_planes(cap, source, opts, job)?,

@@ -91,6 +91,9 @@ pub struct KernelsFile {
     /// The shot it was measured on, where the pipeline wrote it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub source: Option<crate::shot_file::ShotRecord>,
+    /// What the shot was (RAW, linear or developed picture), where the pipeline wrote it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub picture: Option<crate::plane::PictureKind>,
     pub samples: Vec<KernelSample>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub failed: Vec<FailedSample>,
@@ -113,6 +116,8 @@ struct FileOut<'a> {
     identity: Option<&'a CameraIdentity>,
     #[serde(skip_serializing_if = "Option::is_none")]
     source: Option<&'a crate::shot_file::ShotRecord>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    picture: Option<crate::plane::PictureKind>,
     samples: Vec<SampleOut<'a>>,
     #[serde(skip_serializing_if = "<[_]>::is_empty")]
     failed: &'a [FailedSample],
@@ -138,6 +143,7 @@ impl Serialize for KernelsFile {
             oversample: self.oversample,
             identity: self.identity.as_ref(),
             source: self.source.as_ref(),
+            picture: self.picture,
             samples: self
                 .samples
                 .iter()
@@ -181,6 +187,7 @@ impl KernelsFile {
             oversample: default_oversample(),
             identity: None,
             source: None,
+            picture: None,
             samples,
             failed: Vec::new(),
         }
@@ -274,6 +281,7 @@ impl KernelsFile {
             oversample: shot.oversample,
             identity,
             source: None,
+            picture: None,
             samples,
             failed,
         }

@@ -234,6 +234,7 @@ mod tests {
                 ..CameraIdentity::default()
             }),
             source: None,
+            picture: None,
             samples: vec![
                 sample(10.25, Some(KernelData { size: 5, data })),
                 sample(11.0, None),

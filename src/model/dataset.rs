@@ -4,7 +4,7 @@
 
 use super::ModelError;
 use super::basis::{Normalisation, check_order, model_basis};
-use crate::plane::{CameraIdentity, Channel, LensSetting};
+use crate::plane::{CameraIdentity, Channel, LensSetting, PictureKind};
 use crate::psf::Gaussian2;
 use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
@@ -76,6 +76,9 @@ pub struct Dataset {
     pub width: usize,
     pub height: usize,
     pub identity: CameraIdentity,
+    /// What the shots were, where their kernels files say: developed if any one was
+    /// (a profile of such shots knows no single tone curve).
+    pub picture: Option<PictureKind>,
     pub samples: Vec<BlurSample>,
     pub shots: Vec<ShotInfo>,
 }
@@ -116,6 +119,7 @@ impl Dataset {
             width,
             height,
             identity,
+            picture: None,
             samples: Vec::new(),
             shots: Vec::new(),
         }
@@ -207,6 +211,14 @@ impl Dataset {
                     }
                 })?;
             }
+            d.picture = match (d.picture, kf.picture) {
+                (Some(a), Some(b))
+                    if a == PictureKind::Developed || b == PictureKind::Developed =>
+                {
+                    Some(PictureKind::Developed)
+                }
+                (a, b) => a.or(b),
+            };
             if (d.width, d.height) != (kf.width, kf.height) {
                 return Err(ModelError::SensorMismatch {
                     a: format!("{}×{}", d.width, d.height),

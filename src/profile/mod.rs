@@ -21,7 +21,9 @@ use crate::model::{
     ModelKind, Normalisation, model_basis, to_gaussian,
 };
 use crate::model::{KernelModel, LateralColour, ShapeModel};
-use crate::plane::{CameraIdentity, Channel, LensSetting, f_number_text, focal_text, short_number};
+use crate::plane::{
+    CameraIdentity, Channel, LensSetting, PictureKind, f_number_text, focal_text, short_number,
+};
 use crate::psf::{Gaussian2, Kernel};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -212,6 +214,10 @@ struct ProfileFile {
     /// The focus distances of the shots, where they record one (optional in any version).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     focus_range_m: Option<FocusRange>,
+    /// What the shots were: RAW files, linear or developed pictures (optional in any
+    /// version: a file without it was made before it was recorded, from RAW files).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    measured_on: Option<PictureKind>,
 }
 
 /// Where the kernels sit, as stored: per channel, each part's x and y offsets (px) as
@@ -257,6 +263,9 @@ pub struct Profile {
     /// The focus distances the shots were taken at; `None` where none recorded one
     /// (and in profiles made before it was kept).
     pub focus_range: Option<FocusRange>,
+    /// What the shots were, where recorded ([`Profile::measured_on`] says what a
+    /// profile without it is taken for).
+    pub measured_on: Option<PictureKind>,
     /// Predict outside the calibrated range instead of failing. Off by default.
     pub allow_extrapolation: bool,
 }
@@ -566,6 +575,7 @@ impl Profile {
             place: None,
             trust: None,
             focus_range: None,
+            measured_on: None,
             allow_extrapolation: false,
         })
     }
@@ -639,6 +649,7 @@ impl Profile {
                 centred_rms_px: c.centred_rms_px,
             }),
             focus_range_m: self.focus_range,
+            measured_on: self.measured_on,
         }
     }
 
@@ -916,8 +927,48 @@ impl Profile {
             place,
             trust,
             focus_range: file.focus_range_m,
+            measured_on: file.measured_on,
             allow_extrapolation: false,
         })
+    }
+
+    /// What the profile's shots were. A profile that does not record it was made before
+    /// lensblur recorded it, when calibration sessions were RAW files: it is taken for a
+    /// RAW profile.
+    #[must_use]
+    pub fn measured_on(&self) -> PictureKind {
+        self.measured_on.unwrap_or(PictureKind::Raw)
+    }
+
+    /// The one warning for a photo of another kind than the profile's shots (a
+    /// developed JPEG deblurred with a RAW profile, or the other way round), naming
+    /// the mismatch and what to do; `None` when they match. `photo` and `profile` are
+    /// the files' names as the user gave them.
+    #[must_use]
+    pub fn picture_warning(&self, kind: PictureKind, photo: &str, profile: &str) -> Option<String> {
+        let ours = self.measured_on();
+        if ours.matches(kind) {
+            return None;
+        }
+        let assumed = if self.measured_on.is_none() {
+            " (it records nothing, so it is taken for a RAW profile)"
+        } else {
+            ""
+        };
+        let remedy = if kind == PictureKind::Developed {
+            "the camera's demosaicing, sharpening and tone curve changed the blur, so the \
+             profile's kernels are not this picture's and it is deblurred only as far as its \
+             noise and compression allow; to deblur this camera's JPEGs, calibrate from its \
+             JPEGs of the chart (or deblur the RAW file)"
+        } else {
+            "a developed picture's blur is the camera's processing as much as the lens's; to \
+             deblur RAW files, calibrate from RAW files of the chart"
+        };
+        Some(format!(
+            "{photo} is {} but {profile} was measured on {}{assumed}: {remedy}",
+            kind.one(),
+            ours.describe()
+        ))
     }
 
     /// Refuses a photo from another camera or lens unit: any identity field present on

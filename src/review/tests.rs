@@ -80,6 +80,7 @@ fn comet_profiles() -> (Profile, Profile, KernelsFile) {
         oversample: 3,
         identity: None,
         source: None,
+        picture: None,
         samples,
         failed: Vec::new(),
     };

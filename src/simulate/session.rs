@@ -143,6 +143,8 @@ impl SimulatedSession {
         };
         let (w, h) = (self.width as f64, self.height as f64);
         let mut ds = Dataset::new(self.width, self.height, identity);
+        // The Gaussians a RAW session's CFA planes give.
+        ds.picture = Some(crate::plane::PictureKind::Raw);
         let square_px = self.fill * w / self.cols as f64;
         let (cx, cy) = ((w - 1.0) / 2.0, (h - 1.0) / 2.0);
         let noise = &self.noise;

@@ -805,6 +805,7 @@ fn lens_kernels_file(w: usize, h: usize, setting: LensSetting, with: &str) -> Ke
         oversample,
         identity: None,
         source: None,
+        picture: None,
         samples,
         failed: Vec::new(),
     }

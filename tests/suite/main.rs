@@ -8,6 +8,7 @@ mod batch;
 mod crash_safety;
 mod deblur;
 mod detect;
+mod developed;
 mod formats;
 mod fuzz_smoke;
 mod kernels;
