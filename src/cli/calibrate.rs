@@ -48,23 +48,24 @@ pub struct SessionArgs {
 }
 
 /// Loads a session's measured Gaussians, measuring (or taking from the cache) every
-/// shot of a manifest.
-pub fn load_session(args: &SessionArgs) -> Result<(Dataset, Option<ChartSpec>)> {
-    load_session_locked(args, GivenSetting::default()).map(|(ds, chart, _)| (ds, chart))
+/// shot of a manifest, for the command `who` (which has no `--focal`/`--aperture`).
+pub fn load_session(args: &SessionArgs, who: &str) -> Result<(Dataset, Option<ChartSpec>)> {
+    load_session_locked(args, who, None).map(|(ds, chart, _)| (ds, chart))
 }
 
 /// [`load_session`], returning the project (which holds the session folder's lock)
 /// for a caller that goes on writing there.
 /// `given` is the setting of every shot of a plain folder of shots (see
-/// [`measure_project`]).
+/// [`measure_project`]), `None` for a command without `--focal` and `--aperture`.
 pub fn load_session_locked(
     args: &SessionArgs,
-    given: GivenSetting,
+    who: &str,
+    given: Option<GivenSetting>,
 ) -> Result<(Dataset, Option<ChartSpec>, Option<Project>)> {
     let Some(manifest_path) = args.session.as_ref().or(args.manifest.as_ref()) else {
         if args.kernels.is_empty() {
             anyhow::bail!(
-                "which session? give a folder of shots or a session folder (lensblur calibrate DIR), --manifest (a manifest), or --kernels (kernels files, one per shot)"
+                "which session? give a folder of shots or a session folder ({who} DIR), --manifest (a manifest), or --kernels (kernels files, one per shot)"
             );
         }
         let mut chart = None;
@@ -84,7 +85,7 @@ pub fn load_session_locked(
     };
     let project = measure_project(
         manifest_path,
-        "lensblur calibrate",
+        who,
         chart,
         args.no_cache,
         plan,
@@ -100,7 +101,8 @@ pub fn load_session_locked(
 /// becomes one: see [`take_in_folder`]), surveys it, and measures what `plan` asks
 /// (every shot again with `again`), printing each shot's events. Every shot
 /// is tried; those that fail are listed afterwards, one line each with its own reason,
-/// and left out. Fails when none is left, or (with `strict`) when any failed.
+/// and left out. Fails when none is left, or (with `strict`) when any failed. `given`
+/// is `None` for a command without `--focal` and `--aperture`.
 pub fn measure_project(
     path: &Path,
     who: &str,
@@ -108,8 +110,9 @@ pub fn measure_project(
     again: bool,
     plan: MeasurePlan,
     strict: bool,
-    given: GivenSetting,
+    given: impl Into<Option<GivenSetting>>,
 ) -> Result<Project> {
+    let given = given.into();
     let (mut project, opened) = Project::open(path, who)?;
     if opened.swept > 0 {
         eprintln!(
@@ -133,8 +136,16 @@ pub fn measure_project(
         }
         anyhow::bail!("{}: the manifest lists no shots", path.display());
     }
-    for line in project.survey(&JobContext::silent())? {
-        eprintln!("note: {line}");
+    // A shot that cannot be read is listed once, among the failures, not here too.
+    let notes = project.survey(&JobContext::silent())?;
+    let unreadable: Vec<String> = project
+        .shots()
+        .filter_map(|s| s.state.unreadable.clone())
+        .collect();
+    for line in notes {
+        if !unreadable.iter().any(|why| line.starts_with(why.as_str())) {
+            eprintln!("note: {line}");
+        }
     }
     let plan = if again {
         let ids = project.shots().map(|s| s.shot.id).collect();
@@ -216,8 +227,8 @@ pub fn measure_project(
 /// A plain folder of shots as the session: its shots taken in, with the settings their
 /// EXIF records (or `given`, for all), and the manifest inferred written beside them
 /// for the next run (and for editing, where EXIF was wrong).
-fn take_in_folder(project: &mut Project, given: GivenSetting) -> Result<()> {
-    let taken = project.take_in_folder(given)?;
+fn take_in_folder(project: &mut Project, given: Option<GivenSetting>) -> Result<()> {
+    let taken = project.take_in_folder(given.unwrap_or_default())?;
     let folder = project.folder().display().to_string();
     if !taken.skipped.is_empty() {
         eprintln!(
@@ -230,11 +241,17 @@ fn take_in_folder(project: &mut Project, given: GivenSetting) -> Result<()> {
     }
     if !taken.no_setting.is_empty() {
         eprintln!(
-            "{folder}: no focal length or aperture in the EXIF of {} (give --focal and --aperture, or write them in the manifest)",
-            taken.no_setting.join(", ")
+            "{folder}: no focal length or aperture in the EXIF of {} ({})",
+            taken.no_setting.join(", "),
+            if given.is_some() {
+                "give --focal and --aperture, or write them in the manifest"
+            } else {
+                "write them in the manifest written there"
+            }
         );
     }
     let manifest = project.session().write_manifest()?;
+    let given = given.unwrap_or_default();
     let from = match (given.focal_mm, given.f_number) {
         (Some(_), Some(_)) => "the settings given",
         (None, None) => "settings from EXIF",
@@ -425,7 +442,8 @@ pub fn run(args: Args) -> Result<()> {
         focal_mm: args.focal,
         f_number: args.aperture,
     };
-    let (ds, chart, _project) = load_session_locked(&args.session, given)?;
+    let (ds, chart, _project) =
+        load_session_locked(&args.session, "lensblur calibrate", Some(given))?;
     // A small chart shot at several positions: say which parts of the frame a setting's
     // shots left out, before the models are fitted to what there is.
     for c in lensblur::review::coverage_of_dataset(&ds) {

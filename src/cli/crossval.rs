@@ -23,8 +23,10 @@ pub struct Args {
     /// <out>.test.csv and <out>.test_cdf.csv (Fig. 6).
     #[arg(long)]
     pub csv: bool,
+    /// Which models to cross-validate.
     #[arg(long, value_enum, default_value = "both")]
     pub model: ModelArg,
+    /// Cross-validation folds (10: hold out 10 % of the shots per fold).
     #[arg(long, default_value_t = 10)]
     pub folds: usize,
     /// Spatial orders α to try for the global model.
@@ -33,6 +35,7 @@ pub struct Args {
     /// Spatial orders α to try for the local model.
     #[arg(long, value_delimiter = ',', default_value = "1,2")]
     pub local_alphas: Vec<usize>,
+    /// Local model radius in pixels (default: 3× the largest imaged square).
     #[arg(long)]
     pub radius_px: Option<f64>,
     /// What a fold holds out: whole shots, or every shot of a setting together.
@@ -58,7 +61,7 @@ pub fn run(args: Args) -> Result<()> {
     {
         anyhow::bail!("α = {a} is outside 1–15");
     }
-    let (ds, _) = load_session(&args.session)?;
+    let (ds, _) = load_session(&args.session, "lensblur crossval")?;
     let opts = CvOptions {
         folds: args.folds,
         global_alphas: args.global_alphas.clone(),
@@ -80,7 +83,7 @@ pub fn run(args: Args) -> Result<()> {
             kernels: args.test_kernels.clone(),
             ..args.session.clone()
         };
-        let (test, _) = load_session(&test_args).context("test session")?;
+        let (test, _) = load_session(&test_args, "lensblur crossval").context("test session")?;
         let models: Vec<_> = paper_test_models(Some(&report))
             .into_iter()
             .filter(|m| match m.kind {

@@ -123,7 +123,7 @@ pub fn run(args: Args) -> Result<()> {
         args.no_cache,
         plan,
         args.strict,
-        lensblur::pipeline::GivenSetting::default(),
+        None,
     )?;
     let chart = project.session().chart.clone();
     let mut shots = Vec::new();

@@ -22,19 +22,21 @@ pub struct Args {
     /// Aperture as an f-number.
     #[arg(long)]
     pub aperture: f64,
-    /// Sensor points: [[x, y], ...] in full-resolution pixels.
+    /// A JSON file of sensor points, [[x, y], ...] in full-resolution pixels.
     #[arg(long, required_unless_present = "grid", conflicts_with = "grid")]
     pub points: Option<PathBuf>,
     /// Instead of --points, a grid of NX × NY points over the sensor, each at the
     /// centre of its cell (the studio's predicted field).
     #[arg(long, value_name = "NX,NY", value_parser = parse_grid)]
     pub grid: Option<(usize, usize)>,
+    /// Where to write the predictions (JSON).
     #[arg(long)]
     pub out: PathBuf,
     /// Also write <out>.csv, one row per channel and point.
     #[arg(long)]
     pub csv: bool,
-    /// Channels to predict (default: every channel of the profile).
+    /// Channels to predict, comma-separated: r, g, b or y (default: every channel of the
+    /// profile).
     #[arg(long, value_delimiter = ',')]
     pub channels: Vec<Channel>,
     /// Use this model instead of the profile's preferred one.

@@ -36,6 +36,7 @@ pub enum DngCompressionArg {
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
 pub enum ShapeArg {
+    /// The lens's Gaussian at each point.
     Gaussian,
     /// A defocus disc.
     Disc,
@@ -55,8 +56,10 @@ pub struct Args {
     /// PSFs) or a lens description JSON file.
     #[arg(long, default_value = "demo")]
     pub lens: String,
+    /// Sensor width in pixels.
     #[arg(long, default_value_t = 2400)]
     pub width: usize,
+    /// Sensor height in pixels.
     #[arg(long, default_value_t = 1600)]
     pub height: usize,
     /// Focal lengths in mm, comma-separated; default: `--grid` values over the lens's range.
@@ -106,6 +109,7 @@ pub struct Args {
     /// an evenly lit white surface through the lens's fall-off, as a diffuser gives.
     #[arg(long)]
     pub flat_field: bool,
+    /// Seed of the poses and the noise: the same seed makes the same shots.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
 }

@@ -18,6 +18,7 @@ use std::path::PathBuf;
 pub struct Args {
     #[command(flatten)]
     pub session: SessionArgs,
+    /// Where to write the sweeps (lensblur.sweeps/1 JSON).
     #[arg(long)]
     pub out: PathBuf,
     /// Also write <out>.csv (one row per point).
@@ -29,6 +30,7 @@ pub struct Args {
     /// Model fitted when no profile is given.
     #[arg(long, value_enum, default_value = "global")]
     pub model: super::predict::KindArg,
+    /// Spatial order α of the model fitted when no profile is given.
     #[arg(long, default_value_t = 6)]
     pub alpha: usize,
     /// Default N − 1.
@@ -40,7 +42,8 @@ pub struct Args {
     /// f-number of the focal-length sweep; default: the calibrated one nearest the middle (in stops).
     #[arg(long)]
     pub aperture: Option<f64>,
-    /// Sensor locations [[x, y], ...]; default: the centre and four off-axis points.
+    /// A JSON file of sensor locations, [[x, y], ...] in full-resolution pixels;
+    /// default: the centre and four off-axis points.
     #[arg(long)]
     pub points: Option<PathBuf>,
     /// Points on each model curve.
@@ -189,7 +192,7 @@ fn sweep(
 
 pub fn run(args: Args) -> Result<()> {
     super::common::check_out_folder(&args.out)?;
-    let (ds, _) = load_session(&args.session)?;
+    let (ds, _) = load_session(&args.session, "lensblur sweeps")?;
     ds.validate()?;
     let (fs, as_) = ds.distinct_settings();
     let (curves, name) = if let Some(p) = &args.profile {

@@ -87,7 +87,7 @@ pub enum ModelError {
         terms: usize,
     },
     #[error(
-        "cross-validation needs at least 2 shots, this session has {shots}; give --alpha and --beta"
+        "cross-validation needs at least 2 shots, this session has {shots}: add shots, or choose the orders yourself (lensblur calibrate --alpha and --beta)"
     )]
     TooFewShots { shots: usize },
     #[error(

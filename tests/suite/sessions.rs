@@ -89,6 +89,13 @@ fn a_session_with_bad_shots_calibrates_from_the_good_ones() {
             "{name}: not listed once among {failed:?}"
         );
     }
+    // Named as failed, not also in a note before it.
+    assert!(
+        !stderr
+            .lines()
+            .any(|l| l.starts_with("note:") && l.contains("missing.dng")),
+        "{stderr}"
+    );
     // Each with its own reason, not one reason repeated.
     let reasons: std::collections::BTreeSet<String> = failed
         .iter()
