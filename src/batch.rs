@@ -52,6 +52,22 @@ pub enum BatchError {
     OutputIsInput { path: PathBuf },
     #[error("{}: no lens profile in this folder or its subfolders", path.display())]
     NoProfiles { path: PathBuf },
+    #[error(
+        "the profile records no camera or lens, so the library could not tell which photos it is for; save it as a file and deblur with --profile"
+    )]
+    Unnamed,
+    #[error(transparent)]
+    Write(#[from] crate::io::WriteError),
+    #[error(transparent)]
+    Profile(#[from] crate::profile::ProfileError),
+}
+
+/// Where a profile went in a library: its file, and whether it replaced one of the
+/// same camera and lens (kept beside it as `<file>.previous`, which no library reads).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SavedToLibrary {
+    pub path: PathBuf,
+    pub replaced: bool,
 }
 
 /// The file extensions a folder's photos are recognised by (a photo named on its own
@@ -255,6 +271,43 @@ impl ProfileLibrary {
             profiles: vec![LibraryProfile { path, profile }],
             warnings: Vec::new(),
         }
+    }
+
+    /// Saves `profile` into the library folder `dir` (made if missing) as
+    /// `<camera, lens (serials)>.profile.json`: one file per camera and lens unit, so a
+    /// new calibration of a lens replaces its last one, which is kept as `….previous`.
+    ///
+    /// # Errors
+    /// The profile names no camera or lens (the library would leave it out), or the
+    /// folder or file cannot be written.
+    pub fn save_into(dir: &Path, profile: &Profile) -> Result<SavedToLibrary, BatchError> {
+        let id = &profile.identity;
+        if id.make.is_none() && id.model.is_none() && id.lens_model.is_none() {
+            return Err(BatchError::Unnamed);
+        }
+        let name: String = id
+            .describe()
+            .chars()
+            .map(|c| {
+                if c.is_alphanumeric() || " -_.,()+".contains(c) {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect();
+        crate::io::create_dir_all(dir)?;
+        let path = dir.join(format!("{}.profile.json", name.trim()));
+        let replaced = path.is_file();
+        if replaced {
+            let previous = path.with_extension("json.previous");
+            std::fs::rename(&path, &previous).map_err(|source| crate::io::WriteError {
+                path: previous,
+                source,
+            })?;
+        }
+        profile.save(&path)?;
+        Ok(SavedToLibrary { path, replaced })
     }
 
     /// Adds a profile, or a warning where it names no camera or lens (rule 2).
@@ -561,6 +614,9 @@ pub enum Outcome {
         /// Where the photo was focused, metres, where its file says.
         focus_m: Option<f64>,
         extrapolated: bool,
+        /// What the photo was (RAW, linear or developed), for the profile's
+        /// [`crate::profile::Profile::picture_warning`].
+        picture: crate::plane::PictureKind,
     },
     Skipped(Skip),
     /// Why, without the photo's name where the reason allows (the outcome names it).
@@ -793,6 +849,7 @@ impl Stages<'_> {
                     setting: pick.setting,
                     focus_m: capture.setting_focus_m,
                     extrapolated: pick.extrapolated,
+                    picture: capture.picture_kind(),
                 },
                 capture,
                 source,
@@ -1176,6 +1233,36 @@ mod tests {
             ),
             Ok("zoom.json")
         );
+    }
+
+    #[test]
+    fn a_profile_saved_into_a_library_replaces_its_lens_units_last_one() {
+        let dir = tempfile::tempdir().unwrap();
+        let lib = dir.path().join("profiles");
+        let p = profile(id("Canon", "EOS 6D", "EF24-105mm f/4L", Some("42")));
+        let first = ProfileLibrary::save_into(&lib, &p).unwrap();
+        assert!(!first.replaced);
+        let name = first
+            .path
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
+            .into_owned();
+        assert_eq!(
+            name,
+            "Canon EOS 6D, EF24-105mm f_4L (lens serial 42).profile.json"
+        );
+        let again = ProfileLibrary::save_into(&lib, &p).unwrap();
+        assert_eq!(again.path, first.path);
+        assert!(again.replaced && first.path.with_extension("json.previous").is_file());
+        let read = ProfileLibrary::load(&lib).unwrap();
+        assert_eq!(read.profiles.len(), 1, "the previous one is not read");
+        assert!(read.warnings.is_empty(), "{:?}", read.warnings);
+        let unnamed = profile(CameraIdentity::default());
+        assert!(matches!(
+            ProfileLibrary::save_into(&lib, &unnamed),
+            Err(BatchError::Unnamed)
+        ));
     }
 
     #[test]

@@ -16,6 +16,19 @@ pub fn default_demo_dir() -> PathBuf {
     base.join("lensblur").join("demo")
 }
 
+/// The profile library the studio saves into and the batch reads (`lensblur deblur
+/// PHOTOS --out-dir OUT --profiles ~/lensblur/profiles`): a folder of the user's own,
+/// beside the session folders the guide suggests (`~/lensblur/<lens>`); under the
+/// temporary directory where there is no home.
+#[must_use]
+pub fn default_profile_library() -> PathBuf {
+    std::env::var_os("HOME")
+        .filter(|v| !v.is_empty())
+        .map_or_else(std::env::temp_dir, PathBuf::from)
+        .join("lensblur")
+        .join("profiles")
+}
+
 /// Where the studio keeps its list of recently opened sessions: beside the demo.
 #[must_use]
 pub fn default_recent_file() -> PathBuf {

@@ -62,6 +62,8 @@ fn options(demo_dir: &Path, session: Option<&Path>, demo_spec: DemoSpec) -> AppO
         started: Instant::now(),
         // In the test's own demo folder: no test sees another's list.
         recent_file: Some(demo_dir.join("recent.json")),
+        // The library in the test's folder, never the user's.
+        profile_library: demo_dir.join("profiles"),
         // The first-launch calibration is driven where a test asks for it.
         calibrate_demo: false,
         // Notices stay until dismissed, so what a snapshot shows never depends on how
@@ -1571,6 +1573,13 @@ fn predicted_kernel_shapes_of_a_profile_with_a_shape_model() {
     }
     h.get_by_label_contains("predicted kernel shapes");
     snapshot(&mut h, "studio_kernel_field_predicted_shapes");
+
+    // Saved into the library, where a batch finds it.
+    h.state_mut().commands.push(Command::SaveProfileToLibrary);
+    h.run_steps(2);
+    let library = lensblur::batch::ProfileLibrary::load(&demo.path().join("profiles"))
+        .expect("the library holds the profile");
+    assert_eq!(library.profiles.len(), 1, "{:?}", library.warnings);
 }
 
 /// Shots at one focal length and two apertures, with β fixed at 2 in the session's

@@ -170,6 +170,8 @@ pub enum Command {
     LoadChart(PathBuf),
     /// Saves the profile in use to a file (the dialog's answer).
     SaveProfile(PathBuf),
+    /// Saves the profile in use into the profile library (`AppOptions::profile_library`).
+    SaveProfileToLibrary,
     /// Asks the user before doing something that loses work.
     AskConfirm(Confirm),
     /// The answer to the question asked: do it, or not.

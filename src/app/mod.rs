@@ -215,6 +215,12 @@ impl StudioApp {
         self.project.as_ref()?.profile()
     }
 
+    /// The profile library the studio saves into: the folder a batch reads.
+    #[must_use]
+    pub fn profile_library(&self) -> &Path {
+        &self.options.profile_library
+    }
+
     /// A second profile shown beside the first (another unit of the lens).
     #[must_use]
     pub fn compare_profile(&self) -> Option<&(PathBuf, Arc<Profile>)> {

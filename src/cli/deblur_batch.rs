@@ -181,6 +181,7 @@ pub fn run(
                 setting,
                 focus_m,
                 extrapolated,
+                picture,
             } => {
                 eprintln!(
                     "{photo}: deblurred with {} at {setting}{} to {}",
@@ -191,13 +192,18 @@ pub fn run(
                 // As for one photo: outside the shots' range, far from any shot, where
                 // the profile recorded a large held-out error, or focused far from
                 // where the shots were.
-                let trust = library
-                    .profiles
-                    .iter()
-                    .find(|p| &p.path == profile)
-                    .and_then(|p| p.profile.trust_line(*setting, *focus_m, None));
+                let entry = library.profiles.iter().find(|p| &p.path == profile);
+                let trust = entry.and_then(|p| p.profile.trust_line(*setting, *focus_m, None));
                 if let Some(line) = trust {
                     eprintln!("{photo}: {line}");
+                }
+                let kind = entry.and_then(|p| {
+                    let name = profile.display().to_string();
+                    p.profile
+                        .picture_warning(*picture, &photo.to_string(), &name)
+                });
+                if let Some(w) = kind {
+                    eprintln!("lensblur: warning: {w}");
                 }
             }
             Outcome::Skipped(s @ Skip::OutOfRange { .. }) => {

@@ -76,7 +76,8 @@ pub(super) fn apply(app: &mut StudioApp, command: Command) {
         | Command::RunCalibrate
         | Command::CalibrateAll { .. }
         | Command::LoadProfile { .. }
-        | Command::SaveProfile(_) => stages::apply_stage(app, command),
+        | Command::SaveProfile(_)
+        | Command::SaveProfileToLibrary => stages::apply_stage(app, command),
         Command::OpenPhoto(_)
         | Command::SetPhotoSetting { .. }
         | Command::DeblurAt(_)

@@ -40,6 +40,26 @@ pub(super) fn apply_stage(app: &mut StudioApp, command: Command) {
                 Err(e) => app.error(e.to_string()),
             }
         }
+        Command::SaveProfileToLibrary => {
+            let Some((_, profile)) = app.profile().cloned() else {
+                app.error("no profile to save: calibrate first (Ctrl+M) or load one");
+                return;
+            };
+            let dir = app.profile_library().to_path_buf();
+            match crate::batch::ProfileLibrary::save_into(&dir, &profile) {
+                Ok(saved) => app.info(format!(
+                    "profile saved to the library: {}{}; a batch finds it there (lensblur deblur PHOTOS --out-dir OUT --profiles {})",
+                    app.shown_path(&saved.path),
+                    if saved.replaced {
+                        " (this lens's previous profile kept beside it as .previous)"
+                    } else {
+                        ""
+                    },
+                    dir.display()
+                )),
+                Err(e) => app.error(format!("{}: {e}", app.shown_path(&dir))),
+            }
+        }
         // `apply` routes only this group's commands here.
         other => unreachable!("not routed to apply_stage: {other:?}"),
     }

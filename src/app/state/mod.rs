@@ -108,6 +108,9 @@ pub struct AppOptions {
     pub started: Instant,
     /// The list of recently opened sessions (File ▸ Recent sessions); `None` keeps none.
     pub recent_file: Option<PathBuf>,
+    /// The profile library *Export ▸ Lens profile to the library* saves into: the
+    /// folder a batch reads with `--profiles`.
+    pub profile_library: PathBuf,
     /// Run *Calibrate all* on the demo session while it has no profile, then open its
     /// photo's before/after: what a first launch shows without a click.
     pub calibrate_demo: bool,
@@ -134,6 +137,7 @@ impl Default for AppOptions {
             job_threads: 0,
             started: Instant::now(),
             recent_file: Some(crate::recent::default_recent_file()),
+            profile_library: crate::recent::default_profile_library(),
             calibrate_demo: true,
             notice_lifetime: Some(std::time::Duration::from_secs(6)),
         }

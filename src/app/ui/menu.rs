@@ -124,6 +124,17 @@ pub(super) fn menu_bar_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui
                 {
                     out.push(Command::SaveProfileDialog);
                 }
+                if ui
+                    .add_enabled(profile, egui::Button::new("Lens profile to the library"))
+                    .on_hover_text(format!(
+                        "Into {}, where a batch finds it: lensblur deblur PHOTOS --out-dir OUT --profiles {0}",
+                        app.profile_library().display()
+                    ))
+                    .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
+                    .clicked()
+                {
+                    out.push(Command::SaveProfileToLibrary);
+                }
             });
             if ui.button("Load lens profile…").clicked() {
                 out.push(Command::LoadProfileDialog);
