@@ -51,6 +51,11 @@ fn options(demo_dir: &Path, session: Option<&Path>, demo_spec: DemoSpec) -> AppO
     // Pin the software Vulkan renderer (lavapipe) so snapshots match across machines.
     // SAFETY: set before any renderer or thread reads it; tests in this file set the same value.
     unsafe { std::env::set_var("WGPU_BACKEND", "vulkan") };
+    // RAW files decode in workers of the command line's executable, as the program's
+    // `main` sets it for the studio (the test binary itself serves no workers).
+    lensblur::raw::set_decoding(lensblur::raw::Decoding::Worker(
+        lensblur::raw::WorkerLimits::new(env!("CARGO_BIN_EXE_lensblur").into()),
+    ));
     AppOptions {
         session: session.map(Path::to_path_buf),
         demo_dir: demo_dir.to_path_buf(),
@@ -1023,18 +1028,12 @@ fn noisy_kernel_is_hatched_and_a_click_inspects_it(
     });
 }
 
-/// A RAW session: a DNG shot is shown developed (imagepipe) and, at the switch, as the
-/// linear CFA plane that is measured; opened as a photo, its compared crops are
-/// developed too, and it exports as a DNG with its metadata.
-#[test]
-fn raw_shots_and_photos_are_developed_and_export_as_dng() {
+/// A simulated RAW shot (384 × 256, Bayer) of a 6 × 4 chart at 35 mm f/8, written as
+/// a DNG at `path`; the chart.
+fn write_raw_shot(path: &Path, seed: u64) -> lensblur::chart::ChartSpec {
     use lensblur::simulate::{
         CaptureParams, ShotFormat, VirtualLens, simulate_shot, write_shot_as,
     };
-    let demo = tempfile::tempdir().expect("temp dir");
-    let parent = tempfile::tempdir().expect("temp dir");
-    let folder = parent.path().join("raw session");
-    std::fs::create_dir(&folder).expect("session folder");
     let chart = DemoSpec::grid(384, 256, &[35.0], &[8.0])
         .with_chart(6, 4)
         .chart();
@@ -1044,16 +1043,24 @@ fn raw_shots_and_photos_are_developed_and_export_as_dng() {
     };
     let mut params = CaptureParams::new(384, 256, setting);
     params.bayer = true;
-    params.seed = 5;
-    let shot = simulate_shot(
-        &chart,
-        &VirtualLens::demo(),
-        &params,
-        &lensblur::job::JobContext::silent(),
-    )
-    .expect("simulated RAW shot");
+    params.seed = seed;
+    let shot = simulate_shot(&chart, &VirtualLens::demo(), &params, &JobContext::silent())
+        .expect("simulated RAW shot");
+    write_shot_as(path, &shot, ShotFormat::Dng, Default::default()).expect("write DNG");
+    chart
+}
+
+/// A RAW session: a DNG shot is shown developed (imagepipe) and, at the switch, as the
+/// linear CFA plane that is measured; opened as a photo, its compared crops are
+/// developed too, and it exports as a DNG with its metadata.
+#[test]
+fn raw_shots_and_photos_are_developed_and_export_as_dng() {
+    let demo = tempfile::tempdir().expect("temp dir");
+    let parent = tempfile::tempdir().expect("temp dir");
+    let folder = parent.path().join("raw session");
+    std::fs::create_dir(&folder).expect("session folder");
     let raw = folder.join("IMG_0001.dng");
-    write_shot_as(&raw, &shot, ShotFormat::Dng, Default::default()).expect("write DNG");
+    let chart = write_raw_shot(&raw, 5);
 
     let mut h = new_harness(demo.path(), Some(&folder));
     h.run_steps(2);
@@ -1272,6 +1279,59 @@ fn light_theme_and_user_session() {
                 .is_some_and(|s| s.shots[0].detect != StageStatus::Pending)
     });
     snapshot(&mut h, "studio_user_session_light");
+}
+
+/// A folder with a file that kills its RAW decoder: a CR3 whose sample-size table
+/// claims 2³² − 1 entries, for which rawler reserves 16 GiB, past the worker's 4 GiB
+/// (this once aborted the whole program). The studio goes on: the shot is listed as
+/// unreadable with its one-line reason, the folder's RAW shot beside it loads.
+#[test]
+fn a_file_that_kills_its_decoder_is_one_unreadable_shot() {
+    let demo = tempfile::tempdir().expect("temp dir");
+    let parent = tempfile::tempdir().expect("temp dir");
+    let folder = parent.path().join("odd files");
+    std::fs::create_dir(&folder).expect("session folder");
+    let good = folder.join("IMG_0001.dng");
+    write_raw_shot(&good, 9);
+    let real = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/real");
+    let mut b = std::fs::read(real.join("canon-m50-stripped.cr3")).expect("real CR3");
+    let at = b.windows(4).position(|w| w == b"stsz").expect("stsz box") + 4;
+    b[at + 4..at + 8].copy_from_slice(&0u32.to_be_bytes());
+    b[at + 8..at + 12].copy_from_slice(&u32::MAX.to_be_bytes());
+    let bad = folder.join("IMG_0002.cr3");
+    std::fs::write(&bad, b).expect("write CR3");
+
+    let mut h = new_harness(demo.path(), Some(&folder));
+    h.run_steps(2);
+    // Both dropped on the window at once, as a photographer drops a folder's files.
+    h.input_mut().dropped_files.push(dropped(&good));
+    h.input_mut().dropped_files.push(dropped(&bad));
+    step_until(&mut h, "the folder's two shots", |a| {
+        a.shots_shown() == 2 && idle(a)
+    });
+    let app = h.state();
+    assert_eq!(app.previews().count(), 1, "the DNG loads");
+    let dead: Vec<(ShotId, String)> = app
+        .unreadable_shots()
+        .map(|(id, r)| (id, r.to_string()))
+        .collect();
+    let [(_, reason)] = dead.as_slice() else {
+        panic!("one unreadable shot: {dead:?}");
+    };
+    assert!(
+        reason.contains("IMG_0002.cr3")
+            && reason.contains("ran out of memory")
+            && !reason.contains('\n'),
+        "{reason}"
+    );
+    flush_saves(&h);
+    let saved = Session::open(&folder).expect("session");
+    assert_eq!(saved.shots.len(), 2, "both shots stay in the session");
+    // The loaded shot shown; the list says the other is unreadable, the notice why.
+    let good_id = h.state().previews().next().map(|(id, _)| id).expect("DNG");
+    h.state_mut().commands.push(Command::SelectShot(good_id));
+    h.run_steps(2);
+    snapshot(&mut h, "studio_decoder_died");
 }
 
 /// The same measurements give the same profile in either front end: byte for byte.
