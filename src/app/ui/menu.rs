@@ -80,62 +80,7 @@ pub(super) fn menu_bar_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui
                 out.push(Command::SelectView(View::Deblur));
                 out.push(Command::OpenPhotoDialog);
             }
-            ui.menu_button("Export", |ui| {
-                let photo = app.views.deblur.photo.is_some();
-                if ui
-                    .add_enabled(
-                        photo,
-                        egui::Button::new("Photo deblurred (predicted)…").shortcut_text("Ctrl+E"),
-                    )
-                    .on_disabled_hover_text("Open a photo first (Ctrl+P)")
-                    .clicked()
-                {
-                    out.push(Command::ExportDeblurDialog(DeblurResult::Predicted));
-                }
-                if ui
-                    .add_enabled(
-                        photo,
-                        egui::Button::new("Photo deblurred (measured kernels)…"),
-                    )
-                    .on_disabled_hover_text("Open a photo first (Ctrl+P)")
-                    .clicked()
-                {
-                    out.push(Command::ExportDeblurDialog(DeblurResult::Measured));
-                }
-                let profile = has_profile;
-                if ui
-                    .add_enabled(profile, egui::Button::new("Photos as TIFF…"))
-                    .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
-                    .clicked()
-                {
-                    out.push(Command::ExportPhotosDialog { dng: false });
-                }
-                if ui
-                    .add_enabled(profile, egui::Button::new("RAW photos as DNG…"))
-                    .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
-                    .clicked()
-                {
-                    out.push(Command::ExportPhotosDialog { dng: true });
-                }
-                if ui
-                    .add_enabled(profile, egui::Button::new("Lens profile…"))
-                    .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
-                    .clicked()
-                {
-                    out.push(Command::SaveProfileDialog);
-                }
-                if ui
-                    .add_enabled(profile, egui::Button::new("Lens profile to the library"))
-                    .on_hover_text(format!(
-                        "Into {}, where a batch finds it: lensblur deblur PHOTOS --out-dir OUT --profiles {0}",
-                        app.profile_library().display()
-                    ))
-                    .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
-                    .clicked()
-                {
-                    out.push(Command::SaveProfileToLibrary);
-                }
-            });
+            ui.menu_button("Export", |ui| export_menu_ui(app, has_profile, out, ui));
             if ui.button("Load lens profile…").clicked() {
                 out.push(Command::LoadProfileDialog);
             }
@@ -213,6 +158,65 @@ pub(super) fn menu_bar_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui
             }
         });
     });
+}
+
+/// File ▸ Export: a photo deblurred, a set of photos, the lens profile (to a file, or
+/// into the library a batch reads).
+fn export_menu_ui(app: &StudioApp, has_profile: bool, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+    let photo = app.views.deblur.photo.is_some();
+    if ui
+        .add_enabled(
+            photo,
+            egui::Button::new("Photo deblurred (predicted)…").shortcut_text("Ctrl+E"),
+        )
+        .on_disabled_hover_text("Open a photo first (Ctrl+P)")
+        .clicked()
+    {
+        out.push(Command::ExportDeblurDialog(DeblurResult::Predicted));
+    }
+    if ui
+        .add_enabled(
+            photo,
+            egui::Button::new("Photo deblurred (measured kernels)…"),
+        )
+        .on_disabled_hover_text("Open a photo first (Ctrl+P)")
+        .clicked()
+    {
+        out.push(Command::ExportDeblurDialog(DeblurResult::Measured));
+    }
+    let profile = has_profile;
+    if ui
+        .add_enabled(profile, egui::Button::new("Photos as TIFF…"))
+        .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
+        .clicked()
+    {
+        out.push(Command::ExportPhotosDialog { dng: false });
+    }
+    if ui
+        .add_enabled(profile, egui::Button::new("RAW photos as DNG…"))
+        .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
+        .clicked()
+    {
+        out.push(Command::ExportPhotosDialog { dng: true });
+    }
+    if ui
+        .add_enabled(profile, egui::Button::new("Lens profile…"))
+        .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
+        .clicked()
+    {
+        out.push(Command::SaveProfileDialog);
+    }
+    if ui
+        .add_enabled(profile, egui::Button::new("Lens profile to the library"))
+        .on_hover_text(format!(
+            "Into {}, where a batch finds it: lensblur deblur PHOTOS --out-dir OUT --profiles {0}",
+            app.profile_library().display()
+        ))
+        .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
+        .clicked()
+    {
+        out.push(Command::SaveProfileToLibrary);
+    }
 }
 
 pub(super) fn shortcuts(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Context) {
