@@ -56,7 +56,7 @@ pub enum LoadError {
     Corrupt { path: PathBuf, reason: String },
     /// The file ends before its own structure says it does, or a part of it points
     /// past its end: a cut-short copy, not a camera we do not know.
-    #[error("{}: damaged file: {reason}", path.display())]
+    #[error("{}: damaged file: {reason}; copy it again from the card or the camera", path.display())]
     Damaged { path: PathBuf, reason: String },
     /// A well-formed file of a camera or a layout no decoder reads; the reason says
     /// what to do.

@@ -142,6 +142,10 @@ fn a_cut_short_copy_says_where_it_was_cut() {
     assert!(matches!(e, LoadError::Damaged { .. }), "{m}");
     assert!(m.contains("truncated at byte 2000000"), "{m}");
     assert!(m.contains(&format!("runs to byte {}", bytes.len())), "{m}");
+    assert!(
+        m.ends_with("copy it again from the card or the camera"),
+        "{m}"
+    );
 }
 
 #[test]
