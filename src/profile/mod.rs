@@ -388,6 +388,122 @@ fn load_channel(
     Ok(out)
 }
 
+/// The file's sensor, ranges, sampled extent, settings and chart, each what it says.
+fn check_file(
+    file: &ProfileFile,
+    invalid: &dyn Fn(String) -> ProfileError,
+) -> Result<(), ProfileError> {
+    let sides = 2..=MAX_SENSOR_SIDE_PX;
+    if !(sides.contains(&file.width) && sides.contains(&file.height)) {
+        return Err(invalid(format!(
+            "sensor {}×{} px (each side must be 2–{MAX_SENSOR_SIDE_PX})",
+            file.width, file.height
+        )));
+    }
+    let ok_range = |r: [f64; 2]| r[0].is_finite() && r[1].is_finite() && r[0] > 0.0 && r[1] >= r[0];
+    if !ok_range(file.focal_range_mm) || !ok_range(file.f_number_range) {
+        return Err(invalid(
+            "calibrated ranges are not positive intervals".into(),
+        ));
+    }
+    if let Some(e) = file.sampled_extent_px
+        && !(e.iter().all(|v| v.is_finite()) && e[0] <= e[2] && e[1] <= e[3])
+    {
+        return Err(invalid("sampled extent is not a box".into()));
+    }
+    let real = |v: f64| v.is_finite() && v > 0.0;
+    if let Some(s) = file
+        .calibrated_settings
+        .iter()
+        .find(|s| !(real(s.focal_mm) && real(s.f_number)))
+    {
+        return Err(invalid(format!(
+            "calibrated setting f = {} mm, f/{} is not a lens setting",
+            s.focal_mm, s.f_number
+        )));
+    }
+    if let Some(chart) = &file.chart {
+        chart.validate().map_err(|e| invalid(e.to_string()))?;
+    }
+    Ok(())
+}
+
+/// A stored local model, checked against the sensor (`norm`) before any of it is
+/// believed: orders, radius, a centre grid that fits the sensor, coefficient counts.
+fn load_local(
+    l: &StoredLocal,
+    norm: &Normalisation,
+    invalid: &dyn Fn(String) -> ProfileError,
+    checked_basis: &dyn Fn(
+        String,
+        usize,
+        usize,
+        usize,
+    ) -> Result<crate::model::Basis, ProfileError>,
+) -> Result<LocalModel, ProfileError> {
+    let name = format!(
+        "local model {}",
+        ModelKind::Local.model_name(l.alpha, l.beta)
+    );
+    let basis = checked_basis(name, l.alpha, l.beta, l.terms)?;
+    if !(l.radius_px.is_finite() && l.radius_px >= 1.0) {
+        return Err(invalid(format!(
+            "local model radius {} px is not a radius of at least 1 px",
+            l.radius_px
+        )));
+    }
+    // A fit places at most one centre per pixel along each side.
+    let centres = l
+        .centres_x
+        .checked_mul(l.centres_y)
+        .filter(|&n| n <= MAX_LOCAL_CENTRES);
+    let per_side = |n: usize, side: usize| (2..=side).contains(&n);
+    let (Some(n_centres), true, true) = (
+        centres,
+        per_side(l.centres_x, norm.width),
+        per_side(l.centres_y, norm.height),
+    ) else {
+        return Err(invalid(format!(
+            "local model grid of {} × {} centres does not fit a {}×{} sensor (at least 2 per side, at most one per pixel and {MAX_LOCAL_CENTRES} in all)",
+            l.centres_x, l.centres_y, norm.width, norm.height
+        )));
+    };
+    let n = basis.len();
+    let expected = n
+        .checked_mul(n_centres)
+        .ok_or_else(|| invalid(format!("local model: {n_centres} centres of {n} terms")))?;
+    check_distinct_channels(l.channels.iter().map(|c| c.channel), invalid)?;
+    let grid = CentreGrid {
+        nx: l.centres_x,
+        ny: l.centres_y,
+        radius_px: l.radius_px,
+        width: norm.width,
+        height: norm.height,
+    };
+    let mut channels = Vec::new();
+    for sc in &l.channels {
+        let flat = load_channel(sc, expected, invalid)?;
+        let centres = (0..n_centres)
+            .map(|c| {
+                [
+                    flat[0][c * n..(c + 1) * n].to_vec(),
+                    flat[1][c * n..(c + 1) * n].to_vec(),
+                    flat[2][c * n..(c + 1) * n].to_vec(),
+                ]
+            })
+            .collect();
+        channels.push((sc.channel, centres));
+    }
+    Ok(LocalModel {
+        norm: norm.clone(),
+        alpha: l.alpha,
+        beta: l.beta,
+        grid,
+        basis,
+        channels,
+    })
+}
+
 /// Reads and checks a stored kernel-shape model against the profile's sensor and ranges.
 fn load_shape(
     sh: &StoredShape,
@@ -718,39 +834,7 @@ impl Profile {
             path: origin.into(),
             reason,
         };
-        let sides = 2..=MAX_SENSOR_SIDE_PX;
-        if !(sides.contains(&file.width) && sides.contains(&file.height)) {
-            return Err(invalid(format!(
-                "sensor {}×{} px (each side must be 2–{MAX_SENSOR_SIDE_PX})",
-                file.width, file.height
-            )));
-        }
-        let ok_range =
-            |r: [f64; 2]| r[0].is_finite() && r[1].is_finite() && r[0] > 0.0 && r[1] >= r[0];
-        if !ok_range(file.focal_range_mm) || !ok_range(file.f_number_range) {
-            return Err(invalid(
-                "calibrated ranges are not positive intervals".into(),
-            ));
-        }
-        if let Some(e) = file.sampled_extent_px
-            && !(e.iter().all(|v| v.is_finite()) && e[0] <= e[2] && e[1] <= e[3])
-        {
-            return Err(invalid("sampled extent is not a box".into()));
-        }
-        let real = |v: f64| v.is_finite() && v > 0.0;
-        if let Some(s) = file
-            .calibrated_settings
-            .iter()
-            .find(|s| !(real(s.focal_mm) && real(s.f_number)))
-        {
-            return Err(invalid(format!(
-                "calibrated setting f = {} mm, f/{} is not a lens setting",
-                s.focal_mm, s.f_number
-            )));
-        }
-        if let Some(chart) = &file.chart {
-            chart.validate().map_err(|e| invalid(e.to_string()))?;
-        }
+        check_file(&file, &invalid)?;
         let norm = Normalisation {
             width: file.width,
             height: file.height,
@@ -801,69 +885,7 @@ impl Profile {
         };
         let local = match &file.local {
             None => None,
-            Some(l) => {
-                let name = format!(
-                    "local model {}",
-                    ModelKind::Local.model_name(l.alpha, l.beta)
-                );
-                let basis = checked_basis(name, l.alpha, l.beta, l.terms)?;
-                if !(l.radius_px.is_finite() && l.radius_px >= 1.0) {
-                    return Err(invalid(format!(
-                        "local model radius {} px is not a radius of at least 1 px",
-                        l.radius_px
-                    )));
-                }
-                // A fit places at most one centre per pixel along each side.
-                let centres = l
-                    .centres_x
-                    .checked_mul(l.centres_y)
-                    .filter(|&n| n <= MAX_LOCAL_CENTRES);
-                let per_side = |n: usize, side: usize| (2..=side).contains(&n);
-                let (Some(n_centres), true, true) = (
-                    centres,
-                    per_side(l.centres_x, file.width),
-                    per_side(l.centres_y, file.height),
-                ) else {
-                    return Err(invalid(format!(
-                        "local model grid of {} × {} centres does not fit a {}×{} sensor (at least 2 per side, at most one per pixel and {MAX_LOCAL_CENTRES} in all)",
-                        l.centres_x, l.centres_y, file.width, file.height
-                    )));
-                };
-                let n = basis.len();
-                let expected = n.checked_mul(n_centres).ok_or_else(|| {
-                    invalid(format!("local model: {n_centres} centres of {n} terms"))
-                })?;
-                check_distinct_channels(l.channels.iter().map(|c| c.channel), &invalid)?;
-                let grid = CentreGrid {
-                    nx: l.centres_x,
-                    ny: l.centres_y,
-                    radius_px: l.radius_px,
-                    width: file.width,
-                    height: file.height,
-                };
-                let mut channels = Vec::new();
-                for sc in &l.channels {
-                    let flat = load_channel(sc, expected, &invalid)?;
-                    let centres = (0..n_centres)
-                        .map(|c| {
-                            [
-                                flat[0][c * n..(c + 1) * n].to_vec(),
-                                flat[1][c * n..(c + 1) * n].to_vec(),
-                                flat[2][c * n..(c + 1) * n].to_vec(),
-                            ]
-                        })
-                        .collect();
-                    channels.push((sc.channel, centres));
-                }
-                Some(LocalModel {
-                    norm: norm.clone(),
-                    alpha: l.alpha,
-                    beta: l.beta,
-                    grid,
-                    basis,
-                    channels,
-                })
-            }
+            Some(l) => Some(load_local(l, &norm, &invalid, &checked_basis)?),
         };
         if global.is_none() && local.is_none() {
             return Err(invalid("holds neither a global nor a local model".into()));
