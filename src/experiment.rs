@@ -126,6 +126,27 @@ pub struct MeasuredKernels {
 /// run within seconds instead of shooting on.
 pub const MAX_FAILED_SHOTS_IN_A_ROW: usize = 3;
 
+/// The virtual lens an experiment shoots: the demo zoom with `opts`' PSF shape (the
+/// aberrated shape is a design of its own, over the demo lens's ranges), its apertures
+/// narrowed to `opts.f_numbers` where that range is a range.
+fn experiment_lens(opts: &MeasureOptions) -> VirtualLens {
+    let mut lens = if opts.shape == PsfShape::Aberrated {
+        VirtualLens::aberrated()
+    } else {
+        VirtualLens::demo()
+    };
+    lens.shape = opts.shape;
+    if let Some([lo, hi]) = opts.f_numbers {
+        let [a0, a1] = lens.f_number_range;
+        let (lo, hi) = (lo.clamp(a0, a1), hi.clamp(a0, a1));
+        // An empty or reversed range keeps the lens's own.
+        if lo.is_finite() && hi.is_finite() && lo < hi {
+            lens.f_number_range = [lo, hi];
+        }
+    }
+    lens
+}
+
 /// Kernels measured the way calibration measures them: simulated chart shots of the
 /// virtual lens at settings spread over its range, squares detected and aligned, each
 /// square's 3× kernel and robust/ML Gaussians estimated. Squares are taken spread over
@@ -142,13 +163,7 @@ pub fn measured_kernels(
     use crate::kernel::{KernelParams, SquareGeometry, estimate_square_geometry};
     use crate::simulate::{CaptureParams, Pose, simulate_shot};
     let count = opts.count;
-    // The aberrated shape is a design of its own, over the demo lens's ranges.
-    let mut lens = if opts.shape == PsfShape::Aberrated {
-        VirtualLens::aberrated()
-    } else {
-        VirtualLens::demo()
-    };
-    lens.shape = opts.shape;
+    let lens = experiment_lens(opts);
     let spec = ChartSpec {
         cols: opts.cols,
         rows: opts.rows,
@@ -158,14 +173,6 @@ pub fn measured_kernels(
         weighting: opts.weighting,
         ..KernelParams::default()
     };
-    if let Some([lo, hi]) = opts.f_numbers {
-        let [a0, a1] = lens.f_number_range;
-        let (lo, hi) = (lo.clamp(a0, a1), hi.clamp(a0, a1));
-        // An empty or reversed range keeps the lens's own.
-        if lo.is_finite() && hi.is_finite() && lo < hi {
-            lens.f_number_range = [lo, hi];
-        }
-    }
     let mut rng = Pcg64::seed_from_u64(opts.seed);
     let mut out: Vec<ExperimentKernel> = Vec::with_capacity(count);
     let mut skipped_shots: Vec<String> = Vec::new();
