@@ -4,98 +4,15 @@
 //! the compared region shows a loupe of the same pixels before and after, and their
 //! values in both.
 
-use super::super::{Command, DeblurLayout, DeblurResult, DeblurZoom, StudioApp, ViewerState};
+use super::super::{
+    Command, DeblurLayout, DeblurResult, DeblurZoom, StudioApp, ViewerState, Views,
+};
 use crate::app::jobs::JobKind;
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
 
 pub(super) fn deblur_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.heading("Deblur");
-    ui.horizontal(|ui| {
-        if ui
-            .button("Open photo…")
-            .on_hover_text("A photo taken with the calibrated lens: RAW, DNG, TIFF, PNG or JPEG; its settings come from EXIF (Ctrl+P, or drop it on this view)")
-            .clicked()
-        {
-            out.push(Command::OpenPhotoDialog);
-        }
-        let shot = app
-            .views.shot.selected
-            .and_then(|id| {
-                let s = app.session()?;
-                Some((id, s.path_of(s.shot(id)?)))
-            });
-        if let Some((_, path)) = shot
-            && ui
-                .button("Deblur the selected shot")
-                .on_hover_text("Open the shot selected in the session panel as the photo: its own measured kernels are then the comparison")
-                .clicked()
-        {
-            out.push(Command::OpenPhoto(path));
-        }
-        ui.separator();
-        for (layout, label) in [
-            (DeblurLayout::SideBySide, "Side by side"),
-            (DeblurLayout::Slider, "Slider"),
-        ] {
-            if ui
-                .selectable_label(app.views.deblur.layout == layout, label)
-                .clicked()
-            {
-                out.push(Command::SetDeblurLayout(layout));
-            }
-        }
-        if app
-            .views.deblur
-            .photo
-            .as_ref()
-            .is_some_and(|p| p.developed.is_some())
-        {
-            ui.separator();
-            let mut developed = app.views.shot.viewer.developed;
-            if ui
-                .checkbox(&mut developed, "developed")
-                .on_hover_text("The RAW photo and its crops as a RAW editor shows them (imagepipe); off: linear camera RGB, as deblurred")
-                .changed()
-            {
-                out.push(Command::SetViewer(ViewerState {
-                    developed,
-                    ..app.views.shot.viewer
-                }));
-            }
-        }
-        ui.separator();
-        ui.menu_button("Export…", |ui| {
-            for r in [DeblurResult::Predicted, DeblurResult::Measured] {
-                if ui
-                    .add_enabled(
-                        app.views.deblur.photo.is_some(),
-                        egui::Button::new(format!("whole photo deblurred with {}", r.label())),
-                    )
-                    .on_hover_text("Deblur the open photo and write it: a RAW photo as a DNG with its metadata (or TIFF/PNG), others as 16-bit linear TIFF or PNG (Ctrl+E: predicted)")
-                    .clicked()
-                {
-                    out.push(Command::ExportDeblurDialog(r));
-                    ui.close();
-                }
-            }
-            ui.separator();
-            for (dng, label) in [
-                (false, "a set of photos (16-bit TIFF)…"),
-                (true, "a set of RAW photos (DNG)…"),
-            ] {
-                if ui
-                    .add_enabled(app.profile().is_some(), egui::Button::new(label))
-                    .on_hover_text("Each photo deblurred with the profile at its own focal length and aperture (from EXIF); photos of another camera or lens, or outside the calibrated range, are skipped with the reason")
-                    .clicked()
-                {
-                    out.push(Command::ExportPhotosDialog { dng });
-                    ui.close();
-                }
-            }
-        })
-        .response
-        .on_hover_text("Write the open photo deblurred, or a set of photos");
-    });
+    toolbar_ui(&app.views, app.session(), app.profile().is_some(), out, ui);
     super::deblur_controls::controls_ui(app, out, ui);
     let Some(photo) = &app.views.deblur.photo else {
         ui.label("No photo open. Open one, drop one on this view, or deblur the selected shot of the session.");
@@ -172,6 +89,103 @@ pub(super) fn deblur_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::
         (Some(_), DeblurLayout::SideBySide) => side_by_side_ui(app, out, ui),
         (Some(_), DeblurLayout::Slider) => slider_ui(app, out, ui),
     }
+}
+
+/// The view's buttons: open a photo or the selected shot, the layout, developed or
+/// linear, and export.
+fn toolbar_ui(
+    views: &Views,
+    session: Option<&crate::session::Session>,
+    has_profile: bool,
+    out: &mut Vec<Command>,
+    ui: &mut egui::Ui,
+) {
+    ui.horizontal(|ui| {
+        if ui
+            .button("Open photo…")
+            .on_hover_text("A photo taken with the calibrated lens: RAW, DNG, TIFF, PNG or JPEG; its settings come from EXIF (Ctrl+P, or drop it on this view)")
+            .clicked()
+        {
+            out.push(Command::OpenPhotoDialog);
+        }
+        let shot = views
+            .shot.selected
+            .and_then(|id| {
+                let s = session?;
+                Some((id, s.path_of(s.shot(id)?)))
+            });
+        if let Some((_, path)) = shot
+            && ui
+                .button("Deblur the selected shot")
+                .on_hover_text("Open the shot selected in the session panel as the photo: its own measured kernels are then the comparison")
+                .clicked()
+        {
+            out.push(Command::OpenPhoto(path));
+        }
+        ui.separator();
+        for (layout, label) in [
+            (DeblurLayout::SideBySide, "Side by side"),
+            (DeblurLayout::Slider, "Slider"),
+        ] {
+            if ui
+                .selectable_label(views.deblur.layout == layout, label)
+                .clicked()
+            {
+                out.push(Command::SetDeblurLayout(layout));
+            }
+        }
+        if views
+            .deblur
+            .photo
+            .as_ref()
+            .is_some_and(|p| p.developed.is_some())
+        {
+            ui.separator();
+            let mut developed = views.shot.viewer.developed;
+            if ui
+                .checkbox(&mut developed, "developed")
+                .on_hover_text("The RAW photo and its crops as a RAW editor shows them (imagepipe); off: linear camera RGB, as deblurred")
+                .changed()
+            {
+                out.push(Command::SetViewer(ViewerState {
+                    developed,
+                    ..views.shot.viewer
+                }));
+            }
+        }
+        ui.separator();
+        ui.menu_button("Export…", |ui| {
+            for r in [DeblurResult::Predicted, DeblurResult::Measured] {
+                if ui
+                    .add_enabled(
+                        views.deblur.photo.is_some(),
+                        egui::Button::new(format!("whole photo deblurred with {}", r.label())),
+                    )
+                    .on_hover_text("Deblur the open photo and write it: a RAW photo as a DNG with its metadata (or TIFF/PNG), others as 16-bit linear TIFF or PNG (Ctrl+E: predicted)")
+                    .clicked()
+                {
+                    out.push(Command::ExportDeblurDialog(r));
+                    ui.close();
+                }
+            }
+            ui.separator();
+            for (dng, label) in [
+                (false, "a set of photos (16-bit TIFF)…"),
+                (true, "a set of RAW photos (DNG)…"),
+            ] {
+                if ui
+                    .add_enabled(has_profile, egui::Button::new(label))
+                    .on_hover_text("Each photo deblurred with the profile at its own focal length and aperture (from EXIF); photos of another camera or lens, or outside the calibrated range, are skipped with the reason")
+                    .clicked()
+                {
+                    out.push(Command::ExportPhotosDialog { dng });
+                    ui.close();
+                }
+            }
+        })
+        .response
+        .on_hover_text("Write the open photo deblurred, or a set of photos");
+    });
 }
 
 /// The whole photo with the region outlined, and what the panes below compare.

@@ -565,83 +565,7 @@ fn inspector_ui(app: &StudioApp, ui: &mut egui::Ui) -> Option<Command> {
             .find(|s| s.channel == ins.channel && (s.row, s.col) == (row, col))
     });
     match (sample, &ins.kernel) {
-        (Some((s, oversample)), Some(t)) => {
-            let n = t.size_vec2().x.max(1.0);
-            // The kernel array spans the estimation's whole support; its central ±2.5σ
-            // (at least ±2 px) is where the shape is.
-            let sigma = s.cxx.unwrap_or(1.0).max(s.cyy.unwrap_or(1.0));
-            let half_texels = ((2.5 * sigma).max(2.0) * oversample as f64).ceil() as f32;
-            let shown = (2.0 * half_texels + 1.0).min(n);
-            ui.label(format!(
-                "measured kernel, {oversample}× resolution, central ±{:.1} px; 1σ and 2σ ellipses of its Gaussian fit",
-                (shown - 1.0) / 2.0 / oversample as f32
-            ));
-            let side = w.min(150.0);
-            let (rect, _) = ui.allocate_exact_size(Vec2::splat(side), Sense::hover());
-            let painter = ui.painter_at(rect);
-            let uv_half = shown / 2.0 / n;
-            painter.image(
-                t.id(),
-                rect,
-                Rect::from_center_size(Pos2::new(0.5, 0.5), Vec2::splat(2.0 * uv_half)),
-                Color32::WHITE,
-            );
-            // Texels are 1/oversample px: σ px spans σ·oversample texels.
-            let points_per_px = side / shown * oversample as f32;
-            if let (Some(cxx), Some(cyy), Some(cor)) = (s.cxx, s.cyy, s.cor) {
-                let g = crate::psf::Gaussian2 {
-                    sigma_x: cxx,
-                    sigma_y: cyy,
-                    rho: cor,
-                };
-                for (k, alpha) in [(1.0, 255), (2.0, 150)] {
-                    painter.add(egui::Shape::closed_line(
-                        ellipse_points(rect.center(), &g, points_per_px * k),
-                        Stroke::new(1.0, Color32::from_rgba_unmultiplied(255, 190, 0, alpha)),
-                    ));
-                }
-            }
-            let truth = ins.truth;
-            egui::Grid::new("inspector-numbers")
-                .num_columns(4)
-                .striped(true)
-                .show(ui, |ui| {
-                    ui.label("");
-                    ui.label("C_xx px").on_hover_text(super::TIP_CXX);
-                    ui.label("C_yy px").on_hover_text(super::TIP_CYY);
-                    ui.label("C_or").on_hover_text(super::TIP_COR);
-                    ui.end_row();
-                    let row3 = |ui: &mut egui::Ui, name: &str, tip: &str, v: [Option<f64>; 3]| {
-                        ui.label(name).on_hover_text(tip);
-                        for x in v {
-                            ui.monospace(x.map_or("—".into(), |x| format!("{x:.3}")));
-                        }
-                        ui.end_row();
-                    };
-                    row3(
-                        ui,
-                        "robust fit",
-                        "Levenberg–Marquardt fit of a Gaussian to the kernel's central region",
-                        [s.cxx, s.cyy, s.cor],
-                    );
-                    if let Some(ml) = &s.ml {
-                        row3(
-                            ui,
-                            "ML fit",
-                            "Moments of the thresholded kernel (the fit's starting point)",
-                            [Some(ml.cxx), Some(ml.cyy), Some(ml.cor)],
-                        );
-                    }
-                    if let Some(t) = truth {
-                        row3(
-                            ui,
-                            "truth",
-                            "The demo lens's pixel-level Gaussian at the square's centre",
-                            [Some(t.sigma_x), Some(t.sigma_y), Some(t.rho)],
-                        );
-                    }
-                });
-        }
+        (Some((s, oversample)), Some(t)) => measured_kernel_ui(s, oversample, t, ins.truth, w, ui),
         _ => match failed {
             Some(f) => {
                 ui.colored_label(
@@ -655,4 +579,90 @@ fn inspector_ui(app: &StudioApp, ui: &mut egui::Ui) -> Option<Command> {
         },
     }
     out
+}
+
+/// A measured kernel, its central ±2.5σ at its own resolution with its Gaussian's 1σ
+/// and 2σ ellipses, and the fits' numbers beside the truth where there is one.
+fn measured_kernel_ui(
+    s: &crate::kernel::file::KernelSample,
+    oversample: usize,
+    t: &egui::TextureHandle,
+    truth: Option<crate::psf::Gaussian2>,
+    w: f32,
+    ui: &mut egui::Ui,
+) {
+    let n = t.size_vec2().x.max(1.0);
+    // The kernel array spans the estimation's whole support; its central ±2.5σ
+    // (at least ±2 px) is where the shape is.
+    let sigma = s.cxx.unwrap_or(1.0).max(s.cyy.unwrap_or(1.0));
+    let half_texels = ((2.5 * sigma).max(2.0) * oversample as f64).ceil() as f32;
+    let shown = (2.0 * half_texels + 1.0).min(n);
+    ui.label(format!(
+        "measured kernel, {oversample}× resolution, central ±{:.1} px; 1σ and 2σ ellipses of its Gaussian fit",
+        (shown - 1.0) / 2.0 / oversample as f32
+    ));
+    let side = w.min(150.0);
+    let (rect, _) = ui.allocate_exact_size(Vec2::splat(side), Sense::hover());
+    let painter = ui.painter_at(rect);
+    let uv_half = shown / 2.0 / n;
+    painter.image(
+        t.id(),
+        rect,
+        Rect::from_center_size(Pos2::new(0.5, 0.5), Vec2::splat(2.0 * uv_half)),
+        Color32::WHITE,
+    );
+    // Texels are 1/oversample px: σ px spans σ·oversample texels.
+    let points_per_px = side / shown * oversample as f32;
+    if let (Some(cxx), Some(cyy), Some(cor)) = (s.cxx, s.cyy, s.cor) {
+        let g = crate::psf::Gaussian2 {
+            sigma_x: cxx,
+            sigma_y: cyy,
+            rho: cor,
+        };
+        for (k, alpha) in [(1.0, 255), (2.0, 150)] {
+            painter.add(egui::Shape::closed_line(
+                ellipse_points(rect.center(), &g, points_per_px * k),
+                Stroke::new(1.0, Color32::from_rgba_unmultiplied(255, 190, 0, alpha)),
+            ));
+        }
+    }
+    egui::Grid::new("inspector-numbers")
+        .num_columns(4)
+        .striped(true)
+        .show(ui, |ui| {
+            ui.label("");
+            ui.label("C_xx px").on_hover_text(super::TIP_CXX);
+            ui.label("C_yy px").on_hover_text(super::TIP_CYY);
+            ui.label("C_or").on_hover_text(super::TIP_COR);
+            ui.end_row();
+            let row3 = |ui: &mut egui::Ui, name: &str, tip: &str, v: [Option<f64>; 3]| {
+                ui.label(name).on_hover_text(tip);
+                for x in v {
+                    ui.monospace(x.map_or("—".into(), |x| format!("{x:.3}")));
+                }
+                ui.end_row();
+            };
+            row3(
+                ui,
+                "robust fit",
+                "Levenberg–Marquardt fit of a Gaussian to the kernel's central region",
+                [s.cxx, s.cyy, s.cor],
+            );
+            if let Some(ml) = &s.ml {
+                row3(
+                    ui,
+                    "ML fit",
+                    "Moments of the thresholded kernel (the fit's starting point)",
+                    [Some(ml.cxx), Some(ml.cyy), Some(ml.cor)],
+                );
+            }
+            if let Some(t) = truth {
+                row3(
+                    ui,
+                    "truth",
+                    "The demo lens's pixel-level Gaussian at the square's centre",
+                    [Some(t.sigma_x), Some(t.sigma_y), Some(t.rho)],
+                );
+            }
+        });
 }
