@@ -629,8 +629,9 @@ fn shape_summary(cv: &lensblur::crossval::ShapeCvReport) -> String {
                 && (b.components, b.alpha, b.space) != (l2.components, l2.alpha, l2.space) =>
         {
             format!(
-                "{verdict}; held-out L2 alone would choose {} components, α = {} ({})",
+                "{verdict}; held-out L2 alone would choose {} component{}, α = {} ({})",
                 l2.components,
+                if l2.components == 1 { "" } else { "s" },
                 l2.alpha,
                 said(l2)
             )
