@@ -716,7 +716,10 @@ mod tests {
         let e = read_answer(buf.as_slice(), Path::new("shot.cr2"), None)
             .unwrap()
             .unwrap_err();
-        assert_eq!(e.to_string(), "shot.cr2: damaged file: truncated at byte 9");
+        assert_eq!(
+            e.to_string(),
+            "shot.cr2: damaged file: truncated at byte 9; copy it again from the card or the camera"
+        );
         // An answer cut short is an error of the exchange, not a refusal.
         assert!(read_answer(&buf[..buf.len() - 1], Path::new("x"), None).is_err());
     }
