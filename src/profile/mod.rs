@@ -428,18 +428,18 @@ fn check_file(
     Ok(())
 }
 
+/// A model's basis from its name, orders α, β and stored term count, refused where the
+/// orders are too high or the count is not the basis's (made once in `from_json`).
+type CheckedBasis<'a> =
+    dyn Fn(String, usize, usize, usize) -> Result<crate::model::Basis, ProfileError> + 'a;
+
 /// A stored local model, checked against the sensor (`norm`) before any of it is
 /// believed: orders, radius, a centre grid that fits the sensor, coefficient counts.
 fn load_local(
     l: &StoredLocal,
     norm: &Normalisation,
     invalid: &dyn Fn(String) -> ProfileError,
-    checked_basis: &dyn Fn(
-        String,
-        usize,
-        usize,
-        usize,
-    ) -> Result<crate::model::Basis, ProfileError>,
+    checked_basis: &CheckedBasis<'_>,
 ) -> Result<LocalModel, ProfileError> {
     let name = format!(
         "local model {}",
@@ -509,12 +509,7 @@ fn load_shape(
     sh: &StoredShape,
     norm: &Normalisation,
     invalid: &dyn Fn(String) -> ProfileError,
-    checked_basis: &dyn Fn(
-        String,
-        usize,
-        usize,
-        usize,
-    ) -> Result<crate::model::Basis, ProfileError>,
+    checked_basis: &CheckedBasis<'_>,
 ) -> Result<ShapeModel, ProfileError> {
     let (side, per_unit) = (sh.space.side(), sh.space.per_unit());
     if sh.grid_side != side || sh.grid_per_sigma != per_unit {
