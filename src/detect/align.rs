@@ -465,6 +465,115 @@ pub fn align_square(
     {
         return Err("partly out of frame".into());
     }
+    let Levels {
+        a,
+        b,
+        black_sum,
+        white_sum,
+        window_clips,
+    } = square_levels(capture, bootstrap, &quad, col, row, m, side_px, params)?;
+    // A coarse level blurs the pixels before it samples them, which spreads each
+    // clipped pixel over the blur's reach: leaving out every sample it touches leaves
+    // none near the edges of a clipped white, keeping them biases the edges. A coarse
+    // level with its edges masked away constrains nothing, and Gauss–Newton then walks
+    // where rounding takes it: a square kept or lost by chance, differently in the same
+    // photo turned. Where the window clips, the fine level alone registers the square,
+    // every pixel the same whichever way the shot is turned.
+    let levels = if window_clips { 1 } else { levels };
+    let np = capture.planes.len();
+    let centre = bootstrap.apply([col as f64 + 0.5, row as f64 + 0.5]);
+    let scale = side_px / 2.0;
+    let st = State {
+        h: *bootstrap,
+        var: vec![params.initial_sigma_px.powi(2); np],
+        a,
+        b,
+    };
+    let held = held_corners(spec, col, row);
+    let contrast2 = st.b.iter().map(|b| b * b).sum::<f64>() / np as f64;
+    let hold = |ev: &mut Eval, h: &Homography| {
+        hold_corners(
+            ev,
+            h,
+            bootstrap,
+            &held,
+            HOLD_WEIGHT * contrast2,
+            centre,
+            scale,
+        );
+    };
+    let (st, cost, n, final_eval) = register(
+        capture, spec, &quad, st, rect, levels, centre, scale, &hold, params,
+    )?;
+    // The fitted gain is free in sign: a square registered against a chart whose
+    // colours are swapped there (the board assigned the wrong way round) fits as well
+    // with white below black, and would be kept with corners from the wrong squares.
+    if st.b.iter().any(|&g| !(g > 0.0)) {
+        return Err("its colours are the opposite of the chart's there".into());
+    }
+    if max_corner_shift(&st.h, bootstrap, &quad) > params.max_refine_shift_px {
+        return Err(format!(
+            "alignment moved a corner by more than {} px from its bootstrap",
+            params.max_refine_shift_px
+        ));
+    }
+    let sigma_px = st.var.iter().map(|v| v.sqrt()).sum::<f64>() / np as f64;
+    let ChannelResults {
+        sigma: sigma_by_channel,
+        levels: levels_by_channel,
+        registration: channel_registration,
+    } = per_channel(
+        capture,
+        spec,
+        &st,
+        &final_eval,
+        rect,
+        &quad,
+        centre,
+        scale,
+        params,
+    );
+    Ok(Aligned {
+        image_from_chart: st.h,
+        residual_rms: (cost / n.max(1) as f64).sqrt(),
+        black_level: black_sum / np as f64,
+        white_level: white_sum / np as f64,
+        sigma_px,
+        sigma_by_channel,
+        channel_image_from_chart: if params.channel_shifts {
+            channel_registration.clone()
+        } else {
+            Vec::new()
+        },
+        channel_registration,
+        levels_by_channel,
+    })
+}
+
+/// A square's starting levels: per plane, black and the white − black gain, and their
+/// sums over planes; and whether any pixel of its window clips.
+struct Levels {
+    a: Vec<f64>,
+    b: Vec<f64>,
+    black_sum: f64,
+    white_sum: f64,
+    window_clips: bool,
+}
+
+/// The levels of square (`col`, `row`) from its histogram's peaks over a window wider
+/// than the square; an error naming why the square is set aside when its edges clip or
+/// it has too little contrast. `m` is the registration's margin in chart units.
+#[allow(clippy::too_many_arguments)]
+fn square_levels(
+    capture: &Capture,
+    bootstrap: &Homography,
+    quad: &[[f64; 2]; 4],
+    col: usize,
+    row: usize,
+    m: f64,
+    side_px: f64,
+    params: &DetectParams,
+) -> Result<Levels, String> {
     let chart_from_image = bootstrap.inverse().ok_or("degenerate homography")?;
     // Levels come from a wider window than the square alone: a blurred square's
     // circles never reach the full level of the opposite colour, the neighbours do.
@@ -525,39 +634,32 @@ pub fn align_square(
         black_sum += lo;
         white_sum += hi;
     }
-    // A coarse level blurs the pixels before it samples them, which spreads each
-    // clipped pixel over the blur's reach: leaving out every sample it touches leaves
-    // none near the edges of a clipped white, keeping them biases the edges. A coarse
-    // level with its edges masked away constrains nothing, and Gauss–Newton then walks
-    // where rounding takes it: a square kept or lost by chance, differently in the same
-    // photo turned. Where the window clips, the fine level alone registers the square,
-    // every pixel the same whichever way the shot is turned.
-    let levels = if fine.iter().any(|s| s.value >= params.saturation_level) {
-        1
-    } else {
-        levels
-    };
-    let centre = bootstrap.apply([col as f64 + 0.5, row as f64 + 0.5]);
-    let scale = side_px / 2.0;
-    let mut st = State {
-        h: *bootstrap,
-        var: vec![params.initial_sigma_px.powi(2); np],
+    Ok(Levels {
         a,
         b,
-    };
-    let held = held_corners(spec, col, row);
-    let contrast2 = st.b.iter().map(|b| b * b).sum::<f64>() / np as f64;
-    let hold = |ev: &mut Eval, h: &Homography| {
-        hold_corners(
-            ev,
-            h,
-            bootstrap,
-            &held,
-            HOLD_WEIGHT * contrast2,
-            centre,
-            scale,
-        );
-    };
+        black_sum,
+        white_sum,
+        window_clips: fine.iter().any(|s| s.value >= params.saturation_level),
+    })
+}
+
+/// Levenberg–Marquardt over the square's warp, blur and levels from `st`, coarse to
+/// fine over `levels`; `hold` adds the held corners' terms. The fitted state, the fine
+/// level's cost, its sample count and its normal equations; an error when the fine
+/// level does not converge.
+#[allow(clippy::too_many_arguments)]
+fn register(
+    capture: &Capture,
+    spec: &ChartSpec,
+    quad: &[[f64; 2]; 4],
+    mut st: State,
+    rect: Rect,
+    levels: usize,
+    centre: [f64; 2],
+    scale: f64,
+    hold: &dyn Fn(&mut Eval, &Homography),
+    params: &DetectParams,
+) -> Result<(State, f64, usize, Eval), String> {
     let mut last_eval: Option<(f64, usize, Eval)> = None;
     for level in (0..levels.max(1)).rev() {
         let extra_sigma = if level == 0 {
@@ -591,7 +693,7 @@ pub fn align_square(
                 continue;
             };
             let next = apply_step(&st, &step, centre, scale);
-            let shift = max_corner_shift(&st.h, &next.h, &quad);
+            let shift = max_corner_shift(&st.h, &next.h, quad);
             let mut nev = evaluate(spec, &next, &smp, rect, extra_var, centre, scale);
             hold(&mut nev, &next.h);
             if nev.cost <= ev.cost {
@@ -624,19 +726,33 @@ pub fn align_square(
         }
     }
     let (cost, n, final_eval) = last_eval.ok_or("no alignment level ran")?;
-    // The fitted gain is free in sign: a square registered against a chart whose
-    // colours are swapped there (the board assigned the wrong way round) fits as well
-    // with white below black, and would be kept with corners from the wrong squares.
-    if st.b.iter().any(|&g| !(g > 0.0)) {
-        return Err("its colours are the opposite of the chart's there".into());
-    }
-    if max_corner_shift(&st.h, bootstrap, &quad) > params.max_refine_shift_px {
-        return Err(format!(
-            "alignment moved a corner by more than {} px from its bootstrap",
-            params.max_refine_shift_px
-        ));
-    }
-    let sigma_px = st.var.iter().map(|v| v.sqrt()).sum::<f64>() / np as f64;
+    Ok((st, cost, n, final_eval))
+}
+
+/// A square's results per colour channel.
+struct ChannelResults {
+    /// Each channel's blur σ, px.
+    sigma: Vec<(Channel, f64)>,
+    /// Each channel's [black, white] levels.
+    levels: Vec<(Channel, [f64; 2])>,
+    /// Each channel's own registration; none for one channel.
+    registration: Vec<(Channel, Homography)>,
+}
+
+/// A square's [`ChannelResults`] after the joint registration `st`.
+#[allow(clippy::too_many_arguments)]
+fn per_channel(
+    capture: &Capture,
+    spec: &ChartSpec,
+    st: &State,
+    final_eval: &Eval,
+    rect: Rect,
+    quad: &[[f64; 2]; 4],
+    centre: [f64; 2],
+    scale: f64,
+    params: &DetectParams,
+) -> ChannelResults {
+    let np = capture.planes.len();
     let channels = capture.channels();
     // Measured on every capture of several channels (lateral colour is measured from
     // it); the kernels take it only where `channel_shifts` asks.
@@ -649,16 +765,7 @@ pub fn align_square(
                     .filter(|&k| capture.planes[k].channel == ch)
                     .collect();
                 let own = channel_state(
-                    spec,
-                    &st,
-                    &final_eval,
-                    &fine,
-                    &planes,
-                    rect,
-                    &quad,
-                    centre,
-                    scale,
-                    params,
+                    spec, st, final_eval, &fine, &planes, rect, quad, centre, scale, params,
                 );
                 (ch, own)
             })
@@ -698,21 +805,11 @@ pub fn align_square(
         .collect();
     let channel_registration: Vec<(Channel, Homography)> =
         per_channel.into_iter().map(|(c, s)| (c, s.h)).collect();
-    Ok(Aligned {
-        image_from_chart: st.h,
-        residual_rms: (cost / n.max(1) as f64).sqrt(),
-        black_level: black_sum / np as f64,
-        white_level: white_sum / np as f64,
-        sigma_px,
-        sigma_by_channel,
-        channel_image_from_chart: if params.channel_shifts {
-            channel_registration.clone()
-        } else {
-            Vec::new()
-        },
-        channel_registration,
-        levels_by_channel,
-    })
+    ChannelResults {
+        sigma: sigma_by_channel,
+        levels: levels_by_channel,
+        registration: channel_registration,
+    }
 }
 
 /// A translation step smaller than this (px) from the joint solution is taken as one

@@ -14,6 +14,8 @@ use std::collections::{HashMap, HashSet, VecDeque};
 pub struct Junction {
     pub pos: [f64; 2],
     pub response: f64,
+    /// How far out (px) its four sectors keep their colours ([`sector_reach`]).
+    pub reach: f64,
 }
 
 /// Smoothed grey image with its size.
@@ -111,26 +113,31 @@ pub fn find_junctions(s: &Smoothed, ring_radius_px: f64, min_rel_response: f64) 
             let Some(pos) = refine_saddle(s, [x as f64, y as f64]) else {
                 continue;
             };
-            if ring_test(s, pos, ring_radius_px) {
-                out.push(Junction { pos, response: v });
+            if let Some(sectors) = ring_test(s, pos, ring_radius_px) {
+                out.push(Junction {
+                    pos,
+                    response: v,
+                    reach: sector_reach(s, pos, ring_radius_px, &sectors),
+                });
             }
         }
     }
     out
 }
 
+/// The directions (radians) through the middles of a junction's four sectors, the
+/// first and third lighter than the ring's mean, the second and fourth darker.
+type Sectors = [f64; 4];
+
 /// Four alternating sectors on a ring around `p`, each close to a quarter turn with
 /// opposite sectors equal: the signature of two straight edges crossing (an
 /// X-junction). Saddles between a circle and a square edge have unequal sectors.
-fn ring_test(s: &Smoothed, p: [f64; 2], r: f64) -> bool {
+fn ring_test(s: &Smoothed, p: [f64; 2], r: f64) -> Option<Sectors> {
     const N: usize = 48;
     let mut v = [0.0; N];
     for (k, vk) in v.iter_mut().enumerate() {
         let a = 2.0 * std::f64::consts::PI * k as f64 / N as f64;
-        match s.sample(p[0] + r * a.cos(), p[1] + r * a.sin()) {
-            Some(x) => *vk = x,
-            None => return false,
-        }
+        *vk = s.sample(p[0] + r * a.cos(), p[1] + r * a.sin())?;
     }
     let mean = v.iter().sum::<f64>() / N as f64;
     let (lo, hi) = v
@@ -139,7 +146,7 @@ fn ring_test(s: &Smoothed, p: [f64; 2], r: f64) -> bool {
             (a.min(x), b.max(x))
         });
     if hi - lo < 0.05 {
-        return false;
+        return None;
     }
     // Sign changes, located by linear interpolation, in units of the sample step.
     let mut bounds = Vec::with_capacity(4);
@@ -150,15 +157,53 @@ fn ring_test(s: &Smoothed, p: [f64; 2], r: f64) -> bool {
         }
     }
     if bounds.len() != 4 {
-        return false;
+        return None;
     }
     let deg = 360.0 / N as f64;
     let spans: Vec<f64> = (0..4)
         .map(|k| ((bounds[(k + 1) % 4] - bounds[k]).rem_euclid(N as f64)) * deg)
         .collect();
-    spans.iter().all(|&s| (60.0..=120.0).contains(&s))
+    let x_junction = spans.iter().all(|&s| (60.0..=120.0).contains(&s))
         && (spans[0] - spans[2]).abs() < 16.0
-        && (spans[1] - spans[3]).abs() < 16.0
+        && (spans[1] - spans[3]).abs() < 16.0;
+    if !x_junction {
+        return None;
+    }
+    // Sector k runs from bounds[k] to bounds[k + 1]; start from a light one.
+    let middle = |k: usize| bounds[k] + 0.5 * spans[k] / deg;
+    let first = usize::from(v[(middle(0).round() as usize) % N] < mean);
+    Some(std::array::from_fn(|k| {
+        middle((first + k) % 4) * deg.to_radians()
+    }))
+}
+
+/// How far from junction `p` (px, in doublings of the ring radius `r`) its sectors keep
+/// the colours they have on the ring: the light pair lighter than the dark pair by half
+/// their difference at least. A chessboard's corner keeps them to about its square's
+/// size; a saddle in a texture (where a stripe's ridge crosses a fainter dip, or noise
+/// meets an edge) loses them within a period of the texture. Seeding the lattice from
+/// the junctions that reach furthest finds the chart among thousands of such saddles.
+fn sector_reach(s: &Smoothed, p: [f64; 2], r: f64, sectors: &Sectors) -> f64 {
+    let mut reach = r;
+    let far = s.w.min(s.h) as f64 / 2.0;
+    let mut rho = 2.0 * r;
+    while rho <= far {
+        let mut v = [0.0; 4];
+        for (vk, a) in v.iter_mut().zip(sectors) {
+            match s.sample(p[0] + rho * a.cos(), p[1] + rho * a.sin()) {
+                Some(x) => *vk = x,
+                None => return reach,
+            }
+        }
+        let (light_lo, dark_hi) = (v[0].min(v[2]), v[1].max(v[3]));
+        let gap = 0.5 * (v[0] + v[2] - v[1] - v[3]);
+        if !(gap > 0.0 && light_lo - dark_hi > 0.5 * gap) {
+            break;
+        }
+        reach = rho;
+        rho *= 2.0;
+    }
+    reach
 }
 
 /// Sub-pixel saddle: the stationary point of a quadratic fitted to the smoothed image
@@ -324,12 +369,107 @@ struct SeedLattice {
     too_large_nodes: Vec<usize>,
 }
 
+/// Where a lattice step is checked against the image: the smoothed grey image, and the
+/// points of a lattice cell where a chessboard square shows its own colour.
+struct Cells<'a> {
+    smoothed: &'a Smoothed,
+    /// (u, v) in a unit cell, along its two lattice axes: a grid over its middle, clear
+    /// of its edges' blur and of the spec's circles whichever way round the print lies.
+    probes: Vec<[f64; 2]>,
+}
+
+impl<'a> Cells<'a> {
+    fn new(smoothed: &'a Smoothed, spec: &ChartSpec) -> Self {
+        let clear = spec.circle_radius + 0.08;
+        let images = |c: &[f64; 2]| {
+            let [x, y] = *c;
+            [
+                [x, y],
+                [1.0 - x, y],
+                [x, 1.0 - y],
+                [1.0 - x, 1.0 - y],
+                [y, x],
+                [1.0 - y, x],
+                [y, 1.0 - x],
+                [1.0 - y, 1.0 - x],
+            ]
+        };
+        let mut probes = Vec::new();
+        for v in [0.3, 0.5, 0.7] {
+            for u in [0.3, 0.5, 0.7] {
+                let off_circles = spec
+                    .circle_centres
+                    .iter()
+                    .flat_map(images)
+                    .all(|c| (c[0] - u).hypot(c[1] - v) > clear);
+                if off_circles {
+                    probes.push([u, v]);
+                }
+            }
+        }
+        Self { smoothed, probes }
+    }
+
+    /// The least, mean and greatest of the image at the probes of the cell at `p`
+    /// spanned by `a` and `b`; `None` when fewer than half of them lie in the frame.
+    fn levels(&self, p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> Option<[f64; 3]> {
+        let (mut lo, mut sum, mut hi, mut n) = (f64::INFINITY, 0.0, f64::NEG_INFINITY, 0);
+        for [u, v] in &self.probes {
+            let q = [p[0] + u * a[0] + v * b[0], p[1] + u * a[1] + v * b[1]];
+            if let Some(x) = self.smoothed.sample(q[0], q[1]) {
+                lo = lo.min(x);
+                hi = hi.max(x);
+                sum += x;
+                n += 1;
+            }
+        }
+        (n > 0 && 2 * n >= self.probes.len()).then(|| [lo, sum / n as f64, hi])
+    }
+
+    /// Whether the lattice step from `p` by `step` runs between two squares of a
+    /// chessboard: the cells on its two sides (towards `side`, and away from it) each of
+    /// one colour, the one `plus_dark` says darker than the other by `min_contrast` at
+    /// least. A cell beyond the frame is not held against the step, but the other must
+    /// be of one colour. A lattice grown only through such steps stops at the board's
+    /// edge: stripes, tiles or a grille beside the print are not a chessboard's squares
+    /// at the chart's step, however many saddles they hold.
+    fn between_squares(
+        &self,
+        p: [f64; 2],
+        step: [f64; 2],
+        side: [f64; 2],
+        plus_dark: bool,
+        min_contrast: f64,
+    ) -> bool {
+        if self.probes.is_empty() {
+            return true;
+        }
+        let plus = self.levels(p, step, side);
+        let minus = self.levels(p, step, [-side[0], -side[1]]);
+        match (plus, minus) {
+            (Some(a), Some(b)) => {
+                let (dark, light) = if plus_dark { (a, b) } else { (b, a) };
+                let contrast = light[1] - dark[1];
+                contrast >= min_contrast
+                    && light[2] - light[0] <= 0.5 * contrast
+                    && dark[2] - dark[0] <= 0.5 * contrast
+            }
+            (Some(c), None) | (None, Some(c)) => c[2] - c[0] <= 0.5 * min_contrast,
+            (None, None) => false,
+        }
+    }
+}
+
 /// Grows a lattice from `seed` with starting axes `ex`, `ey`: every node predicts its
 /// four neighbours from its own local axes, so mild perspective and rotation are
-/// followed smoothly.
+/// followed smoothly. Each step must run between two squares of the seed's chessboard
+/// ([`Cells::between_squares`], the squares' colours alternating from the seed's and
+/// their contrast at least a third of the seed's), so the lattice does not run on
+/// into a periodic texture beside the print.
 fn grow(
     pts: &[Junction],
     buckets: &Buckets,
+    cells: &Cells<'_>,
     seed: usize,
     ex: [f64; 2],
     ey: [f64; 2],
@@ -339,6 +479,24 @@ fn grow(
     let mut taken: HashMap<usize, (i64, i64)> = HashMap::new();
     grid.insert((0, 0), seed);
     taken.insert(seed, (0, 0));
+    let p0 = pts[seed].pos;
+    // Whether the cells (i, j) with i + j even are the dark ones, and how much darker.
+    let (even_dark, min_contrast) = if cells.probes.is_empty() {
+        (false, 0.0)
+    } else {
+        let (Some(a), Some(b)) = (
+            cells.levels(p0, ex, ey),
+            cells.levels(p0, ex, [-ey[0], -ey[1]]),
+        ) else {
+            return grid;
+        };
+        let even_dark = a[1] < b[1];
+        let contrast = (a[1] - b[1]).abs();
+        if contrast < 0.05 || !cells.between_squares(p0, ex, ey, even_dark, 0.05) {
+            return grid;
+        }
+        (even_dark, contrast / 3.0)
+    };
     let mut queue = VecDeque::from([((0i64, 0i64), ex, ey)]);
     while let Some(((i, j), ex, ey)) = queue.pop_front() {
         let p = pts[grid[&(i, j)]].pos;
@@ -360,6 +518,16 @@ fn grow(
                 continue;
             }
             let found = sub(pts[k].pos, p);
+            // The cell on the `side` of the step, (i, j) for a step to (i + 1, j).
+            let (side, cell) = if di != 0 {
+                (ey, (i + di.min(0), j))
+            } else {
+                (ex, (i, j + dj.min(0)))
+            };
+            let plus_dark = ((cell.0 + cell.1).rem_euclid(2) == 0) == even_dark;
+            if !cells.between_squares(p, found, side, plus_dark, min_contrast) {
+                continue;
+            }
             let (nx, ny) = match (di, dj) {
                 (1, 0) => (found, ey),
                 (-1, 0) => ([-found[0], -found[1]], ey),
@@ -380,10 +548,11 @@ fn grow_from_seeds(
     pts: &[Junction],
     order: &[usize],
     buckets: &Buckets,
-    smoothed: &Smoothed,
+    cells: &Cells<'_>,
     spec: &ChartSpec,
     excluded: &HashSet<usize>,
 ) -> Vec<SeedLattice> {
+    let smoothed = cells.smoothed;
     let (inner_c, inner_r) = (spec.cols - 1, spec.rows - 1);
     let n_seeds = 24usize;
     let stride = (order.len() / n_seeds).max(1);
@@ -393,6 +562,18 @@ fn grow_from_seeds(
     for &k in order.iter().step_by(stride).take(n_seeds) {
         if seeds.len() < n_seeds + n_seeds / 2 && !seeds.contains(&k) {
             seeds.push(k);
+        }
+    }
+    // And those whose sectors reach furthest: where a texture's saddles outnumber the
+    // chart's corners a hundred to one, neither the strongest nor a spread of the list
+    // need hold one of the chart's.
+    if !cells.probes.is_empty() {
+        let mut by_reach = order.to_vec();
+        by_reach.sort_by(|&a, &b| pts[b].reach.total_cmp(&pts[a].reach));
+        for &k in by_reach.iter().take(n_seeds) {
+            if seeds.len() < 2 * n_seeds && !seeds.contains(&k) {
+                seeds.push(k);
+            }
         }
     }
     let max_step = (smoothed.w.min(smoothed.h) as f64) / 3.0;
@@ -432,7 +613,7 @@ fn grow_from_seeds(
                     if !(0.6..=1.6).contains(&ratio) {
                         continue;
                     }
-                    let mut g = grow(pts, buckets, seed, ex, ey, excluded);
+                    let mut g = grow(pts, buckets, cells, seed, ex, ey, excluded);
                     let (imin, imax, jmin, jmax) = extent(&g);
                     let (lim_i, lim_j) = lattice_limits(
                         (imax - imin + 1) as usize,
@@ -488,128 +669,10 @@ pub fn build_lattice(
     // cells whatever the square size: the median distance to the nearest junction
     // estimates the corner spacing.
     let buckets = Buckets::new(pts, (0.3 * nearest_spacing(pts)).max(4.0));
-    // Saddles also form between the circles and the square edges, in lattices of their
-    // own; grow lattices from several seeds and axis hypotheses and keep the one whose
-    // edges separate dark from light squares in the checkerboard's alternation.
-    let mut order: Vec<usize> = (0..pts.len()).collect();
-    order.sort_by(|&a, &b| pts[b].response.total_cmp(&pts[a].response));
+    let cells = Cells::new(smoothed, spec);
+    let (best, excluded) = search_lattices(pts, &buckets, &cells, spec)?;
+    let (best, h) = settle(pts, &buckets, smoothed, spec, best, &excluded)?;
     let (inner_c, inner_r) = (spec.cols - 1, spec.rows - 1);
-    // A periodic texture beside the chart (a striped panel, tiles, another chessboard)
-    // can fill the seeds with junctions whose lattice is larger than the chart. Such a
-    // lattice is not the chart whatever its score: its junctions are set aside and the
-    // search seeded again from the rest, so the printed grid's size decides.
-    let mut excluded: HashSet<usize> = HashSet::new();
-    let mut best: HashMap<(i64, i64), usize> = HashMap::new();
-    let mut best_score = 0.0;
-    let mut too_large = (0usize, 0usize, 0usize);
-    for _round in 0..4 {
-        let order: Vec<usize> = order
-            .iter()
-            .copied()
-            .filter(|k| !excluded.contains(k))
-            .collect();
-        let per_seed = grow_from_seeds(pts, &order, &buckets, smoothed, spec, &excluded);
-        let mut newly_excluded = Vec::new();
-        for r in per_seed {
-            if r.too_large.0 > too_large.0 {
-                too_large = r.too_large;
-            }
-            newly_excluded.extend(r.too_large_nodes);
-            if r.score > best_score {
-                best_score = r.score;
-                best = r.best;
-            }
-        }
-        let before = excluded.len();
-        excluded.extend(newly_excluded);
-        if best.len() >= 9 || excluded.len() == before {
-            break;
-        }
-    }
-    let mut contrasts = HashMap::new();
-    let mut score = memo_score(&mut contrasts, smoothed, pts);
-    if best.len() < 9 {
-        if too_large.0 >= 9 && too_large.0 > 2 * best.len() {
-            return Err(LatticeError::TooLarge {
-                cols: too_large.1,
-                rows: too_large.2,
-            });
-        }
-        return Err(LatticeError::NotFound);
-    }
-    let mut steps: Vec<f64> = best
-        .iter()
-        .filter_map(|(&(i, j), &k)| {
-            best.get(&(i + 1, j))
-                .map(|&q| norm(sub(pts[q].pos, pts[k].pos)))
-        })
-        .collect();
-    if steps.is_empty() {
-        return Err(LatticeError::NotFound);
-    }
-    steps.sort_by(f64::total_cmp);
-    let spacing = steps[steps.len() / 2];
-    let fit = |g: &HashMap<(i64, i64), usize>| -> Option<Homography> {
-        let mut keys: Vec<&(i64, i64)> = g.keys().collect();
-        keys.sort();
-        let from: Vec<[f64; 2]> = keys.iter().map(|k| [k.0 as f64, k.1 as f64]).collect();
-        let to: Vec<[f64; 2]> = keys.iter().map(|k| pts[g[k]].pos).collect();
-        Homography::from_correspondences(&from, &to)
-    };
-    let Some(mut h) = fit(&best) else {
-        return Err(LatticeError::NotFound);
-    };
-    // Drop nodes the global fit disowns, then fill holes from its predictions. Along
-    // an axis that spans fewer lines than the chart has, look one line beyond each
-    // end too; where that overshoots (a line of saddles just outside the board lines
-    // up with the lattice), the outer line whose removal leaves the better
-    // checkerboard goes.
-    for _ in 0..2 {
-        // Each node is judged by its neighbours, not by the global fit: lens distortion
-        // bends the lattice by a good fraction of a square toward the frame corners,
-        // where one homography for the whole board disowns true corners.
-        let disowned: Vec<(i64, i64)> = best
-            .iter()
-            .filter(|&(&k, &i)| {
-                let predicted = local_prediction(&best, pts, k)
-                    .unwrap_or_else(|| h.apply([k.0 as f64, k.1 as f64]));
-                norm(sub(predicted, pts[i].pos)) >= 0.2 * spacing
-            })
-            .map(|(&k, _)| k)
-            .collect();
-        for k in disowned {
-            best.remove(&k);
-        }
-        let (imin, imax, jmin, jmax) = extent(&best);
-        let (ni, nj) = ((imax - imin + 1) as usize, (jmax - jmin + 1) as usize);
-        let (lim_i, lim_j) = lattice_limits(ni, nj, inner_c, inner_r);
-        let grow_i = i64::from(ni < lim_i);
-        let grow_j = i64::from(nj < lim_j);
-        let mut taken: HashSet<usize> = best.values().copied().collect();
-        taken.extend(&excluded);
-        for j in jmin - grow_j..=jmax + grow_j {
-            for i in imin - grow_i..=imax + grow_i {
-                if best.contains_key(&(i, j)) {
-                    continue;
-                }
-                let q = local_prediction(&best, pts, (i, j))
-                    .unwrap_or_else(|| h.apply([i as f64, j as f64]));
-                if let Some(k) = buckets.nearest(pts, q, 0.2 * spacing)
-                    && !taken.contains(&k)
-                {
-                    best.insert((i, j), k);
-                    taken.insert(k);
-                }
-            }
-        }
-        trim_border(&mut best, lim_i, lim_j, |g, axis, lo, hi| {
-            worse_line(g, axis, lo, hi, &mut score)
-        });
-        match fit(&best) {
-            Some(nh) => h = nh,
-            None => return Err(LatticeError::NotFound),
-        }
-    }
     let (imin, imax, jmin, jmax) = extent(&best);
     let (ni, nj) = ((imax - imin + 1) as usize, (jmax - jmin + 1) as usize);
     if ni < 3 || nj < 3 || best.len() * 2 < ni * nj {
@@ -621,32 +684,7 @@ pub fn build_lattice(
             rows: nj + 1,
         });
     }
-    // Which colour each lattice cell is (cell (i, j) spans nodes (i, j) to
-    // (i + 1, j + 1)): a vote over nodes of whether the cells with i + j even are black.
-    let mut even_black_votes = [0usize; 2];
-    for (&(i, j), &k) in &best {
-        let p = pts[k].pos;
-        let e_x = sub(h.apply([i as f64 + 1.0, j as f64]), p);
-        let e_y = sub(h.apply([i as f64, j as f64 + 1.0]), p);
-        let below = add(
-            p,
-            [0.5 * e_x[0] + 0.15 * e_y[0], 0.5 * e_x[1] + 0.15 * e_y[1]],
-        );
-        let above = add(
-            p,
-            [0.5 * e_x[0] - 0.15 * e_y[0], 0.5 * e_x[1] - 0.15 * e_y[1]],
-        );
-        if let (Some(b), Some(a)) = (
-            smoothed.sample(below[0], below[1]),
-            smoothed.sample(above[0], above[1]),
-        ) {
-            // `below` lies in cell (i, j).
-            let cell_black = b < a;
-            let ij_even = (i + j).rem_euclid(2) == 0;
-            even_black_votes[usize::from(cell_black == ij_even)] += 1;
-        }
-    }
-    let even_black = even_black_votes[1] > even_black_votes[0];
+    let even_black = even_cells_black(&best, pts, &h, smoothed);
     let (w, hgt) = (smoothed.w as f64, smoothed.h as f64);
     let inside = |p: [f64; 2]| p[0] > 2.0 && p[1] > 2.0 && p[0] < w - 3.0 && p[1] < hgt - 3.0;
     // The spec describes the print, not the shot: the board may show at any rotation.
@@ -739,6 +777,194 @@ pub fn build_lattice(
         corners,
         image_from_chart,
     })
+}
+
+/// Which colour each lattice cell is (cell (i, j) spans nodes (i, j) to
+/// (i + 1, j + 1)): a vote over nodes of whether the cells with i + j even are black.
+fn even_cells_black(
+    best: &HashMap<(i64, i64), usize>,
+    pts: &[Junction],
+    h: &Homography,
+    smoothed: &Smoothed,
+) -> bool {
+    let mut even_black_votes = [0usize; 2];
+    for (&(i, j), &k) in best {
+        let p = pts[k].pos;
+        let e_x = sub(h.apply([i as f64 + 1.0, j as f64]), p);
+        let e_y = sub(h.apply([i as f64, j as f64 + 1.0]), p);
+        let below = add(
+            p,
+            [0.5 * e_x[0] + 0.15 * e_y[0], 0.5 * e_x[1] + 0.15 * e_y[1]],
+        );
+        let above = add(
+            p,
+            [0.5 * e_x[0] - 0.15 * e_y[0], 0.5 * e_x[1] - 0.15 * e_y[1]],
+        );
+        if let (Some(b), Some(a)) = (
+            smoothed.sample(below[0], below[1]),
+            smoothed.sample(above[0], above[1]),
+        ) {
+            // `below` lies in cell (i, j).
+            let cell_black = b < a;
+            let ij_even = (i + j).rem_euclid(2) == 0;
+            even_black_votes[usize::from(cell_black == ij_even)] += 1;
+        }
+    }
+    even_black_votes[1] > even_black_votes[0]
+}
+
+/// A lattice's nodes: lattice index (i, j) to junction.
+type Nodes = HashMap<(i64, i64), usize>;
+
+/// The best lattice grown from seeds over the junctions, and the junctions set aside
+/// as part of lattices larger than the chart.
+///
+/// Saddles also form between the circles and the square edges, in lattices of their
+/// own; lattices are grown from several seeds and axis hypotheses and the one whose
+/// edges separate dark from light squares in the checkerboard's alternation is kept.
+fn search_lattices(
+    pts: &[Junction],
+    buckets: &Buckets,
+    cells: &Cells<'_>,
+    spec: &ChartSpec,
+) -> Result<(Nodes, HashSet<usize>), LatticeError> {
+    let mut order: Vec<usize> = (0..pts.len()).collect();
+    order.sort_by(|&a, &b| pts[b].response.total_cmp(&pts[a].response));
+    // A chessboard beside the chart (a second board, two-colour tiles) can fill the
+    // seeds with junctions whose lattice is larger than the chart; lattices stop at a
+    // chessboard's edge, so such a lattice is not the chart whatever its score: its
+    // junctions are set aside and the search seeded again from the rest, so the
+    // printed grid's size decides.
+    let mut excluded: HashSet<usize> = HashSet::new();
+    let mut best: HashMap<(i64, i64), usize> = HashMap::new();
+    let mut best_score = 0.0;
+    let mut too_large = (0usize, 0usize, 0usize);
+    for _round in 0..4 {
+        let order: Vec<usize> = order
+            .iter()
+            .copied()
+            .filter(|k| !excluded.contains(k))
+            .collect();
+        let per_seed = grow_from_seeds(pts, &order, buckets, cells, spec, &excluded);
+        let mut newly_excluded = Vec::new();
+        for r in per_seed {
+            if r.too_large.0 > too_large.0 {
+                too_large = r.too_large;
+            }
+            newly_excluded.extend(r.too_large_nodes);
+            if r.score > best_score {
+                best_score = r.score;
+                best = r.best;
+            }
+        }
+        let before = excluded.len();
+        excluded.extend(newly_excluded);
+        if best.len() >= 9 || excluded.len() == before {
+            break;
+        }
+    }
+    if best.len() < 9 {
+        if too_large.0 >= 9 && too_large.0 > 2 * best.len() {
+            return Err(LatticeError::TooLarge {
+                cols: too_large.1,
+                rows: too_large.2,
+            });
+        }
+        return Err(LatticeError::NotFound);
+    }
+    Ok((best, excluded))
+}
+
+/// The search's lattice settled against its own fit: nodes their neighbours disown
+/// dropped, holes filled, outer lines beyond the chart trimmed; with its homography.
+fn settle(
+    pts: &[Junction],
+    buckets: &Buckets,
+    smoothed: &Smoothed,
+    spec: &ChartSpec,
+    mut best: Nodes,
+    excluded: &HashSet<usize>,
+) -> Result<(Nodes, Homography), LatticeError> {
+    let (inner_c, inner_r) = (spec.cols - 1, spec.rows - 1);
+    let mut contrasts = HashMap::new();
+    let mut score = memo_score(&mut contrasts, smoothed, pts);
+    let mut steps: Vec<f64> = best
+        .iter()
+        .filter_map(|(&(i, j), &k)| {
+            best.get(&(i + 1, j))
+                .map(|&q| norm(sub(pts[q].pos, pts[k].pos)))
+        })
+        .collect();
+    if steps.is_empty() {
+        return Err(LatticeError::NotFound);
+    }
+    steps.sort_by(f64::total_cmp);
+    let spacing = steps[steps.len() / 2];
+    let fit = |g: &HashMap<(i64, i64), usize>| fit_lattice(g, pts);
+    let Some(mut h) = fit(&best) else {
+        return Err(LatticeError::NotFound);
+    };
+    // Drop nodes the global fit disowns, then fill holes from its predictions. Along
+    // an axis that spans fewer lines than the chart has, look one line beyond each
+    // end too; where that overshoots (a line of saddles just outside the board lines
+    // up with the lattice), the outer line whose removal leaves the better
+    // checkerboard goes.
+    for _ in 0..2 {
+        // Each node is judged by its neighbours, not by the global fit: lens distortion
+        // bends the lattice by a good fraction of a square toward the frame corners,
+        // where one homography for the whole board disowns true corners.
+        let disowned: Vec<(i64, i64)> = best
+            .iter()
+            .filter(|&(&k, &i)| {
+                let predicted = local_prediction(&best, pts, k)
+                    .unwrap_or_else(|| h.apply([k.0 as f64, k.1 as f64]));
+                norm(sub(predicted, pts[i].pos)) >= 0.2 * spacing
+            })
+            .map(|(&k, _)| k)
+            .collect();
+        for k in disowned {
+            best.remove(&k);
+        }
+        let (imin, imax, jmin, jmax) = extent(&best);
+        let (ni, nj) = ((imax - imin + 1) as usize, (jmax - jmin + 1) as usize);
+        let (lim_i, lim_j) = lattice_limits(ni, nj, inner_c, inner_r);
+        let grow_i = i64::from(ni < lim_i);
+        let grow_j = i64::from(nj < lim_j);
+        let mut taken: HashSet<usize> = best.values().copied().collect();
+        taken.extend(excluded);
+        for j in jmin - grow_j..=jmax + grow_j {
+            for i in imin - grow_i..=imax + grow_i {
+                if best.contains_key(&(i, j)) {
+                    continue;
+                }
+                let q = local_prediction(&best, pts, (i, j))
+                    .unwrap_or_else(|| h.apply([i as f64, j as f64]));
+                if let Some(k) = buckets.nearest(pts, q, 0.2 * spacing)
+                    && !taken.contains(&k)
+                {
+                    best.insert((i, j), k);
+                    taken.insert(k);
+                }
+            }
+        }
+        trim_border(&mut best, lim_i, lim_j, |g, axis, lo, hi| {
+            worse_line(g, axis, lo, hi, &mut score)
+        });
+        match fit(&best) {
+            Some(nh) => h = nh,
+            None => return Err(LatticeError::NotFound),
+        }
+    }
+    Ok((best, h))
+}
+
+/// The homography from lattice indices to the nodes' junctions.
+fn fit_lattice(g: &HashMap<(i64, i64), usize>, pts: &[Junction]) -> Option<Homography> {
+    let mut keys: Vec<&(i64, i64)> = g.keys().collect();
+    keys.sort();
+    let from: Vec<[f64; 2]> = keys.iter().map(|k| [k.0 as f64, k.1 as f64]).collect();
+    let to: Vec<[f64; 2]> = keys.iter().map(|k| pts[g[k]].pos).collect();
+    Homography::from_correspondences(&from, &to)
 }
 
 /// Lattice node (i, j) turned by `quarter` quarter turns (a rotation, never a mirror).

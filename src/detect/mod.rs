@@ -5,9 +5,11 @@
 //! (Hessian saddles that pass a four-sector ring test) are grown into a lattice whose
 //! chart column/row follow from the board's visible edges and the square colours, at
 //! any rotation in the shot (the spec describes the print: of the quarter turns the
-//! spec and the colours allow, the one that turns the print least); lattices larger
-//! than the chart (a periodic texture beside it) are set aside. Every square of the
-//! chart is then predicted, bootstrapped from its four localised corners by a
+//! spec and the colours allow, the one that turns the print least). A lattice grows
+//! only through steps between two squares of one colour each, alternating as a
+//! chessboard's, so it stops at the board's edge whatever texture lies beyond; lattices
+//! larger than the chart (a second chessboard beside it) are set aside. Every square of
+//! the chart is then predicted, bootstrapped from its four localised corners by a
 //! normalised DLT, and refined by registering the exactly rasterised, Gaussian-blurred
 //! chart to the observed pixels ([`align`]; the outer corner of a white corner square,
 //! which no edge of the print places, is held where the lattice puts it). Squares that

@@ -239,10 +239,11 @@ fn chart_in_front_of_a_checkered_panel() {
 /// A background's reflectance at image point (x, y), owned.
 type Texture = Box<dyn Fn(f64, f64) -> f64>;
 
-/// What may lie behind a print: stripes (a corrugated panel, a bookshelf) at several
-/// periods (px) and angles. (Tiles 6 px at 0° behind the same chart are not yet found:
-/// their lattice, "at least 129 × 181 squares", hides the chart's, as the striped
-/// panel's does on the real photos.)
+/// What may lie behind a print: stripes (a corrugated panel, a bookshelf), tiles of two
+/// colours (a second chessboard, finer or coarser than the chart's) and a grille (bars
+/// both ways) at several periods (px) and angles. Each holds saddles by the hundred that
+/// line up in lattices larger than the chart's, and the chart's own lattice would run
+/// on into them.
 fn backgrounds() -> Vec<(String, Texture)> {
     let turned = |deg: f64, x: f64, y: f64| {
         let (c, s) = (deg.to_radians().cos(), deg.to_radians().sin());
@@ -262,6 +263,29 @@ fn backgrounds() -> Vec<(String, Texture)> {
             }),
         ));
     }
+    for (period, deg) in [(6.0, 0.0), (11.0, 30.0), (17.0, -15.0), (31.0, 25.0)] {
+        out.push((
+            format!("tiles {period} px at {deg}°"),
+            Box::new(move |x, y| {
+                let (u, v) = turned(deg, x, y);
+                if ((u / period).floor() + (v / period).floor()).rem_euclid(2.0) == 0.0 {
+                    0.15
+                } else {
+                    0.85
+                }
+            }),
+        ));
+    }
+    for (period, deg) in [(9.0, 0.0), (22.0, 40.0)] {
+        out.push((
+            format!("grille {period} px at {deg}°"),
+            Box::new(move |x, y| {
+                let (u, v) = turned(deg, x, y);
+                let bar = |t: f64| (t / period).rem_euclid(1.0) < 0.3;
+                if bar(u) || bar(v) { 0.1 } else { 0.8 }
+            }),
+        ));
+    }
     out
 }
 
@@ -277,8 +301,11 @@ fn chart_on_any_background() {
         ..small_chart()
     };
     let (w, h) = (480, 340);
-    let truth = pose(&spec, w, h, 26.0, 4.0);
+    let mut failed = Vec::new();
     for (k, (name, background)) in backgrounds().into_iter().enumerate() {
+        // The print turned differently over the backgrounds, against their own angles.
+        let rot = 4.0 + 9.0 * (k % 3) as f64;
+        let truth = pose(&spec, w, h, 26.0, rot);
         let cap = mono(shot(
             &spec,
             &truth,
@@ -288,13 +315,15 @@ fn chart_on_any_background() {
             50 + k as u64,
             Some(&*background),
         ));
-        let det = detect(&cap, &spec, &DetectParams::default(), &JobContext::silent())
-            .unwrap_or_else(|e| panic!("{name}: {e}"));
-        assert_eq!(
-            det.ok_squares().count(),
-            spec.cols * spec.rows,
-            "{name}: every square is in frame"
-        );
+        let name = format!("{name}, chart at {rot}°");
+        let det = match detect(&cap, &spec, &DetectParams::default(), &JobContext::silent()) {
+            Ok(d) => d,
+            Err(e) => {
+                eprintln!("{name}: {e}");
+                failed.push(name);
+                continue;
+            }
+        };
         // The corners against the truth on the squares off the board's edge: an edge
         // square's registration window reaches past the quarter-square margin into the
         // background, which the chart's template does not hold.
@@ -310,16 +339,23 @@ fn chart_on_any_background() {
             ..det.clone()
         };
         let e = corner_errors(&spec, &truth, &inner);
+        let ok = det.ok_squares().count();
         eprintln!(
-            "{name}: {} squares off the edge, bootstrap RMS {:.4} px, refined RMS {:.4} px",
-            e.ok, e.boot_rms, e.refined_rms
-        );
-        assert!(
-            e.refined_rms <= 0.03,
-            "{name}: refined corner RMS {} px",
+            "{name}: {ok} of {} squares aligned, {} off the edge, bootstrap RMS {:.4} px, refined RMS {:.4} px",
+            spec.cols * spec.rows,
+            e.ok,
+            e.boot_rms,
             e.refined_rms
         );
+        // Every square is in frame.
+        if ok != spec.cols * spec.rows || e.refined_rms > 0.03 {
+            failed.push(name);
+        }
     }
+    assert!(
+        failed.is_empty(),
+        "not found whole or not to 0.03 px: {failed:?}"
+    );
 }
 
 #[test]

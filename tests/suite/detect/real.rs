@@ -276,6 +276,43 @@ fn real_chart_figures() {
     }
 }
 
+/// The 9 × 7 chessboard laid on a corrugated panel whose stripes fill the rest of the
+/// frame (striped/, SOURCES.md): their saddles outnumber the board's corners by far and
+/// line up in a lattice of their own, larger than the chart. The board is found, and
+/// every interior square (the 7 × 5 whose corners are all inner corners) is aligned or
+/// set aside because its white is clipped.
+#[test]
+fn chart_on_a_striped_panel() {
+    let folder = folder().join("striped");
+    let spec = ChartSpec::load(&folder.join("chart.json")).expect("the print's spec");
+    for file in ["striped-panel-1.jpg", "striped-panel-2.jpg"] {
+        let cap = load_capture(&folder.join(file), &LoadOptions::default()).expect("loads");
+        let det = detect(&cap, &spec, &DetectParams::default(), &JobContext::silent())
+            .unwrap_or_else(|e| panic!("{file}: {e}"));
+        let (ok, n) = interior_ok(&det, &spec);
+        let clipped = det
+            .squares
+            .iter()
+            .filter(|s| s.col >= 1 && s.row >= 1 && s.col + 1 < spec.cols && s.row + 1 < spec.rows)
+            .filter(|s| lensblur::detect::is_clipped(s))
+            .count();
+        let mut reasons = std::collections::BTreeMap::<String, usize>::new();
+        for s in &det.squares {
+            if let Some(r) = &s.reason {
+                *reasons.entry(r.clone()).or_default() += 1;
+            }
+        }
+        eprintln!(
+            "{file}: {} of {} squares aligned, interior {ok}/{n} aligned, {clipped} clipped; {reasons:?}",
+            det.ok_squares().count(),
+            det.squares.len()
+        );
+        assert_eq!(n, (spec.cols - 2) * (spec.rows - 2));
+        assert_eq!(ok + clipped, n, "{file}: interior squares lost");
+        assert!(det.ok_squares().count() >= n, "{file}: squares aligned");
+    }
+}
+
 /// Every photo on which OpenCV finds the board, lensblur finds too; every interior
 /// square (the 8 × 5 whose corners are all inner corners, which both locate) is
 /// aligned or set aside because its white is clipped (a clipped edge's blur cannot be
