@@ -1,5 +1,5 @@
-//! The list of recently opened sessions (the studio's File ▸ Recent sessions), and
-//! where the studio keeps its own files.
+//! The list of recently opened sessions (the studio's File ▸ Recent sessions), where
+//! the studio keeps its own files, and the profile library it and the batch share.
 
 use crate::session::SessionError;
 use std::path::{Path, PathBuf};
@@ -27,6 +27,61 @@ pub fn default_profile_library() -> PathBuf {
         .map_or_else(std::env::temp_dir, PathBuf::from)
         .join("lensblur")
         .join("profiles")
+}
+
+/// Where the studio remembers its settings (the profile library chosen): beside the
+/// demo. The command line's batch reads the same file, so both name one library.
+#[must_use]
+pub fn default_settings_file() -> PathBuf {
+    let demo = default_demo_dir();
+    crate::io::parent_dir(&demo).join("settings.json")
+}
+
+/// What the studio remembers between launches.
+#[derive(serde::Serialize, serde::Deserialize, Default)]
+struct Settings {
+    /// The profile library chosen in the studio; `None`: [`default_profile_library`].
+    #[serde(default)]
+    profile_library: Option<PathBuf>,
+}
+
+/// The profile library: the folder chosen in the studio (remembered in `settings`),
+/// else [`default_profile_library`]. A missing or unreadable settings file is the
+/// default: forgetting the choice costs the user one click.
+#[must_use]
+pub fn profile_library(settings: &Path) -> PathBuf {
+    std::fs::read_to_string(settings)
+        .ok()
+        .and_then(|t| serde_json::from_str::<Settings>(&t).ok())
+        .and_then(|s| s.profile_library)
+        .unwrap_or_else(default_profile_library)
+}
+
+/// Remembers `folder` as the profile library in `settings`, for the studio's next
+/// launch and the command line's batch.
+///
+/// # Errors
+/// The settings file cannot be written.
+pub fn choose_profile_library(settings: &Path, folder: &Path) -> Result<(), SessionError> {
+    let chosen = Settings {
+        profile_library: Some(folder.to_path_buf()),
+    };
+    write_json(settings, &chosen)
+}
+
+/// Writes `value` as JSON to `file`, its folder made first.
+fn write_json(file: &Path, value: &impl serde::Serialize) -> Result<(), SessionError> {
+    if let Some(dir) = file.parent() {
+        std::fs::create_dir_all(dir).map_err(|source| SessionError::Write {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+    }
+    let text = serde_json::to_vec_pretty(value).map_err(|e| SessionError::Write {
+        path: file.to_path_buf(),
+        source: std::io::Error::other(e),
+    })?;
+    crate::io::write_atomic(file, &text).map_err(SessionError::from)
 }
 
 /// Where the studio keeps its list of recently opened sessions: beside the demo.
@@ -64,16 +119,25 @@ pub fn remember_recent(file: &Path, folder: &Path) -> Result<Vec<PathBuf>, Sessi
     list.retain(|p| p != &folder);
     list.insert(0, folder);
     list.truncate(RECENT_MAX);
-    if let Some(dir) = file.parent() {
-        std::fs::create_dir_all(dir).map_err(|source| SessionError::Write {
-            path: dir.to_path_buf(),
-            source,
-        })?;
-    }
-    let text = serde_json::to_vec_pretty(&list).map_err(|e| SessionError::Write {
-        path: file.to_path_buf(),
-        source: std::io::Error::other(e),
-    })?;
-    crate::io::write_atomic(file, &text).map_err(SessionError::from)?;
+    write_json(file, &list)?;
     Ok(list)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The library chosen in the studio is the one read back (by the studio's next
+    /// launch and the batch); no choice, or an unreadable file, is the default.
+    #[test]
+    fn the_chosen_profile_library_is_remembered() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let settings = dir.path().join("lensblur").join("settings.json");
+        assert_eq!(profile_library(&settings), default_profile_library());
+        let chosen = dir.path().join("my lenses");
+        choose_profile_library(&settings, &chosen).expect("remembered");
+        assert_eq!(profile_library(&settings), chosen);
+        std::fs::write(&settings, b"{not json").expect("write");
+        assert_eq!(profile_library(&settings), default_profile_library());
+    }
 }

@@ -1,4 +1,4 @@
-//! `lensblur deblur PHOTO|DIR... --out-dir OUTDIR --profiles PROFILEDIR [--format
+//! `lensblur deblur PHOTO|DIR... --out-dir OUTDIR [--profiles PROFILEDIR] [--format
 //! tiff|png|dng] [--allow-extrapolation] [--jobs N]`: many photos, each with the
 //! profile its EXIF matches (`lensblur::batch` holds the rule), written as
 //! `<OUTDIR>/<stem>.<format>`. Skips are reported, not failures; the exit status is
@@ -23,10 +23,13 @@ use std::path::{Path, PathBuf};
 pub struct BatchArgs {
     /// Batch: the folder the outputs go to, `<photo's stem>.<format>` each (made if
     /// missing). Photos whose output is already there and complete are skipped.
-    #[arg(long, requires = "profiles")]
+    #[arg(long)]
     pub out_dir: Option<PathBuf>,
-    /// Batch: a folder of lens profiles; each photo gets the one that matches its EXIF
-    /// camera, lens and sensor size at its focal length and aperture.
+    /// Batch: a folder of lens profiles (subfolders searched); each photo gets the one
+    /// that matches its EXIF camera, lens and sensor size at its focal length and
+    /// aperture. Default: the profile library the studio saves into,
+    /// ~/lensblur/profiles unless another was chosen there (File ▸ Export ▸ Choose the
+    /// profile library…).
     #[arg(
         long,
         requires = "out_dir",
@@ -127,9 +130,12 @@ pub fn run(
     lateral_colour: LateralColour,
     deblur: &DeblurOptions,
 ) -> Result<()> {
-    let (Some(out_dir), Some(profiles)) = (&b.out_dir, &b.profiles) else {
-        bail!("a batch needs --out-dir and --profiles");
+    let Some(out_dir) = &b.out_dir else {
+        bail!("a batch needs --out-dir");
     };
+    let profiles = b.profiles.clone().unwrap_or_else(|| {
+        lensblur::recent::profile_library(&lensblur::recent::default_settings_file())
+    });
     let format = match b.format {
         FormatArg::Auto => OutputFormat::Auto,
         FormatArg::Tiff => OutputFormat::Tiff,
@@ -141,7 +147,13 @@ pub fn run(
         bail!("--jobs must be at least 1");
     }
     lensblur::io::create_dir_all(out_dir)?;
-    let library = ProfileLibrary::load(profiles)?;
+    let library = ProfileLibrary::load(&profiles).map_err(|e| match &b.profiles {
+        Some(_) => anyhow::Error::from(e),
+        // The default library: say what it is and how to fill it or pass another.
+        None => anyhow::anyhow!(
+            "{e} (the profile library: save a profile into it from the studio, Export ▸ Lens profile to the library, or give --profiles FOLDER)"
+        ),
+    })?;
     for w in &library.warnings {
         eprintln!("lensblur: warning: {w}");
     }

@@ -37,8 +37,8 @@ pub struct Args {
     pub csv: bool,
     /// Channels to predict, comma-separated: r, g, b or y (default: every channel of the
     /// profile).
-    #[arg(long, value_delimiter = ',')]
-    pub channels: Vec<Channel>,
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub channels: Vec<super::sharpness::ChannelArg>,
     /// Use this model instead of the profile's preferred one.
     #[arg(long, value_enum)]
     pub model: Option<KindArg>,
@@ -135,7 +135,7 @@ pub fn run(args: Args) -> Result<()> {
     let channels = if args.channels.is_empty() {
         profile.model(kind)?.channels()
     } else {
-        args.channels.clone()
+        args.channels.iter().map(|&c| Channel::from(c)).collect()
     };
     let (w, h) = (profile.norm.width as f64, profile.norm.height as f64);
     if let Some(p) = points.iter().find(|p| {

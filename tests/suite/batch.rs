@@ -262,6 +262,42 @@ fn batch_picks_each_photos_profile_skips_with_reasons_and_resumes() {
             .any(|l| l.contains("far.tif: warning:") && l.contains("outside the calibrated range")),
         "{err}"
     );
+
+    // Without --profiles, the profile library the studio saves into: none yet is one
+    // line saying how to fill it; the folder chosen in the studio is read.
+    let home = d("home");
+    let from_library = |out: &str| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_lensblur"))
+            .arg("deblur")
+            .arg(d("photos/a.tif"))
+            .arg("--out-dir")
+            .arg(d(out))
+            .env("HOME", &home)
+            .env("XDG_DATA_HOME", home.join("data"))
+            .output()
+            .expect("run lensblur");
+        (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let (ok, err) = from_library("no-library");
+    assert!(!ok, "{err}");
+    let library = home.join("lensblur").join("profiles");
+    assert!(
+        err.contains(&library.display().to_string())
+            && err.contains("Lens profile to the library")
+            && err.contains("--profiles"),
+        "{err}"
+    );
+    lensblur::recent::choose_profile_library(
+        &home.join("data").join("lensblur").join("settings.json"),
+        &d("profiles"),
+    )
+    .expect("choose the library");
+    let (ok, err) = from_library("library-out");
+    assert!(ok, "{err}");
+    assert!(line_of(&err, "a.tif").contains("zoom-1001.json"), "{err}");
 }
 
 #[test]

@@ -278,3 +278,109 @@ fn a_profile_from_before_it_recorded_its_shots_is_taken_for_a_raw_one() {
         .expect("a RAW file is warned about");
     assert!(w.contains("calibrate from RAW files"), "{w}");
 }
+
+/// `planes` with a sensor's shot and read noise added: Gaussian of variance
+/// v / full well + (read / full well)², white 1, in electrons at white.
+fn with_sensor_noise(planes: &[Plane; 3], full_well_e: f64, read_e: f64, seed: u64) -> [Plane; 3] {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+    let unit = Normal::new(0.0, 1.0).expect("σ > 0");
+    planes.clone().map(|mut p| {
+        for v in &mut p.data {
+            let var = f64::from(v.max(0.0)) / full_well_e + (read_e / full_well_e).powi(2);
+            *v += (var.sqrt() * unit.sample(&mut rng)) as f32;
+        }
+        p
+    })
+}
+
+/// Each CFA plane of `cap` against the same plane of `truth` (the same sites).
+fn cfa_ssim(
+    cap: &lensblur::plane::Capture,
+    planes: &[Plane],
+    truth: &lensblur::plane::Capture,
+) -> f64 {
+    planes
+        .iter()
+        .zip(&truth.planes)
+        .map(|(p, t)| ssim(p, &t.plane, &SsimParams::default()))
+        .sum::<f64>()
+        / cap.planes.len() as f64
+}
+
+/// A RAW photo's regularisation follows the noise measured on its own CFA planes: a
+/// clean one (σ 0.003, base ISO) keeps the tuned strength and so exactly the result it
+/// had, a noisy one (a high ISO's shot and read noise) is held back and comes out
+/// closer to the sharp scene than at the tuned strength.
+#[test]
+fn a_noisy_raw_photo_is_held_back_and_a_clean_one_keeps_its_strength() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (sharp, blurry) = scene();
+    let profile = raw_profile();
+    let truth_path = dir.path().join("sharp.dng");
+    write_raw(&truth_path, &sharp);
+    let truth = load_capture(&truth_path, &LoadOptions::default()).expect("load");
+    // About ISO 6400 on a full-frame sensor: 500 electrons at white, 2 e⁻ read noise.
+    let grainy = with_sensor_noise(&blurry, 500.0, 2.0, 51);
+    let job = JobContext::silent();
+    for (name, planes) in [("clean RAW", &blurry), ("noisy RAW", &grainy)] {
+        let path = dir.path().join(format!("{}.dng", name.replace(' ', "_")));
+        write_raw(&path, planes);
+        let cap = load_capture(&path, &LoadOptions::default()).expect("load");
+        assert!(cap.is_raw && cap.planes.len() == 4);
+        // The noise as added, over the CFA sites: what the estimate should find.
+        let added = planes
+            .iter()
+            .zip(&blurry)
+            .flat_map(|(p, b)| p.data.iter().zip(&b.data).map(|(x, y)| f64::from(x - y)))
+            .map(|d| d * d)
+            .sum::<f64>();
+        let true_sigma = (0.003f64.powi(2) + added / (3 * W * H) as f64).sqrt();
+        let noise = lensblur::deblur::noise::estimate(&cap);
+        let source = ProfileKernels::new(profile.clone(), SETTING);
+        let held = lensblur::deblur::deblur_capture(&cap, &source, &DeblurOptions::default(), &job)
+            .expect("deblur");
+        let held: Vec<Plane> = held.planes.into_iter().map(|p| p.plane).collect();
+        // What a RAW photo got before its noise was measured: the tuned strength.
+        let tuned: Vec<Plane> = cap
+            .planes
+            .iter()
+            .map(|cp| {
+                deblur_channel_plane(cp, W, H, &source, &DeblurOptions::default(), &job)
+                    .expect("deblur")
+            })
+            .collect();
+        let original: Vec<Plane> = cap.planes.iter().map(|p| p.plane.clone()).collect();
+        let before = cfa_ssim(&cap, &original, &truth);
+        let (after, at_tuned) = (
+            cfa_ssim(&cap, &held, &truth),
+            cfa_ssim(&cap, &tuned, &truth),
+        );
+        eprintln!(
+            "{name}: σ {true_sigma:.4}, estimated {:.4} (data weight {:.3}); SSIM {before:.4} -> {after:.4} (at the tuned strength {at_tuned:.4})",
+            noise.random,
+            noise.data_weight()
+        );
+        if name == "clean RAW" {
+            // Read below the tuned level, so the tuned strength, as before.
+            assert_eq!(noise.data_weight(), 1.0, "{name}: {noise:?}");
+            assert!(
+                (after - at_tuned).abs() < 1e-6,
+                "{name}: {after} vs {at_tuned}"
+            );
+            assert!(after > before + 0.03, "{name}: SSIM {before} -> {after}");
+        } else {
+            assert!(
+                (noise.random / true_sigma - 1.0).abs() < 0.15,
+                "{name}: estimated {noise:?} for σ {true_sigma}"
+            );
+            assert!(
+                after > at_tuned + 0.02,
+                "{name}: {after} at its own noise vs {at_tuned} tuned"
+            );
+            assert!(
+                after >= before,
+                "{name}: made worse, SSIM {before} -> {after}"
+            );
+        }
+    }
+}
