@@ -89,6 +89,9 @@ pub struct Timings {
     nanos: [AtomicU64; STAGES],
     wall: AtomicU64,
     tiles: AtomicU64,
+    /// GPU: bytes written to the device, all of them and those of the tiles' kernels.
+    uploaded: AtomicU64,
+    kernel_bytes: AtomicU64,
 }
 
 impl Timings {
@@ -119,6 +122,21 @@ impl Timings {
 
     pub fn add_tiles(&self, n: usize) {
         self.tiles.fetch_add(n as u64, Ordering::Relaxed);
+    }
+
+    /// Counts an upload to the GPU: `bytes` in all, `kernels` of them the tiles' kernels.
+    pub fn add_upload(&self, bytes: u64, kernels: u64) {
+        self.uploaded.fetch_add(bytes, Ordering::Relaxed);
+        self.kernel_bytes.fetch_add(kernels, Ordering::Relaxed);
+    }
+
+    /// Bytes uploaded to the GPU: (all, the tiles' kernels).
+    #[must_use]
+    pub fn uploaded(&self) -> (u64, u64) {
+        (
+            self.uploaded.load(Ordering::Relaxed),
+            self.kernel_bytes.load(Ordering::Relaxed),
+        )
     }
 
     /// Seconds summed over threads.
@@ -176,6 +194,13 @@ impl Timings {
             self.wall_seconds(),
             self.tiles()
         );
+        let (all, kernels) = self.uploaded();
+        if all > 0 {
+            let _ = write!(
+                out,
+                "\nuploaded {all} bytes, the tiles' kernels {kernels} of them"
+            );
+        }
         out
     }
 }

@@ -8,13 +8,14 @@
 //! device its window draws with, so the preview does not open a second one). One is
 //! shared by the process ([`shared`]); [`Device`] says whether a deblur may use it.
 
+mod kernels;
 mod photo;
 
-use super::{DeblurError, DeblurOptions, KernelSource, Method, cropped, plane_kernel_at};
+use super::{DeblurError, DeblurOptions, KernelSource, Method};
 use crate::job::JobContext;
 use crate::plane::{Capture, Plane};
-use crate::psf::Kernel;
 use crate::timings::{Stage, Timings};
+use kernels::TileKernel;
 use photo::PlaneJob;
 use rayon::prelude::*;
 use std::sync::{Arc, Mutex, OnceLock};
@@ -128,6 +129,7 @@ pub struct GpuDeblurrer {
 }
 
 struct Stages {
+    kernel_sum: wgpu::ComputePipeline,
     load: wgpu::ComputePipeline,
     blur: wgpu::ComputePipeline,
     taper: wgpu::ComputePipeline,
@@ -297,6 +299,7 @@ impl GpuDeblurrer {
         let fft_short = pipeline(&fft_pipeline_layout, &fft_module, "fft", &[("WG", 64.0)]);
         let fft_long = pipeline(&fft_pipeline_layout, &fft_module, "fft", &[]);
         let stages = Stages {
+            kernel_sum: main("kernel_sum"),
             load: main("load"),
             blur: main("blur"),
             taper: main("taper"),
@@ -422,8 +425,8 @@ fn entry(binding: u32, buffer: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
     }
 }
 
-/// Every plane's grid and every tile's 1× kernel: the grids one per plane, the kernels
-/// of all planes' tiles in one parallel pass.
+/// Every plane's grid and every tile's kernel (a Gaussian's few numbers, or 1× taps):
+/// the grids one per plane, the kernels of all planes' tiles in one parallel pass.
 fn plane_jobs<'c>(
     cap: &'c Capture,
     source: &dyn KernelSource,
@@ -440,15 +443,15 @@ fn plane_jobs<'c>(
     if let Some(t) = job.timings() {
         t.add_tiles(tiles.len());
     }
-    let kernels: Vec<Kernel> = tiles
+    let kernels: Vec<TileKernel> = tiles
         .into_par_iter()
-        .map(|(p, t)| -> Result<Kernel, DeblurError> {
+        .map(|(p, t)| -> Result<TileKernel, DeblurError> {
             let started = Timings::start(job.timings());
             let g = &grids[p];
             let max_kernel = 2 * g.x.margin_before.min(g.y.margin_before) + 1;
             let (tx, ty) = (t % g.x.count, t / g.x.count);
-            let k = plane_kernel_at(&cap.planes[p], w, h, source, g.x.centre(tx), g.y.centre(ty))?;
-            let k = cropped(k, max_kernel).resampled(1);
+            let centre = [g.x.centre(tx), g.y.centre(ty)];
+            let k = kernels::tile_kernel(&cap.planes[p], (w, h), source, centre, max_kernel)?;
             Timings::stop(job.timings(), Stage::Kernels, started);
             Ok(k)
         })

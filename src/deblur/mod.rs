@@ -20,7 +20,8 @@ mod tiles;
 pub use gpu::{Device, GpuError};
 pub use solve::{HqsParams, IrlsParams, Method, WienerParams};
 pub use source::{
-    ConstantKernel, KernelSource, KernelsFile, ProfileKernels, ScatteredKernels, SourceError,
+    ConstantKernel, KernelSource, KernelsFile, PlacedGaussian, ProfileKernels, ScatteredKernels,
+    SourceError,
 };
 
 use crate::fft::good_size;
@@ -339,10 +340,18 @@ pub(crate) fn plane_kernel_at(
     i: f64,
     j: f64,
 ) -> Result<Kernel, DeblurError> {
-    let [x, y] = cp.sensor_from_plane(i, j);
-    let x = x.clamp(0.0, (sensor_width.max(1) - 1) as f64);
-    let y = y.clamp(0.0, (sensor_height.max(1) - 1) as f64);
+    let [x, y] = sensor_point(cp, (sensor_width, sensor_height), i, j);
     Ok(plane_kernel(&source.kernel_at(cp.channel, x, y)?, cp.step))
+}
+
+/// The sensor point a tile centred at plane point (i, j) takes its kernel at: on the
+/// sensor, where a plane's reflected border would reach past it.
+pub(crate) fn sensor_point(cp: &ChannelPlane, (w, h): (usize, usize), i: f64, j: f64) -> [f64; 2] {
+    let [x, y] = cp.sensor_from_plane(i, j);
+    [
+        x.clamp(0.0, (w.max(1) - 1) as f64),
+        y.clamp(0.0, (h.max(1) - 1) as f64),
+    ]
 }
 
 /// The tile grid [`deblur_channel_plane`] uses for a plane: the largest kernel sizes

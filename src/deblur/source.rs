@@ -15,11 +15,36 @@ pub enum SourceError {
     Other(String),
 }
 
+/// A kernel that is a Gaussian rendered at its mean: exactly
+/// `gaussian.kernel_at(oversample, mean)`, so a few numbers say all of it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlacedGaussian {
+    pub gaussian: Gaussian2,
+    /// Where its mean lies, px from the kernel's centre.
+    pub mean: [f64; 2],
+    pub oversample: usize,
+}
+
 /// The pixel-level kernel (any oversample) of `channel` at sensor point (x, y).
 pub trait KernelSource: Sync {
     /// # Errors
     /// When the source has nothing for this channel or point.
     fn kernel_at(&self, channel: Channel, x: f64, y: f64) -> Result<Kernel, SourceError>;
+
+    /// The same kernel as a [`PlacedGaussian`] where it is one (the GPU path then makes
+    /// its taps on the device); `None`, the default, where it is not or the source
+    /// does not say.
+    ///
+    /// # Errors
+    /// As [`Self::kernel_at`].
+    fn placed_gaussian(
+        &self,
+        _channel: Channel,
+        _x: f64,
+        _y: f64,
+    ) -> Result<Option<PlacedGaussian>, SourceError> {
+        Ok(None)
+    }
 }
 
 impl<F> KernelSource for F
@@ -322,17 +347,45 @@ impl ProfileKernels {
     }
 }
 
-impl KernelSource for ProfileKernels {
-    fn kernel_at(&self, channel: Channel, x: f64, y: f64) -> Result<Kernel, SourceError> {
-        let have = self.profile.channels();
-        let ch = if have.contains(&channel) {
+impl ProfileKernels {
+    /// The channel whose kernels a plane of `channel` takes: its own, else green's.
+    fn channel_for(&self, channel: Channel) -> Channel {
+        if self.profile.channels().contains(&channel) {
             channel
         } else {
             Channel::G
-        };
+        }
+    }
+}
+
+impl KernelSource for ProfileKernels {
+    fn kernel_at(&self, channel: Channel, x: f64, y: f64) -> Result<Kernel, SourceError> {
+        let ch = self.channel_for(channel);
         self.profile
             .predict_kernel(self.model, self.lateral, ch, x, y, self.setting)
             .map_err(|e| SourceError::Other(e.to_string()))
+    }
+
+    /// The Gaussian model's kernels are placed Gaussians; the shape model's are not.
+    fn placed_gaussian(
+        &self,
+        channel: Channel,
+        x: f64,
+        y: f64,
+    ) -> Result<Option<PlacedGaussian>, SourceError> {
+        if self.model != crate::model::KernelModel::Gaussian {
+            return Ok(None);
+        }
+        let ch = self.channel_for(channel);
+        let (gaussian, mean) = self
+            .profile
+            .placed_gaussian(self.lateral, ch, x, y, self.setting)
+            .map_err(|e| SourceError::Other(e.to_string()))?;
+        Ok(Some(PlacedGaussian {
+            gaussian,
+            mean,
+            oversample: crate::profile::KERNEL_OVERSAMPLE,
+        }))
     }
 }
 

@@ -49,6 +49,9 @@ pub const PROFILE: crate::format::Schema = crate::format::Schema {
 
 use crate::limits::{MAX_LOCAL_CENTRES, MAX_SENSOR_SIDE_PX};
 
+/// The oversampling of the kernels a profile predicts for deblurring.
+pub const KERNEL_OVERSAMPLE: usize = 3;
+
 /// Errors of reading, writing and using a profile.
 #[derive(Debug, thiserror::Error)]
 pub enum ProfileError {
@@ -1114,6 +1117,29 @@ impl Profile {
             .ok_or(ProfileError::NoChannel(channel))
     }
 
+    /// The Gaussian kernel model's prediction at sensor (x, y): the Gaussian and its
+    /// mean (px), where the place model puts the channel's kernels. The kernel
+    /// [`Self::predict_kernel`] renders of it is `g.kernel_at(KERNEL_OVERSAMPLE, mean)`;
+    /// a GPU makes the same from these few numbers.
+    ///
+    /// # Errors
+    /// As [`Profile::predict`].
+    pub fn placed_gaussian(
+        &self,
+        lateral: LateralColour,
+        channel: Channel,
+        x: f64,
+        y: f64,
+        setting: LensSetting,
+    ) -> Result<(Gaussian2, [f64; 2]), ProfileError> {
+        let g = self.predict(channel, x, y, setting)?;
+        let c = self
+            .place
+            .as_ref()
+            .and_then(|p| p.centroid(channel, x, y, setting, lateral));
+        Ok((g, c.unwrap_or([0.0, 0.0])))
+    }
+
     /// The kernel the profile predicts for deblurring at sensor (x, y) for a setting,
     /// at 3×: the preferred model's Gaussian, with the shape model's predicted shape
     /// when `model` asks for it, placed where the profile's place model puts the channel's
@@ -1131,19 +1157,19 @@ impl Profile {
         y: f64,
         setting: LensSetting,
     ) -> Result<Kernel, ProfileError> {
-        let g = self.predict(channel, x, y, setting)?;
         let place = self.place.as_ref();
         match (model, &self.shape) {
             // A Gaussian is centred: all of its place comes from the place model.
             (KernelModel::Gaussian, _) => {
-                let c = place.and_then(|p| p.centroid(channel, x, y, setting, lateral));
-                Ok(g.kernel_at(3, c.unwrap_or([0.0, 0.0])))
+                let (g, mean) = self.placed_gaussian(lateral, channel, x, y, setting)?;
+                Ok(g.kernel_at(KERNEL_OVERSAMPLE, mean))
             }
             // A shape keeps the place it learnt from the kernels (moving it to their
             // centroid would move its core by whatever its tail gets wrong, and the core
             // is what deconvolution aligns the channels by); it moves only by what the
             // kernels did not carry, their channel's registration against green's.
             (KernelModel::Shape, Some(shape)) => {
+                let g = self.predict(channel, x, y, setting)?;
                 let offset = match lateral {
                     LateralColour::Correct => place
                         .and_then(|c| c.registration(channel, x, y, setting))
@@ -1151,7 +1177,7 @@ impl Profile {
                     LateralColour::Keep => [0.0, 0.0],
                 };
                 shape
-                    .kernel_moved(channel, [x, y], setting, &g, 3, offset)
+                    .kernel_moved(channel, [x, y], setting, &g, KERNEL_OVERSAMPLE, offset)
                     .ok_or(ProfileError::NoChannel(channel))
             }
             (KernelModel::Shape, None) => Err(ProfileError::NoShapeModel),

@@ -125,6 +125,16 @@ impl KernelSource for Shifted<'_> {
     fn kernel_at(&self, channel: Channel, x: f64, y: f64) -> Result<Kernel, SourceError> {
         self.inner.kernel_at(channel, x + self.dx, y + self.dy)
     }
+
+    fn placed_gaussian(
+        &self,
+        channel: Channel,
+        x: f64,
+        y: f64,
+    ) -> Result<Option<crate::deblur::PlacedGaussian>, SourceError> {
+        self.inner
+            .placed_gaussian(channel, x + self.dx, y + self.dy)
+    }
 }
 
 /// Full-resolution planes of `region` of a capture deblurred with `source` (asked at

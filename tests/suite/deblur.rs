@@ -1390,7 +1390,7 @@ fn deblur_command_refuses_bad_input_with_one_line_naming_the_file() {
                 "--method".into(),
                 "fast".into(),
             ],
-            "--method",
+            "'--method <METHOD>' [possible values: hqs, irls, wiener]",
         ),
         (
             vec![
@@ -1709,22 +1709,117 @@ fn gpu_test_photo(w: usize, h: usize) -> (lensblur::plane::Capture, impl KernelS
 /// (measured on llvmpipe: max 5.5e-4, median 1.2e-7 of a [0, 1] image). Held, per
 /// plane: SSIM between the two ≥ 0.9999; max |difference| below half an 8-bit level
 /// (1/510), so an 8-bit rendering of the two differs by at most one level; median
-/// ≤ 1e-5, so the agreement is everywhere, not on average.
+/// ≤ 1e-5, so the agreement is everywhere, not on average. Three sources: kernels handed
+/// over as taps (a field of kernels); Gaussians placed off centre, as lateral colour
+/// places a channel's, and a profile's Gaussians, both of which the device makes from
+/// six numbers a tile.
 #[test]
 fn gpu_deblur_matches_the_cpu_path() {
-    use lensblur::deblur::{Device, deblur_capture, gpu};
+    use lensblur::deblur::gpu;
+    use lensblur::model::KernelModel;
     let g = gpu::shared().expect("a GPU adapter (CI installs the software Vulkan)");
     eprintln!("adapter: {}", g.adapter());
     let (cap, source) = gpu_test_photo(200, 140);
+    let taps = gpu_matches_cpu(&cap, &source, "kernel taps");
+    let placed = gpu_matches_cpu(
+        &cap,
+        &PlacedField { w: 200.0, h: 140.0 },
+        "placed Gaussians",
+    );
+    let (cap, _) = gpu_test_photo(384, 256);
+    let setting = LensSetting {
+        focal_mm: 31.0,
+        f_number: 4.5,
+    };
+    let profile = profile_384x256().clone();
+    let gaussians = ProfileKernels::with_model(profile, setting, KernelModel::Gaussian)
+        .expect("the Gaussian model");
+    let made = gpu_matches_cpu(&cap, &gaussians, "profile Gaussians");
+    // What went up of the kernels: six numbers and the tile's entry (8 bytes) a tile,
+    // where taps take their side² numbers.
+    assert_eq!(made.1, 32 * made.2, "{made:?}");
+    assert_eq!(placed.1, 32 * placed.2, "{placed:?}");
+    assert!(taps.1 > 32 * taps.2, "{taps:?}");
+}
+
+/// Gaussians that widen and turn toward the corners, red's and blue's moved outward
+/// and inward (lateral colour), said as placed Gaussians.
+struct PlacedField {
+    w: f64,
+    h: f64,
+}
+
+impl PlacedField {
+    fn at(&self, channel: Channel, x: f64, y: f64) -> lensblur::deblur::PlacedGaussian {
+        let (u, v) = (x / self.w - 0.5, y / self.h - 0.5);
+        let r2 = u * u + v * v;
+        let shift = match channel {
+            Channel::R => 1.2,
+            Channel::B => -1.2,
+            _ => 0.0,
+        };
+        lensblur::deblur::PlacedGaussian {
+            gaussian: Gaussian2 {
+                sigma_x: 0.9 + 2.0 * r2,
+                sigma_y: 0.8 + 1.5 * r2,
+                rho: 0.6 * u * v,
+            },
+            mean: [shift * u, shift * v],
+            oversample: 3,
+        }
+    }
+}
+
+impl KernelSource for PlacedField {
+    fn kernel_at(
+        &self,
+        channel: Channel,
+        x: f64,
+        y: f64,
+    ) -> Result<Kernel, lensblur::deblur::SourceError> {
+        let g = self.at(channel, x, y);
+        Ok(g.gaussian.kernel_at(g.oversample, g.mean))
+    }
+
+    fn placed_gaussian(
+        &self,
+        channel: Channel,
+        x: f64,
+        y: f64,
+    ) -> Result<Option<lensblur::deblur::PlacedGaussian>, lensblur::deblur::SourceError> {
+        Ok(Some(self.at(channel, x, y)))
+    }
+}
+
+/// Deblurs `cap` on the CPU and on the GPU with HQS and Wiener, holds the two to the
+/// bounds above, and returns the GPU's HQS upload: (all bytes, the kernels', tiles).
+fn gpu_matches_cpu(
+    cap: &lensblur::plane::Capture,
+    source: &dyn KernelSource,
+    what: &str,
+) -> (u64, u64, u64) {
+    use lensblur::deblur::{Device, deblur_capture};
+    use lensblur::timings::Timings;
     let job = JobContext::silent();
+    let mut upload = (0, 0, 0);
     for method in [Method::default(), Method::Wiener(WienerParams::default())] {
         let on = |device| DeblurOptions {
             method,
             device,
             ..DeblurOptions::default()
         };
-        let cpu = deblur_capture(&cap, &source, &on(Device::Cpu), &job).expect("cpu");
-        let gpu_out = deblur_capture(&cap, &source, &on(Device::Gpu), &job).expect("gpu");
+        let cpu = deblur_capture(cap, source, &on(Device::Cpu), &job).expect("cpu");
+        let timings = std::sync::Arc::new(Timings::new());
+        let counted = job.with_timings(std::sync::Arc::clone(&timings));
+        let gpu_out = deblur_capture(cap, source, &on(Device::Gpu), &counted).expect("gpu");
+        if upload.2 == 0 {
+            let (all, kernels) = timings.uploaded();
+            upload = (all, kernels, timings.tiles());
+            eprintln!(
+                "{what}: uploaded {all} bytes, kernels {kernels}, {} tiles",
+                upload.2
+            );
+        }
         for (a, b) in cpu.planes.iter().zip(&gpu_out.planes) {
             let s = ssim(&a.plane, &b.plane, &SsimParams::default());
             let mut diffs: Vec<f64> = a
@@ -1737,24 +1832,17 @@ fn gpu_deblur_matches_the_cpu_path() {
             diffs.sort_by(f64::total_cmp);
             let max = diffs[diffs.len() - 1];
             let median = diffs[diffs.len() / 2];
+            let name = method.name();
             eprintln!(
-                "{} {:?}: SSIM {s:.6}, max |diff| {max:.5}, median {median:.2e}",
-                method.name(),
+                "{what}, {name} {:?}: SSIM {s:.6}, max |diff| {max:.5}, median {median:.2e}",
                 a.channel
             );
-            assert!(s >= 0.9999, "{}: SSIM {s}", method.name());
-            assert!(
-                max <= 1.0 / 510.0,
-                "{}: max difference {max}",
-                method.name()
-            );
-            assert!(
-                median <= 1e-5,
-                "{}: median difference {median}",
-                method.name()
-            );
+            assert!(s >= 0.9999, "{what}, {name}: SSIM {s}");
+            assert!(max <= 1.0 / 510.0, "{what}, {name}: max difference {max}");
+            assert!(median <= 1e-5, "{what}, {name}: median difference {median}");
         }
     }
+    upload
 }
 
 /// Auto takes a hardware adapter only and otherwise is the CPU path, bit for bit; the
@@ -1804,5 +1892,41 @@ fn gpu_fallback_is_the_cpu_path() {
             .iter()
             .zip(&auto.planes)
             .all(|(a, b)| a.plane.data == b.plane.data)
+    );
+}
+
+/// Every enumerated option's help lists the values it takes, as clap's possible
+/// values (`-h` in one bracket, `--help` one per line with what each does), so a wrong
+/// one is refused naming them, on one line.
+#[test]
+fn help_lists_every_enumerated_options_values() {
+    for (command, values) in [
+        ("deblur", "[possible values: hqs, irls, wiener]"),
+        ("deblur", "[possible values: auto, gpu, cpu]"),
+        ("deblur", "[possible values: auto, tiff, png, dng]"),
+        ("predict", "[possible values: r, g, b, y]"),
+        ("sharpness", "[possible values: r, g, b, y]"),
+        ("chart", "[possible values:"),
+        ("calibrate", "[possible values:"),
+    ] {
+        let o = lensblur(&[os(command), os("-h")]);
+        let help = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success(), "{command} -h");
+        assert!(help.contains(values), "{command} -h lacks {values}: {help}");
+    }
+    let o = lensblur(&[
+        os("deblur"),
+        os("p.dng"),
+        os("--out"),
+        os("o.tiff"),
+        os("--device"),
+        os("tpu"),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("'tpu'") && err.contains("auto, gpu, cpu"),
+        "{err}"
     );
 }

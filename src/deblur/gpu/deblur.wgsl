@@ -58,12 +58,13 @@ struct Step {
 @group(0) @binding(3) var<storage, read_write> dst: array<vec2<f32>>;
 // First the kernel, then its transform K, then λ·K̄·Y.
 @group(0) @binding(4) var<storage, read_write> num: array<vec2<f32>>;
-// λ·|K|².
+// λ·|K|²; before `prepare`, each Gaussian kernel's sum at its block's first element.
 @group(0) @binding(5) var<storage, read_write> den: array<f32>;
-// Per tile of the photo: (offset of its kernel in `aux`, kernel side).
+// Per tile of the photo: (offset of its kernel in `aux`, kernel side), the side 0 for a
+// Gaussian given by its numbers (`gaussian_tap`).
 @group(0) @binding(6) var<storage, read> kinfo: array<vec2<u32>>;
-// The photo's kernels, then each plane's blend windows along x and along y, then the
-// steps' shrinkage tables.
+// The photo's kernels (taps, or a Gaussian's numbers), then each plane's blend windows
+// along x and along y, then the steps' shrinkage tables.
 @group(0) @binding(7) var<storage, read> aux: array<f32>;
 @group(0) @binding(8) var<storage, read_write> out_plane: array<f32>;
 @group(1) @binding(0) var<uniform> S: Step;
@@ -90,6 +91,54 @@ fn wrap_tap(x: u32, n: u32, ks: u32, c: u32) -> i32 {
         return i32(x + c - n);
     }
     return -1;
+}
+
+// Tap (dx, dy) from the centre of the Gaussian kernel whose numbers start at `aux[at]`:
+// its exponent's coefficients a, b, c, its mean, its half side (kernels.rs's
+// GaussianTaps). Unnormalised: `kernel_sum` sums them.
+fn gaussian_tap(at: u32, dx: i32, dy: i32) -> f32 {
+    let u = f32(dx) - aux[at + 3u];
+    let v = f32(dy) - aux[at + 4u];
+    return exp(-(aux[at] * u * u + aux[at + 1u] * u * v + aux[at + 2u] * v * v));
+}
+
+fn gaussian_half(at: u32) -> u32 {
+    return u32(aux[at + 5u]);
+}
+
+var<workgroup> partial: array<f32, 256>;
+
+// One workgroup per tile: a Gaussian kernel's taps summed, into `den` at the tile's
+// block's first element, so `load` makes them sum to 1 as the CPU's do.
+@compute @workgroup_size(256, 1, 1)
+fn kernel_sum(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let t = wid.x;
+    let ki = kinfo[P.kinfo0 + t];
+    var half = 0u;
+    var n = 0u;
+    if ki.y == 0u {
+        half = gaussian_half(ki.x);
+        n = (2u * half + 1u) * (2u * half + 1u);
+    }
+    let side = 2u * half + 1u;
+    var acc = 0.0;
+    for (var e = lid; e < n; e += 256u) {
+        acc += gaussian_tap(ki.x, i32(e % side) - i32(half), i32(e / side) - i32(half));
+    }
+    partial[lid] = acc;
+    workgroupBarrier();
+    for (var s = 128u; s > 0u; s >>= 1u) {
+        if lid < s {
+            partial[lid] += partial[lid + s];
+        }
+        workgroupBarrier();
+    }
+    if lid == 0u && ki.y == 0u {
+        den[t * block_len()] = partial[0];
+    }
 }
 
 fn cmul(a: vec2<f32>, b: vec2<f32>) -> vec2<f32> {
@@ -139,12 +188,22 @@ fn load(@builtin(global_invocation_id) gid: vec3<u32>) {
     src[idx] = v;
     dst[idx] = v;
     let ki = kinfo[P.kinfo0 + t];
-    let c = ki.y / 2u;
-    let ii = wrap_tap(i, P.bw, ki.y, c);
-    let jj = wrap_tap(j, P.bh, ki.y, c);
     var k = 0.0;
-    if ii >= 0 && jj >= 0 {
-        k = aux[ki.x + u32(jj) * ki.y + u32(ii)];
+    if ki.y == 0u {
+        let half = gaussian_half(ki.x);
+        let ii = wrap_tap(i, P.bw, 2u * half + 1u, half);
+        let jj = wrap_tap(j, P.bh, 2u * half + 1u, half);
+        if ii >= 0 && jj >= 0 {
+            let tap = gaussian_tap(ki.x, ii - i32(half), jj - i32(half));
+            k = tap / den[t * block_len()];
+        }
+    } else {
+        let c = ki.y / 2u;
+        let ii = wrap_tap(i, P.bw, ki.y, c);
+        let jj = wrap_tap(j, P.bh, ki.y, c);
+        if ii >= 0 && jj >= 0 {
+            k = aux[ki.x + u32(jj) * ki.y + u32(ii)];
+        }
     }
     num[idx] = vec2<f32>(k, 0.0);
 }

@@ -1,18 +1,18 @@
 //! One photo on the GPU: every plane uploaded once, as f32, into one buffer; every
-//! tile's kernel taps and the blend windows and shrinkage tables into another, once;
-//! the tiles solved batch after batch (their kernels' spectra, the edge taper, every
-//! HQS step and the blend all recorded without a host round trip); one readback of
-//! all planes. The large buffers stay with the deblurrer from photo to photo, grown
-//! when a photo needs more.
+//! tile's kernel (a Gaussian's six numbers, else its taps) and the blend windows and
+//! shrinkage tables into another, once; the tiles solved batch after batch (their
+//! kernels made and transformed, the edge taper, every HQS step and the blend all
+//! recorded without a host round trip); one readback of all planes. The large buffers
+//! stay with the deblurrer from photo to photo, grown when a photo needs more.
 
 use super::super::TileGrid;
+use super::kernels::TileKernel;
 use super::{
     FftParams, GpuDeblurrer, GpuError, MAX_LINE, Params, SHORT_LINE, Solve, StepParams, WORKGROUP,
     entry,
 };
 use crate::job::JobContext;
 use crate::plane::Plane;
-use crate::psf::Kernel;
 use crate::timings::{Stage, Timings};
 use wgpu::util::DeviceExt;
 
@@ -20,12 +20,12 @@ use wgpu::util::DeviceExt;
 /// photo runs in several batches instead of asking for gigabytes.
 const BATCH_BYTES: u64 = 1 << 30;
 
-/// One plane of a photo: its pixels, its grid and each tile's 1× kernel (row-major
-/// over the grid).
+/// One plane of a photo: its pixels, its grid and each tile's kernel (row-major over
+/// the grid).
 pub(crate) struct PlaneJob<'a> {
     pub plane: &'a Plane,
     pub grid: TileGrid,
-    pub kernels: Vec<Kernel>,
+    pub kernels: Vec<TileKernel>,
 }
 
 /// The buffers a photo runs in, kept from photo to photo.
@@ -79,9 +79,11 @@ struct Layout {
     /// The largest batch, in block pixels.
     batch_px: u64,
     pixels: usize,
-    /// `aux`'s contents: kernel taps, windows, tables.
+    /// `aux`'s contents: kernels, windows, tables.
     aux: Vec<f32>,
-    /// Per tile: (offset of its taps in `aux`, kernel side).
+    /// How many of `aux`'s first values are the kernels.
+    kernel_len: usize,
+    /// Per tile: (offset of its kernel in `aux`, its side; 0: a Gaussian's numbers).
     kinfo: Vec<u32>,
 }
 
@@ -90,9 +92,18 @@ impl Layout {
         let mut aux: Vec<f32> = Vec::new();
         let mut kinfo = Vec::new();
         for k in jobs.iter().flat_map(|j| &j.kernels) {
-            kinfo.extend([aux.len() as u32, k.size as u32]);
-            aux.extend(k.data.iter().map(|&v| v as f32));
+            match k {
+                TileKernel::Taps(k) => {
+                    kinfo.extend([aux.len() as u32, k.size as u32]);
+                    aux.extend(k.data.iter().map(|&v| v as f32));
+                }
+                TileKernel::Gaussian(g) => {
+                    kinfo.extend([aux.len() as u32, 0]);
+                    aux.extend(g.packed());
+                }
+            }
         }
+        let kernel_len = aux.len();
         let mut wins = Vec::new();
         let (mut plane0, mut tile0, mut per_batch) = (Vec::new(), Vec::new(), Vec::new());
         let (mut pixels, mut tiles, mut batch_px) = (0, 0, 0u64);
@@ -163,6 +174,7 @@ impl Layout {
             batch_px,
             pixels,
             aux,
+            kernel_len,
             kinfo,
         })
     }
@@ -225,6 +237,11 @@ impl GpuDeblurrer {
                 4 * p0 as u64,
                 bytemuck::cast_slice(&j.plane.data),
             );
+        }
+        if let Some(t) = job.timings() {
+            let kernels = 4 * (layout.kernel_len + layout.kinfo.len()) as u64;
+            let all = 4 * (layout.pixels + layout.aux.len() + layout.kinfo.len()) as u64;
+            t.add_upload(all, kernels);
         }
         let steps: Vec<wgpu::BindGroup> = layout.steps.iter().map(|s| self.step_group(s)).collect();
         let no_step = self.step_group(&bytemuck::Zeroable::zeroed());
@@ -485,8 +502,9 @@ impl GpuDeblurrer {
         }
     }
 
-    /// Records one batch: blocks and kernels loaded, the kernels' spectra, the edge
-    /// taper, the solver's steps and the blend into the output.
+    /// Records one batch: the Gaussian kernels' sums, blocks and kernels loaded, the
+    /// kernels' spectra, the edge taper, the solver's steps and the blend into the
+    /// output.
     #[allow(clippy::too_many_arguments)]
     fn record_batch(
         &self,
@@ -534,6 +552,7 @@ impl GpuDeblurrer {
                 pass.dispatch_workgroups(bw, t, 1);
             };
         let s = &self.stages;
+        stage(&mut pass, &s.kernel_sum, &b.ab, no_step, [t, 1, 1]);
         stage(&mut pass, &s.load, &b.ab, no_step, blocks_2d);
         fft(&mut pass, &ffts.num, false);
         if grid.taper > 0 {
