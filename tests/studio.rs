@@ -13,6 +13,10 @@ use lensblur::app::{
     AppOptions, ColourRange, Command, FieldOptions, FieldShow, FieldSource, PlotId,
     SharpnessChoice, StudioApp, SweepAxis, View,
 };
+use lensblur::app::{
+    DeblurCommand, DialogCommand, GeometryCommand, PlotCommand, SessionCommand, StageCommand,
+    ViewCommand, WindowCommand,
+};
 use lensblur::job::JobContext;
 use lensblur::pipeline::ShotFile;
 use lensblur::project::{Project, ShotEvent};
@@ -69,6 +73,7 @@ fn options(demo_dir: &Path, session: Option<&Path>, demo_spec: DemoSpec) -> AppO
         recent_file: Some(demo_dir.join("recent.json")),
         // The library in the test's folder, never the user's.
         profile_library: demo_dir.join("profiles"),
+        settings_file: Some(demo_dir.join("settings.json")),
         // The first-launch calibration is driven where a test asks for it.
         calibrate_demo: false,
         // Notices stay until dismissed, so what a snapshot shows never depends on how
@@ -105,12 +110,12 @@ fn step_until(h: &mut Harness<'_, StudioApp>, what: &str, done: impl Fn(&StudioA
             start.elapsed() < HANG_GUARD,
             "no end after {HANG_GUARD:?} waiting for {what}; jobs running: {:?}; messages: {:?}",
             h.state()
-                .jobs
+                .jobs()
                 .running
                 .iter()
                 .map(|j| (j.kind, j.progress()))
                 .collect::<Vec<_>>(),
-            h.state().window.messages
+            h.state().window().messages
         );
         h.run_steps(1);
         std::thread::sleep(Duration::from_millis(20));
@@ -121,7 +126,7 @@ fn step_until(h: &mut Harness<'_, StudioApp>, what: &str, done: impl Fn(&StudioA
 }
 
 fn idle(app: &StudioApp) -> bool {
-    app.jobs.running.is_empty()
+    app.jobs().running.is_empty()
 }
 
 /// A snapshot without the pointer: a button left hovered after a click (and the tooltip
@@ -137,28 +142,26 @@ fn save_plot(h: &mut Harness<'_, StudioApp>, plot: PlotId, csv: &Path, png: &Pat
     let dir = csv.parent().expect("a folder");
     let path = csv.to_path_buf();
     h.state_mut()
-        .commands
-        .push(Command::SavePlotCsv { plot, path });
+        .push(Command::Plot(PlotCommand::SavePlotCsv { plot, path }));
     let path = png.to_path_buf();
     h.state_mut()
-        .commands
-        .push(Command::SavePlotPng { plot, path });
+        .push(Command::Plot(PlotCommand::SavePlotPng { plot, path }));
     step_until(h, "the plot's files", |a| {
-        csv.is_file() && png.is_file() && a.window.plot_png.is_none()
+        csv.is_file() && png.is_file() && a.window().plot_png.is_none()
     });
     assert!(
         h.state()
-            .window
+            .window()
             .messages
             .iter()
             .any(|m| m.text.contains("plot saved to")),
         "{:?}",
-        h.state().window.messages
+        h.state().window().messages
     );
     // The messages name the temporary folder, which differs between runs: off the
     // snapshots that follow.
     h.state_mut()
-        .window
+        .window_mut()
         .messages
         .retain(|m| !m.text.contains(&*dir.to_string_lossy()));
     // The plot and its axes: a third of the window's width, less than half its height
@@ -221,7 +224,7 @@ fn dropped(p: &Path) -> egui::DroppedFileHandle {
 
 /// The predicted deblurred region's first plane, as the preview holds it.
 fn deblurred_region(app: &StudioApp) -> Vec<f32> {
-    app.views
+    app.views()
         .deblur
         .comparison
         .as_ref()
@@ -250,7 +253,7 @@ fn measuring_and_calibrating_the_demo_by_clicking() {
     h.run_steps(1);
     assert!(h.state().session().is_none());
     h.get_by_label_contains("Making the demo session");
-    assert!(h.state().jobs.is_running(JobKind::DemoSession));
+    assert!(h.state().jobs().is_running(JobKind::DemoSession));
     step_until(&mut h, "the demo session", demo_ready);
     let n = h.state().session().map_or(0, |s| s.shots.len());
     assert_eq!(n, n_shots);
@@ -277,7 +280,7 @@ fn measuring_and_calibrating_the_demo_by_clicking() {
     );
     assert!(
         h.state()
-            .window
+            .window()
             .messages
             .iter()
             .any(|m| m.text.contains("detect: cancelled"))
@@ -325,10 +328,10 @@ fn measuring_and_calibrating_the_demo_by_clicking() {
         );
     click_at(&mut h, pos);
     // The crops are made on a job thread.
-    step_until(&mut h, "the inspector", |a| a.data.inspection().is_some());
+    step_until(&mut h, "the inspector", |a| a.data().inspection().is_some());
     let rms = h
         .state()
-        .data
+        .data()
         .inspection()
         .filter(|i| i.square == (row, col))
         .map(|i| i.crops.residual_rms)
@@ -366,7 +369,7 @@ fn measuring_and_calibrating_the_demo_by_clicking() {
     // The inspector now shows the square's kernel and its Gaussian's numbers.
     assert!(
         h.state()
-            .data
+            .data()
             .inspection()
             .is_some_and(|i| i.kernel.is_some())
     );
@@ -375,24 +378,28 @@ fn measuring_and_calibrating_the_demo_by_clicking() {
 
     h.get_by_label("Kernel field").click();
     h.run_steps(3);
-    assert_eq!(h.state().view, View::KernelField);
+    assert_eq!(h.state().view(), View::KernelField);
     snapshot(&mut h, "studio_kernel_field");
     // The colour range from the data spans the measured σ; fixed, it is what was set.
     {
-        let scale = h.state().data.field.as_ref().and_then(|f| f.scale.clone());
+        let scale = h
+            .state()
+            .data()
+            .field
+            .as_ref()
+            .and_then(|f| f.scale.clone());
         let [lo, hi] = scale.expect("a colour scale").range;
         assert!(0.3 < lo && lo < hi && hi < 3.0, "{lo}–{hi}");
     }
     h.state_mut()
-        .commands
-        .push(Command::SetFieldOptions(FieldOptions {
+        .push(Command::View(ViewCommand::SetFieldOptions(FieldOptions {
             range: ColourRange::Fixed { min: 0.5, max: 3.5 },
             difference: None,
-        }));
+        })));
     h.run_steps(2);
     assert_eq!(
         h.state()
-            .data
+            .data()
             .field
             .as_ref()
             .and_then(|f| f.scale.as_ref())
@@ -400,12 +407,13 @@ fn measuring_and_calibrating_the_demo_by_clicking() {
         Some([0.5, 3.5])
     );
     h.state_mut()
-        .commands
-        .push(Command::SetFieldOptions(FieldOptions::default()));
+        .push(Command::View(ViewCommand::SetFieldOptions(
+            FieldOptions::default(),
+        )));
     h.run_steps(2);
     h.get_by_label("Kernel shapes").click();
     h.run_steps(3);
-    assert!(h.state().data.kernel_atlas.is_some());
+    assert!(h.state().data().kernel_atlas.is_some());
     snapshot(&mut h, "studio_kernel_field_kernels");
     noisy_kernel_is_hatched_and_a_click_inspects_it(&mut h, (row, col));
 
@@ -564,7 +572,7 @@ fn the_sweeps_show_measured_points_the_model_and_the_truth() {
     // The same sweeps as MTF50.
     h.get_by_label("MTF50").click();
     h.run_steps(3);
-    assert_eq!(h.state().views.sweeps.axis, SweepAxis::Mtf50);
+    assert_eq!(h.state().views().sweeps.axis, SweepAxis::Mtf50);
     snapshot(&mut h, "studio_sweeps_mtf50");
 }
 
@@ -581,17 +589,17 @@ fn the_kernel_field_predicts_and_subtracts() {
     // Predict: the profile's field at the sliders' setting.
     h.get_by_label("Predicted").click();
     h.run_steps(3);
-    assert_eq!(h.state().views.field.source, FieldSource::Predicted);
+    assert_eq!(h.state().views().field.source, FieldSource::Predicted);
     // Kernel shapes stay chosen: the profile's predicted kernels, in its recommended
     // model, at the selected shot's measured squares, each with its error against the
     // measured kernel there (shapes too where the profile holds them).
     {
         let app = h.state();
         let profile = &app.profile().expect("profile").1;
-        let atlas = app.data.kernel_atlas.as_ref().expect("predicted atlas");
+        let atlas = app.data().kernel_atlas.as_ref().expect("predicted atlas");
         assert_eq!(atlas.model, Some(profile.kernel_model()));
         assert_eq!(atlas.no_shape.is_some(), profile.shape.is_none());
-        let field = app.data.field.as_ref().expect("field");
+        let field = app.data().field.as_ref().expect("field");
         let points = &field.panels[0].points;
         assert!(!points.is_empty());
         assert!(points.iter().all(|p| p.kernel_error.is_some_and(|e| {
@@ -607,7 +615,7 @@ fn the_kernel_field_predicts_and_subtracts() {
     h.get_by_label("measured − predicted").click();
     h.run_steps(3);
     {
-        let field = h.state().data.field.as_ref().expect("field");
+        let field = h.state().data().field.as_ref().expect("field");
         let scale = field.scale.as_ref().expect("a colour scale");
         assert!(scale.diverging && scale.range[0] == -scale.range[1]);
         assert!(scale.ticks.contains(&0.0), "{:?}", scale.ticks);
@@ -621,25 +629,25 @@ fn the_kernel_field_predicts_and_subtracts() {
     h.run_steps(3);
     assert!(
         h.state()
-            .data
+            .data()
             .field
             .as_ref()
             .is_some_and(|f| !f.panels[0].points.is_empty())
     );
     h.get_by_label("σ").click();
     h.run_steps(2);
-    assert_eq!(h.state().views.field.options.difference, None);
+    assert_eq!(h.state().views().field.options.difference, None);
     h.get_by_label("Ground truth").click();
     h.run_steps(2);
     h.get_by_label("Compare with a second unit").click();
     h.run_steps(3);
-    assert!(h.state().views.field.compare_units);
+    assert!(h.state().views().field.compare_units);
     snapshot(&mut h, "studio_kernel_field_compare");
     // Unit A − unit B of the demo lens: one difference panel, each grid point paired.
     h.get_by_label("unit A − unit B").click();
     h.run_steps(3);
     {
-        let field = h.state().data.field.as_ref().expect("field");
+        let field = h.state().data().field.as_ref().expect("field");
         assert_eq!(field.panels.len(), 1);
         assert_eq!(field.panels[0].points.len(), 12 * 8);
         assert!(field.scale.as_ref().is_some_and(|s| s.diverging));
@@ -662,24 +670,24 @@ fn the_deblur_view_compares_previews_and_exports() {
     let shot_path = {
         let app = h.state();
         let s = app.session().expect("session");
-        let id = app.views.shot.selected.expect("a selected shot");
+        let id = app.views().shot.selected.expect("a selected shot");
         s.path_of(s.shot(id).expect("the shot"))
     };
     h.get_by_label("Deblur the selected shot").click();
     // The demo's photo is open with its own preview: wait for the shot's.
     step_until(&mut h, "the deblur preview", |a| {
-        a.views
+        a.views()
             .deblur
             .photo
             .as_ref()
             .is_some_and(|p| p.path == shot_path)
-            && a.views.deblur.comparison.is_some()
+            && a.views().deblur.comparison.is_some()
             && idle(a)
     });
     {
         let c = &h
             .state()
-            .views
+            .views()
             .deblur
             .comparison
             .as_ref()
@@ -696,6 +704,19 @@ fn the_deblur_view_compares_previews_and_exports() {
             c.measured.as_ref().err()
         );
     }
+    {
+        // Software Vulkan here: crops, not the whole photo, and the view says why.
+        let d = &h.state().views().deblur;
+        assert_eq!(
+            d.scope,
+            Some(lensblur::app::PreviewScope::Crops(
+                "Whole-photo preview needs a hardware GPU; showing crops.".into()
+            ))
+        );
+        let r = d.comparison.as_ref().expect("comparison").comparison.region;
+        assert_eq!((r.width, r.height), (160, 160), "a crop, not the photo");
+        h.get_by_label("Whole-photo preview needs a hardware GPU; showing crops.");
+    }
     snapshot(&mut h, "studio_deblur");
     h.get_by_label("Slider").click();
     h.run_steps(3);
@@ -705,27 +726,29 @@ fn the_deblur_view_compares_previews_and_exports() {
     // The preview on the GPU path (the software Vulkan here: asked for explicitly, as
     // Auto keeps to the CPU on a software adapter), then back to Auto.
     // A small region: the software Vulkan takes about a minute for the default one.
-    h.state_mut().commands.push(Command::SetDeblurCrop(64));
+    h.state_mut()
+        .push(Command::Deblur(DeblurCommand::SetDeblurCrop(64)));
     h.run_steps(2);
     step_until(&mut h, "the small region", |a| {
-        idle(a) && a.views.deblur.comparison.is_some()
+        idle(a) && a.views().deblur.comparison.is_some()
     });
     let before = deblurred_region(h.state());
     h.state_mut()
-        .commands
-        .push(Command::SetDeblurDevice(lensblur::deblur::Device::Gpu));
+        .push(Command::Deblur(DeblurCommand::SetDeblurDevice(
+            lensblur::deblur::Device::Gpu,
+        )));
     h.run_steps(2);
     assert!(
-        h.state().jobs.is_running(JobKind::DeblurPreview),
+        h.state().jobs().is_running(JobKind::DeblurPreview),
         "a new device deblurs the region again"
     );
     step_until(&mut h, "the GPU preview", |a| {
-        idle(a) && a.views.deblur.comparison.is_some()
+        idle(a) && a.views().deblur.comparison.is_some()
     });
     {
         let note = h
             .state()
-            .views
+            .views()
             .deblur
             .device_note
             .clone()
@@ -745,17 +768,19 @@ fn the_deblur_view_compares_previews_and_exports() {
         );
     }
     h.state_mut()
-        .commands
-        .push(Command::SetDeblurDevice(lensblur::deblur::Device::Auto));
-    h.state_mut().commands.push(Command::SetDeblurCrop(160));
+        .push(Command::Deblur(DeblurCommand::SetDeblurDevice(
+            lensblur::deblur::Device::Auto,
+        )));
+    h.state_mut()
+        .push(Command::Deblur(DeblurCommand::SetDeblurCrop(160)));
     // 100 %: the region is what the panes hold, one photo pixel per screen pixel, the
     // three panes showing the same region (synced).
     h.get_by_label("100 %").click();
     let region_fills_viewport = |a: &StudioApp| {
         let (Some([vw, vh]), Some(c), Some(p)) = (
-            a.views.deblur.viewport,
-            a.views.deblur.comparison.as_ref(),
-            a.views.deblur.photo.as_ref(),
+            a.views().deblur.viewport,
+            a.views().deblur.comparison.as_ref(),
+            a.views().deblur.photo.as_ref(),
         ) else {
             return false;
         };
@@ -772,7 +797,7 @@ fn the_deblur_view_compares_previews_and_exports() {
     });
     assert!(
         h.state()
-            .views
+            .views()
             .deblur
             .device_note
             .as_deref()
@@ -783,20 +808,19 @@ fn the_deblur_view_compares_previews_and_exports() {
     // Live strength: a new λ deblurs the same region again, sharper.
     let soft = deblurred_region(h.state());
     h.state_mut()
-        .commands
-        .push(Command::SetDeblurMethod(lensblur::deblur::Method::Hqs(
-            lensblur::deblur::HqsParams {
+        .push(Command::Deblur(DeblurCommand::SetDeblurMethod(
+            lensblur::deblur::Method::Hqs(lensblur::deblur::HqsParams {
                 lambda: 30_000.0,
                 ..Default::default()
-            },
+            }),
         )));
     h.run_steps(2);
     assert!(
-        h.state().jobs.is_running(JobKind::DeblurPreview),
+        h.state().jobs().is_running(JobKind::DeblurPreview),
         "a new strength deblurs the region again"
     );
     step_until(&mut h, "the stronger preview", |a| {
-        idle(a) && a.views.deblur.comparison.is_some()
+        idle(a) && a.views().deblur.comparison.is_some()
     });
     let sharp = deblurred_region(h.state());
     assert_eq!(soft.len(), sharp.len(), "the region stays where it was");
@@ -805,21 +829,21 @@ fn the_deblur_view_compares_previews_and_exports() {
     h.run_steps(2);
     step_until(&mut h, "the 200 % preview", |a| {
         idle(a)
-            && a.views.deblur.zoom == lensblur::app::DeblurZoom::Times(2)
+            && a.views().deblur.zoom == lensblur::app::DeblurZoom::Times(2)
             && region_fills_viewport(a)
     });
     {
         // Half the 100 % region's width: the same panes hold half as many pixels.
         let r = h
             .state()
-            .views
+            .views()
             .deblur
             .comparison
             .as_ref()
             .expect("comparison")
             .comparison
             .region;
-        let [vw, _] = h.state().views.deblur.viewport.expect("viewport");
+        let [vw, _] = h.state().views().deblur.viewport.expect("viewport");
         assert!(r.width <= vw && r.width < 200, "{r:?}");
     }
     snapshot(&mut h, "studio_deblur_200_strength");
@@ -827,7 +851,7 @@ fn the_deblur_view_compares_previews_and_exports() {
     h.run_steps(2);
     step_until(&mut h, "the fitted preview", |a| {
         idle(a)
-            && a.views
+            && a.views()
                 .deblur
                 .comparison
                 .as_ref()
@@ -835,13 +859,14 @@ fn the_deblur_view_compares_previews_and_exports() {
     });
     // Export the whole photo deblurred with the predicted Gaussians.
     let out = dir.path().join("deblurred.tiff");
-    h.state_mut().commands.push(Command::ExportDeblur {
-        path: out.clone(),
-        result: lensblur::app::DeblurResult::Predicted,
-    });
+    h.state_mut()
+        .push(Command::Deblur(DeblurCommand::ExportDeblur {
+            path: out.clone(),
+            result: lensblur::app::DeblurResult::Predicted,
+        }));
     step_until(&mut h, "the export", |a| {
         idle(a)
-            && a.window
+            && a.window()
                 .messages
                 .iter()
                 .any(|m| m.text.contains("deblurred photo written"))
@@ -873,21 +898,22 @@ fn the_deblur_view_compares_previews_and_exports() {
     let png = demo_dir.join(DemoSpec::shot_name(spec.settings[0]));
     let exported = dir.path().join("exported");
     std::fs::create_dir(&exported).expect("mkdir");
-    h.state_mut().commands.push(Command::ExportPhotos {
-        photos: vec![raw, png],
-        out_dir: exported.clone(),
-        dng: true,
-    });
+    h.state_mut()
+        .push(Command::Deblur(DeblurCommand::ExportPhotos {
+            photos: vec![raw, png],
+            out_dir: exported.clone(),
+            dng: true,
+        }));
     step_until(&mut h, "the photos' export", |a| {
         idle(a)
-            && a.window
+            && a.window()
                 .messages
                 .iter()
                 .any(|m| m.text.contains("photos exported"))
     });
     let summary = h
         .state()
-        .window
+        .window()
         .messages
         .iter()
         .find(|m| m.text.contains("photos exported"))
@@ -899,7 +925,7 @@ fn the_deblur_view_compares_previews_and_exports() {
     );
     assert!(
         h.state()
-            .window
+            .window()
             .messages
             .iter()
             .any(|m| m.text.contains("skipped: not a RAW photo"))
@@ -942,8 +968,8 @@ fn noisy_kernel_is_hatched_and_a_click_inspects_it(
     h: &mut Harness<'_, StudioApp>,
     square: (usize, usize),
 ) {
-    let natural = h.state().data.field.as_ref().map_or(0, |f| f.noisy);
-    let shot = h.state().views.shot.selected.expect("a selected shot");
+    let natural = h.state().data().field.as_ref().map_or(0, |f| f.noisy);
+    let shot = h.state().views().shot.selected.expect("a selected shot");
     let original = std::sync::Arc::clone(h.state().kernels(shot).expect("kernels"));
     let total = original
         .samples
@@ -988,7 +1014,7 @@ fn noisy_kernel_is_hatched_and_a_click_inspects_it(
         kernels: std::sync::Arc::new(striped),
     });
     h.run_steps(3);
-    let field = h.state().data.field.as_ref().expect("field");
+    let field = h.state().data().field.as_ref().expect("field");
     assert!(field.noisy > natural, "the striped kernel is flagged");
     let point = field.panels[0]
         .points
@@ -1008,23 +1034,22 @@ fn noisy_kernel_is_hatched_and_a_click_inspects_it(
     h.snapshot("studio_kernel_field_noisy");
     click_at(h, pos);
     h.run_steps(2);
-    assert_eq!(h.state().view, View::Shot);
-    assert_eq!(h.state().views.shot.square, Some(square));
+    assert_eq!(h.state().view(), View::Shot);
+    assert_eq!(h.state().views().shot.square, Some(square));
     h.state_mut().record_shot_event(ShotEvent::Measured {
         id: shot,
         file,
         kernels: original,
     });
     h.state_mut()
-        .commands
-        .push(Command::SelectView(View::KernelField));
+        .push(Command::View(ViewCommand::SelectView(View::KernelField)));
     h.run_steps(3);
     assert_eq!(
-        h.state().data.field.as_ref().map(|f| f.noisy),
+        h.state().data().field.as_ref().map(|f| f.noisy),
         Some(natural)
     );
     step_until(h, "the inspector after the click", |a| {
-        idle(a) && a.data.inspection().is_some()
+        idle(a) && a.data().inspection().is_some()
     });
 }
 
@@ -1069,8 +1094,10 @@ fn raw_shots_and_photos_are_developed_and_export_as_dng() {
         .expect("session")
         .settings;
     h.state_mut()
-        .commands
-        .push(Command::ApplySettings { chart, settings });
+        .push(Command::Session(SessionCommand::ApplySettings {
+            chart,
+            settings,
+        }));
     h.input_mut().dropped_files.push(dropped(&raw));
     step_until(&mut h, "the RAW shot", |a| {
         a.previews().count() == 1 && idle(a)
@@ -1084,12 +1111,12 @@ fn raw_shots_and_photos_are_developed_and_export_as_dng() {
             "developed: {:?}",
             preview.developed.as_ref().map(|d| d.as_ref().err())
         );
-        assert!(app.views.shot.viewer.developed);
+        assert!(app.views().shot.viewer.developed);
     }
     snapshot(&mut h, "studio_shot_raw_developed");
     h.get_by_label("developed").click();
     h.run_steps(2);
-    assert!(!h.state().views.shot.viewer.developed);
+    assert!(!h.state().views().shot.viewer.developed);
     snapshot(&mut h, "studio_shot_raw_linear");
     h.get_by_label("developed").click();
     h.run_steps(2);
@@ -1105,12 +1132,12 @@ fn raw_shots_and_photos_are_developed_and_export_as_dng() {
     h.run_steps(2);
     h.get_by_label("Deblur the selected shot").click();
     step_until(&mut h, "the deblur preview", |a| {
-        a.views.deblur.comparison.is_some() && idle(a)
+        a.views().deblur.comparison.is_some() && idle(a)
     });
     {
         let view = h
             .state()
-            .views
+            .views()
             .deblur
             .comparison
             .as_ref()
@@ -1139,13 +1166,14 @@ fn raw_shots_and_photos_are_developed_and_export_as_dng() {
 
     // The whole photo, deblurred with its measured kernels, as a DNG.
     let out = parent.path().join("IMG_0001.deblurred.dng");
-    h.state_mut().commands.push(Command::ExportDeblur {
-        path: out.clone(),
-        result: lensblur::app::DeblurResult::Measured,
-    });
+    h.state_mut()
+        .push(Command::Deblur(DeblurCommand::ExportDeblur {
+            path: out.clone(),
+            result: lensblur::app::DeblurResult::Measured,
+        }));
     step_until(&mut h, "the export", |a| {
         idle(a)
-            && a.window
+            && a.window()
                 .messages
                 .iter()
                 .any(|m| m.text.contains("deblurred photo written"))
@@ -1153,7 +1181,7 @@ fn raw_shots_and_photos_are_developed_and_export_as_dng() {
     let written = lensblur::raw::load_capture(&out, &Default::default()).expect("export readable");
     let photo = &h
         .state()
-        .views
+        .views()
         .deblur
         .photo
         .as_ref()
@@ -1212,7 +1240,7 @@ fn light_theme_and_user_session() {
     // The entry's label carries its shortcut.
     h.get_by_label_contains("Light theme").click();
     h.run_steps(2);
-    assert!(!h.state().window.dark);
+    assert!(!h.state().window().dark);
     // Drag and drop a file onto the window.
     h.input_mut().dropped_files.push(dropped(&shot));
     step_until(&mut h, "the dropped shot", |a| a.previews().count() == 1);
@@ -1221,20 +1249,22 @@ fn light_theme_and_user_session() {
     assert_eq!(saved.shots.len(), 1);
     // Settings typed for the shot are saved too.
     let first = saved.shots[0].id;
-    h.state_mut().commands.push(Command::SetShotSetting {
-        shot: first,
-        focal_mm: Some(35.0),
-        f_number: Some(8.0),
-    });
+    h.state_mut()
+        .push(Command::Session(SessionCommand::SetShotSetting {
+            shot: first,
+            focal_mm: Some(35.0),
+            f_number: Some(8.0),
+        }));
     h.run_steps(2);
     flush_saves(&h);
     let saved = lensblur::session::Session::open(&folder).expect("session");
     assert_eq!(saved.shots[0].setting().map(|s| s.focal_mm), Some(35.0));
     // The chart of this shot, set in the session's settings.
-    h.state_mut().commands.push(Command::ApplySettings {
-        chart: spec.clone(),
-        settings: saved.settings.clone(),
-    });
+    h.state_mut()
+        .push(Command::Session(SessionCommand::ApplySettings {
+            chart: spec.clone(),
+            settings: saved.settings.clone(),
+        }));
     h.run_steps(2);
     flush_saves(&h);
     assert_eq!(
@@ -1250,7 +1280,7 @@ fn light_theme_and_user_session() {
     h.run_steps(2);
     assert!(
         h.state()
-            .window
+            .window()
             .messages
             .iter()
             .any(|m| m.is_error && m.text.contains("notes.txt"))
@@ -1264,13 +1294,14 @@ fn light_theme_and_user_session() {
     });
     assert!(
         h.state()
-            .window
+            .window()
             .messages
             .iter()
             .any(|m| m.is_error && m.text.starts_with("broken.png"))
     );
     // Detect by its keyboard shortcut on the readable shot.
-    h.state_mut().commands.push(Command::SelectShot(first));
+    h.state_mut()
+        .push(Command::View(ViewCommand::SelectShot(first)));
     h.run_steps(2);
     h.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::D);
     step_until(&mut h, "detection of the user's shot", |a| {
@@ -1329,7 +1360,8 @@ fn a_file_that_kills_its_decoder_is_one_unreadable_shot() {
     assert_eq!(saved.shots.len(), 2, "both shots stay in the session");
     // The loaded shot shown; the list says the other is unreadable, the notice why.
     let good_id = h.state().previews().next().map(|(id, _)| id).expect("DNG");
-    h.state_mut().commands.push(Command::SelectShot(good_id));
+    h.state_mut()
+        .push(Command::View(ViewCommand::SelectShot(good_id)));
     h.run_steps(2);
     snapshot(&mut h, "studio_decoder_died");
 }
@@ -1433,30 +1465,34 @@ fn removing_shots_and_switching_sessions_while_jobs_run() {
 
     let mut h = new_harness(&dir.path().join("demo"), Some(&a_dir));
     step_until(&mut h, "session A", demo_ready);
-    h.state_mut().commands.push(Command::RunDetect(None));
+    h.state_mut()
+        .push(Command::Stage(StageCommand::RunDetect(None)));
     step_until(&mut h, "a first detection", |a| {
         a.detections().next().is_some() || idle(a)
     });
     // A shot the job has not finished: removed while it runs (or waits its turn).
     let gone = first_unmeasured(h.state(), |a, id| a.detection(id).is_some());
-    h.state_mut().commands.push(Command::RemoveShot(gone));
+    h.state_mut()
+        .push(Command::Session(SessionCommand::RemoveShot(gone)));
     step_until(&mut h, "detection", idle);
     assert!(h.state().detection(gone).is_none());
 
-    h.state_mut().commands.push(Command::RunKernels(None));
+    h.state_mut()
+        .push(Command::Stage(StageCommand::RunKernels(None)));
     h.run_steps(1);
     let gone2 = first_unmeasured(h.state(), |a, id| a.kernels(id).is_some());
-    h.state_mut().commands.push(Command::RemoveShot(gone2));
+    h.state_mut()
+        .push(Command::Session(SessionCommand::RemoveShot(gone2)));
     step_until(&mut h, "a first kernels result", |a| {
         a.measured().next().is_some() || idle(a)
     });
     // Another session while the kernels job may still run: its late results are
     // dropped, and session B's shots (with the same ids) get none of them.
     h.state_mut()
-        .commands
-        .push(Command::OpenSession(b_dir.clone()));
+        .push(Command::Session(SessionCommand::OpenSession(b_dir.clone())));
     h.run_steps(1);
-    h.state_mut().commands.push(Command::RunDetect(None));
+    h.state_mut()
+        .push(Command::Stage(StageCommand::RunDetect(None)));
     step_until(&mut h, "session B detected", |a| {
         idle(a) && a.detections().count() == n
     });
@@ -1500,7 +1536,8 @@ fn a_session_measured_on_the_command_line_calibrates_in_the_studio() {
             .is_some_and(|s| s.shots.iter().all(|s| s.kernels.is_done())),
         "results measured elsewhere count as done"
     );
-    h.state_mut().commands.push(Command::RunCalibrate);
+    h.state_mut()
+        .push(Command::Stage(StageCommand::RunCalibrate));
     step_until(&mut h, "calibration", |a| a.profile().is_some() && idle(a));
     assert_same_profile(&folder.join("profile.json"), &cli_profile);
 }
@@ -1523,7 +1560,7 @@ fn a_second_studio_on_an_open_session_is_refused_and_the_command_line_too() {
     assert!(second.state().session().is_none());
     let refusal = second
         .state()
-        .window
+        .window()
         .messages
         .iter()
         .find(|m| m.is_error)
@@ -1532,7 +1569,7 @@ fn a_second_studio_on_an_open_session_is_refused_and_the_command_line_too() {
     assert!(
         refusal.contains("in use by the lensblur studio"),
         "{:?}",
-        second.state().window.messages
+        second.state().window().messages
     );
 
     // The command line too, in one line, and it writes nothing.
@@ -1557,7 +1594,7 @@ fn a_second_studio_on_an_open_session_is_refused_and_the_command_line_too() {
     assert!(
         third.state().session().is_some(),
         "{:?}",
-        third.state().window.messages
+        third.state().window().messages
     );
 }
 
@@ -1606,23 +1643,25 @@ fn predicted_kernel_shapes_of_a_profile_with_a_shape_model() {
 
     let mut h = new_harness(demo.path(), Some(&folder));
     h.run_steps(2);
-    h.state_mut().commands.push(Command::LoadProfile {
-        path,
-        compare: false,
-    });
+    h.state_mut()
+        .push(Command::Stage(StageCommand::LoadProfile {
+            path,
+            compare: false,
+        }));
     step_until(&mut h, "the profile", |a| a.profile().is_some() && idle(a));
     let app = h.state_mut();
-    app.commands.push(Command::SelectView(View::KernelField));
-    app.commands
-        .push(Command::SetFieldSource(FieldSource::Predicted));
-    app.commands.push(Command::SetFieldShow(FieldShow::Kernels));
-    app.commands.push(Command::SetFieldSetting {
+    app.push(Command::View(ViewCommand::SelectView(View::KernelField)));
+    app.push(Command::View(ViewCommand::SetFieldSource(
+        FieldSource::Predicted,
+    )));
+    app.push(Command::View(ViewCommand::SetFieldShow(FieldShow::Kernels)));
+    app.push(Command::View(ViewCommand::SetFieldSetting {
         focal_mm: 60.0,
         f_number: 4.0,
-    });
+    }));
     h.run_steps(3);
     {
-        let atlas = h.state().data.kernel_atlas.as_ref().expect("atlas");
+        let atlas = h.state().data().kernel_atlas.as_ref().expect("atlas");
         assert_eq!(atlas.model, Some(lensblur::model::KernelModel::Shape));
         assert!(atlas.error.is_none(), "{:?}", atlas.error);
         assert_eq!(
@@ -1635,7 +1674,8 @@ fn predicted_kernel_shapes_of_a_profile_with_a_shape_model() {
     snapshot(&mut h, "studio_kernel_field_predicted_shapes");
 
     // Saved into the library, where a batch finds it.
-    h.state_mut().commands.push(Command::SaveProfileToLibrary);
+    h.state_mut()
+        .push(Command::Stage(StageCommand::SaveProfileToLibrary));
     h.run_steps(2);
     let library = lensblur::batch::ProfileLibrary::load(&demo.path().join("profiles"))
         .expect("the library holds the profile");
@@ -1664,30 +1704,32 @@ fn models_warn_what_to_shoot_when_the_settings_cannot_determine_the_model() {
         .collect();
     let mut h = new_harness(demo.path(), Some(&folder));
     h.run_steps(2);
-    h.state_mut().commands.push(Command::AddShots(shots));
+    h.state_mut()
+        .push(Command::Session(SessionCommand::AddShots(shots)));
     step_until(&mut h, "the shots", |a| {
         a.previews().count() == 2 && idle(a)
     });
     let session = h.state().session().cloned().expect("session");
     for (shot, f_number) in session.shots.iter().zip([4.0, 8.0]) {
-        h.state_mut().commands.push(Command::SetShotSetting {
-            shot: shot.id,
-            focal_mm: Some(35.0),
-            f_number: Some(f_number),
-        });
+        h.state_mut()
+            .push(Command::Session(SessionCommand::SetShotSetting {
+                shot: shot.id,
+                focal_mm: Some(35.0),
+                f_number: Some(f_number),
+            }));
     }
     let mut settings = session.settings.clone();
     settings.beta = Some(2);
     let app = h.state_mut();
-    app.commands.push(Command::ApplySettings {
+    app.push(Command::Session(SessionCommand::ApplySettings {
         chart: session.chart.clone(),
         settings,
-    });
-    app.commands.push(Command::SelectView(View::Models));
+    }));
+    app.push(Command::View(ViewCommand::SelectView(View::Models)));
     h.run_steps(3);
     let advice = &h
         .state()
-        .data
+        .data()
         .calibrated
         .as_ref()
         .expect("the session's settings")
@@ -1746,10 +1788,9 @@ fn the_shooting_plan_maps_where_a_small_chart_has_been() {
         a.measured().count() == 7 && idle(a)
     });
     h.state_mut()
-        .commands
-        .push(Command::SelectView(View::Models));
+        .push(Command::View(ViewCommand::SelectView(View::Models)));
     h.run_steps(3);
-    let (_, maps) = h.state().data.coverage.as_ref().expect("coverage maps");
+    let (_, maps) = h.state().data().coverage.as_ref().expect("coverage maps");
     assert_eq!(maps.len(), 1);
     assert_eq!(maps[0].missing_parts(), ["top-left", "bottom-right"]);
     h.get_by_label_contains("24 mm f/4.0: top-left and bottom-right not yet covered");
@@ -1759,12 +1800,12 @@ fn the_shooting_plan_maps_where_a_small_chart_has_been() {
     // every position, each hover and click naming the shot it was measured on.
     let first = h.state().session().expect("session").shots[0].id;
     let app = h.state_mut();
-    app.commands.push(Command::SelectShot(first));
-    app.commands.push(Command::SelectView(View::KernelField));
+    app.push(Command::View(ViewCommand::SelectShot(first)));
+    app.push(Command::View(ViewCommand::SelectView(View::KernelField)));
     h.run_steps(3);
     {
         let app = h.state();
-        let field = app.data.field.as_ref().expect("field");
+        let field = app.data().field.as_ref().expect("field");
         let points = &field.panels[0].points;
         assert_eq!(
             points.len(),
@@ -1828,19 +1869,19 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
         ..options(dir.path(), None, spec.clone())
     });
     step_until(&mut h, "the demo's photo", |a| {
-        a.views.deblur.photo.is_some()
+        a.views().deblur.photo.is_some()
     });
-    let p = h.state().views.deblur.photo.as_ref().expect("photo");
+    let p = h.state().views().deblur.photo.as_ref().expect("photo");
     assert_eq!(
         (p.focal_mm, p.f_number),
         (Some(photo.focal_mm), Some(photo.f_number))
     );
     step_until(&mut h, "calibrate all", |a| {
-        a.jobs.is_running(JobKind::CalibrateAll)
+        a.jobs().is_running(JobKind::CalibrateAll)
             || a.profile().is_some()
-            || a.window.messages.iter().any(|m| m.is_error)
+            || a.window().messages.iter().any(|m| m.is_error)
     });
-    let job_ids: Vec<JobKind> = h.state().jobs.running.iter().map(|j| j.kind).collect();
+    let job_ids: Vec<JobKind> = h.state().jobs().running.iter().map(|j| j.kind).collect();
     assert!(
         !job_ids
             .iter()
@@ -1854,22 +1895,22 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
         folder_has_profile(dir.path()),
         "the profile is written into the demo's folder"
     );
-    assert_eq!(app.view, View::Deblur, "the before/after opens by itself");
+    assert_eq!(app.view(), View::Deblur, "the before/after opens by itself");
     assert!(
-        app.window.messages.iter().any(|m| m
+        app.window().messages.iter().any(|m| m
             .text
             .starts_with(&format!("Calibrate all: measured {n} shots"))),
         "{:?}",
-        app.window.messages
+        app.window().messages
     );
     assert!(
-        !app.window.messages.iter().any(|m| m.is_error),
+        !app.window().messages.iter().any(|m| m.is_error),
         "{:?}",
-        app.window.messages
+        app.window().messages
     );
     step_until(&mut h, "the photo's preview", |a| {
         idle(a)
-            && a.views
+            && a.views()
                 .deblur
                 .comparison
                 .as_ref()
@@ -1880,11 +1921,11 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
     // Hovering the before/after: a loupe of the same pixels before and after, and their
     // values in both; the divider stays where it was.
     let divider = h.get_by_label("divider").rect();
-    let slider = h.state().views.deblur.slider;
+    let slider = h.state().views().deblur.slider;
     h.hover_at(divider.center() + egui::vec2(-120.0, -60.0));
     h.run_steps(2);
     assert_eq!(
-        h.state().views.deblur.slider,
+        h.state().views().deblur.slider,
         slider,
         "hovering moves nothing"
     );
@@ -1897,27 +1938,27 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
     // The sharpness map the profile predicts at the photo's setting, then the one the
     // photo's shot measured, and the lens's own: worse towards the corners in all three.
     h.state_mut()
-        .commands
-        .push(Command::SelectView(View::Sharpness));
+        .push(Command::View(ViewCommand::SelectView(View::Sharpness)));
     let corners_fall = |a: &StudioApp| {
-        a.data.sharpness.as_ref().is_some_and(|d| {
+        a.data().sharpness.as_ref().is_some_and(|d| {
             d.summary
                 .is_some_and(|s| s.corners < s.centre && s.min > 0.0)
         })
     };
     step_until(&mut h, "the predicted sharpness map", |a| {
-        a.views.sharpness.source == FieldSource::Predicted && corners_fall(a)
+        a.views().sharpness.source == FieldSource::Predicted && corners_fall(a)
     });
     snapshot(&mut h, "studio_sharpness_demo");
     for source in [FieldSource::Measured, FieldSource::Truth] {
         let choice = SharpnessChoice {
             source,
-            ..h.state().views.sharpness
+            ..h.state().views().sharpness
         };
-        h.state_mut().commands.push(Command::SetSharpness(choice));
+        h.state_mut()
+            .push(Command::View(ViewCommand::SetSharpness(choice)));
         step_until(&mut h, "the sharpness map", |a| {
-            a.views.sharpness.source == source
-                && a.data.sharpness.as_ref().is_some_and(|d| d.map.is_ok())
+            a.views().sharpness.source == source
+                && a.data().sharpness.as_ref().is_some_and(|d| d.map.is_ok())
                 && corners_fall(a)
         });
     }
@@ -1925,8 +1966,7 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
 
     // The shooting plan of the demo's lens, every setting shot.
     h.state_mut()
-        .commands
-        .push(Command::SelectView(View::Models));
+        .push(Command::View(ViewCommand::SelectView(View::Models)));
     h.run_steps(2);
     h.get_by_label("Shooting plan").click();
     h.run_steps(2);
@@ -1938,10 +1978,11 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
     // the CSV with one row per cell.
     for png in [true, false] {
         let path = dir.path().join(if png { "map.png" } else { "map.csv" });
-        h.state_mut().commands.push(Command::SaveSharpness {
-            path: path.clone(),
-            png,
-        });
+        h.state_mut()
+            .push(Command::Plot(PlotCommand::SaveSharpness {
+                path: path.clone(),
+                png,
+            }));
         h.run_steps(2);
         if png {
             let img = image::open(&path).expect("the saved map opens");
@@ -1960,12 +2001,11 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
     // the wide end), lateral colour and fall-off; then its lensfun entry, exported as the
     // dialog's answer would, with a distortion entry at each focal length.
     h.state_mut()
-        .commands
-        .push(Command::SelectView(View::Geometry));
+        .push(Command::View(ViewCommand::SelectView(View::Geometry)));
     step_until(&mut h, "the lens's geometry", |a| {
-        a.data.geometry.is_some() && idle(a)
+        a.data().geometry.is_some() && idle(a)
     });
-    let d = h.state().data.geometry.as_ref().expect("geometry");
+    let d = h.state().data().geometry.as_ref().expect("geometry");
     assert_eq!(d.focal, 24.0, "the widest focal length first");
     assert!(
         d.grid.corner_px < -1.0,
@@ -1981,15 +2021,16 @@ fn the_demo_streams_its_shots_and_blurs_a_photo() {
     snapshot(&mut h, "studio_geometry_demo");
     let xml_path = dir.path().join("demo.lensfun.xml");
     h.state_mut()
-        .commands
-        .push(Command::ExportLensfun(xml_path.clone()));
+        .push(Command::Geometry(GeometryCommand::ExportLensfun(
+            xml_path.clone(),
+        )));
     step_until(&mut h, "the lensfun entry", |a| {
-        idle(a) && (xml_path.is_file() || a.window.messages.iter().any(|m| m.is_error))
+        idle(a) && (xml_path.is_file() || a.window().messages.iter().any(|m| m.is_error))
     });
     assert!(
-        !h.state().window.messages.iter().any(|m| m.is_error),
+        !h.state().window().messages.iter().any(|m| m.is_error),
         "{:?}",
-        h.state().window.messages
+        h.state().window().messages
     );
     let xml = std::fs::read_to_string(&xml_path).expect("the lensfun entry");
     for f in [24, 50, 105] {
@@ -2028,20 +2069,18 @@ fn log_panel_confirmation_about_and_recent_sessions() {
 
     // Removing a shot asks first; Cancel keeps it, Remove removes it.
     h.state_mut()
-        .commands
-        .push(Command::AskConfirm(lensblur::app::Confirm::RemoveShot(
-            first,
+        .push(Command::Dialog(DialogCommand::AskConfirm(
+            lensblur::app::Confirm::RemoveShot(first),
         )));
     h.run_steps(3);
     snapshot(&mut h, "studio_confirm_remove");
     h.get_by_label("Cancel").click();
     h.run_steps(2);
-    assert!(h.state().window.confirm.is_none());
+    assert!(h.state().window().confirm.is_none());
     assert_eq!(h.state().session().map(|s| s.shots.len()), Some(n));
     h.state_mut()
-        .commands
-        .push(Command::AskConfirm(lensblur::app::Confirm::RemoveShot(
-            first,
+        .push(Command::Dialog(DialogCommand::AskConfirm(
+            lensblur::app::Confirm::RemoveShot(first),
         )));
     h.run_steps(3);
     h.get_by_label("Remove").click();
@@ -2049,56 +2088,62 @@ fn log_panel_confirmation_about_and_recent_sessions() {
     assert_eq!(h.state().session().map(|s| s.shots.len()), Some(n - 1));
 
     // Detect on the rest: its end is said in words, with the count.
-    h.state_mut().commands.push(Command::RunDetect(None));
+    h.state_mut()
+        .push(Command::Stage(StageCommand::RunDetect(None)));
     h.run_steps(1);
     step_until(&mut h, "detection", idle);
     // Inside the session folder, so the message names it relative to it (the snapshot
     // of the log must not hold the test's temporary folder).
     let missing = folder.join("no such photo.png");
-    h.state_mut().commands.push(Command::OpenPhoto(missing));
+    h.state_mut()
+        .push(Command::Deblur(DeblurCommand::OpenPhoto(missing)));
     step_until(&mut h, "the photo's error", |a| {
-        idle(a) && a.window.messages.iter().any(|m| m.is_error)
+        idle(a) && a.window().messages.iter().any(|m| m.is_error)
     });
     h.run_steps(3);
     assert!(
-        h.state().window.messages.iter().all(|m| m.is_error)
+        h.state().window().messages.iter().all(|m| m.is_error)
             && h.state()
-                .window
+                .window()
                 .messages
                 .iter()
                 .any(|m| m.text.contains("no such photo.png")),
         "notices gone from the status line, the error stays: {:?}",
-        h.state().window.messages
+        h.state().window().messages
     );
-    let said = h.state().window.log.iter().any(|m| {
+    let said = h.state().window().log.iter().any(|m| {
         m.text
             .starts_with(&format!("Detected the chart in {} shots", n - 1))
     });
-    assert!(said, "{:?}", h.state().window.log);
+    assert!(said, "{:?}", h.state().window().log);
     assert!(
         h.state()
-            .window
+            .window()
             .log
             .iter()
             .all(|m| !m.text.contains("{") && !m.text.contains("Some(")),
         "no debug dumps: {:?}",
-        h.state().window.log
+        h.state().window().log
     );
 
     // The log: every message with its time (fixed here, so the snapshot is stable).
-    h.state_mut().window.messages.clear();
-    for m in &mut h.state_mut().window.log {
+    h.state_mut().window_mut().messages.clear();
+    for m in &mut h.state_mut().window_mut().log {
         m.time = "12:00:00".into();
     }
-    h.state_mut().commands.push(Command::SetLogOpen(true));
+    h.state_mut()
+        .push(Command::Window(WindowCommand::SetLogOpen(true)));
     h.run_steps(3);
     snapshot(&mut h, "studio_log");
-    h.state_mut().commands.push(Command::SetLogOpen(false));
+    h.state_mut()
+        .push(Command::Window(WindowCommand::SetLogOpen(false)));
 
-    h.state_mut().commands.push(Command::ShowAbout(true));
+    h.state_mut()
+        .push(Command::Window(WindowCommand::ShowAbout(true)));
     h.run_steps(3);
     snapshot(&mut h, "studio_about");
-    h.state_mut().commands.push(Command::ShowAbout(false));
+    h.state_mut()
+        .push(Command::Window(WindowCommand::ShowAbout(false)));
     h.run_steps(2);
 
     // The session is remembered, and listed under File ▸ Recent sessions.
@@ -2110,4 +2155,84 @@ fn log_panel_confirmation_about_and_recent_sessions() {
     h.get_by_label("Recent sessions").hover();
     h.run_steps(3);
     h.snapshot("studio_menu_recent");
+}
+
+/// A developed 8-bit photo opened in the Deblur view with a profile measured on RAW
+/// files: the view warns in the command line's own words. The profile library chosen
+/// in the studio is where *Lens profile to the library* saves, and is remembered
+/// where the batch reads it.
+#[test]
+fn the_deblur_view_warns_of_a_developed_photo_and_the_library_can_be_chosen() {
+    use lensblur::plane::{LensSetting, PictureKind};
+    let demo = tempfile::tempdir().expect("temp dir");
+    let parent = tempfile::tempdir().expect("temp dir");
+    let folder = parent.path().join("lens");
+    std::fs::create_dir(&folder).expect("session folder");
+    // A profile of RAW files: the virtual lens's, from a stand-in session's kernels.
+    let (w, h) = (320, 224);
+    let settings: Vec<LensSetting> = [24.0, 50.0, 105.0]
+        .into_iter()
+        .flat_map(|focal_mm| [4.0, 5.6, 10.0].map(|f_number| LensSetting { focal_mm, f_number }))
+        .collect();
+    let ds = lensblur::simulate::SimulatedSession::new(w, h)
+        .dataset(&lensblur::simulate::lens::VirtualLens::demo(), &settings);
+    let opts = lensblur::calibrate::CalibrateOptions {
+        families: lensblur::calibrate::Families::Global,
+        alpha: Some(2),
+        beta: Some(1),
+        ..Default::default()
+    };
+    let (profile, _) =
+        lensblur::calibrate::calibrate(&ds, None, &opts, &JobContext::silent()).expect("calibrate");
+    assert_eq!(profile.measured_on(), PictureKind::Raw);
+    let profile_path = folder.join("raw.profile.json");
+    profile.save(&profile_path).expect("save the profile");
+    // The photo: an 8-bit PNG, as an editor exports a developed picture.
+    let photo = folder.join("developed.png");
+    image::RgbImage::from_fn(w as u32, h as u32, |x, y| {
+        let v = ((x * 3 + y * 5) % 256) as u8;
+        image::Rgb([v, v / 2 + 60, 255 - v])
+    })
+    .save(&photo)
+    .expect("write the photo");
+
+    let mut h = new_harness(demo.path(), Some(&folder));
+    h.run_steps(2);
+    h.state_mut()
+        .push(Command::Stage(StageCommand::LoadProfile {
+            path: profile_path.clone(),
+            compare: false,
+        }));
+    step_until(&mut h, "the profile", |a| a.profile().is_some());
+    h.state_mut()
+        .push(Command::Deblur(DeblurCommand::OpenPhoto(photo.clone())));
+    step_until(&mut h, "the photo", |a| {
+        a.views().deblur.photo.is_some() && idle(a)
+    });
+    h.state_mut()
+        .push(Command::View(ViewCommand::SelectView(View::Deblur)));
+    h.run_steps(3);
+    let said = profile
+        .picture_warning(PictureKind::Developed, "developed.png", "raw.profile.json")
+        .expect("a developed photo with a RAW profile is warned about");
+    h.get_by_label(&format!("warning: {said}"));
+    snapshot(&mut h, "studio_deblur_developed_photo");
+
+    // Another library: remembered for the next launch and the batch, and saved into.
+    let library = parent.path().join("my profiles");
+    h.state_mut()
+        .push(Command::Stage(StageCommand::SetProfileLibrary(
+            library.clone(),
+        )));
+    h.run_steps(2);
+    assert_eq!(h.state().profile_library(), library.as_path());
+    assert_eq!(
+        lensblur::recent::profile_library(&demo.path().join("settings.json")),
+        library
+    );
+    h.state_mut()
+        .push(Command::Stage(StageCommand::SaveProfileToLibrary));
+    h.run_steps(2);
+    let saved = lensblur::batch::ProfileLibrary::load(&library).expect("saved into the library");
+    assert_eq!(saved.profiles.len(), 1);
 }

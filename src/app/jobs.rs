@@ -59,7 +59,8 @@ pub enum JobKind {
     CalibrateAll,
     LoadProfile,
     OpenPhoto,
-    /// The Deblur view's crops, replaced by a newer one as a control is dragged.
+    /// The Deblur view's crops or whole photo, replaced by a newer one as a control
+    /// is dragged.
     DeblurPreview,
     /// The photo deblurred whole and written.
     ExportPhoto,

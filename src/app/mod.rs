@@ -19,14 +19,18 @@ mod textures;
 mod ui;
 pub mod view_data;
 
-pub use command::{Command, JobOutput};
+pub use command::{
+    Command, DeblurCommand, DeblurOutput, DialogCommand, GeometryCommand, GeometryOutput,
+    JobOutput, PlotCommand, SessionCommand, SessionOutput, ShotOutput, StageCommand, StageOutput,
+    ViewCommand, WindowCommand,
+};
 pub(crate) use state::Tally;
 pub use state::{
     AppOptions, Autorun, ColourRange, ComparisonView, Confirm, DeblurLayout, DeblurResult,
     DeblurState, DeblurZoom, Difference, FieldOptions, FieldShow, FieldSource, FieldViewState,
-    FrameLog, GeometryViewState, Message, PendingPlotPng, Photo, PlotId, SessionPanelState,
-    SharpnessChoice, ShotPreview, ShotView, ShotViewState, SweepAxis, SweepsViewState, Trace, View,
-    ViewerState, Views, Window, clock_now,
+    FrameLog, GeometryViewState, Message, PendingPlotPng, Photo, PlotId, PreviewScope,
+    SessionPanelState, SharpnessChoice, ShotPreview, ShotView, ShotViewState, SweepAxis,
+    SweepsViewState, Trace, View, ViewerContext, ViewerState, Views, Window, clock_now,
 };
 
 use crate::crossval::CvReport;
@@ -107,7 +111,7 @@ pub struct StudioApp {
     /// record (file, settings, status, detection, kernels) and the results made of them
     /// (dataset, profile, cross-validation).
     project: Option<Project>,
-    pub jobs: Jobs<JobOutput>,
+    jobs: Jobs<JobOutput>,
     /// Per running detect or kernels job (by id): how its shots went so far.
     tallies: BTreeMap<u64, Tally>,
     /// Counts the sessions opened: results of jobs started for an earlier one are
@@ -116,15 +120,15 @@ pub struct StudioApp {
     /// The session's shots as the window has them: loading, loaded, or unreadable (a
     /// shot has an entry once its loading has started).
     shots: BTreeMap<ShotId, ShotView>,
-    pub commands: Vec<Command>,
+    commands: Vec<Command>,
     /// The view shown.
-    pub view: View,
+    view: View,
     /// Each view's own state: what it shows and how.
-    pub views: Views,
+    views: Views,
     /// What the views show that takes computing, cached by what it depends on.
-    pub data: view_data::ViewData,
+    data: view_data::ViewData,
     /// The window around the views: messages, log, dialogs shown, theme.
-    pub window: Window,
+    window: Window,
     dialogs: logic::Dialogs,
     trace: Trace,
     autorun: Autorun,
@@ -185,10 +189,76 @@ impl StudioApp {
         app
     }
 
+    /// The jobs running.
+    #[must_use]
+    pub fn jobs(&self) -> &Jobs<JobOutput> {
+        &self.jobs
+    }
+
+    /// The view shown.
+    #[must_use]
+    pub fn view(&self) -> View {
+        self.view
+    }
+
+    /// Each view's own state.
+    #[must_use]
+    pub fn views(&self) -> &Views {
+        &self.views
+    }
+
+    /// What the views show that takes computing.
+    #[must_use]
+    pub fn data(&self) -> &view_data::ViewData {
+        &self.data
+    }
+
+    /// The window around the views: messages, log, dialogs shown, theme.
+    #[must_use]
+    pub fn window(&self) -> &Window {
+        &self.window
+    }
+
+    /// The window, to change what it shows directly (a snapshot fixes its log's times).
+    pub fn window_mut(&mut self) -> &mut Window {
+        &mut self.window
+    }
+
+    /// Queues a command: applied at the next logic step, as a panel's are.
+    pub fn push(&mut self, command: impl Into<Command>) {
+        self.commands.push(command.into());
+    }
+
+    /// What the views may read: the project and the loaded shots, borrowed.
+    #[must_use]
+    pub fn viewer(&self) -> ViewerContext<'_> {
+        ViewerContext {
+            project: self.project.as_ref(),
+            shots: &self.shots,
+        }
+    }
+
+    /// What a frame draws from, borrowed for the frame.
+    fn frame(&self) -> ui::Frame<'_> {
+        ui::Frame {
+            cx: self.viewer(),
+            view: self.view,
+            views: &self.views,
+            data: &self.data,
+            window: &self.window,
+            jobs: &self.jobs,
+            notice_lifetime: self.options.notice_lifetime,
+            profile_library: &self.options.profile_library,
+            deblur_method: logic::deblur_method(self),
+            sensor: view_data::sensor_size(self),
+            setting_ranges: view_data::setting_ranges(self, &crate::simulate::VirtualLens::demo()),
+        }
+    }
+
     /// The open session.
     #[must_use]
     pub fn session(&self) -> Option<&Session> {
-        self.project.as_ref().map(Project::session)
+        self.viewer().session()
     }
 
     /// The open calibration project.
@@ -206,13 +276,13 @@ impl StudioApp {
     /// The session's measured Gaussians over every shot with kernels and a setting.
     #[must_use]
     pub fn dataset(&self) -> Option<&Arc<Dataset>> {
-        self.project.as_ref()?.dataset()
+        self.viewer().dataset()
     }
 
     /// The lens profile in use (calibrated here or loaded) and where it lies.
     #[must_use]
     pub fn profile(&self) -> Option<&(PathBuf, Arc<Profile>)> {
-        self.project.as_ref()?.profile()
+        self.viewer().profile()
     }
 
     /// The profile library the studio saves into: the folder a batch reads.
@@ -224,25 +294,25 @@ impl StudioApp {
     /// A second profile shown beside the first (another unit of the lens).
     #[must_use]
     pub fn compare_profile(&self) -> Option<&(PathBuf, Arc<Profile>)> {
-        self.project.as_ref()?.compare_profile()
+        self.viewer().compare_profile()
     }
 
     /// The cross-validation report of the profile's fit.
     #[must_use]
     pub fn cv(&self) -> Option<&Arc<CvReport>> {
-        self.project.as_ref()?.cv()
+        self.viewer().cv()
     }
 
     /// The shot's detection, this run's or read back from the session's results.
     #[must_use]
     pub fn detection(&self, id: ShotId) -> Option<&Arc<Detection>> {
-        self.project.as_ref()?.detection(id)
+        self.viewer().detection(id)
     }
 
     /// The shot's measured kernels and their Gaussians (all channels).
     #[must_use]
     pub fn kernels(&self, id: ShotId) -> Option<&Arc<KernelsFile>> {
-        self.project.as_ref()?.kernels(id)
+        self.viewer().kernels(id)
     }
 
     /// The shots with a detection, in session order.
@@ -277,7 +347,7 @@ impl StudioApp {
     /// The shot loaded for display, once it is.
     #[must_use]
     pub fn preview(&self, id: ShotId) -> Option<&ShotPreview> {
-        self.shots.get(&id).and_then(ShotView::preview)
+        self.viewer().preview(id)
     }
 
     /// The shots loaded for display, in id order.
@@ -290,7 +360,7 @@ impl StudioApp {
     /// Why the shot cannot be read, if it cannot.
     #[must_use]
     pub fn unreadable(&self, id: ShotId) -> Option<&str> {
-        self.shots.get(&id).and_then(ShotView::unreadable)
+        self.viewer().unreadable(id)
     }
 
     /// The shots that cannot be read, with the reason, in id order.
@@ -331,24 +401,10 @@ impl StudioApp {
         self.window.messages.push(m);
     }
 
-    /// A path as the UI shows it: relative to the session folder when it lies inside,
-    /// `~/…` under the home folder, absolute otherwise. Where the session lives is one
-    /// hover away (the session name's tooltip); repeating it in every line would crowd
-    /// the window and tie what it shows to where the folder happens to be.
+    /// A path as the UI shows it ([`ViewerContext::shown_path`]).
     #[must_use]
     pub fn shown_path(&self, path: &Path) -> String {
-        if let Some(s) = self.session()
-            && let Ok(rel) = path.strip_prefix(s.folder())
-            && !rel.as_os_str().is_empty()
-        {
-            return rel.display().to_string();
-        }
-        if let Some(home) = std::env::var_os("HOME").map(PathBuf::from)
-            && let Ok(rel) = path.strip_prefix(&home)
-        {
-            return format!("~/{}", rel.display());
-        }
-        path.display().to_string()
+        self.viewer().shown_path(path)
     }
 
     /// Messages from the core name files by their full paths; inside the session folder
@@ -478,7 +534,10 @@ impl eframe::App for StudioApp {
             self.trace.frames.last_report = None;
         }
         let busy = !self.jobs.running.is_empty();
-        ui::root_ui(self, ui);
+        // Draw code only reads; what it asks for is queued, applied after the frame.
+        let mut out = std::mem::take(&mut self.commands);
+        ui::root_ui(&self.frame(), &mut out, ui);
+        self.commands = out;
         self.trace
             .frames
             .record_app_time(busy, now.elapsed().as_secs_f32() * 1000.0);

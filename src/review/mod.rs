@@ -18,7 +18,9 @@
 //! - [`coverage`]: where on the sensor the chart has been, per setting, and the parts
 //!   of the frame still to cover;
 //! - [`lens_geometry`]: a measured geometry as the Geometry view draws it (the grid
-//!   through the distortion, lateral-colour arrows, the fall-off map).
+//!   through the distortion, lateral-colour arrows, the fall-off map);
+//! - [`overlay`]: a detection as the Shot view draws it (the chart's grid, a square's
+//!   circles, the square under a point).
 
 pub mod advice;
 pub mod coverage;
@@ -27,6 +29,7 @@ pub mod export;
 pub mod fields;
 pub mod kernels;
 pub mod lens_geometry;
+pub mod overlay;
 pub mod plot;
 pub mod sharpness;
 pub mod sweeps;
@@ -57,6 +60,7 @@ pub use lens_geometry::{
     ColourArrows, FalloffMap, WarpedGrid, colour_arrows, falloff_map, nice_factor, stops_at,
     warped_grid,
 };
+pub use overlay::{chart_grid, point_in_quad, square_circles};
 pub use plot::{
     aperture_stops, cv_cdf_curves, cv_curve, f_number_at_stops, f_number_label, nice_ticks,
 };

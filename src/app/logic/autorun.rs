@@ -4,6 +4,7 @@
 
 use crate::app::jobs::JobKind;
 use crate::app::{Command, DeblurLayout, DeblurZoom, FrameLog, StudioApp, View};
+use crate::app::{DeblurCommand, StageCommand, ViewCommand};
 use std::path::PathBuf;
 
 /// Once per frame, after the commands: logs readiness, starts the next autorun stage
@@ -65,9 +66,15 @@ fn log_readiness(app: &mut StudioApp) {
 fn next_stage(app: &mut StudioApp) {
     let stage = app.options.autorun.remove(0);
     match stage.as_str() {
-        "detect" => app.commands.push(Command::RunDetect(None)),
-        "kernels" => app.commands.push(Command::RunKernels(None)),
-        "calibrate" => app.commands.push(Command::RunCalibrate),
+        "detect" => app
+            .commands
+            .push(Command::Stage(StageCommand::RunDetect(None))),
+        "kernels" => app
+            .commands
+            .push(Command::Stage(StageCommand::RunKernels(None))),
+        "calibrate" => app
+            .commands
+            .push(Command::Stage(StageCommand::RunCalibrate)),
         // The Deblur view at 100 % in the slider layout (one pane as large as
         // the window allows) on LENSBLUR_PHOTO, else the first shot.
         "deblur" => {
@@ -78,12 +85,18 @@ fn next_stage(app: &mut StudioApp) {
                     Some(s.path_of(s.shots.first()?))
                 });
             if let Some(p) = photo {
-                app.commands.push(Command::SelectView(View::Deblur));
                 app.commands
-                    .push(Command::SetDeblurLayout(DeblurLayout::Slider));
+                    .push(Command::View(ViewCommand::SelectView(View::Deblur)));
                 app.commands
-                    .push(Command::SetDeblurZoom(DeblurZoom::Times(1)));
-                app.commands.push(Command::OpenPhoto(p));
+                    .push(Command::Deblur(DeblurCommand::SetDeblurLayout(
+                        DeblurLayout::Slider,
+                    )));
+                app.commands
+                    .push(Command::Deblur(DeblurCommand::SetDeblurZoom(
+                        DeblurZoom::Times(1),
+                    )));
+                app.commands
+                    .push(Command::Deblur(DeblurCommand::OpenPhoto(p)));
             }
         }
         // The strength slider dragged for 300 frames, as a hand would: frame
@@ -123,11 +136,11 @@ fn drag_strength(app: &mut StudioApp) {
         let k = app.autorun.drag_frames as f64;
         let lambda = 3000.0 * 10f64.powf((k / 25.0).sin());
         app.commands
-            .push(Command::SetDeblurMethod(crate::deblur::Method::Hqs(
-                crate::deblur::HqsParams {
+            .push(Command::Deblur(DeblurCommand::SetDeblurMethod(
+                crate::deblur::Method::Hqs(crate::deblur::HqsParams {
                     lambda,
                     ..Default::default()
-                },
+                }),
             )));
     }
 }

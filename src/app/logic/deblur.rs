@@ -5,7 +5,10 @@ use super::apply;
 use super::shots::{develop_for_display, load_capture};
 use crate::app::jobs::JobKind;
 use crate::app::textures::{developed_texture, rgb_texture};
-use crate::app::{Command, ComparisonView, DeblurResult, DeblurZoom, JobOutput, Photo, StudioApp};
+use crate::app::{
+    Command, ComparisonView, DeblurResult, DeblurZoom, JobOutput, Photo, PreviewScope, StudioApp,
+};
+use crate::app::{DeblurCommand, DeblurOutput};
 use crate::deblur::{DeblurOptions, KernelSource, Method};
 use crate::develop::Developed;
 use crate::plane::Capture;
@@ -13,122 +16,128 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 /// The Deblur view: its photo, its region and controls, exports.
-pub(super) fn apply_deblur(app: &mut StudioApp, command: Command) {
+pub(super) fn apply_deblur(app: &mut StudioApp, command: DeblurCommand) {
     match command {
-        Command::OpenPhoto(path) => {
+        DeblurCommand::OpenPhoto(path) => {
             let r = app.jobs.spawn(JobKind::OpenPhoto, move |ctx, out| {
                 ctx.report("loading", 0, 1);
                 let capture = load_capture(&path)?;
                 let developed = develop_for_display(&capture);
                 ctx.report("loading", 1, 1);
-                out.emit(JobOutput::PhotoLoaded {
+                out.emit(JobOutput::Deblur(DeblurOutput::PhotoLoaded {
                     path,
                     capture: Arc::new(capture),
                     developed,
-                });
+                }));
                 Ok(())
             });
             if let Err(e) = r {
                 app.error(e);
             }
         }
-        Command::SetPhotoSetting { focal_mm, f_number } => {
+        DeblurCommand::SetPhotoSetting { focal_mm, f_number } => {
             if let Some(p) = app.views.deblur.photo.as_mut() {
                 p.focal_mm = focal_mm;
                 p.f_number = f_number;
             }
         }
-        Command::DeblurAt(centre) => run_deblur_preview(app, centre),
-        Command::SetDeblurLayout(l) => {
+        DeblurCommand::DeblurAt(centre) => run_deblur_preview(app, centre),
+        DeblurCommand::SetDeblurLayout(l) => {
             app.views.deblur.layout = l;
             app.views.deblur.viewport = None;
         }
-        Command::SetDeblurZoom(z) => {
+        DeblurCommand::SetDeblurZoom(z) => {
             app.views.deblur.zoom = z;
             app.views.deblur.viewport = None;
             if z == DeblurZoom::Fit {
                 redeblur(app);
             }
         }
-        Command::SetDeblurViewport(v) => {
+        DeblurCommand::SetDeblurViewport(v) => {
             if app.views.deblur.viewport != Some(v) {
                 app.views.deblur.viewport = Some(v);
                 redeblur(app);
             }
         }
-        Command::SetDeblurCrop(px) => {
+        DeblurCommand::SetDeblurCrop(px) => {
             app.views.deblur.crop_px = px.clamp(32, 4096);
             redeblur(app);
         }
-        Command::SetDeblurMethod(m) => {
+        DeblurCommand::SetDeblurMethod(m) => {
             app.views.deblur.method = Some(m);
+            app.views.deblur.scope = None;
             redeblur(app);
         }
-        Command::SetDeblurOverview(open) => {
+        DeblurCommand::SetDeblurOverview(open) => {
             app.views.deblur.overview_open = open;
             // The panes' size changes: at 100 % and more, the region follows it.
             app.views.deblur.viewport = None;
         }
-        Command::SetDeblurAmount(percent) => {
+        DeblurCommand::SetDeblurAmount(percent) => {
             app.views.deblur.amount = crate::deblur::Amount::percent(percent);
             redeblur(app);
         }
-        Command::SetDeblurFringes(f) => {
+        DeblurCommand::SetDeblurFringes(f) => {
             app.views.deblur.fringes = f;
             redeblur(app);
         }
-        Command::SetDeblurLateral(l) => {
+        DeblurCommand::SetDeblurLateral(l) => {
             app.views.deblur.lateral = l;
             redeblur(app);
         }
-        Command::SetDeblurDevice(d) => {
+        DeblurCommand::SetDeblurDevice(d) => {
             app.views.deblur.device = d;
             app.views.deblur.device_note = None;
+            app.views.deblur.scope = None;
             redeblur(app);
         }
-        Command::DragDeblur(d) => {
+        DeblurCommand::DragDeblur(d) => {
             app.views.deblur.drag[0] += d[0];
             app.views.deblur.drag[1] += d[1];
         }
-        Command::EndDragDeblur => {
+        DeblurCommand::EndDragDeblur => {
             let d = std::mem::take(&mut app.views.deblur.drag);
             if let Some(c) = app.views.deblur.comparison.as_ref() {
                 let [cx, cy] = c.comparison.region.centre();
                 run_deblur_preview(app, [cx - f64::from(d[0]), cy - f64::from(d[1])]);
             }
         }
-        Command::SetSliderResult(r) => app.views.deblur.slider_result = r,
-        Command::SetSlider(t) => app.views.deblur.slider = t.clamp(0.0, 1.0),
-        Command::ExportDeblur { path, result } => run_export(app, path, result),
-        Command::ExportPhotos {
+        DeblurCommand::SetSliderResult(r) => app.views.deblur.slider_result = r,
+        DeblurCommand::SetSlider(t) => app.views.deblur.slider = t.clamp(0.0, 1.0),
+        DeblurCommand::ExportDeblur { path, result } => run_export(app, path, result),
+        DeblurCommand::ExportPhotos {
             photos,
             out_dir,
             dng,
         } => run_export_photos(app, photos, out_dir, dng),
-        // `apply` routes only this group's commands here.
-        other => unreachable!("not routed to apply_deblur: {other:?}"),
     }
 }
 
 /// The photo opened, its deblurred crops, and exports done.
-pub(super) fn deblur_output(app: &mut StudioApp, output: JobOutput) {
+pub(super) fn deblur_output(app: &mut StudioApp, output: DeblurOutput) {
     match output {
-        JobOutput::PhotoLoaded {
+        DeblurOutput::PhotoLoaded {
             path,
             capture,
             developed,
         } => photo_loaded(app, path, capture, developed),
-        JobOutput::DeblurCompared {
+        DeblurOutput::DeblurCompared {
             comparison,
             measured_from,
-        } => deblur_compared(app, comparison, measured_from),
-        JobOutput::DeblurExported(path) => {
+            whole_ms,
+        } => {
+            if let (Some(ms), Some(PreviewScope::Trial)) = (whole_ms, &app.views.deblur.scope) {
+                app.views.deblur.scope = Some(preview_scope(Ok(()), Some(ms)));
+            }
+            deblur_compared(app, comparison, measured_from);
+        }
+        DeblurOutput::DeblurExported(path) => {
             app.info(format!(
                 "deblurred photo written to {}",
                 app.shown_path(&path)
             ));
         }
-        JobOutput::PhotosExported(report) => {
+        DeblurOutput::PhotosExported(report) => {
             for o in &report.outcomes {
                 let name = app.shown_path(&o.photo);
                 match &o.outcome {
@@ -149,8 +158,6 @@ pub(super) fn deblur_output(app: &mut StudioApp, output: JobOutput) {
                     .join(", ")
             ));
         }
-        // `apply_output` routes only this group's outputs here.
-        _ => unreachable!("an output not routed to deblur_output"),
     }
 }
 
@@ -224,12 +231,14 @@ fn photo_loaded(
         path,
         focal_mm: capture.setting_focal_mm.or(rf),
         f_number: capture.setting_f_number.or(ra),
+        kind: capture.picture_kind(),
         capture,
         texture,
         developed,
     });
     app.views.deblur.comparison = None;
-    apply(app, Command::DeblurAt(centre));
+    app.views.deblur.scope = None;
+    apply(app, Command::Deblur(DeblurCommand::DeblurAt(centre)));
 }
 
 /// The method the Deblur view uses: its own once changed there, else the session's.
@@ -303,7 +312,36 @@ fn photo_sources(app: &StudioApp, photo: &Photo) -> Sources {
     (predicted, measured, from)
 }
 
-/// Deblurs a crop of the open photo around `centre` with both sources.
+/// The longest a preview of the whole photo may take for the view to redo it live as a
+/// control moves: beyond it, dragging the amount would lag behind the hand.
+pub const WHOLE_PHOTO_MS: f64 = 150.0;
+
+/// The one rule for what the preview deblurs: the whole photo only where it runs on a
+/// hardware GPU (`gpu`: `Err` with why not) and, once a first whole-photo preview has
+/// been timed (`first_ms`), only when that took under [`WHOLE_PHOTO_MS`]; else crops,
+/// with why in one short sentence.
+#[must_use]
+pub fn preview_scope(gpu: Result<(), String>, first_ms: Option<f64>) -> PreviewScope {
+    match (gpu, first_ms) {
+        (Err(why), _) => PreviewScope::Crops(why),
+        (Ok(()), None) => PreviewScope::Trial,
+        (Ok(()), Some(ms)) if ms < WHOLE_PHOTO_MS => PreviewScope::Whole { ms },
+        (Ok(()), Some(ms)) => PreviewScope::Crops(format!(
+            "The whole photo took {ms:.0} ms on the GPU (over {WHOLE_PHOTO_MS:.0}); showing crops."
+        )),
+    }
+}
+
+/// Whether `opts` deblur on a hardware GPU, else why the whole photo is not previewed.
+fn hardware_gpu(opts: &DeblurOptions) -> Result<(), String> {
+    match crate::deblur::gpu::resolve(opts.device, &opts.method) {
+        Ok(Some(g)) if !g.adapter().software => Ok(()),
+        _ => Err("Whole-photo preview needs a hardware GPU; showing crops.".into()),
+    }
+}
+
+/// Deblurs the open photo around `centre` with both sources: a crop, or the whole
+/// photo where [`preview_scope`] allows it and the panes fit the photo.
 pub(super) fn run_deblur_preview(app: &mut StudioApp, centre: [f64; 2]) {
     let Some(photo) = &app.views.deblur.photo else {
         return;
@@ -323,7 +361,22 @@ pub(super) fn run_deblur_preview(app: &mut StudioApp, centre: [f64; 2]) {
         return;
     }
     let cap = Arc::clone(&photo.capture);
+    let opts = deblur_options(app);
+    let scope = app
+        .views
+        .deblur
+        .scope
+        .get_or_insert_with(|| preview_scope(hardware_gpu(&opts), None));
+    let whole = scope.whole() && app.views.deblur.zoom == DeblurZoom::Fit;
     let region = match (app.views.deblur.zoom, app.views.deblur.viewport) {
+        _ if whole => crate::review::Region::around_size(
+            cap.width as f64 / 2.0,
+            cap.height as f64 / 2.0,
+            cap.width,
+            cap.height,
+            cap.width,
+            cap.height,
+        ),
         (DeblurZoom::Times(_), Some([w, h])) => {
             crate::review::Region::around_size(centre[0], centre[1], w, h, cap.width, cap.height)
         }
@@ -336,13 +389,13 @@ pub(super) fn run_deblur_preview(app: &mut StudioApp, centre: [f64; 2]) {
         ),
     };
     let (predicted, measured, from) = photo_sources(app, photo);
-    let opts = deblur_options(app);
     if app.views.deblur.device_note.is_none() {
         // Where the preview runs, said once per choice (opening a device is the core's).
         let note = crate::deblur::gpu::describe(opts.device, &opts.method);
         app.views.deblur.device_note = Some(note);
     }
     let r = app.jobs.spawn(JobKind::DeblurPreview, move |ctx, out| {
+        let started = std::time::Instant::now();
         let comparison = crate::review::compare_deblur(
             &cap,
             region,
@@ -358,10 +411,11 @@ pub(super) fn run_deblur_preview(app: &mut StudioApp, centre: [f64; 2]) {
             ctx,
         )
         .map_err(|e| e.to_string())?;
-        out.emit(JobOutput::DeblurCompared {
+        out.emit(JobOutput::Deblur(DeblurOutput::DeblurCompared {
             comparison: Arc::new(comparison),
             measured_from: from,
-        });
+            whole_ms: whole.then(|| started.elapsed().as_secs_f64() * 1e3),
+        }));
         Ok(())
     });
     if let Err(e) = r {
@@ -393,7 +447,7 @@ fn run_export_photos(app: &mut StudioApp, photos: Vec<PathBuf>, out_dir: PathBuf
     };
     let r = app.jobs.spawn(JobKind::ExportPhotos, move |ctx, out| {
         let report = crate::batch::deblur_photos(&photos, &library, &opts, ctx);
-        out.emit(JobOutput::PhotosExported(report));
+        out.emit(JobOutput::Deblur(DeblurOutput::PhotosExported(report)));
         Ok(())
     });
     if let Err(e) = r {
@@ -433,10 +487,42 @@ fn run_export(app: &mut StudioApp, path: PathBuf, result: DeblurResult) {
     );
     let r = app.jobs.spawn(JobKind::ExportPhoto, move |ctx, out| {
         crate::review::export_deblurred(&cap, source.as_ref(), &opts, &path, original, &note, ctx)?;
-        out.emit(JobOutput::DeblurExported(path));
+        out.emit(JobOutput::Deblur(DeblurOutput::DeblurExported(path)));
         Ok(())
     });
     if let Err(e) = r {
         app.error(e);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{PreviewScope, WHOLE_PHOTO_MS, preview_scope};
+
+    #[test]
+    fn the_whole_photo_is_previewed_only_on_a_hardware_gpu_fast_enough() {
+        let why = "Whole-photo preview needs a hardware GPU; showing crops.".to_owned();
+        // A software rasteriser or the CPU: crops, whatever a time says.
+        assert_eq!(
+            preview_scope(Err(why.clone()), None),
+            PreviewScope::Crops(why.clone())
+        );
+        assert_eq!(
+            preview_scope(Err(why.clone()), Some(1.0)),
+            PreviewScope::Crops(why)
+        );
+        // A hardware GPU: the first preview is of the whole photo, and its time decides.
+        assert_eq!(preview_scope(Ok(()), None), PreviewScope::Trial);
+        assert!(PreviewScope::Trial.whole());
+        assert_eq!(
+            preview_scope(Ok(()), Some(40.0)),
+            PreviewScope::Whole { ms: 40.0 }
+        );
+        let slow = preview_scope(Ok(()), Some(WHOLE_PHOTO_MS));
+        assert!(!slow.whole());
+        assert!(
+            matches!(&slow, PreviewScope::Crops(w) if w.contains("150 ms")),
+            "{slow:?}"
+        );
     }
 }

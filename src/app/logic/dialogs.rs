@@ -3,70 +3,86 @@
 
 use super::session::{apply_settings, remove_shot};
 use crate::app::{Command, Confirm, DeblurResult, PlotId, StudioApp};
+use crate::app::{
+    DeblurCommand, DialogCommand, GeometryCommand, PlotCommand, SessionCommand, StageCommand,
+};
 use std::path::PathBuf;
 
 /// File dialogs (each on its own thread) and the questions asked before losing work.
-pub(super) fn apply_dialog(app: &mut StudioApp, command: Command) {
+pub(super) fn apply_dialog(app: &mut StudioApp, command: DialogCommand) {
     match command {
-        Command::AddShotsDialog => spawn_dialog(app, || async {
+        DialogCommand::AddShotsDialog => spawn_dialog(app, || async {
             rfd::AsyncFileDialog::new()
                 .set_title("Add calibration shots")
                 .add_filter("RAW, DNG, TIFF, PNG, JPEG", crate::session::SHOT_EXTENSIONS)
                 .pick_files()
                 .await
                 .map(|files| {
-                    Command::AddShots(files.iter().map(|f| f.path().to_path_buf()).collect())
+                    Command::Session(SessionCommand::AddShots(
+                        files.iter().map(|f| f.path().to_path_buf()).collect(),
+                    ))
                 })
                 .into_iter()
                 .collect()
         }),
-        Command::LoadChartDialog => spawn_dialog(app, || async {
+        DialogCommand::LoadChartDialog => spawn_dialog(app, || async {
             answer(
                 rfd::AsyncFileDialog::new()
                     .set_title("Load a chart spec")
                     .add_filter("chart spec", &["json"])
                     .pick_file()
                     .await,
-                Command::LoadChart,
+                |p| Command::Session(SessionCommand::LoadChart(p)),
             )
         }),
-        Command::OpenPhotoDialog => spawn_dialog(app, || async {
+        DialogCommand::OpenPhotoDialog => spawn_dialog(app, || async {
             answer(
                 rfd::AsyncFileDialog::new()
                     .set_title("Open a photo to deblur")
                     .add_filter("RAW, DNG, TIFF, PNG, JPEG", crate::session::SHOT_EXTENSIONS)
                     .pick_file()
                     .await,
-                Command::OpenPhoto,
+                |p| Command::Deblur(DeblurCommand::OpenPhoto(p)),
             )
         }),
-        Command::ExportDeblurDialog(result) => export_deblur_dialog(app, result),
-        Command::ExportPhotosDialog { dng } => export_photos_dialog(app, dng),
-        Command::LoadProfileDialog => load_profile_dialog(app, false),
-        Command::LoadCompareProfileDialog => load_profile_dialog(app, true),
-        Command::SaveProfileDialog => save_profile_dialog(app),
-        Command::SavePlotDialog { plot, png } => save_plot_dialog(app, plot, png),
-        Command::SaveSharpnessDialog { png } => save_sharpness_dialog(app, png),
-        Command::ExportLensfunDialog => export_lensfun_dialog(app),
-        Command::OpenSessionDialog => spawn_dialog(app, || async {
+        DialogCommand::ExportDeblurDialog(result) => export_deblur_dialog(app, result),
+        DialogCommand::ExportPhotosDialog { dng } => export_photos_dialog(app, dng),
+        DialogCommand::LoadProfileDialog => load_profile_dialog(app, false),
+        DialogCommand::LoadCompareProfileDialog => load_profile_dialog(app, true),
+        DialogCommand::SaveProfileDialog => save_profile_dialog(app),
+        DialogCommand::SavePlotDialog { plot, png } => save_plot_dialog(app, plot, png),
+        DialogCommand::SaveSharpnessDialog { png } => save_sharpness_dialog(app, png),
+        DialogCommand::ExportLensfunDialog => export_lensfun_dialog(app),
+        DialogCommand::OpenSessionDialog => spawn_dialog(app, || async {
             answer(
                 rfd::AsyncFileDialog::new()
                     .set_title("Open or create a session folder")
                     .pick_folder()
                     .await,
-                Command::OpenSession,
+                |p| Command::Session(SessionCommand::OpenSession(p)),
             )
         }),
-        Command::AskConfirm(c) => app.window.confirm = Some(c),
-        Command::ConfirmAnswer(yes) => match app.window.confirm.take() {
+        DialogCommand::ChooseProfileLibraryDialog => {
+            let current = app.profile_library().to_path_buf();
+            spawn_dialog(app, move || async move {
+                answer(
+                    rfd::AsyncFileDialog::new()
+                        .set_title("Choose the profile library (where a batch finds its profiles)")
+                        .set_directory(&current)
+                        .pick_folder()
+                        .await,
+                    |p| Command::Stage(StageCommand::SetProfileLibrary(p)),
+                )
+            });
+        }
+        DialogCommand::AskConfirm(c) => app.window.confirm = Some(c),
+        DialogCommand::ConfirmAnswer(yes) => match app.window.confirm.take() {
             Some(Confirm::RemoveShot(id)) if yes => remove_shot(app, id),
             Some(Confirm::ReplaceChart { chart, settings }) if yes => {
                 apply_settings(app, chart, settings);
             }
             _ => {}
         },
-        // `apply` routes only this group's commands here.
-        other => unreachable!("not routed to apply_dialog: {other:?}"),
     }
 }
 
@@ -104,9 +120,8 @@ fn export_deblur_dialog(app: &mut StudioApp, result: DeblurResult) {
         dialog = dialog.set_directory(dir);
     }
     spawn_dialog(app, move || async move {
-        answer(dialog.save_file().await, |path| Command::ExportDeblur {
-            path,
-            result,
+        answer(dialog.save_file().await, |path| {
+            Command::Deblur(DeblurCommand::ExportDeblur { path, result })
         })
     });
 }
@@ -132,10 +147,12 @@ fn export_photos_dialog(app: &mut StudioApp, dng: bool) {
                 .set_title("Folder for the deblurred photos")
                 .pick_folder()
                 .await,
-            |out_dir| Command::ExportPhotos {
-                photos,
-                out_dir,
-                dng,
+            |out_dir| {
+                Command::Deblur(DeblurCommand::ExportPhotos {
+                    photos,
+                    out_dir,
+                    dng,
+                })
             },
         )
     });
@@ -154,7 +171,7 @@ fn load_profile_dialog(app: &mut StudioApp, compare: bool) {
                 .add_filter("lens profile", &["json"])
                 .pick_file()
                 .await,
-            |path| Command::LoadProfile { path, compare },
+            |path| Command::Stage(StageCommand::LoadProfile { path, compare }),
         )
     });
 }
@@ -173,7 +190,7 @@ fn save_profile_dialog(app: &mut StudioApp) {
                 .set_file_name("profile.json")
                 .save_file()
                 .await,
-            Command::SaveProfile,
+            |p| Command::Stage(StageCommand::SaveProfile(p)),
         )
     });
 }
@@ -192,9 +209,9 @@ fn save_plot_dialog(app: &mut StudioApp, plot: PlotId, png: bool) {
                 .await,
             |path| {
                 if png {
-                    Command::SavePlotPng { plot, path }
+                    Command::Plot(PlotCommand::SavePlotPng { plot, path })
                 } else {
-                    Command::SavePlotCsv { plot, path }
+                    Command::Plot(PlotCommand::SavePlotCsv { plot, path })
                 }
             },
         )
@@ -222,7 +239,7 @@ fn save_sharpness_dialog(app: &mut StudioApp, png: bool) {
                 .set_file_name(name)
                 .save_file()
                 .await,
-            |path| Command::SaveSharpness { path, png },
+            |path| Command::Plot(PlotCommand::SaveSharpness { path, png }),
         )
     });
 }
@@ -246,7 +263,7 @@ fn export_lensfun_dialog(app: &mut StudioApp) {
                 .set_file_name(format!("{name}.lensfun.xml"))
                 .save_file()
                 .await,
-            Command::ExportLensfun,
+            |p| Command::Geometry(GeometryCommand::ExportLensfun(p)),
         )
     });
 }

@@ -3,33 +3,30 @@
 //! there; the names and the checks are the core's, as `lensblur lensfun` makes them).
 
 use crate::app::jobs::{JobKind, JobScope};
-use crate::app::{Command, JobOutput, StudioApp, view_data};
+use crate::app::{GeometryCommand, GeometryOutput};
+use crate::app::{JobOutput, StudioApp, view_data};
 use crate::correction::lensfun::{NameOverrides, checked_entry};
 use crate::correction::{LensCorrection, LensfunNames};
 use std::path::PathBuf;
 use std::sync::Arc;
 
-pub(super) fn apply_geometry(app: &mut StudioApp, command: Command) {
+pub(super) fn apply_geometry(app: &mut StudioApp, command: GeometryCommand) {
     match command {
-        Command::ExportLensfun(path) => export_lensfun(app, path),
-        // `apply` routes only this group's commands here.
-        other => unreachable!("not routed to apply_geometry: {other:?}"),
+        GeometryCommand::ExportLensfun(path) => export_lensfun(app, path),
     }
 }
 
-pub(super) fn geometry_output(app: &mut StudioApp, output: JobOutput) {
+pub(super) fn geometry_output(app: &mut StudioApp, output: GeometryOutput) {
     match output {
-        JobOutput::GeometryMeasured { request, result } => {
+        GeometryOutput::GeometryMeasured { request, result } => {
             view_data::geometry_measured(app, request, result);
         }
-        JobOutput::LensfunExported { path, lens } => {
+        GeometryOutput::LensfunExported { path, lens } => {
             let shown = app.shown_path(&path);
             app.info(format!(
                 "Wrote the lensfun entry for {lens} to {shown}: copy it to ~/.local/share/lensfun/ for darktable and RawTherapee"
             ));
         }
-        // `apply_output` routes only this group's outputs here.
-        _ => unreachable!("not routed to geometry_output"),
     }
 }
 
@@ -84,7 +81,10 @@ fn export_lensfun(app: &mut StudioApp, path: PathBuf) {
         .spawn_scoped(JobKind::LensfunExport, scope, move |_ctx, out| {
             let lens = write_entry(&correction, &first, is_demo, &path, &provenance)
                 .map_err(|e| format!("cannot export the lensfun entry: {e}"))?;
-            out.emit(JobOutput::LensfunExported { path, lens });
+            out.emit(JobOutput::Geometry(GeometryOutput::LensfunExported {
+                path,
+                lens,
+            }));
             Ok(())
         });
     if let Err(e) = r {

@@ -22,6 +22,7 @@ mod view;
 use super::jobs::{JobEnd, JobEvent, JobKind};
 use super::view_data;
 use super::{Command, JobOutput, StudioApp};
+use crate::app::StageOutput;
 use deblur::run_deblur_preview;
 use stages::spawn_dataset;
 
@@ -35,110 +36,29 @@ pub(super) use view::expire_notices;
 
 use crate::project::{CV_FILE, ShotEvent};
 
-/// Applies one command, in the function of its concern.
+/// Applies one command, in the handler of its group (each matches its group whole).
 pub(super) fn apply(app: &mut StudioApp, command: Command) {
     match command {
-        Command::SelectView(_)
-        | Command::SelectShot(_)
-        | Command::SelectChannel(_)
-        | Command::ClearSquare
-        | Command::SelectSquare(_)
-        | Command::SetFieldSource(_)
-        | Command::SetFieldShow(_)
-        | Command::SetSweepAxis(_)
-        | Command::SetSharpness(_)
-        | Command::SetFieldSetting { .. }
-        | Command::SetCompareUnits(_)
-        | Command::SetFieldOptions(_)
-        | Command::SetViewer(_)
-        | Command::SetGeometryFocal(_)
-        | Command::SetGeometryAperture(_)
-        | Command::SetPlanRange(_) => view::apply_view(app, command),
-        Command::Cancel(_)
-        | Command::CancelAll
-        | Command::SetDark(_)
-        | Command::DismissMessage(_)
-        | Command::SetLogOpen(_)
-        | Command::SetSessionPanel(_)
-        | Command::ShowHelp(_)
-        | Command::ShowGuide(_)
-        | Command::ShowAbout(_)
-        | Command::Quit => view::apply_window(app, command),
-        Command::AddShots(_)
-        | Command::RemoveShot(_)
-        | Command::SetShotSetting { .. }
-        | Command::ApplySettings { .. }
-        | Command::LoadChart(_)
-        | Command::EditSettings(_)
-        | Command::OpenSession(_) => session::apply_session(app, command),
-        Command::RunDetect(_)
-        | Command::RunKernels(_)
-        | Command::RunCalibrate
-        | Command::CalibrateAll { .. }
-        | Command::LoadProfile { .. }
-        | Command::SaveProfile(_)
-        | Command::SaveProfileToLibrary => stages::apply_stage(app, command),
-        Command::OpenPhoto(_)
-        | Command::SetPhotoSetting { .. }
-        | Command::DeblurAt(_)
-        | Command::SetDeblurLayout(_)
-        | Command::SetDeblurZoom(_)
-        | Command::SetDeblurViewport(_)
-        | Command::SetDeblurCrop(_)
-        | Command::SetDeblurMethod(_)
-        | Command::SetDeblurAmount(_)
-        | Command::SetDeblurFringes(_)
-        | Command::SetDeblurLateral(_)
-        | Command::SetDeblurOverview(_)
-        | Command::SetDeblurDevice(_)
-        | Command::DragDeblur(_)
-        | Command::EndDragDeblur
-        | Command::SetSliderResult(_)
-        | Command::SetSlider(_)
-        | Command::ExportDeblur { .. }
-        | Command::ExportPhotos { .. } => deblur::apply_deblur(app, command),
-        Command::SavePlotCsv { .. }
-        | Command::SavePlotPng { .. }
-        | Command::SaveSharpness { .. } => plots::apply_plot(app, command),
-        Command::ExportLensfun(_) => geometry::apply_geometry(app, command),
-        Command::AddShotsDialog
-        | Command::LoadChartDialog
-        | Command::OpenPhotoDialog
-        | Command::ExportDeblurDialog(_)
-        | Command::ExportPhotosDialog { .. }
-        | Command::LoadProfileDialog
-        | Command::SaveProfileDialog
-        | Command::SavePlotDialog { .. }
-        | Command::SaveSharpnessDialog { .. }
-        | Command::ExportLensfunDialog
-        | Command::OpenSessionDialog
-        | Command::AskConfirm(_)
-        | Command::ConfirmAnswer(_)
-        | Command::LoadCompareProfileDialog => dialogs::apply_dialog(app, command),
+        Command::View(c) => view::apply_view(app, c),
+        Command::Window(c) => view::apply_window(app, c),
+        Command::Session(c) => session::apply_session(app, c),
+        Command::Stage(c) => stages::apply_stage(app, c),
+        Command::Deblur(c) => deblur::apply_deblur(app, c),
+        Command::Plot(c) => plots::apply_plot(app, c),
+        Command::Geometry(c) => geometry::apply_geometry(app, c),
+        Command::Dialog(c) => dialogs::apply_dialog(app, c),
     }
 }
 
-/// Applies one job's output, in the function of its job's concern.
+/// Applies one job's output, in the handler of its group.
 fn apply_output(app: &mut StudioApp, output: JobOutput) {
     match output {
-        JobOutput::DemoShot(_) | JobOutput::DemoReady(_) | JobOutput::ResultsRead { .. } => {
-            session::session_output(app, output)
-        }
-        JobOutput::ShotLoaded { .. } | JobOutput::ShotUnreadable { .. } => {
-            shots::shot_output(app, output)
-        }
-        JobOutput::Shot(_)
-        | JobOutput::DatasetReady(_)
-        | JobOutput::Calibrated { .. }
-        | JobOutput::ProfileLoaded { .. } => stages::stage_output(app, output),
-        JobOutput::PhotoLoaded { .. }
-        | JobOutput::DeblurCompared { .. }
-        | JobOutput::DeblurExported(_)
-        | JobOutput::PhotosExported(_) => deblur::deblur_output(app, output),
+        JobOutput::Session(o) => session::session_output(app, o),
+        JobOutput::Shots(o) => shots::shot_output(app, o),
+        JobOutput::Stage(o) => stages::stage_output(app, o),
+        JobOutput::Deblur(o) => deblur::deblur_output(app, o),
+        JobOutput::Geometry(o) => geometry::geometry_output(app, o),
         JobOutput::SquareInspected { key, result } => view_data::inspected(app, key, result),
-        JobOutput::GeometryMeasured { .. } | JobOutput::LensfunExported { .. } => {
-            geometry::geometry_output(app, output);
-        }
     }
 }
 
@@ -195,10 +115,12 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
 /// Counts a detect or kernels job's shots as they come back.
 fn tally(app: &mut StudioApp, job: u64, output: &JobOutput) {
     let (id, failure) = match output {
-        JobOutput::Shot(ShotEvent::Detected { id, .. } | ShotEvent::Measured { id, .. }) => {
-            (*id, None)
+        JobOutput::Stage(StageOutput::Shot(
+            ShotEvent::Detected { id, .. } | ShotEvent::Measured { id, .. },
+        )) => (*id, None),
+        JobOutput::Stage(StageOutput::Shot(ShotEvent::Failed { id, reason, .. })) => {
+            (*id, Some(reason))
         }
-        JobOutput::Shot(ShotEvent::Failed { id, reason, .. }) => (*id, Some(reason)),
         _ => return,
     };
     let name = app

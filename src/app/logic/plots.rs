@@ -1,14 +1,15 @@
 //! Plots saved as CSV of their data or as PNG cut out of a screenshot.
 
+use crate::app::PlotCommand;
 use crate::app::view_data;
-use crate::app::{Command, PendingPlotPng, PlotId, StudioApp};
+use crate::app::{PendingPlotPng, PlotId, StudioApp};
 use crate::review::PlotTable;
 use std::path::PathBuf;
 
 /// Saving a plot, as CSV of its data or as a PNG of it on screen.
-pub(super) fn apply_plot(app: &mut StudioApp, command: Command) {
+pub(super) fn apply_plot(app: &mut StudioApp, command: PlotCommand) {
     match command {
-        Command::SavePlotCsv { plot, path } => {
+        PlotCommand::SavePlotCsv { plot, path } => {
             let written = plot_table(app, plot).and_then(|t| {
                 crate::io::write_atomic(&path, crate::review::plot_csv(&t).as_bytes())
                     .map_err(|e| e.to_string())
@@ -18,8 +19,8 @@ pub(super) fn apply_plot(app: &mut StudioApp, command: Command) {
                 Err(e) => app.error(format!("cannot save the plot's data: {e}")),
             }
         }
-        Command::SavePlotPng { plot, path } => request_plot_png(app, plot, path),
-        Command::SaveSharpness { path, png } => {
+        PlotCommand::SavePlotPng { plot, path } => request_plot_png(app, plot, path),
+        PlotCommand::SaveSharpness { path, png } => {
             let written = match app.data.sharpness.as_ref().map(|d| &d.map) {
                 Some(Ok(map)) if png => {
                     map.write_png(&path, app.views.sharpness.unit, SHARPNESS_PNG_WIDTH)
@@ -35,8 +36,6 @@ pub(super) fn apply_plot(app: &mut StudioApp, command: Command) {
                 Err(e) => app.error(format!("cannot save the sharpness map: {e}")),
             }
         }
-        // `apply` routes only this group's commands here.
-        other => unreachable!("not routed to apply_plot: {other:?}"),
     }
 }
 

@@ -7,6 +7,7 @@ use super::stages::spawn_dataset;
 use crate::app::jobs::{JobKind, JobScope};
 use crate::app::view_data;
 use crate::app::{Command, Confirm, JobOutput, StudioApp};
+use crate::app::{DeblurCommand, SessionCommand, SessionOutput, StageCommand};
 use crate::job::JobContext;
 use crate::project::Project;
 use crate::session::{Session, ShotId};
@@ -14,11 +15,11 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 /// The session: its shots, their settings, the chart and stage settings, opening one.
-pub(super) fn apply_session(app: &mut StudioApp, command: Command) {
+pub(super) fn apply_session(app: &mut StudioApp, command: SessionCommand) {
     match command {
-        Command::AddShots(files) => add_shots(app, &files),
-        Command::RemoveShot(id) => remove_shot(app, id),
-        Command::SetShotSetting {
+        SessionCommand::AddShots(files) => add_shots(app, &files),
+        SessionCommand::RemoveShot(id) => remove_shot(app, id),
+        SessionCommand::SetShotSetting {
             shot,
             focal_mm,
             f_number,
@@ -30,7 +31,7 @@ pub(super) fn apply_session(app: &mut StudioApp, command: Command) {
                 spawn_dataset(app);
             }
         }
-        Command::ApplySettings { chart, settings } => {
+        SessionCommand::ApplySettings { chart, settings } => {
             // A new chart discards what was measured with the old one: ask first.
             let has_results = app.detections().next().is_some() || app.measured().next().is_some();
             let chart_changed = app.session().is_some_and(|s| s.chart != chart);
@@ -40,7 +41,7 @@ pub(super) fn apply_session(app: &mut StudioApp, command: Command) {
                 apply_settings(app, chart, settings);
             }
         }
-        Command::LoadChart(path) => match crate::chart::ChartSpec::load(&path) {
+        SessionCommand::LoadChart(path) => match crate::chart::ChartSpec::load(&path) {
             Ok(spec) => {
                 let settings = app
                     .views
@@ -58,8 +59,8 @@ pub(super) fn apply_session(app: &mut StudioApp, command: Command) {
             }
             Err(e) => app.error(e.to_string()),
         },
-        Command::EditSettings(edit) => app.views.session.settings_edit = edit,
-        Command::OpenSession(path) => match crate::session::Session::open(&path) {
+        SessionCommand::EditSettings(edit) => app.views.session.settings_edit = edit,
+        SessionCommand::OpenSession(path) => match crate::session::Session::open(&path) {
             Ok(s) => {
                 let plain_folder = s.shots.is_empty() && path.is_dir();
                 if app.set_session(s) {
@@ -71,15 +72,13 @@ pub(super) fn apply_session(app: &mut StudioApp, command: Command) {
             }
             Err(e) => app.error(e.to_string()),
         },
-        // `apply` routes only this group's commands here.
-        other => unreachable!("not routed to apply_session: {other:?}"),
     }
 }
 
 /// The demo session as it is made, and results a reopened session already has.
-pub(super) fn session_output(app: &mut StudioApp, output: JobOutput) {
+pub(super) fn session_output(app: &mut StudioApp, output: SessionOutput) {
     match output {
-        JobOutput::DemoShot(s) => {
+        SessionOutput::DemoShot(s) => {
             if app.session().is_none() {
                 if app.set_session(*s) {
                     app.info("demo session: showing each simulated shot as soon as it is made");
@@ -88,7 +87,7 @@ pub(super) fn session_output(app: &mut StudioApp, output: JobOutput) {
                 merge_demo(app, &s);
             }
         }
-        JobOutput::DemoReady(s) => {
+        SessionOutput::DemoReady(s) => {
             let n = s.shots.len();
             if app.session().is_none() {
                 if !app.set_session(*s) {
@@ -105,7 +104,7 @@ pub(super) fn session_output(app: &mut StudioApp, output: JobOutput) {
             ));
             calibrate_demo(app);
         }
-        JobOutput::ResultsRead { survey, cv } => {
+        SessionOutput::ResultsRead { survey, cv } => {
             // The cache decides what is done: results measured elsewhere (another
             // front end, an earlier version of the session) count, and a status whose
             // result has gone is pending again.
@@ -123,8 +122,6 @@ pub(super) fn session_output(app: &mut StudioApp, output: JobOutput) {
             spawn_dataset(app);
             calibrate_demo(app);
         }
-        // `apply_output` routes only this group's outputs here.
-        _ => unreachable!("an output not routed to session_output"),
     }
 }
 
@@ -145,11 +142,13 @@ pub(super) fn calibrate_demo(app: &mut StudioApp) {
         && !app
             .commands
             .iter()
-            .any(|c| matches!(c, Command::CalibrateAll { .. }));
+            .any(|c| matches!(c, Command::Stage(StageCommand::CalibrateAll { .. })));
     if wanted {
         app.info("calibrating the demo lens: detect, kernels and calibrate, then its photo before and after");
         app.commands
-            .push(Command::CalibrateAll { then_deblur: true });
+            .push(Command::Stage(StageCommand::CalibrateAll {
+                then_deblur: true,
+            }));
     }
 }
 
@@ -307,7 +306,10 @@ pub(in crate::app) fn read_results(app: &mut StudioApp) {
                 .ok()
                 .and_then(|t| serde_json::from_str(&t).ok())
                 .map(Arc::new);
-            out.emit(JobOutput::ResultsRead { survey, cv });
+            out.emit(JobOutput::Session(SessionOutput::ResultsRead {
+                survey,
+                cv,
+            }));
             Ok(())
         });
     if let Err(e) = r {
@@ -344,10 +346,12 @@ impl StudioApp {
                 // Each shot is shown as soon as it is on disk: a newcomer sees a
                 // session within seconds instead of waiting for all of them.
                 let s = crate::simulate::demo::make_demo_streaming(&dir, &spec, ctx, &mut |s| {
-                    out.emit(JobOutput::DemoShot(Box::new(s.clone())));
+                    out.emit(JobOutput::Session(SessionOutput::DemoShot(Box::new(
+                        s.clone(),
+                    ))));
                 })
                 .map_err(|e| e.to_string())?;
-                out.emit(JobOutput::DemoReady(Box::new(s)));
+                out.emit(JobOutput::Session(SessionOutput::DemoReady(Box::new(s))));
                 Ok(())
             });
         if let Err(e) = started {
@@ -412,10 +416,11 @@ impl StudioApp {
                 s.folder().join(p)
             };
             if path.is_file() {
-                self.commands.push(Command::LoadProfile {
-                    path,
-                    compare: false,
-                });
+                self.commands
+                    .push(Command::Stage(StageCommand::LoadProfile {
+                        path,
+                        compare: false,
+                    }));
             }
         }
         self.views.shot.square = None;
@@ -450,7 +455,8 @@ impl StudioApp {
         {
             let path = s.folder().join(&p.path);
             if path.is_file() {
-                self.commands.push(Command::OpenPhoto(path));
+                self.commands
+                    .push(Command::Deblur(DeblurCommand::OpenPhoto(path)));
             }
         }
     }

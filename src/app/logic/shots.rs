@@ -1,6 +1,7 @@
 //! Loading the session's shots for display, one at a time, and their textures.
 
 use super::save;
+use crate::app::ShotOutput;
 use crate::app::ShotView;
 use crate::app::jobs::{JobKind, JobScope};
 use crate::app::textures::{channel_texture, developed_texture, encode};
@@ -13,9 +14,9 @@ use std::path::Path;
 use std::sync::Arc;
 
 /// A shot loaded for display, or why it cannot be read.
-pub(super) fn shot_output(app: &mut StudioApp, output: JobOutput) {
+pub(super) fn shot_output(app: &mut StudioApp, output: ShotOutput) {
     match output {
-        JobOutput::ShotLoaded {
+        ShotOutput::ShotLoaded {
             shot: id,
             capture,
             developed,
@@ -41,14 +42,12 @@ pub(super) fn shot_output(app: &mut StudioApp, output: JobOutput) {
             }
             app.shots.insert(id, ShotView::Loaded(preview));
         }
-        JobOutput::ShotUnreadable { shot, reason } => {
+        ShotOutput::ShotUnreadable { shot, reason } => {
             if app.has_shot(shot) {
                 app.error(reason.clone());
                 app.shots.insert(shot, ShotView::Unreadable(reason));
             }
         }
-        // `apply_output` routes only this group's outputs here.
-        _ => unreachable!("an output not routed to shot_output"),
     }
 }
 
@@ -82,13 +81,16 @@ pub(in crate::app) fn ensure_preview(app: &mut StudioApp) {
                 Ok(capture) => {
                     ctx.check().map_err(|e| e.to_string())?;
                     let developed = develop_for_display(&capture);
-                    out.emit(JobOutput::ShotLoaded {
+                    out.emit(JobOutput::Shots(ShotOutput::ShotLoaded {
                         shot: id,
                         capture: Arc::new(capture),
                         developed,
-                    });
+                    }));
                 }
-                Err(reason) => out.emit(JobOutput::ShotUnreadable { shot: id, reason }),
+                Err(reason) => out.emit(JobOutput::Shots(ShotOutput::ShotUnreadable {
+                    shot: id,
+                    reason,
+                })),
             }
             ctx.report("loading shot", 1, 1);
             Ok(())

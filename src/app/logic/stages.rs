@@ -4,33 +4,34 @@
 use super::save;
 use crate::app::jobs::{JobKind, JobScope};
 use crate::app::{Command, JobOutput, StudioApp};
+use crate::app::{DeblurCommand, StageCommand, StageOutput, ViewCommand};
 use crate::project::{CV_FILE, MeasurePlan, PROFILE_FILE, Project, ShotEvent, Stages};
 use crate::session::ShotId;
 use std::path::PathBuf;
 use std::sync::Arc;
 
 /// The stages: detect, kernels, calibrate, and the profile they make.
-pub(super) fn apply_stage(app: &mut StudioApp, command: Command) {
+pub(super) fn apply_stage(app: &mut StudioApp, command: StageCommand) {
     match command {
-        Command::RunDetect(which) => run_detect(app, which),
-        Command::RunKernels(which) => run_kernels(app, which),
-        Command::RunCalibrate => run_calibrate(app),
-        Command::CalibrateAll { then_deblur } => calibrate_all(app, then_deblur),
-        Command::LoadProfile { path, compare } => {
+        StageCommand::RunDetect(which) => run_detect(app, which),
+        StageCommand::RunKernels(which) => run_kernels(app, which),
+        StageCommand::RunCalibrate => run_calibrate(app),
+        StageCommand::CalibrateAll { then_deblur } => calibrate_all(app, then_deblur),
+        StageCommand::LoadProfile { path, compare } => {
             let r = app.jobs.spawn(JobKind::LoadProfile, move |_ctx, out| {
                 let profile = crate::profile::Profile::load(&path).map_err(|e| e.to_string())?;
-                out.emit(JobOutput::ProfileLoaded {
+                out.emit(JobOutput::Stage(StageOutput::ProfileLoaded {
                     profile: Arc::new(profile),
                     path,
                     compare,
-                });
+                }));
                 Ok(())
             });
             if let Err(e) = r {
                 app.error(e);
             }
         }
-        Command::SaveProfile(path) => {
+        StageCommand::SaveProfile(path) => {
             let Some((_, profile)) = app.profile().cloned() else {
                 app.error("no profile to save: calibrate first (Ctrl+M) or load one");
                 return;
@@ -40,7 +41,7 @@ pub(super) fn apply_stage(app: &mut StudioApp, command: Command) {
                 Err(e) => app.error(e.to_string()),
             }
         }
-        Command::SaveProfileToLibrary => {
+        StageCommand::SaveProfileToLibrary => {
             let Some((_, profile)) = app.profile().cloned() else {
                 app.error("no profile to save: calibrate first (Ctrl+M) or load one");
                 return;
@@ -60,27 +61,40 @@ pub(super) fn apply_stage(app: &mut StudioApp, command: Command) {
                 Err(e) => app.error(format!("{}: {e}", app.shown_path(&dir))),
             }
         }
-        // `apply` routes only this group's commands here.
-        other => unreachable!("not routed to apply_stage: {other:?}"),
+        StageCommand::SetProfileLibrary(dir) => {
+            let remembered = app
+                .options
+                .settings_file
+                .as_deref()
+                .map(|file| crate::recent::choose_profile_library(file, &dir));
+            let shown = app.shown_path(&dir);
+            match remembered {
+                Some(Err(e)) => app.error(format!("{shown}: the profile library is used, but {e}")),
+                _ => app.info(format!(
+                    "profile library: {shown}; a batch reads it (lensblur deblur PHOTOS --out-dir OUT)"
+                )),
+            }
+            app.options.profile_library = dir;
+        }
     }
 }
 
 /// Results of the stages, shot by shot, and of calibration.
-pub(super) fn stage_output(app: &mut StudioApp, output: JobOutput) {
+pub(super) fn stage_output(app: &mut StudioApp, output: StageOutput) {
     match output {
-        JobOutput::Shot(event) => shot_event(app, &event),
-        JobOutput::DatasetReady(ds) => {
+        StageOutput::Shot(event) => shot_event(app, &event),
+        StageOutput::DatasetReady(ds) => {
             if let Some(p) = app.project.as_mut() {
                 p.set_dataset(ds);
             }
         }
-        JobOutput::Calibrated {
+        StageOutput::Calibrated {
             dataset,
             profile,
             cv,
             path,
         } => calibrated(app, dataset, profile, cv, path),
-        JobOutput::ProfileLoaded {
+        StageOutput::ProfileLoaded {
             profile,
             path,
             compare,
@@ -95,8 +109,6 @@ pub(super) fn stage_output(app: &mut StudioApp, output: JobOutput) {
                 super::deblur::redeblur(app);
             }
         }
-        // `apply_output` routes only this group's outputs here.
-        _ => unreachable!("an output not routed to stage_output"),
     }
 }
 
@@ -126,10 +138,14 @@ fn calibrated(
     if std::mem::take(&mut app.autorun.deblur_when_calibrated) {
         // The photo before and after at 100 %, one pane as large as the window allows.
         app.commands.extend([
-            Command::SelectView(crate::app::View::Deblur),
-            Command::SetDeblurLayout(crate::app::DeblurLayout::Slider),
-            Command::SetDeblurZoom(crate::app::DeblurZoom::Times(1)),
-            Command::SetDeblurOverview(false),
+            Command::View(ViewCommand::SelectView(crate::app::View::Deblur)),
+            Command::Deblur(DeblurCommand::SetDeblurLayout(
+                crate::app::DeblurLayout::Slider,
+            )),
+            Command::Deblur(DeblurCommand::SetDeblurZoom(crate::app::DeblurZoom::Times(
+                1,
+            ))),
+            Command::Deblur(DeblurCommand::SetDeblurOverview(false)),
         ]);
     }
     save(app);
@@ -173,7 +189,7 @@ fn run_measure(app: &mut StudioApp, what: JobKind, plan: &MeasurePlan) -> usize 
     let scope = JobScope::shots(app.session_generation, ids.clone());
     let r = app.jobs.spawn_scoped(what, scope, move |ctx, out| {
         job.run(ctx, &|id| out.shot_context(ctx, id), &mut |e| {
-            out.emit(JobOutput::Shot(e));
+            out.emit(JobOutput::Stage(StageOutput::Shot(e)));
         })
         .map_err(|e| e.to_string())
     });
@@ -211,9 +227,11 @@ pub(super) fn spawn_dataset(app: &mut StudioApp) {
         .jobs
         .spawn_scoped(JobKind::GatherMeasurements, scope, move |_ctx, out| {
             match job.run() {
-                Ok(ds) => out.emit(JobOutput::DatasetReady(Some(Arc::new(ds)))),
+                Ok(ds) => out.emit(JobOutput::Stage(StageOutput::DatasetReady(Some(Arc::new(
+                    ds,
+                ))))),
                 Err(e) => {
-                    out.emit(JobOutput::DatasetReady(None));
+                    out.emit(JobOutput::Stage(StageOutput::DatasetReady(None)));
                     return Err(e.to_string());
                 }
             }
@@ -269,12 +287,12 @@ fn hand_over(
     // A fixed α, β has no curves: an old report would describe another fit.
     cal.write(&path, Some(&folder.join(CV_FILE)))
         .map_err(|e| e.to_string())?;
-    out.emit(JobOutput::Calibrated {
+    out.emit(JobOutput::Stage(StageOutput::Calibrated {
         dataset: Arc::new(cal.dataset),
         profile: Arc::new(cal.profile),
         cv: cal.cv.map(Arc::new),
         path,
-    });
+    }));
     Ok(())
 }
 
@@ -317,7 +335,7 @@ fn calibrate_all(app: &mut StudioApp, then_deblur: bool) {
         .spawn_scoped(JobKind::CalibrateAll, scope, move |ctx, out| {
             let cal = job
                 .run(ctx, &|id| out.shot_context(ctx, id), &mut |e| {
-                    out.emit(JobOutput::Shot(e));
+                    out.emit(JobOutput::Stage(StageOutput::Shot(e)));
                 })
                 .map_err(|e| e.to_string())?;
             hand_over(cal, &folder, out)

@@ -1,51 +1,50 @@
 //! Commands that change what the views show and the window around them.
 
-use crate::app::{Command, StudioApp};
+use crate::app::StudioApp;
+use crate::app::{ViewCommand, WindowCommand};
 
 /// Selections and view options: what is shown, not what is measured.
-pub(super) fn apply_view(app: &mut StudioApp, command: Command) {
+pub(super) fn apply_view(app: &mut StudioApp, command: ViewCommand) {
     match command {
-        Command::SelectView(v) => app.view = v,
-        Command::SelectShot(i) => {
+        ViewCommand::SelectView(v) => app.view = v,
+        ViewCommand::SelectShot(i) => {
             app.views.shot.selected = Some(i);
             app.views.shot.square = None;
             app.views.shot.viewer.sensor_px_per_point = None;
         }
-        Command::SelectChannel(c) => app.views.shot.channel = c,
-        Command::ClearSquare => app.views.shot.square = None,
-        Command::SelectSquare(sq) => app.views.shot.square = Some(sq),
-        Command::SetFieldSource(f) => app.views.field.source = f,
-        Command::SetFieldShow(f) => app.views.field.show = f,
-        Command::SetSweepAxis(a) => app.views.sweeps.axis = a,
-        Command::SetSharpness(s) => app.views.sharpness = s,
-        Command::SetPlanRange(r) => app.views.session.plan_range = Some(r),
-        Command::SetFieldSetting { focal_mm, f_number } => {
+        ViewCommand::SelectChannel(c) => app.views.shot.channel = c,
+        ViewCommand::ClearSquare => app.views.shot.square = None,
+        ViewCommand::SelectSquare(sq) => app.views.shot.square = Some(sq),
+        ViewCommand::SetFieldSource(f) => app.views.field.source = f,
+        ViewCommand::SetFieldShow(f) => app.views.field.show = f,
+        ViewCommand::SetSweepAxis(a) => app.views.sweeps.axis = a,
+        ViewCommand::SetSharpness(s) => app.views.sharpness = s,
+        ViewCommand::SetPlanRange(r) => app.views.session.plan_range = Some(r),
+        ViewCommand::SetFieldSetting { focal_mm, f_number } => {
             app.views.field.focal_mm = focal_mm;
             app.views.field.f_number = f_number;
         }
-        Command::SetCompareUnits(on) => app.views.field.compare_units = on,
-        Command::SetFieldOptions(o) => app.views.field.options = o,
-        Command::SetViewer(v) => app.views.shot.viewer = v,
-        Command::SetGeometryFocal(f) => {
+        ViewCommand::SetCompareUnits(on) => app.views.field.compare_units = on,
+        ViewCommand::SetFieldOptions(o) => app.views.field.options = o,
+        ViewCommand::SetViewer(v) => app.views.shot.viewer = v,
+        ViewCommand::SetGeometryFocal(f) => {
             app.views.geometry.focal_mm = Some(f);
             app.views.geometry.f_number = None;
         }
-        Command::SetGeometryAperture(a) => app.views.geometry.f_number = Some(a),
-        // `apply` routes only this group's commands here.
-        other => unreachable!("not routed to apply_view: {other:?}"),
+        ViewCommand::SetGeometryAperture(a) => app.views.geometry.f_number = Some(a),
     }
 }
 
 /// The window itself: jobs cancelled, theme, messages, panels, quitting.
-pub(super) fn apply_window(app: &mut StudioApp, command: Command) {
+pub(super) fn apply_window(app: &mut StudioApp, command: WindowCommand) {
     match command {
-        Command::Cancel(id) => app.jobs.cancel(id),
-        Command::CancelAll => {
+        WindowCommand::Cancel(id) => app.jobs.cancel(id),
+        WindowCommand::CancelAll => {
             for h in &app.jobs.running {
                 h.cancel();
             }
         }
-        Command::SetDark(dark) => {
+        WindowCommand::SetDark(dark) => {
             app.window.dark = dark;
             app.ctx.set_theme(if dark {
                 egui::Theme::Dark
@@ -53,19 +52,17 @@ pub(super) fn apply_window(app: &mut StudioApp, command: Command) {
                 egui::Theme::Light
             });
         }
-        Command::DismissMessage(i) => {
+        WindowCommand::DismissMessage(i) => {
             if i < app.window.messages.len() {
                 app.window.messages.remove(i);
             }
         }
-        Command::SetLogOpen(open) => app.window.log_open = open,
-        Command::SetSessionPanel(open) => app.views.session.open = open,
-        Command::ShowHelp(open) => app.window.show_help = open,
-        Command::ShowGuide(open) => app.window.show_guide = open,
-        Command::ShowAbout(open) => app.window.show_about = open,
-        Command::Quit => app.ctx.send_viewport_cmd(egui::ViewportCommand::Close),
-        // `apply` routes only this group's commands here.
-        other => unreachable!("not routed to apply_window: {other:?}"),
+        WindowCommand::SetLogOpen(open) => app.window.log_open = open,
+        WindowCommand::SetSessionPanel(open) => app.views.session.open = open,
+        WindowCommand::ShowHelp(open) => app.window.show_help = open,
+        WindowCommand::ShowGuide(open) => app.window.show_guide = open,
+        WindowCommand::ShowAbout(open) => app.window.show_about = open,
+        WindowCommand::Quit => app.ctx.send_viewport_cmd(egui::ViewportCommand::Close),
     }
 }
 

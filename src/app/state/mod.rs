@@ -10,10 +10,12 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
+mod context;
 mod field;
 mod inspect;
 mod views;
 
+pub use context::ViewerContext;
 pub use field::{ColourRange, Difference, FieldOptions};
 pub use inspect::{InspectKey, InspectedSquare, Same};
 pub use views::{
@@ -109,8 +111,11 @@ pub struct AppOptions {
     /// The list of recently opened sessions (File ▸ Recent sessions); `None` keeps none.
     pub recent_file: Option<PathBuf>,
     /// The profile library *Export ▸ Lens profile to the library* saves into: the
-    /// folder a batch reads with `--profiles`.
+    /// folder a batch reads without `--profiles`.
     pub profile_library: PathBuf,
+    /// Where a profile library chosen in the studio is remembered (the batch reads the
+    /// same file); `None` keeps the choice for this run only.
+    pub settings_file: Option<PathBuf>,
     /// Run *Calibrate all* on the demo session while it has no profile, then open its
     /// photo's before/after: what a first launch shows without a click.
     pub calibrate_demo: bool,
@@ -137,7 +142,8 @@ impl Default for AppOptions {
             job_threads: 0,
             started: Instant::now(),
             recent_file: Some(crate::recent::default_recent_file()),
-            profile_library: crate::recent::default_profile_library(),
+            profile_library: crate::recent::profile_library(&crate::recent::default_settings_file()),
+            settings_file: Some(crate::recent::default_settings_file()),
             calibrate_demo: true,
             notice_lifetime: Some(std::time::Duration::from_secs(6)),
         }
@@ -357,6 +363,10 @@ pub struct Photo {
     /// From EXIF, the session's record of the shot, or typed.
     pub focal_mm: Option<f64>,
     pub f_number: Option<f64>,
+    /// What the photo is (RAW, linear or developed 8-bit), read once when it opened:
+    /// the view warns, in the command line's words, when the profile was measured on
+    /// the other kind.
+    pub kind: crate::plane::PictureKind,
 }
 
 impl Photo {
@@ -419,6 +429,25 @@ impl DeblurZoom {
     }
 }
 
+/// What the Deblur view's preview deblurs (`logic::deblur::preview_scope` decides).
+#[derive(Clone, Debug, PartialEq)]
+pub enum PreviewScope {
+    /// A hardware GPU: the next preview deblurs the whole photo, and its time decides.
+    Trial,
+    /// The whole photo as the controls move; the first preview took `ms`.
+    Whole { ms: f64 },
+    /// Crops, and why not the whole photo (one short line).
+    Crops(String),
+}
+
+impl PreviewScope {
+    /// Whether the preview deblurs the whole photo (at Fit: a zoomed pane holds less).
+    #[must_use]
+    pub fn whole(&self) -> bool {
+        matches!(self, Self::Trial | Self::Whole { .. })
+    }
+}
+
 /// The Deblur view's state.
 pub struct DeblurState {
     pub photo: Option<Photo>,
@@ -442,6 +471,9 @@ pub struct DeblurState {
     pub overview_open: bool,
     /// Where the preview runs and, when not where asked, why (said once per change).
     pub device_note: Option<String>,
+    /// Whether the preview deblurs the whole photo or crops; `None` until the next
+    /// preview decides (after the photo, the device or the method changed).
+    pub scope: Option<PreviewScope>,
     /// The panes' drag in progress, sensor px.
     pub drag: [f32; 2],
     /// A preview asked for while one was still stopping: started when it has.
@@ -468,6 +500,7 @@ impl Default for DeblurState {
             lateral: crate::model::LateralColour::Correct,
             overview_open: true,
             device_note: None,
+            scope: None,
             drag: [0.0; 2],
             pending: None,
             comparison: None,

@@ -5,21 +5,49 @@
 //! values in both.
 
 use super::super::{
-    Command, DeblurLayout, DeblurResult, DeblurZoom, StudioApp, ViewerState, Views,
+    Command, DeblurLayout, DeblurResult, DeblurState, DeblurZoom, ShotViewState, ViewerContext,
+    ViewerState,
 };
+use super::Frame;
 use crate::app::jobs::JobKind;
+use crate::app::{DeblurCommand, DialogCommand, ViewCommand};
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
 
-pub(super) fn deblur_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+/// What the Deblur view draws from: its own state, the photo's session and profile, the
+/// shot selected (the photo it can open) and the viewer's developed-or-linear switch.
+pub(super) struct DeblurContext<'a> {
+    cx: ViewerContext<'a>,
+    state: &'a DeblurState,
+    shot: &'a ShotViewState,
+    /// A preview is being deblurred.
+    previewing: bool,
+    /// The view's method: its own, else the session's.
+    method: crate::deblur::Method,
+}
+
+impl<'a> DeblurContext<'a> {
+    pub(super) fn of(f: &Frame<'a>) -> Self {
+        Self {
+            cx: f.cx,
+            state: &f.views.deblur,
+            shot: &f.views.shot,
+            previewing: f.jobs.is_running(JobKind::DeblurPreview),
+            method: f.deblur_method,
+        }
+    }
+}
+
+pub(super) fn deblur_ui(d: &DeblurContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.heading("Deblur");
-    toolbar_ui(&app.views, app.session(), app.profile().is_some(), out, ui);
-    super::deblur_controls::controls_ui(app, out, ui);
-    let Some(photo) = &app.views.deblur.photo else {
+    toolbar_ui(d, out, ui);
+    let has_place = d.cx.profile().is_some_and(|(_, p)| p.place.is_some());
+    super::deblur_controls::controls_ui(d.state, (d.method, has_place), out, ui);
+    let Some(photo) = &d.state.photo else {
         ui.label("No photo open. Open one, drop one on this view, or deblur the selected shot of the session.");
         return;
     };
     let (width, height) = (photo.capture.width, photo.capture.height);
-    let shown = app.shown_path(&photo.path);
+    let shown = d.cx.shown_path(&photo.path);
     let mut f = photo.focal_mm.unwrap_or(0.0);
     let mut a = photo.f_number.unwrap_or(0.0);
     // Where the photo was focused, as its file says: the core judges it against the
@@ -37,29 +65,28 @@ pub(super) fn deblur_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::
             ],
         );
         if rf.drag_stopped() || ra.drag_stopped() || rf.lost_focus() || ra.lost_focus() {
-            let centre = app
-                .views
-                .deblur
+            let centre = d
+                .state
                 .comparison
                 .as_ref()
                 .map_or([width as f64 / 2.0, height as f64 / 2.0], |c| {
                     c.comparison.region.centre()
                 });
-            out.push(Command::SetPhotoSetting {
+            out.push(Command::Deblur(DeblurCommand::SetPhotoSetting {
                 focal_mm: (f > 0.0).then_some(f),
                 f_number: (a > 0.0).then_some(a),
-            });
-            out.push(Command::DeblurAt(centre));
+            }));
+            out.push(Command::Deblur(DeblurCommand::DeblurAt(centre)));
         } else if rf.changed() || ra.changed() {
-            out.push(Command::SetPhotoSetting {
+            out.push(Command::Deblur(DeblurCommand::SetPhotoSetting {
                 focal_mm: (f > 0.0).then_some(f),
                 f_number: (a > 0.0).then_some(a),
-            });
+            }));
         }
     });
     // Where the profile is less well trusted at this setting and focus: the core's own
     // words, as `lensblur deblur` prints them.
-    if let Some((_, profile)) = app.profile()
+    if let Some((_, profile)) = d.cx.profile()
         && f > 0.0
         && a > 0.0
         && let Some(line) = profile.trust_line(
@@ -73,45 +100,48 @@ pub(super) fn deblur_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::
     {
         ui.colored_label(ui.visuals().warn_fg_color, line);
     }
-    let overview_open = app.views.deblur.overview_open;
+    // A developed JPEG with a RAW profile, or the other way round: the core's warning,
+    // as `lensblur deblur` prints it.
+    if let Some((path, profile)) = d.cx.profile()
+        && let Some(w) = profile.picture_warning(photo.kind, &shown, &d.cx.shown_path(path))
+    {
+        ui.colored_label(ui.visuals().warn_fg_color, format!("warning: {w}"));
+    }
+    let overview_open = d.state.overview_open;
     let header = egui::CollapsingHeader::new("The whole photo (click it to choose the region)")
         .id_salt("deblur overview")
         .open(Some(overview_open))
-        .show(ui, |ui| overview_and_notes_ui(app, out, ui));
+        .show(ui, |ui| overview_and_notes_ui(d, out, ui));
     if header.header_response.clicked() {
-        out.push(Command::SetDeblurOverview(!overview_open));
+        out.push(Command::Deblur(DeblurCommand::SetDeblurOverview(
+            !overview_open,
+        )));
     }
     ui.separator();
-    match (&app.views.deblur.comparison, app.views.deblur.layout) {
+    match (&d.state.comparison, d.state.layout) {
         (None, _) => {
             ui.label("Click the photo to deblur a region.");
         }
-        (Some(_), DeblurLayout::SideBySide) => side_by_side_ui(app, out, ui),
-        (Some(_), DeblurLayout::Slider) => slider_ui(app, out, ui),
+        (Some(_), DeblurLayout::SideBySide) => side_by_side_ui(d, out, ui),
+        (Some(_), DeblurLayout::Slider) => slider_ui(d, out, ui),
     }
 }
 
 /// The view's buttons: open a photo or the selected shot, the layout, developed or
 /// linear, and export.
-fn toolbar_ui(
-    views: &Views,
-    session: Option<&crate::session::Session>,
-    has_profile: bool,
-    out: &mut Vec<Command>,
-    ui: &mut egui::Ui,
-) {
+fn toolbar_ui(d: &DeblurContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         if ui
             .button("Open photo…")
             .on_hover_text("A photo taken with the calibrated lens: RAW, DNG, TIFF, PNG or JPEG; its settings come from EXIF (Ctrl+P, or drop it on this view)")
             .clicked()
         {
-            out.push(Command::OpenPhotoDialog);
+            out.push(Command::Dialog(DialogCommand::OpenPhotoDialog));
         }
-        let shot = views
+        let shot = d
             .shot.selected
             .and_then(|id| {
-                let s = session?;
+                let s = d.cx.session()?;
                 Some((id, s.path_of(s.shot(id)?)))
             });
         if let Some((_, path)) = shot
@@ -120,7 +150,7 @@ fn toolbar_ui(
                 .on_hover_text("Open the shot selected in the session panel as the photo: its own measured kernels are then the comparison")
                 .clicked()
         {
-            out.push(Command::OpenPhoto(path));
+            out.push(Command::Deblur(DeblurCommand::OpenPhoto(path)));
         }
         ui.separator();
         for (layout, label) in [
@@ -128,29 +158,29 @@ fn toolbar_ui(
             (DeblurLayout::Slider, "Slider"),
         ] {
             if ui
-                .selectable_label(views.deblur.layout == layout, label)
+                .selectable_label(d.state.layout == layout, label)
                 .clicked()
             {
-                out.push(Command::SetDeblurLayout(layout));
+                out.push(Command::Deblur(DeblurCommand::SetDeblurLayout(layout)));
             }
         }
-        if views
-            .deblur
+        if d
+            .state
             .photo
             .as_ref()
             .is_some_and(|p| p.developed.is_some())
         {
             ui.separator();
-            let mut developed = views.shot.viewer.developed;
+            let mut developed = d.shot.viewer.developed;
             if ui
                 .checkbox(&mut developed, "developed")
                 .on_hover_text("The RAW photo and its crops as a RAW editor shows them (imagepipe); off: linear camera RGB, as deblurred")
                 .changed()
             {
-                out.push(Command::SetViewer(ViewerState {
+                out.push(Command::View(ViewCommand::SetViewer(ViewerState {
                     developed,
-                    ..views.shot.viewer
-                }));
+                    ..d.shot.viewer
+                })));
             }
         }
         ui.separator();
@@ -158,13 +188,13 @@ fn toolbar_ui(
             for r in [DeblurResult::Predicted, DeblurResult::Measured] {
                 if ui
                     .add_enabled(
-                        views.deblur.photo.is_some(),
+                        d.state.photo.is_some(),
                         egui::Button::new(format!("whole photo deblurred with {}", r.label())),
                     )
                     .on_hover_text("Deblur the open photo and write it: a RAW photo as a DNG with its metadata (or TIFF/PNG), others as 16-bit linear TIFF or PNG (Ctrl+E: predicted)")
                     .clicked()
                 {
-                    out.push(Command::ExportDeblurDialog(r));
+                    out.push(Command::Dialog(DialogCommand::ExportDeblurDialog(r)));
                     ui.close();
                 }
             }
@@ -174,11 +204,11 @@ fn toolbar_ui(
                 (true, "a set of RAW photos (DNG)…"),
             ] {
                 if ui
-                    .add_enabled(has_profile, egui::Button::new(label))
+                    .add_enabled(d.cx.profile().is_some(), egui::Button::new(label))
                     .on_hover_text("Each photo deblurred with the profile at its own focal length and aperture (from EXIF); photos of another camera or lens, or outside the calibrated range, are skipped with the reason")
                     .clicked()
                 {
-                    out.push(Command::ExportPhotosDialog { dng });
+                    out.push(Command::Dialog(DialogCommand::ExportPhotosDialog { dng }));
                     ui.close();
                 }
             }
@@ -189,16 +219,16 @@ fn toolbar_ui(
 }
 
 /// The whole photo with the region outlined, and what the panes below compare.
-fn overview_and_notes_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+fn overview_and_notes_ui(d: &DeblurContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.horizontal_top(|ui| {
         let overview_w = 280.0;
         ui.vertical(|ui| {
             ui.set_width(overview_w);
-            overview_ui(app, out, ui, overview_w);
+            overview_ui(d, out, ui, overview_w);
         });
         ui.vertical(|ui| {
             ui.label("Click the photo to choose the region compared below (outlined).");
-            if let Some(c) = &app.views.deblur.comparison {
+            if let Some(c) = &d.state.comparison {
                 let r = c.comparison.region;
                 ui.label(format!(
                     "Region x {}–{}, y {}–{} px.",
@@ -210,8 +240,8 @@ fn overview_and_notes_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui:
             }
             ui.label("Predicted Gaussians: the profile's model at the photo's focal length and aperture (what deblurring any photo uses).");
             ui.label("Measured kernels: the non-parametric kernels measured on the session's chart shot at the same setting (the paper's Fig. 7–8 comparison).");
-            if app.jobs.is_running(JobKind::DeblurPreview) {
-                ui.label("Deblurring the region…");
+            if d.previewing {
+                ui.label("Deblurring…");
             }
         });
     });
@@ -219,8 +249,8 @@ fn overview_and_notes_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui:
 
 /// The whole photo at a small scale with the compared region outlined: the navigator;
 /// a click moves the region there.
-fn overview_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, width: f32) {
-    let Some(photo) = &app.views.deblur.photo else {
+fn overview_ui(d: &DeblurContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui, width: f32) {
+    let Some(photo) = &d.state.photo else {
         return;
     };
     let cap = &photo.capture;
@@ -229,7 +259,7 @@ fn overview_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, width
     let (rect, response) = ui.allocate_exact_size(size, Sense::click());
     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, "photo overview"));
     let painter = ui.painter_at(rect);
-    match photo.shown(app.views.shot.viewer.developed) {
+    match photo.shown(d.shot.viewer.developed) {
         Some(t) => {
             painter.image(
                 t.id(),
@@ -242,7 +272,7 @@ fn overview_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, width
             painter.rect_filled(rect, 0.0, super::image_backdrop(ui));
         }
     }
-    if let Some(c) = &app.views.deblur.comparison {
+    if let Some(c) = &d.state.comparison {
         let r = c.comparison.region;
         let min = rect.min + Vec2::new(r.x0 as f32, r.y0 as f32) * scale;
         let region = Rect::from_min_size(min, Vec2::new(r.width as f32, r.height as f32) * scale);
@@ -257,23 +287,24 @@ fn overview_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, width
         && let Some(p) = response.interact_pointer_pos()
     {
         let d = (p - rect.min) / scale;
-        out.push(Command::DeblurAt([f64::from(d.x), f64::from(d.y)]));
+        out.push(Command::Deblur(DeblurCommand::DeblurAt([
+            f64::from(d.x),
+            f64::from(d.y),
+        ])));
     }
 }
 
-fn titles(app: &StudioApp) -> [String; 3] {
-    let setting = app
-        .views
-        .deblur
+fn titles(d: &DeblurContext<'_>) -> [String; 3] {
+    let setting = d
+        .state
         .photo
         .as_ref()
         .and_then(super::super::Photo::setting)
         .map_or_else(String::new, |s| {
             format!(" at {:.0} mm f/{:.1}", s.focal_mm, s.f_number)
         });
-    let from = app
-        .views
-        .deblur
+    let from = d
+        .state
         .comparison
         .as_ref()
         .and_then(|c| c.measured_from.clone())
@@ -294,8 +325,8 @@ fn visible_size(ui: &egui::Ui) -> Vec2 {
 }
 
 /// How many screen points one region pixel takes in the panes: `None` at Fit.
-fn points_per_pixel(app: &StudioApp, ui: &egui::Ui) -> Option<f32> {
-    match app.views.deblur.zoom {
+fn points_per_pixel(d: &DeblurContext<'_>, ui: &egui::Ui) -> Option<f32> {
+    match d.state.zoom {
         DeblurZoom::Fit => None,
         DeblurZoom::Times(z) => Some(f32::from(z) / ui.ctx().pixels_per_point()),
     }
@@ -306,7 +337,7 @@ fn points_per_pixel(app: &StudioApp, ui: &egui::Ui) -> Option<f32> {
 /// grows and shrinks as previews start and end, and a region that followed it would
 /// start a new preview each time one started.
 fn request_viewport(
-    app: &StudioApp,
+    d: &DeblurContext<'_>,
     out: &mut Vec<Command>,
     ui: &egui::Ui,
     pane: Vec2,
@@ -318,8 +349,8 @@ fn request_viewport(
             ((pane.x / pp) as usize).max(16),
             ((tall / pp) as usize).max(16),
         ];
-        if app.views.deblur.viewport != Some(v) {
-            out.push(Command::SetDeblurViewport(v));
+        if d.state.viewport != Some(v) {
+            out.push(Command::Deblur(DeblurCommand::SetDeblurViewport(v)));
         }
     }
 }
@@ -329,7 +360,7 @@ fn request_viewport(
 /// image and not dragging, where it is: on screen, on the texture (0–1) and the
 /// screen points per texel.
 fn pane_ui(
-    app: &StudioApp,
+    d: &DeblurContext<'_>,
     out: &mut Vec<Command>,
     ui: &mut egui::Ui,
     texture: &egui::TextureHandle,
@@ -341,7 +372,7 @@ fn pane_ui(
     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, label));
     let tex = texture.size_vec2();
     let scale = per_px.unwrap_or_else(|| (size.x / tex.x).min(size.y / tex.y));
-    let shift = Vec2::new(app.views.deblur.drag[0], app.views.deblur.drag[1]) * scale;
+    let shift = Vec2::new(d.state.drag[0], d.state.drag[1]) * scale;
     let shown = Rect::from_center_size(rect.center() + shift, tex * scale);
     let painter = ui.painter_at(rect);
     painter.image(
@@ -352,10 +383,10 @@ fn pane_ui(
     );
     if response.dragged() {
         let d = response.drag_delta() / scale;
-        out.push(Command::DragDeblur([d.x, d.y]));
+        out.push(Command::Deblur(DeblurCommand::DragDeblur([d.x, d.y])));
     }
     if response.drag_stopped() {
-        out.push(Command::EndDragDeblur);
+        out.push(Command::Deblur(DeblurCommand::EndDragDeblur));
     }
     hovered_texel(&response, shown, scale)
 }
@@ -488,8 +519,8 @@ fn loupe_ui(
         });
 }
 
-fn side_by_side_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
-    let Some(view) = &app.views.deblur.comparison else {
+fn side_by_side_ui(d: &DeblurContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+    let Some(view) = &d.state.comparison else {
         return;
     };
     let c = view.comparison.clone();
@@ -498,10 +529,10 @@ fn side_by_side_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
         c.predicted.as_ref().err().cloned(),
         c.measured.as_ref().err().cloned(),
     ];
-    let shown = view.shown(app.views.shot.viewer.developed).clone();
-    let titles = titles(app);
+    let shown = view.shown(d.shot.viewer.developed).clone();
+    let titles = titles(d);
     let avail = visible_size(ui);
-    let per_px = points_per_pixel(app, ui);
+    let per_px = points_per_pixel(d, ui);
     let pane = match per_px {
         None => Vec2::splat(((avail.x - 24.0) / 3.0).min(avail.y - 40.0).max(64.0)),
         Some(_) => Vec2::new(
@@ -509,7 +540,7 @@ fn side_by_side_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
             (avail.y - 40.0).max(64.0),
         ),
     };
-    request_viewport(app, out, ui, pane, per_px);
+    request_viewport(d, out, ui, pane, per_px);
     ui.horizontal_top(|ui| {
         for k in 0..3 {
             ui.vertical(|ui| {
@@ -519,7 +550,7 @@ fn side_by_side_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
                 ui.add(egui::Label::new(&titles[k]).wrap());
                 match (&shown[k], &reasons[k]) {
                     (Some(t), _) => {
-                        let hover = pane_ui(app, out, ui, t, pane, per_px, &titles[k]);
+                        let hover = pane_ui(d, out, ui, t, pane, per_px, &titles[k]);
                         // Before and after: the original and this pane's result (the
                         // predicted one under the original's pane).
                         let after = if k == 0 { 1 } else { k };
@@ -557,37 +588,37 @@ fn side_by_side_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
 
 /// One crop: the original left of the divider, the chosen result right of it; drag to
 /// move the divider.
-fn slider_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
-    let titles = titles(app);
+fn slider_ui(d: &DeblurContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+    let titles = titles(d);
     // The region follows the pane even while a result is missing, so a result that
     // arrives later is already the pane's size.
-    let per_px = points_per_pixel(app, ui);
+    let per_px = points_per_pixel(d, ui);
     let early = (visible_size(ui) - Vec2::new(8.0, 40.0)).max(Vec2::splat(64.0));
-    request_viewport(app, out, ui, early, per_px);
-    let Some(view) = &app.views.deblur.comparison else {
+    request_viewport(d, out, ui, early, per_px);
+    let Some(view) = &d.state.comparison else {
         return;
     };
     ui.horizontal(|ui| {
         ui.label("right of the divider (pan: click the overview):");
         for (r, k) in [(DeblurResult::Predicted, 1), (DeblurResult::Measured, 2)] {
             if ui
-                .selectable_label(app.views.deblur.slider_result == r, &titles[k])
+                .selectable_label(d.state.slider_result == r, &titles[k])
                 .clicked()
             {
-                out.push(Command::SetSliderResult(r));
+                out.push(Command::Deblur(DeblurCommand::SetSliderResult(r)));
             }
         }
     });
-    let k = match app.views.deblur.slider_result {
+    let k = match d.state.slider_result {
         DeblurResult::Predicted => 1,
         DeblurResult::Measured => 2,
     };
-    let shown = view.shown(app.views.shot.viewer.developed);
+    let shown = view.shown(d.shot.viewer.developed);
     let (Some(original), result) = (&shown[0], &shown[k]) else {
         return;
     };
     let Some(result) = result else {
-        let reason = match app.views.deblur.slider_result {
+        let reason = match d.state.slider_result {
             DeblurResult::Predicted => view.comparison.predicted.as_ref().err(),
             DeblurResult::Measured => view.comparison.measured.as_ref().err(),
         };
@@ -612,12 +643,12 @@ fn slider_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     let comparison = view.comparison.clone();
     let (rect, response) = ui.allocate_exact_size(pane, Sense::click_and_drag());
     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Slider, true, "divider"));
-    let mut t = app.views.deblur.slider;
+    let mut t = d.state.slider;
     if (response.dragged() || response.clicked())
         && let Some(p) = response.interact_pointer_pos()
     {
         t = ((p.x - rect.left()) / rect.width()).clamp(0.0, 1.0);
-        out.push(Command::SetSlider(t));
+        out.push(Command::Deblur(DeblurCommand::SetSlider(t)));
     }
     let split = rect.left() + t * rect.width();
     let painter = ui.painter_at(rect);
@@ -650,7 +681,7 @@ fn slider_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
         &painter,
         rect.right_top() + Vec2::new(-6.0, 6.0),
         egui::Align2::RIGHT_TOP,
-        app.views.deblur.slider_result.label().into(),
+        d.state.slider_result.label().into(),
     );
     if let Some((pointer, uv, scale)) = hovered_texel(&response, shown, scale) {
         let c = &comparison;

@@ -1,27 +1,35 @@
 //! The Deblur view's controls: zoom, region, amount, and under *Advanced* the method,
 //! its strength and the device.
 
-use super::super::{Command, DeblurZoom, StudioApp};
+use super::super::{Command, DeblurState, DeblurZoom, PreviewScope};
+use crate::app::DeblurCommand;
 use crate::deblur::{Device, HqsParams, IrlsParams, Method, WienerParams};
 
 /// Zoom, region size and the amount, with the method, its strength and the device
 /// under *Advanced*: each change deblurs the region again (a newer preview replaces one
 /// still running), so dragging a control updates the region live.
-pub(super) fn controls_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
-    let method = super::super::logic::deblur_method(app);
+///
+/// `method` is the view's (its own, else the session's); `has_place` whether the profile
+/// records where each channel's kernels sit (lateral colour can then be corrected).
+pub(super) fn controls_ui(
+    state: &DeblurState,
+    (method, has_place): (Method, bool),
+    out: &mut Vec<Command>,
+    ui: &mut egui::Ui,
+) {
     ui.horizontal_wrapped(|ui| {
         ui.label("zoom");
         for z in DeblurZoom::ALL {
             if ui
-                .selectable_label(app.views.deblur.zoom == z, z.label())
+                .selectable_label(state.zoom == z, z.label())
                 .on_hover_text("Fit: the region scaled into the panes; 100–400 %: one photo pixel on 1, 2 or 4 screen pixels, the region as large as the panes (drag a pane to pan; all panes move together)")
                 .clicked()
             {
-                out.push(Command::SetDeblurZoom(z));
+                out.push(Command::Deblur(DeblurCommand::SetDeblurZoom(z)));
             }
         }
-        if app.views.deblur.zoom == DeblurZoom::Fit {
-            let mut side = app.views.deblur.crop_px as f64;
+        if state.zoom == DeblurZoom::Fit {
+            let mut side = state.crop_px as f64;
             let r = ui
                 .add(
                     egui::Slider::new(&mut side, 64.0..=1024.0)
@@ -31,11 +39,11 @@ pub(super) fn controls_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui
                 )
                 .on_hover_text("Side of the compared region, photo pixels");
             if r.drag_stopped() || (r.changed() && !r.dragged()) {
-                out.push(Command::SetDeblurCrop(side.round() as usize));
+                out.push(Command::Deblur(DeblurCommand::SetDeblurCrop(side.round() as usize)));
             }
         }
         ui.separator();
-        let mut amount = app.views.deblur.amount.as_percent();
+        let mut amount = state.amount.as_percent();
         let r = ui
             .add(
                 egui::Slider::new(&mut amount, 0.0..=crate::deblur::Amount::MAX_PERCENT)
@@ -45,22 +53,36 @@ pub(super) fn controls_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui
             )
             .on_hover_text("How strongly to deblur: 0 % is the photo as it is, 100 % the method at its tuned strength, more carries it further (and sharpens noise)");
         if r.changed() {
-            out.push(Command::SetDeblurAmount(amount));
+            out.push(Command::Deblur(DeblurCommand::SetDeblurAmount(amount)));
         }
     });
     egui::CollapsingHeader::new("Advanced: method and device")
         .id_salt("deblur advanced")
-        .show(ui, |ui| advanced_ui(app, out, ui, method));
+        .show(ui, |ui| advanced_ui(state, (method, has_place), out, ui));
     // Always one line, so the panes below keep their size when the note arrives.
-    let note = app.views.deblur.device_note.as_ref().map_or_else(
+    let note = state.device_note.as_ref().map_or_else(
         || " ".to_owned(),
         |n| format!("The preview runs on the {n}."),
     );
     ui.label(egui::RichText::new(note).weak());
+    // What it deblurs, and why not the whole photo: also one line, always.
+    let scope = match &state.scope {
+        None | Some(PreviewScope::Trial) => " ".to_owned(),
+        Some(PreviewScope::Whole { ms }) => {
+            format!("At Fit it deblurs the whole photo as the controls move ({ms:.0} ms).")
+        }
+        Some(PreviewScope::Crops(why)) => why.clone(),
+    };
+    ui.label(egui::RichText::new(scope).weak());
 }
 
 /// The method, its regularisation and where it runs: for those who know them.
-fn advanced_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, method: Method) {
+fn advanced_ui(
+    state: &DeblurState,
+    (method, has_place): (Method, bool),
+    out: &mut Vec<Command>,
+    ui: &mut egui::Ui,
+) {
     ui.horizontal_wrapped(|ui| {
         ui.label("method");
         let choices = [
@@ -75,52 +97,49 @@ fn advanced_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, metho
                 .clicked()
                 && !on
             {
-                out.push(Command::SetDeblurMethod(m));
+                out.push(Command::Deblur(DeblurCommand::SetDeblurMethod(m)));
             }
         }
         strength_ui(out, ui, method);
         ui.separator();
-        let mut suppress = app.views.deblur.fringes == crate::deblur::Fringes::Suppress;
+        let mut suppress = state.fringes == crate::deblur::Fringes::Suppress;
         if ui
             .checkbox(&mut suppress, "no colour fringes")
             .on_hover_text("Hold each deblurred pixel's colour inside the colours the photo has around it: the channels' deconvolutions ring a little differently, and at strong neutral edges that shows as fringes the scene never had (RGB photos; a RAW photo's Bayer planes are left as they are)")
             .changed()
         {
-            out.push(Command::SetDeblurFringes(if suppress {
+            out.push(Command::Deblur(DeblurCommand::SetDeblurFringes(if suppress {
                 crate::deblur::Fringes::Suppress
             } else {
                 crate::deblur::Fringes::Keep
-            }));
+            })));
         }
-        let mut correct = app.views.deblur.lateral == crate::model::LateralColour::Correct;
-        let has_place = app
-            .profile()
-            .is_some_and(|(_, p)| p.place.is_some());
+        let mut correct = state.lateral == crate::model::LateralColour::Correct;
         if ui
             .add_enabled(has_place, egui::Checkbox::new(&mut correct, "correct lateral colour"))
             .on_hover_text("Move red and blue back onto green as the blur is removed, where the profile measured how far the lens moves them. Leave it off when darktable or RawTherapee corrects lateral colour with the lens's lensfun entry, or the channels move twice")
             .on_disabled_hover_text("This profile does not record where each channel's kernels sit (it was calibrated before profile version 4, or from shots whose kernels were not kept): calibrate again to correct lateral colour")
             .changed()
         {
-            out.push(Command::SetDeblurLateral(if correct {
+            out.push(Command::Deblur(DeblurCommand::SetDeblurLateral(if correct {
                 crate::model::LateralColour::Correct
             } else {
                 crate::model::LateralColour::Keep
-            }));
+            })));
         }
         ui.separator();
         ui.label("device");
-        for (d, label, tip) in [
+        for (device, label, tip) in [
             (Device::Auto, "Auto", "The GPU the window draws with when it is a hardware one, else the CPU"),
             (Device::Gpu, "GPU", "The window's GPU whatever it is (a software rasteriser is slow)"),
             (Device::Cpu, "CPU", "The reference path"),
         ] {
             if ui
-                .selectable_label(app.views.deblur.device == d, label)
+                .selectable_label(state.device == device, label)
                 .on_hover_text(tip)
                 .clicked()
             {
-                out.push(Command::SetDeblurDevice(d));
+                out.push(Command::Deblur(DeblurCommand::SetDeblurDevice(device)));
             }
         }
     });
@@ -157,6 +176,6 @@ fn strength_ui(out: &mut Vec<Command>, ui: &mut egui::Ui, method: Method) {
             Method::Irls(p) => Method::Irls(IrlsParams { lambda: v, ..p }),
             Method::Wiener(_) => Method::Wiener(WienerParams { nsr: v }),
         };
-        out.push(Command::SetDeblurMethod(m));
+        out.push(Command::Deblur(DeblurCommand::SetDeblurMethod(m)));
     }
 }

@@ -10,38 +10,73 @@
 //! Draws the panels `view_data` made (the fields, the kernel atlas, the colour scale)
 //! and the controls that choose them; computes nothing.
 
-use super::super::view_data::{ColourScale, FieldPanel, FieldPoint, PanelContent, PanelOf};
-use super::super::{
-    ColourRange, Command, Difference, FieldOptions, FieldShow, FieldSource, StudioApp, View,
+use super::super::view_data::{
+    ColourScale, FieldData, FieldPanel, FieldPoint, KernelAtlas, PanelContent, PanelOf,
 };
-use super::{Sliders, TIP_CXX, TIP_CYY, ellipse_points, setting_sliders_ui};
+use super::super::{
+    ColourRange, Command, Difference, FieldOptions, FieldShow, FieldSource, FieldViewState, View,
+    ViewerContext,
+};
+use super::{Frame, Sliders, TIP_CXX, TIP_CYY, ellipse_points, setting_sliders_ui};
+use crate::app::{DialogCommand, ViewCommand};
 use crate::model::KernelModel;
-use crate::plane::LensSetting;
+use crate::plane::{Channel, LensSetting};
 use crate::session::ShotId;
 use crate::simulate::VirtualLens;
 use egui::{Color32, Rect, Sense, Stroke, Vec2};
 
-pub(super) fn kernel_field_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+/// What the Kernel field view draws from: its own state, the panels and the kernel
+/// atlas made for it, and the shot and profiles they come from.
+pub(super) struct FieldContext<'a> {
+    cx: ViewerContext<'a>,
+    state: &'a FieldViewState,
+    field: Option<&'a FieldData>,
+    atlas: Option<&'a KernelAtlas>,
+    /// How many shots the measured field holds (the selected and the others at its
+    /// setting).
+    field_shots: usize,
+    sliders: Sliders<'a>,
+    selected: Option<ShotId>,
+    channel: Channel,
+    sensor: (usize, usize),
+}
+
+impl<'a> FieldContext<'a> {
+    pub(super) fn of(f: &Frame<'a>) -> Self {
+        Self {
+            cx: f.cx,
+            state: &f.views.field,
+            field: f.data.field.as_ref(),
+            atlas: f.data.kernel_atlas.as_ref(),
+            field_shots: f.data.field_kernels.as_ref().map_or(0, |k| k.shots),
+            sliders: Sliders::of(f),
+            selected: f.views.shot.selected,
+            channel: f.views.shot.channel,
+            sensor: f.sensor,
+        }
+    }
+}
+
+pub(super) fn kernel_field_ui(c: &FieldContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.heading("Kernel field");
-    let lens = VirtualLens::demo();
-    source_and_show_ui(app, out, ui);
-    options_ui(app, out, ui);
+    source_and_show_ui(c.state, out, ui);
+    options_ui(c.state.options, out, ui);
     let s = LensSetting {
-        focal_mm: app.views.field.focal_mm,
-        f_number: app.views.field.f_number,
+        focal_mm: c.state.focal_mm,
+        f_number: c.state.f_number,
     };
-    let size = super::sensor_size(app);
-    if !source_controls_ui(app, out, ui, &lens) {
+    let size = c.sensor;
+    if !source_controls_ui(c, out, ui) {
         return;
     }
-    let Some(field) = &app.data.field else {
+    let Some(field) = c.field else {
         ui.horizontal(|ui| {
             ui.spinner();
             ui.label("preparing the field…");
         });
         return;
     };
-    let title = |p: &FieldPanel| panel_title(app, p, s);
+    let title = |p: &FieldPanel| panel_title(c, p, s);
     let panels = &field.panels;
     if let Some(colours) = &field.scale {
         colour_bar_ui(ui, colours, field.noisy, &format!("{TIP_CXX}\n{TIP_CYY}"));
@@ -55,7 +90,7 @@ pub(super) fn kernel_field_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut 
     // One magnification for every panel so compared fields are comparable: the largest
     // 1-σ radius fills 45 % of a twelfth of the sensor width.
     let scale = 0.45 * (panel_size.x / 12.0) / field.max_sigma as f32;
-    let atlas = app.data.kernel_atlas.as_ref().map(|a| a.texture.id());
+    let atlas = c.atlas.map(|a| a.texture.id());
     let mut clicked = None;
     ui.horizontal(|ui| {
         for p in panels {
@@ -85,17 +120,17 @@ pub(super) fn kernel_field_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut 
     });
     // The square's inspector lives in the Shot view, beside the shot it was measured on.
     if let Some((shot, square)) = clicked {
-        out.push(Command::SelectView(View::Shot));
+        out.push(Command::View(ViewCommand::SelectView(View::Shot)));
         // A square of another shot at the setting: that shot, then its square.
-        if let Some(shot) = shot.filter(|&s| Some(s) != app.views.shot.selected) {
-            out.push(Command::SelectShot(shot));
+        if let Some(shot) = shot.filter(|&s| Some(s) != c.selected) {
+            out.push(Command::View(ViewCommand::SelectShot(shot)));
         }
-        out.push(Command::SelectSquare(square));
+        out.push(Command::View(ViewCommand::SelectSquare(square)));
     }
 }
 
 /// Which field (measured, predicted, truth) and how (ellipses, kernel shapes).
-fn source_and_show_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+fn source_and_show_ui(state: &FieldViewState, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         for (src, label, tip) in [
             (
@@ -115,16 +150,16 @@ fn source_and_show_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui
             ),
         ] {
             if ui
-                .selectable_label(app.views.field.source == src, label)
+                .selectable_label(state.source == src, label)
                 .on_hover_text(tip)
                 .clicked()
             {
-                out.push(Command::SetFieldSource(src));
+                out.push(Command::View(ViewCommand::SetFieldSource(src)));
             }
         }
         ui.separator();
-        if app.views.field.source != FieldSource::Truth {
-            let predicted = app.views.field.source == FieldSource::Predicted;
+        if state.source != FieldSource::Truth {
+            let predicted = state.source == FieldSource::Predicted;
             for (show, label, tip) in [
                 (
                     FieldShow::Ellipses,
@@ -146,11 +181,11 @@ fn source_and_show_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui
                 ),
             ] {
                 if ui
-                    .selectable_label(app.views.field.show == show, label)
+                    .selectable_label(state.show == show, label)
                     .on_hover_text(tip)
                     .clicked()
                 {
-                    out.push(Command::SetFieldShow(show));
+                    out.push(Command::View(ViewCommand::SetFieldShow(show)));
                 }
             }
         }
@@ -159,39 +194,34 @@ fn source_and_show_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui
 
 /// The controls of the chosen field: the setting's sliders, a second profile or unit to
 /// compare. False where there is nothing to show (truth outside the demo).
-fn source_controls_ui(
-    app: &StudioApp,
-    out: &mut Vec<Command>,
-    ui: &mut egui::Ui,
-    lens: &VirtualLens,
-) -> bool {
-    match app.views.field.source {
+fn source_controls_ui(c: &FieldContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) -> bool {
+    match c.state.source {
         FieldSource::Measured => {}
         FieldSource::Predicted => {
-            setting_sliders_ui(&Sliders::of(app, lens), out, ui);
+            setting_sliders_ui(&c.sliders, out, ui);
             ui.horizontal(|ui| {
                 if ui
                     .button("Compare with a second profile…")
                     .on_hover_text("Two copies of one lens model blur differently (the paper's two 17–40 mm units): load the other unit's profile")
                     .clicked()
                 {
-                    out.push(Command::LoadCompareProfileDialog);
+                    out.push(Command::Dialog(DialogCommand::LoadCompareProfileDialog));
                 }
             });
         }
         FieldSource::Truth => {
-            if !app.session().is_some_and(|s| s.is_demo) {
+            if !c.cx.is_demo() {
                 ui.label("Ground truth exists only for the demo session's simulated lens.");
                 return false;
             }
-            setting_sliders_ui(&Sliders::of(app, lens), out, ui);
-            let mut compare = app.views.field.compare_units;
+            setting_sliders_ui(&c.sliders, out, ui);
+            let mut compare = c.state.compare_units;
             if ui
                 .checkbox(&mut compare, "Compare with a second unit")
                 .on_hover_text("Two copies of one lens model blur differently (the paper's two 17–40 mm units).")
                 .changed()
             {
-                out.push(Command::SetCompareUnits(compare));
+                out.push(Command::View(ViewCommand::SetCompareUnits(compare)));
             }
             ui.label("Ground truth of the demo's virtual lens: pixel-level Gaussians (optical blur plus the 1-px pixel integration).");
         }
@@ -200,15 +230,13 @@ fn source_controls_ui(
 }
 
 /// A panel's title: whose field it is, at which setting and channel.
-fn panel_title(app: &StudioApp, p: &FieldPanel, s: LensSetting) -> String {
-    let ch = app.views.shot.channel;
+fn panel_title(c: &FieldContext<'_>, p: &FieldPanel, s: LensSetting) -> String {
+    let ch = c.channel;
     match &p.of {
         PanelOf::Measured => {
-            let name = app
-                .views
-                .shot
+            let name = c
                 .selected
-                .and_then(|id| app.session()?.shot(id))
+                .and_then(|id| c.cx.session()?.shot(id))
                 .map_or_else(String::new, |s| {
                     let setting = s.setting().map_or_else(String::new, |v| {
                         format!(" ({:.0} mm f/{:.1})", v.focal_mm, v.f_number)
@@ -216,26 +244,21 @@ fn panel_title(app: &StudioApp, p: &FieldPanel, s: LensSetting) -> String {
                     format!("{}{setting}", s.stem())
                 });
             // The other shots at the setting whose kernels the field shows too.
-            let others = app
-                .data
-                .field_kernels
-                .as_ref()
-                .map_or(0, |f| f.shots.saturating_sub(1));
-            let others = match others {
+            let others = match c.field_shots.saturating_sub(1) {
                 0 => String::new(),
                 1 => " and 1 other shot at its setting".to_owned(),
                 n => format!(" and {n} other shots at its setting"),
             };
             format!("measured on {name}{others} — channel {ch}")
         }
-        PanelOf::Profile => match app.profile() {
+        PanelOf::Profile => match c.cx.profile() {
             Some((path, _)) => {
-                let atlas = app.data.kernel_atlas.as_ref();
+                let atlas = c.atlas;
                 let shapes = match atlas.and_then(|a| a.model) {
-                    Some(KernelModel::Shape) if app.views.field.show == FieldShow::Kernels => {
+                    Some(KernelModel::Shape) if c.state.show == FieldShow::Kernels => {
                         " — predicted kernel shapes (Gaussian + shape model)".to_owned()
                     }
-                    Some(KernelModel::Gaussian) if app.views.field.show == FieldShow::Kernels => {
+                    Some(KernelModel::Gaussian) if c.state.show == FieldShow::Kernels => {
                         format!(
                             " — predicted Gaussian kernels; no shape model: {}",
                             atlas.and_then(|a| a.no_shape.as_deref()).unwrap_or("")
@@ -245,7 +268,7 @@ fn panel_title(app: &StudioApp, p: &FieldPanel, s: LensSetting) -> String {
                 };
                 format!(
                     "{} — {:.0} mm f/{:.1}, channel {ch}{shapes}",
-                    app.shown_path(path),
+                    c.cx.shown_path(path),
                     s.focal_mm,
                     s.f_number
                 )
@@ -253,8 +276,8 @@ fn panel_title(app: &StudioApp, p: &FieldPanel, s: LensSetting) -> String {
             None => "predicted".into(),
         },
         PanelOf::NoProfile => "predicted".into(),
-        PanelOf::CompareProfile => match app.compare_profile() {
-            Some((path, _)) => format!("{} — channel {ch}", app.shown_path(path)),
+        PanelOf::CompareProfile => match c.cx.compare_profile() {
+            Some((path, _)) => format!("{} — channel {ch}", c.cx.shown_path(path)),
             None => String::new(),
         },
         PanelOf::Difference { of, a, b } => {
@@ -278,9 +301,8 @@ fn panel_title(app: &StudioApp, p: &FieldPanel, s: LensSetting) -> String {
 
 /// The map and colour-range choices: the fields or a difference map, the colours from
 /// the data or a range the user fixes.
-fn options_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
-    let options = app.views.field.options;
-    let mut set = |o: FieldOptions| out.push(Command::SetFieldOptions(o));
+fn options_ui(options: FieldOptions, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+    let mut set = |o: FieldOptions| out.push(Command::View(ViewCommand::SetFieldOptions(o)));
     ui.horizontal_wrapped(|ui| {
         ui.label("Map:");
         for (d, label, tip) in [

@@ -10,6 +10,7 @@ use super::super::Command;
 use super::field::colour_bar_ui;
 use super::image_backdrop;
 use crate::app::view_data::{GeometryData, GeometryMeasure};
+use crate::app::{DialogCommand, ViewCommand};
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
 
 const TIP_GRID: &str = "A regular grid of ideal (pinhole) points, pushed through the fitted distortion: grey where a perfect lens would draw it, white where this lens does, the displacement exaggerated by the factor shown. Bowed out at the edges (corners pulled in): barrel; corners pushed out: pincushion.";
@@ -48,7 +49,7 @@ pub(super) fn geometry_ui(
                 .selectable_label(f == data.focal, format!("{f} mm"))
                 .clicked()
             {
-                out.push(Command::SetGeometryFocal(f));
+                out.push(Command::View(ViewCommand::SetGeometryFocal(f)));
             }
         }
         ui.separator();
@@ -60,7 +61,7 @@ pub(super) fn geometry_ui(
                 .on_hover_text("The fall-off map at this aperture")
                 .clicked()
             {
-                out.push(Command::SetGeometryAperture(a));
+                out.push(Command::View(ViewCommand::SetGeometryAperture(a)));
             }
         }
         ui.separator();
@@ -69,7 +70,7 @@ pub(super) fn geometry_ui(
             .on_hover_text("Write the lens's entry for lensfun (distortion, lateral colour and fall-off at every focal length and aperture): copy it to ~/.local/share/lensfun/ and darktable, RawTherapee, digiKam and Hugin correct the lens")
             .clicked()
         {
-            out.push(Command::ExportLensfunDialog);
+            out.push(Command::Dialog(DialogCommand::ExportLensfunDialog));
         }
     });
     if let Some(w) = &data.warning {

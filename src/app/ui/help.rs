@@ -2,6 +2,7 @@
 //! calibrating your own lens (`docs/guide.md`, compiled in), and About.
 
 use super::super::{Command, Window};
+use crate::app::WindowCommand;
 
 /// The workflow in a few lines, for someone who has never calibrated a lens.
 const HELP: &[(&str, &str)] = &[
@@ -49,7 +50,7 @@ pub(super) fn help_ui(window: &Window, out: &mut Vec<Command>, ctx: &egui::Conte
             );
         });
     if !open {
-        out.push(Command::ShowHelp(false));
+        out.push(Command::Window(WindowCommand::ShowHelp(false)));
     }
 }
 
@@ -87,7 +88,7 @@ pub(super) fn about_ui(window: &Window, out: &mut Vec<Command>, ctx: &egui::Cont
             }
         });
     if !open {
-        out.push(Command::ShowAbout(false));
+        out.push(Command::Window(WindowCommand::ShowAbout(false)));
     }
 }
 
@@ -127,7 +128,7 @@ pub(super) fn guide_ui(window: &Window, out: &mut Vec<Command>, ctx: &egui::Cont
             });
         });
     if !open {
-        out.push(Command::ShowGuide(false));
+        out.push(Command::Window(WindowCommand::ShowGuide(false)));
     }
 }
 

@@ -1,8 +1,40 @@
 //! The menu bar and the keyboard shortcuts: what a photographer looks for first.
 
-use super::super::{Command, DeblurResult, StudioApp, View};
+use super::super::{Command, DeblurResult, View, Window};
+use super::Frame;
+use crate::app::{DialogCommand, SessionCommand, StageCommand, ViewCommand, WindowCommand};
 use crate::plane::Channel;
+use crate::session::{Session, ShotId};
 use egui::{Key, KeyboardShortcut, Modifiers};
+use std::path::Path;
+
+/// What the menus and the shortcuts read: which view and panels are shown, whether a
+/// photo and a profile are there to export, the session's shots to step through.
+pub(super) struct MenuContext<'a> {
+    view: View,
+    window: &'a Window,
+    session_panel_open: bool,
+    has_photo: bool,
+    has_profile: bool,
+    profile_library: &'a Path,
+    session: Option<&'a Session>,
+    selected: Option<ShotId>,
+}
+
+impl<'a> MenuContext<'a> {
+    pub(super) fn of(f: &Frame<'a>) -> Self {
+        Self {
+            view: f.view,
+            window: f.window,
+            session_panel_open: f.views.session.open,
+            has_photo: f.views.deblur.photo.is_some(),
+            has_profile: f.cx.profile().is_some(),
+            profile_library: f.profile_library,
+            session: f.cx.session(),
+            selected: f.views.shot.selected,
+        }
+    }
+}
 
 /// Every keyboard shortcut, as the Shortcuts menu lists it.
 const SHORTCUTS: &[(&str, &str)] = &[
@@ -35,8 +67,7 @@ const SHORTCUTS: &[(&str, &str)] = &[
 
 /// The menus: what a photographer looks for first (open, recent, export, quit), the
 /// views and panels, and help.
-pub(super) fn menu_bar_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
-    let has_profile = app.profile().is_some();
+pub(super) fn menu_bar_ui(m: &MenuContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     egui::MenuBar::new().ui(ui, |ui| {
         ui.menu_button("File", |ui| {
             if ui
@@ -44,11 +75,11 @@ pub(super) fn menu_bar_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui
                 .on_hover_text("Open or create a session folder")
                 .clicked()
             {
-                out.push(Command::OpenSessionDialog);
+                out.push(Command::Dialog(DialogCommand::OpenSessionDialog));
             }
-            ui.add_enabled_ui(!app.window.recent.is_empty(), |ui| {
+            ui.add_enabled_ui(!m.window.recent.is_empty(), |ui| {
                 ui.menu_button("Recent sessions", |ui| {
-                    for path in &app.window.recent {
+                    for path in &m.window.recent {
                         let name = path.file_name().map_or_else(
                             || path.display().to_string(),
                             |n| n.to_string_lossy().into_owned(),
@@ -58,7 +89,7 @@ pub(super) fn menu_bar_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui
                             .on_hover_text(path.display().to_string())
                             .clicked()
                         {
-                            out.push(Command::OpenSession(path.clone()));
+                            out.push(Command::Session(SessionCommand::OpenSession(path.clone())));
                         }
                     }
                 });
@@ -69,7 +100,7 @@ pub(super) fn menu_bar_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui
                 .add(egui::Button::new("Add shots…").shortcut_text("Ctrl+Shift+A"))
                 .clicked()
             {
-                out.push(Command::AddShotsDialog);
+                out.push(Command::Dialog(DialogCommand::AddShotsDialog));
             }
             ui.separator();
             if ui
@@ -77,37 +108,37 @@ pub(super) fn menu_bar_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui
                 .on_hover_text("Open a photo to deblur in the Deblur view")
                 .clicked()
             {
-                out.push(Command::SelectView(View::Deblur));
-                out.push(Command::OpenPhotoDialog);
+                out.push(Command::View(ViewCommand::SelectView(View::Deblur)));
+                out.push(Command::Dialog(DialogCommand::OpenPhotoDialog));
             }
-            ui.menu_button("Export", |ui| export_menu_ui(app, has_profile, out, ui));
+            ui.menu_button("Export", |ui| export_menu_ui(m, out, ui));
             if ui.button("Load lens profile…").clicked() {
-                out.push(Command::LoadProfileDialog);
+                out.push(Command::Dialog(DialogCommand::LoadProfileDialog));
             }
             ui.separator();
             if ui
                 .add(egui::Button::new("Quit").shortcut_text("Ctrl+Q"))
                 .clicked()
             {
-                out.push(Command::Quit);
+                out.push(Command::Window(WindowCommand::Quit));
             }
         });
         ui.menu_button("View", |ui| {
             for (k, v) in View::ALL.into_iter().enumerate() {
                 if ui
                     .add(
-                        egui::Button::selectable(app.view == v, v.label())
+                        egui::Button::selectable(m.view == v, v.label())
                             .shortcut_text(format!("Alt+{}", k + 1)),
                     )
                     .clicked()
                 {
-                    out.push(Command::SelectView(v));
+                    out.push(Command::View(ViewCommand::SelectView(v)));
                 }
             }
             ui.separator();
             if ui
                 .add(
-                    egui::Button::selectable(app.views.session.open, "Session panel")
+                    egui::Button::selectable(m.session_panel_open, "Session panel")
                         .shortcut_text("Ctrl+B"),
                 )
                 .on_hover_text(
@@ -115,34 +146,38 @@ pub(super) fn menu_bar_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui
                 )
                 .clicked()
             {
-                out.push(Command::SetSessionPanel(!app.views.session.open));
+                out.push(Command::Window(WindowCommand::SetSessionPanel(
+                    !m.session_panel_open,
+                )));
             }
             if ui
-                .add(egui::Button::selectable(app.window.log_open, "Log").shortcut_text("Ctrl+L"))
+                .add(egui::Button::selectable(m.window.log_open, "Log").shortcut_text("Ctrl+L"))
                 .on_hover_text("Every message of this run, with its time")
                 .clicked()
             {
-                out.push(Command::SetLogOpen(!app.window.log_open));
+                out.push(Command::Window(WindowCommand::SetLogOpen(
+                    !m.window.log_open,
+                )));
             }
             ui.separator();
             for (dark, label) in [(true, "Dark theme"), (false, "Light theme")] {
                 if ui
                     .add(
-                        egui::Button::selectable(app.window.dark == dark, label)
+                        egui::Button::selectable(m.window.dark == dark, label)
                             .shortcut_text("Ctrl+T"),
                     )
                     .clicked()
                 {
-                    out.push(Command::SetDark(dark));
+                    out.push(Command::Window(WindowCommand::SetDark(dark)));
                 }
             }
         });
         ui.menu_button("Help", |ui| {
             if ui.button("How it works…").clicked() {
-                out.push(Command::ShowHelp(true));
+                out.push(Command::Window(WindowCommand::ShowHelp(true)));
             }
             if ui.button("Calibrate your own lens (guide)…").clicked() {
-                out.push(Command::ShowGuide(true));
+                out.push(Command::Window(WindowCommand::ShowGuide(true)));
             }
             ui.menu_button("Shortcuts", |ui| {
                 egui::Grid::new("shortcuts").striped(true).show(ui, |ui| {
@@ -154,7 +189,7 @@ pub(super) fn menu_bar_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui
                 });
             });
             if ui.button("About lensblur…").clicked() {
-                out.push(Command::ShowAbout(true));
+                out.push(Command::Window(WindowCommand::ShowAbout(true)));
             }
         });
     });
@@ -162,8 +197,8 @@ pub(super) fn menu_bar_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui
 
 /// File ▸ Export: a photo deblurred, a set of photos, the lens profile (to a file, or
 /// into the library a batch reads).
-fn export_menu_ui(app: &StudioApp, has_profile: bool, out: &mut Vec<Command>, ui: &mut egui::Ui) {
-    let photo = app.views.deblur.photo.is_some();
+fn export_menu_ui(m: &MenuContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+    let photo = m.has_photo;
     if ui
         .add_enabled(
             photo,
@@ -172,7 +207,9 @@ fn export_menu_ui(app: &StudioApp, has_profile: bool, out: &mut Vec<Command>, ui
         .on_disabled_hover_text("Open a photo first (Ctrl+P)")
         .clicked()
     {
-        out.push(Command::ExportDeblurDialog(DeblurResult::Predicted));
+        out.push(Command::Dialog(DialogCommand::ExportDeblurDialog(
+            DeblurResult::Predicted,
+        )));
     }
     if ui
         .add_enabled(
@@ -182,90 +219,114 @@ fn export_menu_ui(app: &StudioApp, has_profile: bool, out: &mut Vec<Command>, ui
         .on_disabled_hover_text("Open a photo first (Ctrl+P)")
         .clicked()
     {
-        out.push(Command::ExportDeblurDialog(DeblurResult::Measured));
+        out.push(Command::Dialog(DialogCommand::ExportDeblurDialog(
+            DeblurResult::Measured,
+        )));
     }
-    let profile = has_profile;
+    let profile = m.has_profile;
     if ui
         .add_enabled(profile, egui::Button::new("Photos as TIFF…"))
         .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
         .clicked()
     {
-        out.push(Command::ExportPhotosDialog { dng: false });
+        out.push(Command::Dialog(DialogCommand::ExportPhotosDialog {
+            dng: false,
+        }));
     }
     if ui
         .add_enabled(profile, egui::Button::new("RAW photos as DNG…"))
         .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
         .clicked()
     {
-        out.push(Command::ExportPhotosDialog { dng: true });
+        out.push(Command::Dialog(DialogCommand::ExportPhotosDialog {
+            dng: true,
+        }));
     }
     if ui
         .add_enabled(profile, egui::Button::new("Lens profile…"))
         .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
         .clicked()
     {
-        out.push(Command::SaveProfileDialog);
+        out.push(Command::Dialog(DialogCommand::SaveProfileDialog));
     }
     if ui
         .add_enabled(profile, egui::Button::new("Lens profile to the library"))
         .on_hover_text(format!(
             "Into {}, where a batch finds it: lensblur deblur PHOTOS --out-dir OUT --profiles {0}",
-            app.profile_library().display()
+            m.profile_library.display()
         ))
         .on_disabled_hover_text("Calibrate (Ctrl+M) or load a profile first")
         .clicked()
     {
-        out.push(Command::SaveProfileToLibrary);
+        out.push(Command::Stage(StageCommand::SaveProfileToLibrary));
+    }
+    if ui
+        .button("Choose the profile library…")
+        .on_hover_text(format!(
+            "The folder profiles are saved into and a batch reads: now {}",
+            m.profile_library.display()
+        ))
+        .clicked()
+    {
+        out.push(Command::Dialog(DialogCommand::ChooseProfileLibraryDialog));
     }
 }
 
-pub(super) fn shortcuts(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Context) {
+pub(super) fn shortcuts(m: &MenuContext<'_>, out: &mut Vec<Command>, ctx: &egui::Context) {
     let cmd = |k| KeyboardShortcut::new(Modifiers::COMMAND, k);
     let alt = |k| KeyboardShortcut::new(Modifiers::ALT, k);
-    let n_shots = app.session().map_or(0, |s| s.shots.len());
+    let n_shots = m.session.map_or(0, |s| s.shots.len());
     ctx.input_mut(|i| {
         if i.consume_shortcut(&cmd(Key::O)) {
-            out.push(Command::OpenSessionDialog);
+            out.push(Command::Dialog(DialogCommand::OpenSessionDialog));
         }
         if i.consume_shortcut(&KeyboardShortcut::new(
             Modifiers::COMMAND | Modifiers::SHIFT,
             Key::A,
         )) {
-            out.push(Command::AddShotsDialog);
+            out.push(Command::Dialog(DialogCommand::AddShotsDialog));
         }
         if i.consume_shortcut(&cmd(Key::D)) {
-            out.push(Command::RunDetect(None));
+            out.push(Command::Stage(StageCommand::RunDetect(None)));
         }
         if i.consume_shortcut(&cmd(Key::K)) {
-            out.push(Command::RunKernels(None));
+            out.push(Command::Stage(StageCommand::RunKernels(None)));
         }
         if i.consume_shortcut(&cmd(Key::M)) {
-            out.push(Command::RunCalibrate);
+            out.push(Command::Stage(StageCommand::RunCalibrate));
         }
         if i.consume_shortcut(&cmd(Key::Enter)) {
-            out.push(Command::CalibrateAll { then_deblur: false });
+            out.push(Command::Stage(StageCommand::CalibrateAll {
+                then_deblur: false,
+            }));
         }
         if i.consume_shortcut(&cmd(Key::P)) {
-            out.push(Command::SelectView(View::Deblur));
-            out.push(Command::OpenPhotoDialog);
+            out.push(Command::View(ViewCommand::SelectView(View::Deblur)));
+            out.push(Command::Dialog(DialogCommand::OpenPhotoDialog));
         }
         if i.consume_shortcut(&cmd(Key::E)) {
-            out.push(Command::ExportDeblurDialog(DeblurResult::Predicted));
+            out.push(Command::Dialog(DialogCommand::ExportDeblurDialog(
+                DeblurResult::Predicted,
+            )));
         }
         if i.consume_shortcut(&cmd(Key::T)) {
-            out.push(Command::SetDark(!app.window.dark));
+            out.push(Command::Window(WindowCommand::SetDark(!m.window.dark)));
         }
         if i.consume_shortcut(&cmd(Key::L)) {
-            out.push(Command::SetLogOpen(!app.window.log_open));
+            out.push(Command::Window(WindowCommand::SetLogOpen(
+                !m.window.log_open,
+            )));
         }
         if i.consume_shortcut(&cmd(Key::B)) {
-            out.push(Command::SetSessionPanel(!app.views.session.open));
+            out.push(Command::Window(WindowCommand::SetSessionPanel(
+                !m.session_panel_open,
+            )));
         }
         if i.consume_shortcut(&cmd(Key::Q)) {
-            out.push(Command::Quit);
+            out.push(Command::Window(WindowCommand::Quit));
         }
         if i.consume_key(Modifiers::NONE, Key::Escape) {
-            out.push(Command::CancelAll);
+            out.push(Command::Window(WindowCommand::CancelAll));
         }
         for (k, v) in [
             Key::Num1,
@@ -280,7 +341,7 @@ pub(super) fn shortcuts(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Con
         .zip(View::ALL)
         {
             if i.consume_shortcut(&alt(k)) {
-                out.push(Command::SelectView(v));
+                out.push(Command::View(ViewCommand::SelectView(v)));
             }
         }
         for (k, c) in [
@@ -289,22 +350,19 @@ pub(super) fn shortcuts(app: &StudioApp, out: &mut Vec<Command>, ctx: &egui::Con
             (Key::B, Channel::B),
         ] {
             if i.consume_shortcut(&alt(k)) {
-                out.push(Command::SelectChannel(c));
+                out.push(Command::View(ViewCommand::SelectChannel(c)));
             }
         }
-        if let Some(s) = app.session().filter(|_| n_shots > 0) {
-            let current = app
-                .views
-                .shot
-                .selected
-                .and_then(|id| s.index_of(id))
-                .unwrap_or(0);
+        if let Some(s) = m.session.filter(|_| n_shots > 0) {
+            let current = m.selected.and_then(|id| s.index_of(id)).unwrap_or(0);
             let at = |i: usize| s.shots[i.min(n_shots - 1)].id;
             if i.consume_key(Modifiers::NONE, Key::PageDown) {
-                out.push(Command::SelectShot(at(current + 1)));
+                out.push(Command::View(ViewCommand::SelectShot(at(current + 1))));
             }
             if i.consume_key(Modifiers::NONE, Key::PageUp) {
-                out.push(Command::SelectShot(at(current.saturating_sub(1))));
+                out.push(Command::View(ViewCommand::SelectShot(at(
+                    current.saturating_sub(1)
+                ))));
             }
         }
     });

@@ -15,12 +15,14 @@ mod sharpness;
 mod shot;
 mod sweeps;
 
-use super::view_data::{sensor_size, setting_ranges};
-use super::{Command, PlotId, StudioApp, View, Window};
+use super::jobs::Jobs;
+use super::view_data::ViewData;
+use super::{Command, JobOutput, PlotId, View, ViewerContext, Views, Window};
+use crate::app::{DeblurCommand, DialogCommand, SessionCommand, ViewCommand, WindowCommand};
 use crate::plane::Channel;
 use crate::psf::Gaussian2;
-use crate::simulate::VirtualLens;
 use egui::{Color32, Pos2, Rect, Vec2};
+use std::path::Path;
 
 pub const TIP_CXX: &str = "C_xx: standard deviation σx of the Gaussian blur along the sensor's x axis, in full-resolution sensor pixels (includes the pixel's own 1-px integration).";
 pub const TIP_CYY: &str = "C_yy: standard deviation σy of the Gaussian blur along the sensor's y axis, in full-resolution sensor pixels.";
@@ -28,12 +30,34 @@ pub const TIP_COR: &str = "C_or: correlation ρ = C_xy / (C_xx·C_yy) of the Gau
 pub const TIP_ALPHA: &str = "α: polynomial order of the model over the sensor position (x, y). Higher α follows finer variation across the frame but needs more squares.";
 pub const TIP_BETA: &str = "β: polynomial order of the model over focal length f and aperture a; it must stay below the number of distinct settings shot (N = min(N_f, N_a)).";
 
-pub(super) fn root_ui(app: &mut StudioApp, ui: &mut egui::Ui) {
-    // Draw code only reads the app; what it asks for is queued as commands, which
-    // the app runs after the frame.
-    let mut out = std::mem::take(&mut app.commands);
-    draw(app, &mut out, ui);
-    app.commands = out;
+/// What a frame draws from, borrowed from the app for the frame: the project and the
+/// loaded shots, the view shown, each view's state and data, the window around them and
+/// the running jobs. Only this module's layout reads it whole; each view draws from a
+/// context of its own made of it.
+pub(super) struct Frame<'a> {
+    pub cx: ViewerContext<'a>,
+    pub view: View,
+    pub views: &'a Views,
+    pub data: &'a ViewData,
+    pub window: &'a Window,
+    pub jobs: &'a Jobs<JobOutput>,
+    /// How long a notice stays in the status line (`AppOptions::notice_lifetime`).
+    pub notice_lifetime: Option<std::time::Duration>,
+    /// Where *Export ▸ Lens profile to the library* saves.
+    pub profile_library: &'a Path,
+    /// The Deblur view's method: its own, else the session's.
+    pub deblur_method: crate::deblur::Method,
+    /// The sensor the views draw on (`view_data::sensor_size`).
+    pub sensor: (usize, usize),
+    /// The focal length and aperture ranges the setting sliders span
+    /// (`view_data::setting_ranges`).
+    pub setting_ranges: ([f64; 2], [f64; 2]),
+}
+
+/// Draws the frame; what it asks for is queued on `out`, which the app applies after
+/// the frame (draw code only reads).
+pub(super) fn root_ui(f: &Frame<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+    draw(f, out, ui);
 }
 
 /// A panel's frame, without its background where the window is cleared to that colour.
@@ -45,66 +69,72 @@ fn panel_frame(window: &Window, frame: egui::Frame) -> egui::Frame {
     }
 }
 
-fn draw(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
-    menu::shortcuts(app, out, ui.ctx());
-    dropped_files(app.view, out, ui.ctx());
-    let side = panel_frame(&app.window, egui::Frame::side_top_panel(ui.style()));
+fn draw(f: &Frame<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+    let menu = menu::MenuContext::of(f);
+    menu::shortcuts(&menu, out, ui.ctx());
+    dropped_files(f.view, out, ui.ctx());
+    let side = panel_frame(f.window, egui::Frame::side_top_panel(ui.style()));
     egui::Panel::top("menu")
         .frame(side)
-        .show(ui, |ui| menu::menu_bar_ui(app, out, ui));
+        .show(ui, |ui| menu::menu_bar_ui(&menu, out, ui));
     egui::Panel::top("top")
         .frame(side)
-        .show(ui, |ui| top_bar_ui(app, out, ui));
+        .show(ui, |ui| top_bar_ui(f, out, ui));
     egui::Panel::bottom("status")
         .frame(side)
-        .show(ui, |ui| status_ui(app, out, ui));
-    if app.window.log_open {
+        .show(ui, |ui| status_ui(f, out, ui));
+    if f.window.log_open {
         egui::Panel::bottom("log")
             .frame(side)
             .resizable(true)
             .default_size(180.0)
-            .show(ui, |ui| log_ui(&app.window, out, ui));
+            .show(ui, |ui| log_ui(f.window, out, ui));
     }
-    if app.views.session.open {
+    if f.views.session.open {
         egui::Panel::left("session")
             .frame(side)
             .default_size(300.0)
             .resizable(true)
             .show(ui, |ui| {
-                egui::ScrollArea::vertical()
-                    .show(ui, |ui| session_panel::session_panel_ui(app, out, ui));
+                egui::ScrollArea::vertical().show(ui, |ui| {
+                    session_panel::session_panel_ui(
+                        &session_panel::SessionPanelContext::of(f),
+                        out,
+                        ui,
+                    );
+                });
             });
     }
     egui::CentralPanel::default()
         .frame(panel_frame(
-            &app.window,
+            f.window,
             egui::Frame::central_panel(ui.style()),
         ))
-        .show(ui, |ui| match app.view {
-            View::Shot => shot::shot_view_ui(app, out, ui),
-            View::KernelField => field::kernel_field_ui(app, out, ui),
+        .show(ui, |ui| match f.view {
+            View::Shot => shot::shot_view_ui(&shot::ShotContext::of(f), out, ui),
+            View::KernelField => field::kernel_field_ui(&field::FieldContext::of(f), out, ui),
             View::Sharpness => sharpness::sharpness_ui(
-                app.views.sharpness,
-                app.data.sharpness.as_ref(),
-                &Sliders::of(app, &VirtualLens::demo()),
+                f.views.sharpness,
+                f.data.sharpness.as_ref(),
+                &Sliders::of(f),
                 out,
                 ui,
             ),
-            View::Sweeps => sweeps::sweeps_ui(app, out, ui),
-            View::Models => models::models_ui(app, out, ui),
-            View::Deblur => deblur::deblur_ui(app, out, ui),
+            View::Sweeps => sweeps::sweeps_ui(&sweeps::SweepsContext::of(f), out, ui),
+            View::Models => models::models_ui(&models::ModelsContext::of(f), out, ui),
+            View::Deblur => deblur::deblur_ui(&deblur::DeblurContext::of(f), out, ui),
             View::Geometry => geometry::geometry_ui(
-                app.data.geometry_measure.as_ref(),
-                app.data.geometry.as_ref(),
+                f.data.geometry_measure.as_ref(),
+                f.data.geometry.as_ref(),
                 out,
                 ui,
             ),
         });
     let ctx = ui.ctx().clone();
-    confirm_ui(app.window.confirm.as_ref(), app.session(), out, &ctx);
-    help::help_ui(&app.window, out, &ctx);
-    help::about_ui(&app.window, out, &ctx);
-    help::guide_ui(&app.window, out, &ctx);
+    confirm_ui(f.window.confirm.as_ref(), f.cx.session(), out, &ctx);
+    help::help_ui(f.window, out, &ctx);
+    help::about_ui(f.window, out, &ctx);
+    help::guide_ui(f.window, out, &ctx);
 }
 
 /// The question asked before losing work, over a dimmed window.
@@ -159,7 +189,7 @@ fn confirm_ui(
         answer = Some(false);
     }
     if let Some(yes) = answer {
-        out.push(Command::ConfirmAnswer(yes));
+        out.push(Command::Dialog(DialogCommand::ConfirmAnswer(yes)));
     }
 }
 
@@ -173,7 +203,7 @@ fn log_ui(window: &Window, out: &mut Vec<Command>, ui: &mut egui::Ui) {
         });
         ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
             if ui.small_button("Close").on_hover_text("Ctrl+L").clicked() {
-                out.push(Command::SetLogOpen(false));
+                out.push(Command::Window(WindowCommand::SetLogOpen(false)));
             }
         });
     });
@@ -215,48 +245,50 @@ fn dropped_files(view: View, out: &mut Vec<Command>, ctx: &egui::Context) {
     if view == View::Deblur
         && let [one] = files.as_slice()
     {
-        out.push(Command::OpenPhoto(one.clone()));
+        out.push(Command::Deblur(DeblurCommand::OpenPhoto(one.clone())));
     } else {
-        out.push(Command::AddShots(files));
+        out.push(Command::Session(SessionCommand::AddShots(files)));
     }
 }
 
-fn top_bar_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+fn top_bar_ui(f: &Frame<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         if ui
-            .selectable_label(app.views.session.open, "Session")
+            .selectable_label(f.views.session.open, "Session")
             .on_hover_text("Show or fold the session panel (Ctrl+B)")
             .clicked()
         {
-            out.push(Command::SetSessionPanel(!app.views.session.open));
+            out.push(Command::Window(WindowCommand::SetSessionPanel(
+                !f.views.session.open,
+            )));
         }
         ui.strong("lensblur studio");
         ui.separator();
         for (k, v) in View::ALL.into_iter().enumerate() {
             if ui
-                .selectable_label(app.view == v, v.label())
+                .selectable_label(f.view == v, v.label())
                 .on_hover_text(format!("Alt+{}", k + 1))
                 .clicked()
             {
-                out.push(Command::SelectView(v));
+                out.push(Command::View(ViewCommand::SelectView(v)));
             }
         }
         ui.separator();
         ui.label("Channel");
         for c in [Channel::R, Channel::G, Channel::B] {
             if ui
-                .selectable_label(app.views.shot.channel == c, c.name())
+                .selectable_label(f.views.shot.channel == c, c.name())
                 .on_hover_text(format!("Alt+{}", c.name()))
                 .clicked()
             {
-                out.push(Command::SelectChannel(c));
+                out.push(Command::View(ViewCommand::SelectChannel(c)));
             }
         }
     });
 }
 
-fn status_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
-    for h in &app.jobs.running {
+fn status_ui(f: &Frame<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+    for h in &f.jobs.running {
         ui.horizontal(|ui| {
             let (stage, frac, counts) = match h.progress() {
                 Some(p) if p.total > 0 => (
@@ -284,12 +316,12 @@ fn status_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
                 .on_hover_text("Stop this job (Esc stops all)")
                 .clicked()
             {
-                out.push(Command::Cancel(h.id));
+                out.push(Command::Window(WindowCommand::Cancel(h.id)));
             }
         });
     }
     let mut dismiss = None;
-    for (i, m) in app.window.messages.iter().enumerate().rev().take(4) {
+    for (i, m) in f.window.messages.iter().enumerate().rev().take(4) {
         ui.horizontal(|ui| {
             let color = if m.is_error {
                 ui.visuals().error_fg_color
@@ -297,7 +329,7 @@ fn status_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
                 ui.visuals().text_color()
             };
             // A notice fades over the last second of its lifetime.
-            let color = match app.options.notice_lifetime {
+            let color = match f.notice_lifetime {
                 Some(life) if !m.is_error => {
                     let left = life.saturating_sub(m.said.elapsed());
                     color.gamma_multiply(
@@ -314,25 +346,27 @@ fn status_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
         });
     }
     if let Some(i) = dismiss {
-        out.push(Command::DismissMessage(i));
+        out.push(Command::Window(WindowCommand::DismissMessage(i)));
     }
     ui.horizontal(|ui| {
-        if app.jobs.running.is_empty() && app.window.messages.is_empty() {
+        if f.jobs.running.is_empty() && f.window.messages.is_empty() {
             ui.label("Ready.");
         }
         ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
-            let errors = app.window.log.iter().filter(|m| m.is_error).count();
+            let errors = f.window.log.iter().filter(|m| m.is_error).count();
             let label = match errors {
-                0 => format!("Log ({})", app.window.log.len()),
-                1 => format!("Log ({}, 1 error)", app.window.log.len()),
-                e => format!("Log ({}, {e} errors)", app.window.log.len()),
+                0 => format!("Log ({})", f.window.log.len()),
+                1 => format!("Log ({}, 1 error)", f.window.log.len()),
+                e => format!("Log ({}, {e} errors)", f.window.log.len()),
             };
             if ui
-                .selectable_label(app.window.log_open, label)
+                .selectable_label(f.window.log_open, label)
                 .on_hover_text("Every message of this run, with its time (Ctrl+L)")
                 .clicked()
             {
-                out.push(Command::SetLogOpen(!app.window.log_open));
+                out.push(Command::Window(WindowCommand::SetLogOpen(
+                    !f.window.log_open,
+                )));
             }
         });
     });
@@ -400,7 +434,7 @@ fn plot_save_buttons(commands: &mut Vec<Command>, ui: &mut egui::Ui, plot: PlotI
         ),
     ] {
         if ui.small_button(label).on_hover_text(tip).clicked() {
-            commands.push(Command::SavePlotDialog { plot, png });
+            commands.push(Command::Dialog(DialogCommand::SavePlotDialog { plot, png }));
         }
     }
 }
@@ -475,11 +509,11 @@ pub(super) struct Sliders<'a> {
 }
 
 impl<'a> Sliders<'a> {
-    pub(super) fn of(app: &'a StudioApp, lens: &VirtualLens) -> Self {
+    pub(super) fn of(f: &Frame<'a>) -> Self {
         Self {
-            ranges: setting_ranges(app, lens),
-            setting: (app.views.field.focal_mm, app.views.field.f_number),
-            shot_at: app
+            ranges: f.setting_ranges,
+            setting: (f.views.field.focal_mm, f.views.field.f_number),
+            shot_at: f
                 .data
                 .calibrated
                 .as_ref()
@@ -525,7 +559,10 @@ fn setting_sliders_ui(sliders: &Sliders<'_>, out: &mut Vec<Command>, ui: &mut eg
         }
     });
     if changed {
-        out.push(Command::SetFieldSetting { focal_mm, f_number });
+        out.push(Command::View(ViewCommand::SetFieldSetting {
+            focal_mm,
+            f_number,
+        }));
     }
 }
 

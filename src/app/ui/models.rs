@@ -3,9 +3,31 @@
 //! what the session's settings allow the model, with what to shoot next.
 
 use super::super::view_data::Calibrated;
-use super::super::{Command, PlotId, StudioApp};
-use super::{TIP_ALPHA, TIP_BETA, TIP_COR, TIP_CXX, TIP_CYY};
+use super::super::{Command, PlotId, ViewerContext};
+use super::{Frame, TIP_ALPHA, TIP_BETA, TIP_COR, TIP_CXX, TIP_CYY};
+use crate::app::{DialogCommand, StageCommand, ViewCommand};
+use crate::review::SettingCoverage;
 use egui::Color32;
+
+/// What the Models view draws from: the profile and its cross-validation, the settings
+/// shot with the plan for them, and where on the sensor the chart has been.
+pub(super) struct ModelsContext<'a> {
+    cx: ViewerContext<'a>,
+    calibrated: Option<&'a Calibrated>,
+    coverage: Option<&'a [SettingCoverage]>,
+    sensor: (usize, usize),
+}
+
+impl<'a> ModelsContext<'a> {
+    pub(super) fn of(f: &Frame<'a>) -> Self {
+        Self {
+            cx: f.cx,
+            calibrated: f.data.calibrated.as_ref(),
+            coverage: f.data.coverage.as_ref().map(|(_, maps)| maps.as_slice()),
+            sensor: f.sensor,
+        }
+    }
+}
 
 fn family_color(name: &str) -> Color32 {
     if name == "global" {
@@ -19,27 +41,27 @@ fn family_color(name: &str) -> Color32 {
 /// shooting plan open on a small window).
 const MIN_PLOT_H: f32 = 240.0;
 
-pub(super) fn models_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+pub(super) fn models_ui(m: &ModelsContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     let view_h = ui.available_height();
     egui::ScrollArea::vertical()
         .auto_shrink([false, false])
-        .show(ui, |ui| models_body_ui(app, out, ui, view_h));
+        .show(ui, |ui| models_body_ui(m, out, ui, view_h));
 }
 
 /// The view's content; `view_h` is the height of the window's part it scrolls in, so
 /// the plots fill what is left of it and keep [`MIN_PLOT_H`] when little is.
-fn models_body_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui, view_h: f32) {
+fn models_body_ui(m: &ModelsContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui, view_h: f32) {
     ui.heading("Models");
-    profile_buttons_ui(app, out, ui);
-    advice_ui(app.data.calibrated.as_ref(), ui);
+    profile_buttons_ui(m.cx.profile().is_some(), out, ui);
+    advice_ui(m.calibrated, ui);
     egui::CollapsingHeader::new("Shooting plan")
         // A header of its own once a profile exists, so it folds then (the plots take
         // the view) even where it was open before calibration.
-        .id_salt(("shooting plan", app.profile().is_some()))
-        .default_open(app.profile().is_none())
-        .show(ui, |ui| plan_ui(app, out, ui));
-    profile_summary_ui(app, ui);
-    let Some(cv) = app.cv().cloned() else {
+        .id_salt(("shooting plan", m.cx.profile().is_some()))
+        .default_open(m.cx.profile().is_none())
+        .show(ui, |ui| plan_ui(m, out, ui));
+    profile_summary_ui(m.cx, ui);
+    let Some(cv) = m.cx.cv().cloned() else {
         ui.label("Cross-validation curves over α and β (paper Fig. 5) and the error distributions (Fig. 6) appear after a calibration that selects α and β.");
         return;
     };
@@ -83,36 +105,36 @@ struct PlotSize {
 }
 
 /// Run calibration, load and save a profile.
-fn profile_buttons_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+fn profile_buttons_ui(has_profile: bool, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         if ui
             .button("Run calibration")
             .on_hover_text("Fit global and local models over every shot with kernels; cross-validation picks α and β unless the settings fix them (Ctrl+M)")
             .clicked()
         {
-            out.push(Command::RunCalibrate);
+            out.push(Command::Stage(StageCommand::RunCalibrate));
         }
         if ui
             .button("Load profile…")
             .on_hover_text("Use a lens profile written earlier (lensblur calibrate or this studio)")
             .clicked()
         {
-            out.push(Command::LoadProfileDialog);
+            out.push(Command::Dialog(DialogCommand::LoadProfileDialog));
         }
         if ui
-            .add_enabled(app.profile().is_some(), egui::Button::new("Save profile…"))
+            .add_enabled(has_profile, egui::Button::new("Save profile…"))
             .on_hover_text("Write the profile in use to a file of your choice")
             .clicked()
         {
-            out.push(Command::SaveProfileDialog);
+            out.push(Command::Dialog(DialogCommand::SaveProfileDialog));
         }
     });
 }
 
 /// The profile in use: its file, model and orders, calibrated range; and its shape
 /// model's cross-validation.
-fn profile_summary_ui(app: &StudioApp, ui: &mut egui::Ui) {
-    if let Some((path, p)) = app.profile() {
+fn profile_summary_ui(cx: ViewerContext<'_>, ui: &mut egui::Ui) {
+    if let Some((path, p)) = cx.profile() {
         let kind = format!("{:?}", p.preferred).to_lowercase();
         let orders = |k: crate::model::ModelKind, g: Option<(usize, usize)>| {
             g.map_or("—".to_owned(), |(a, b)| {
@@ -120,7 +142,7 @@ fn profile_summary_ui(app: &StudioApp, ui: &mut egui::Ui) {
             })
         };
         ui.horizontal_wrapped(|ui| {
-            ui.strong(format!("Profile {}:", app.shown_path(path)));
+            ui.strong(format!("Profile {}:", cx.shown_path(path)));
             ui.label(format!(
                 "uses the {kind} model; global: {}; local: {}; calibrated {:.0}–{:.0} mm, f/{:.1}–f/{:.1}, sensor {} × {} px",
                 orders(crate::model::ModelKind::Global, p.global.as_ref().map(|g| (g.alpha, g.beta))),
@@ -517,8 +539,8 @@ fn shape_cv_ui(ui: &mut egui::Ui, p: &crate::profile::Profile) {
 
 /// The shooting plan: the lens's range (typed, or the session's), and every setting to
 /// shoot as a checklist of the shots the session has and those still missing.
-fn plan_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
-    let Some(c) = app.data.calibrated.as_ref() else {
+fn plan_ui(m: &ModelsContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+    let Some(c) = m.calibrated else {
         ui.label("Open a session to plan its shots.");
         return;
     };
@@ -540,7 +562,7 @@ fn plan_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
                 .changed();
         }
         if changed {
-            out.push(Command::SetPlanRange(r));
+            out.push(Command::View(ViewCommand::SetPlanRange(r)));
         }
     });
     let progress = crate::review::plan_progress(&c.plan);
@@ -613,11 +635,7 @@ fn plan_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
                 ui.end_row();
             }
         });
-    super::coverage::coverage_ui(
-        app.data.coverage.as_ref().map(|(_, maps)| maps.as_slice()),
-        super::sensor_size(app),
-        ui,
-    );
+    super::coverage::coverage_ui(m.coverage, m.sensor, ui);
 }
 
 /// What relative L2 is, for a photographer.

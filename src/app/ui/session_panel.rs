@@ -1,10 +1,33 @@
 //! The session panel: the shots with their settings and stage results, the buttons that
 //! run each stage, and the session's settings.
 
-use super::super::{Command, StudioApp};
+use super::super::{Command, SessionPanelState, ViewerContext};
+use super::Frame;
 use crate::app::jobs::JobKind;
-use crate::session::{Session, Shot, StageStatus};
+use crate::app::{DialogCommand, SessionCommand, StageCommand, ViewCommand};
+use crate::session::{Session, Shot, ShotId, StageStatus};
 use egui::{Color32, Sense};
+
+/// What the session panel draws from: the session, its shots' thumbnails and results,
+/// the shot selected and the settings being edited.
+pub(super) struct SessionPanelContext<'a> {
+    cx: ViewerContext<'a>,
+    state: &'a SessionPanelState,
+    selected: Option<ShotId>,
+    /// The demo session is still being made (its shots arrive one by one).
+    making_demo: bool,
+}
+
+impl<'a> SessionPanelContext<'a> {
+    pub(super) fn of(f: &Frame<'a>) -> Self {
+        Self {
+            cx: f.cx,
+            state: &f.views.session,
+            selected: f.views.shot.selected,
+            making_demo: f.jobs.is_running(JobKind::DemoSession),
+        }
+    }
+}
 
 fn status_text(s: &StageStatus) -> String {
     match s {
@@ -14,10 +37,14 @@ fn status_text(s: &StageStatus) -> String {
     }
 }
 
-pub(super) fn session_panel_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
-    let Some(session) = app.session() else {
+pub(super) fn session_panel_ui(
+    p: &SessionPanelContext<'_>,
+    out: &mut Vec<Command>,
+    ui: &mut egui::Ui,
+) {
+    let Some(session) = p.cx.session() else {
         ui.heading("Session");
-        if app.jobs.is_running(JobKind::DemoSession) {
+        if p.making_demo {
             ui.label("Making the demo session: simulated calibration shots of the virtual lens (first launch only; progress below)…");
         } else {
             ui.label("No session open. Open or create a session folder (Ctrl+O).");
@@ -28,7 +55,7 @@ pub(super) fn session_panel_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut
         .on_hover_text(format!("Session folder: {}", session.folder().display()));
     if session.is_demo {
         ui.label("Demo: shots simulated from the virtual lens, whose true blur is known.");
-        if app.jobs.is_running(JobKind::DemoSession) {
+        if p.making_demo {
             ui.label(
                 egui::RichText::new(
                     "More shots arrive as they are simulated (first launch only; progress below).",
@@ -46,7 +73,7 @@ pub(super) fn session_panel_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut
         format!("{n} shots")
     });
     for shot in &session.shots {
-        shot_entry_ui(app, session, shot, out, ui);
+        shot_entry_ui(p, session, shot, out, ui);
     }
     if n > 0 {
         ui.label(
@@ -58,7 +85,7 @@ pub(super) fn session_panel_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut
         );
     }
     ui.separator();
-    settings_ui(app, out, ui);
+    settings_ui(p, out, ui);
 }
 
 /// The buttons that run each stage over the session.
@@ -71,7 +98,7 @@ fn stage_buttons_ui(out: &mut Vec<Command>, ui: &mut egui::Ui) {
             )
             .clicked()
         {
-            out.push(Command::CalibrateAll { then_deblur: false });
+            out.push(Command::Stage(StageCommand::CalibrateAll { then_deblur: false }));
         }
         if ui
             .button("Add shots…")
@@ -80,28 +107,28 @@ fn stage_buttons_ui(out: &mut Vec<Command>, ui: &mut egui::Ui) {
             )
             .clicked()
         {
-            out.push(Command::AddShotsDialog);
+            out.push(Command::Dialog(DialogCommand::AddShotsDialog));
         }
         if ui
             .button("Detect")
             .on_hover_text("Find and align the chart's squares in every shot (Ctrl+D)")
             .clicked()
         {
-            out.push(Command::RunDetect(None));
+            out.push(Command::Stage(StageCommand::RunDetect(None)));
         }
         if ui
             .button("Kernels")
             .on_hover_text("Estimate the blur kernel at every square (Ctrl+K)")
             .clicked()
         {
-            out.push(Command::RunKernels(None));
+            out.push(Command::Stage(StageCommand::RunKernels(None)));
         }
         if ui
             .button("Calibrate")
             .on_hover_text("Cross-validate and fit the blur model; write the profile (Ctrl+M)")
             .clicked()
         {
-            out.push(Command::RunCalibrate);
+            out.push(Command::Stage(StageCommand::RunCalibrate));
         }
     });
 }
@@ -109,14 +136,14 @@ fn stage_buttons_ui(out: &mut Vec<Command>, ui: &mut egui::Ui) {
 /// One shot: its thumbnail, name, settings and stage results; a click selects it, a
 /// right-click offers its stages again and its removal.
 fn shot_entry_ui(
-    app: &StudioApp,
+    p: &SessionPanelContext<'_>,
     session: &Session,
     shot: &Shot,
     out: &mut Vec<Command>,
     ui: &mut egui::Ui,
 ) {
     let id = shot.id;
-    let selected = app.views.shot.selected == Some(id);
+    let selected = p.selected == Some(id);
     let frame = egui::Frame::group(ui.style()).fill(if selected {
         ui.visuals().selection.bg_fill.gamma_multiply(0.35)
     } else {
@@ -125,8 +152,8 @@ fn shot_entry_ui(
     let r = frame.show(ui, |ui| {
         ui.horizontal(|ui| {
             match (
-                app.preview(id).and_then(|p| p.thumbnail.as_ref()),
-                app.unreadable(id),
+                p.cx.preview(id).and_then(|v| v.thumbnail.as_ref()),
+                p.cx.unreadable(id),
             ) {
                 (Some(t), _) => {
                     let size = t.size_vec2() * (72.0 / t.size_vec2().x.max(1.0));
@@ -152,10 +179,10 @@ fn shot_entry_ui(
                 );
                 if ui
                     .selectable_label(selected, name)
-                    .on_hover_text(app.shown_path(&session.path_of(shot)))
+                    .on_hover_text(p.cx.shown_path(&session.path_of(shot)))
                     .clicked()
                 {
-                    out.push(Command::SelectShot(id));
+                    out.push(Command::View(ViewCommand::SelectShot(id)));
                 }
                 ui.horizontal(|ui| {
                     // Unknown settings show as "?" (0 internally) until the user drags.
@@ -170,11 +197,11 @@ fn shot_entry_ui(
                         ],
                     );
                     if rf.changed() || ra.changed() {
-                        out.push(Command::SetShotSetting {
+                        out.push(Command::Session(SessionCommand::SetShotSetting {
                             shot: id,
                             focal_mm: (f > 0.0).then_some(f),
                             f_number: (a > 0.0).then_some(a),
-                        });
+                        }));
                     }
                 });
                 let failed = matches!(shot.detect, StageStatus::Failed { .. })
@@ -196,12 +223,12 @@ fn shot_entry_ui(
     });
     let response = r.response.interact(Sense::click());
     if response.clicked() {
-        out.push(Command::SelectShot(id));
+        out.push(Command::View(ViewCommand::SelectShot(id)));
     }
     // Each entry says what it will do for this shot: run a stage for the first
     // time or again, or why it cannot yet.
-    let detected = app.detection(id).is_some();
-    let measured = app.kernels(id).is_some();
+    let detected = p.cx.detection(id).is_some();
+    let measured = p.cx.kernels(id).is_some();
     response.context_menu(|ui| {
         let detect = if detected {
             "Detect this shot again"
@@ -209,7 +236,7 @@ fn shot_entry_ui(
             "Detect this shot"
         };
         if ui.button(detect).clicked() {
-            out.push(Command::RunDetect(Some(id)));
+            out.push(Command::Stage(StageCommand::RunDetect(Some(id))));
             ui.close();
         }
         let kernels = if measured {
@@ -222,11 +249,13 @@ fn shot_entry_ui(
             .on_disabled_hover_text("Detect the chart in this shot first")
             .clicked()
         {
-            out.push(Command::RunKernels(Some(id)));
+            out.push(Command::Stage(StageCommand::RunKernels(Some(id))));
             ui.close();
         }
         if ui.button("Remove from the session…").clicked() {
-            out.push(Command::AskConfirm(super::super::Confirm::RemoveShot(id)));
+            out.push(Command::Dialog(DialogCommand::AskConfirm(
+                super::super::Confirm::RemoveShot(id),
+            )));
             ui.close();
         }
     });
@@ -234,8 +263,8 @@ fn shot_entry_ui(
 
 /// The chart and the stage settings, edited on a copy and applied by one button (a
 /// change of chart or kernel settings makes earlier results stale).
-fn settings_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
-    let Some(session) = app.session() else {
+fn settings_ui(p: &SessionPanelContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+    let Some(session) = p.cx.session() else {
         return;
     };
     let current = (session.chart.clone(), session.settings.clone());
@@ -243,7 +272,7 @@ fn settings_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
         .default_open(false)
         .show(ui, |ui| {
             // The draft is edited here and handed back as a command; the app keeps it.
-            let before = app.views.session.settings_edit.clone().unwrap_or_else(|| current.clone());
+            let before = p.state.settings_edit.clone().unwrap_or_else(|| current.clone());
             let mut draft = before.clone();
             let (chart, s) = (&mut draft.0, &mut draft.1);
             ui.strong("Chart");
@@ -324,20 +353,20 @@ fn settings_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
                     )
                     .clicked()
                 {
-                    out.push(Command::ApplySettings {
+                    out.push(Command::Session(SessionCommand::ApplySettings {
                         chart,
                         settings: s,
-                    });
+                    }));
                 }
                 if ui.add_enabled(changed, egui::Button::new("Revert")).clicked() {
-                    out.push(Command::EditSettings(None));
+                    out.push(Command::Session(SessionCommand::EditSettings(None)));
                 }
             });
             if draft != before {
-                out.push(Command::EditSettings(Some(draft)));
+                out.push(Command::Session(SessionCommand::EditSettings(Some(draft))));
             }
             if load_chart {
-                out.push(Command::LoadChartDialog);
+                out.push(Command::Dialog(DialogCommand::LoadChartDialog));
             }
         });
 }

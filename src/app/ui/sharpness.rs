@@ -10,6 +10,7 @@ use super::super::view_data::SharpnessData;
 use super::super::{Command, FieldSource, SharpnessChoice};
 use super::field::colour_bar_ui;
 use super::{Sliders, caption, setting_sliders_ui};
+use crate::app::{DialogCommand, ViewCommand};
 use crate::review::{Mtf50Direction, SharpnessUnit};
 use egui::{Color32, Rect, Sense, Vec2};
 
@@ -27,7 +28,7 @@ pub(super) fn sharpness_ui(
     ui.heading("Sharpness map");
     let next = choices_ui(choice, data.is_some_and(|d| d.map.is_ok()), out, ui);
     if next != choice {
-        out.push(Command::SetSharpness(next));
+        out.push(Command::View(ViewCommand::SetSharpness(next)));
     }
     if choice.source != FieldSource::Measured {
         setting_sliders_ui(sliders, out, ui);
@@ -198,7 +199,7 @@ fn choices_ui(
                 .on_hover_text(tip)
                 .clicked()
             {
-                out.push(Command::SaveSharpnessDialog { png });
+                out.push(Command::Dialog(DialogCommand::SaveSharpnessDialog { png }));
             }
         }
     });

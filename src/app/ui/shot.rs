@@ -5,9 +5,10 @@
 //! (the plane the viewer maps, the inspector's crops, kernel and truth); computes
 //! nothing.
 
-use super::super::view_data::Inspecting;
-use super::super::{Command, ShotView, StudioApp, ViewerState};
-use super::{caption, ellipse_points};
+use super::super::view_data::{Inspecting, ShotPlane};
+use super::super::{Command, ShotViewState, ViewerContext, ViewerState};
+use super::{Frame, caption, ellipse_points};
+use crate::app::ViewCommand;
 use crate::detect::{Detection, SquareStatus};
 use crate::plane::ChannelPlane;
 use crate::session::{Session, Shot, StageStatus};
@@ -38,35 +39,54 @@ impl SensorView {
 /// Width the inspector takes beside the viewer.
 const INSPECTOR_W: f32 = 270.0;
 
-pub(super) fn shot_view_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+/// What the Shot view draws from: the selection and the viewer, the shot as loaded with
+/// its detection and kernels, the plane the viewer maps and the square's inspection.
+pub(super) struct ShotContext<'a> {
+    cx: ViewerContext<'a>,
+    state: &'a ShotViewState,
+    plane: Option<&'a ShotPlane>,
+    inspection: Option<&'a Inspecting>,
+}
+
+impl<'a> ShotContext<'a> {
+    pub(super) fn of(f: &Frame<'a>) -> Self {
+        Self {
+            cx: f.cx,
+            state: &f.views.shot,
+            plane: f.data.shot_plane.as_ref(),
+            inspection: f.data.inspection.as_ref(),
+        }
+    }
+}
+
+pub(super) fn shot_view_ui(c: &ShotContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     // Zoom, pan and overlays change on a copy, handed back as one command.
-    let mut viewer = app.views.shot.viewer;
-    shot_body_ui(app, out, ui, &mut viewer);
-    if viewer != app.views.shot.viewer {
-        out.push(Command::SetViewer(viewer));
+    let mut viewer = c.state.viewer;
+    shot_body_ui(c, out, ui, &mut viewer);
+    if viewer != c.state.viewer {
+        out.push(Command::View(ViewCommand::SetViewer(viewer)));
     }
 }
 
 fn shot_body_ui(
-    app: &StudioApp,
+    c: &ShotContext<'_>,
     out: &mut Vec<Command>,
     ui: &mut egui::Ui,
     viewer: &mut ViewerState,
 ) {
-    let Some(session) = app.session() else {
+    let Some(session) = c.cx.session() else {
         ui.label("No session yet.");
         return;
     };
-    let Some(shot) = app.views.shot.selected.and_then(|id| session.shot(id)) else {
+    let Some(shot) = c.state.selected.and_then(|id| session.shot(id)) else {
         ui.label("No shots in this session: add shots (Ctrl+Shift+A) or drop files on the window.");
         return;
     };
     let index = shot.id;
-    let detected = app.detection(index).cloned();
-    shot_header_ui(app, session, shot, &detected, viewer, ui);
-    // The field alone is borrowed: the view pushes commands while it holds the preview.
-    let Some(preview) = app.shots.get(&index).and_then(ShotView::preview) else {
-        match app.unreadable(index) {
+    let detected = c.cx.detection(index).cloned();
+    shot_header_ui(c.cx, session, shot, &detected, viewer, ui);
+    let Some(preview) = c.cx.preview(index) else {
+        match c.cx.unreadable(index) {
             Some(reason) => {
                 ui.colored_label(ui.visuals().error_fg_color, reason);
             }
@@ -92,14 +112,14 @@ fn shot_body_ui(
     let Some(texture) = developed.or_else(|| {
         preview
             .textures
-            .get(&app.views.shot.channel)
+            .get(&c.state.channel)
             .or_else(|| preview.textures.values().next())
     }) else {
         ui.label("this shot has no image planes");
         return;
     };
     let cap = &preview.capture;
-    let Some(shot_plane) = app.data.shot_plane.as_ref().filter(|p| p.shot() == index) else {
+    let Some(shot_plane) = c.plane.filter(|p| p.shot() == index) else {
         ui.horizontal(|ui| {
             ui.spinner();
             ui.label("preparing the shot…");
@@ -115,7 +135,7 @@ fn shot_body_ui(
 
     // The inspector stands beside the viewer while its crops are made, so the viewer
     // keeps its size when they arrive.
-    let inspecting = match &app.data.inspection {
+    let inspecting = match c.inspection {
         Some(Inspecting::Running(k)) => k.shot == index,
         Some(Inspecting::Ready(i)) => i.shot == index,
         Some(Inspecting::Empty(_)) | None => false,
@@ -136,7 +156,7 @@ fn shot_body_ui(
             .scope_builder(egui::UiBuilder::new().max_rect(side), |ui| {
                 egui::ScrollArea::vertical()
                     .id_salt("inspector")
-                    .show(ui, |ui| inspector_ui(app, ui))
+                    .show(ui, |ui| inspector_ui(c, ui))
                     .inner
             })
             .inner;
@@ -175,19 +195,25 @@ fn shot_body_ui(
             det,
             &session.chart,
             overlay,
-            app.views.shot.square,
+            c.state.square,
             clicked,
         ) {
-            out.push(Command::SelectSquare(sq));
+            out.push(Command::View(ViewCommand::SelectSquare(sq)));
         }
     }
-    captions(app, &painter, &view, plane, response.hover_pos());
+    captions(
+        c.state.channel,
+        &painter,
+        &view,
+        plane,
+        response.hover_pos(),
+    );
 }
 
 /// The shot's name and setting, its detection's outcome and what it skipped, and the
 /// viewer's switches.
 fn shot_header_ui(
-    app: &StudioApp,
+    cx: ViewerContext<'_>,
     session: &Session,
     shot: &Shot,
     detected: &Option<Arc<Detection>>,
@@ -196,7 +222,7 @@ fn shot_header_ui(
 ) {
     let index = shot.id;
     ui.horizontal(|ui| {
-        ui.heading(app.shown_path(&session.path_of(shot)));
+        ui.heading(cx.shown_path(&session.path_of(shot)));
         match shot.setting() {
             Some(s) => ui.label(format!("{:.0} mm  f/{:.1}", s.focal_mm, s.f_number)),
             None => ui.colored_label(
@@ -231,7 +257,7 @@ fn shot_header_ui(
                 ui.colored_label(ui.visuals().warn_fg_color, format!("skipped: {text}"));
             }
         }
-        if app.preview(index).is_some_and(|p| p.developed.is_some()) {
+        if cx.preview(index).is_some_and(|p| p.developed.is_some()) {
             ui.separator();
             ui.checkbox(&mut viewer.developed, "developed")
                 .on_hover_text("The RAW as a RAW editor shows it (imagepipe: demosaic, white balance, colour, tone); off: the selected channel's linear CFA plane, which is what is measured");
@@ -304,7 +330,7 @@ fn navigate(
 
 /// The value under the pointer, and the channel, zoom and controls in the corner.
 fn captions(
-    app: &StudioApp,
+    channel: crate::plane::Channel,
     painter: &egui::Painter,
     view: &SensorView,
     plane: Option<&ChannelPlane>,
@@ -318,7 +344,7 @@ fn captions(
             cp.plane.get_checked(i.round() as i64, j.round() as i64)
         });
         let text = match v {
-            Some(v) => format!("x {x:.1}  y {y:.1}  {} {v:.4}", app.views.shot.channel),
+            Some(v) => format!("x {x:.1}  y {y:.1}  {channel} {v:.4}"),
             None => format!("x {x:.1}  y {y:.1}"),
         };
         caption(
@@ -334,7 +360,7 @@ fn captions(
         egui::Align2::RIGHT_TOP,
         format!(
             "{}  {:.0}%  (scroll: zoom, drag: pan, double-click: fit, click a square: inspect)",
-            app.views.shot.channel,
+            channel,
             view.points_per_px * 100.0
         ),
     );
@@ -386,18 +412,7 @@ fn detection_overlay(
 ) -> Option<(usize, usize)> {
     if overlay.grid {
         let stroke = Stroke::new(1.0, Color32::from_rgba_unmultiplied(0, 200, 255, 140));
-        let h = &det.global;
-        for c in 0..=chart.cols {
-            let a = h.apply([c as f64, 0.0]);
-            let b = h.apply([c as f64, chart.rows as f64]);
-            painter.line_segment(
-                [view.to_screen(a[0], a[1]), view.to_screen(b[0], b[1])],
-                stroke,
-            );
-        }
-        for r in 0..=chart.rows {
-            let a = h.apply([0.0, r as f64]);
-            let b = h.apply([chart.cols as f64, r as f64]);
+        for [a, b] in crate::review::chart_grid(det, chart) {
             painter.line_segment(
                 [view.to_screen(a[0], a[1]), view.to_screen(b[0], b[1])],
                 stroke,
@@ -438,18 +453,10 @@ fn detection_overlay(
             ));
         }
         if overlay.circles && (zoomed_in || is_selected) {
-            let h = &sq.image_from_chart;
-            for c in &chart.circle_centres {
-                let ring: Vec<Pos2> = (0..24)
-                    .map(|k| {
-                        let t = std::f64::consts::TAU * f64::from(k) / 24.0;
-                        let p = h.apply([
-                            sq.col as f64 + c[0] + chart.circle_radius * t.cos(),
-                            sq.row as f64 + c[1] + chart.circle_radius * t.sin(),
-                        ]);
-                        view.to_screen(p[0], p[1])
-                    })
-                    .collect();
+            for ring in
+                crate::review::square_circles(&sq.image_from_chart, (sq.row, sq.col), chart, 24)
+            {
+                let ring: Vec<Pos2> = ring.iter().map(|p| view.to_screen(p[0], p[1])).collect();
                 painter.add(egui::Shape::closed_line(
                     ring,
                     Stroke::new(1.0, Color32::from_rgb(80, 170, 255)),
@@ -460,7 +467,7 @@ fn detection_overlay(
             }
         }
         if let Some([x, y]) = clicked
-            && point_in_quad([f64::from(x), f64::from(y)], &sq.corners)
+            && crate::review::point_in_quad([f64::from(x), f64::from(y)], &sq.corners)
         {
             hit = Some((sq.row, sq.col));
         }
@@ -468,27 +475,11 @@ fn detection_overlay(
     hit
 }
 
-fn point_in_quad(p: [f64; 2], q: &[[f64; 2]; 4]) -> bool {
-    let mut sign = 0.0;
-    for k in 0..4 {
-        let a = q[k];
-        let b = q[(k + 1) % 4];
-        let cross = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]);
-        if cross != 0.0 {
-            if sign != 0.0 && cross.signum() != sign {
-                return false;
-            }
-            sign = cross.signum();
-        }
-    }
-    true
-}
-
 /// The clicked square: observed pixels, the synthetic square the alignment matched, and
 /// their difference; its measured 3× kernel with the fitted Gaussian's ellipse; the
 /// numbers behind them.
-fn inspector_ui(app: &StudioApp, ui: &mut egui::Ui) -> Option<Command> {
-    let ins = match app.data.inspection.as_ref()? {
+fn inspector_ui(c: &ShotContext<'_>, ui: &mut egui::Ui) -> Option<Command> {
+    let ins = match c.inspection? {
         Inspecting::Ready(ins) => ins,
         Inspecting::Running(key) => {
             let mut out = None;
@@ -500,7 +491,7 @@ fn inspector_ui(app: &StudioApp, ui: &mut egui::Ui) -> Option<Command> {
                     .on_hover_text("Close the inspector")
                     .clicked()
                 {
-                    out = Some(Command::ClearSquare);
+                    out = Some(Command::View(ViewCommand::ClearSquare));
                 }
             });
             ui.horizontal(|ui| {
@@ -520,7 +511,7 @@ fn inspector_ui(app: &StudioApp, ui: &mut egui::Ui) -> Option<Command> {
             .on_hover_text("Close the inspector")
             .clicked()
         {
-            out = Some(Command::ClearSquare);
+            out = Some(Command::View(ViewCommand::ClearSquare));
         }
     });
     if let Some(f) = &ins.facts {
@@ -553,13 +544,13 @@ fn inspector_ui(app: &StudioApp, ui: &mut egui::Ui) -> Option<Command> {
     });
     ui.label(egui::RichText::new("residual: grey = 0, ±25 % of the square's contrast").small());
     ui.separator();
-    let sample = app.kernels(ins.shot).and_then(|file| {
+    let sample = c.cx.kernels(ins.shot).and_then(|file| {
         file.samples
             .iter()
             .find(|s| s.channel == ins.channel && s.row == Some(row) && s.col == Some(col))
             .map(|s| (s, file.oversample))
     });
-    let failed = app.kernels(ins.shot).and_then(|file| {
+    let failed = c.cx.kernels(ins.shot).and_then(|file| {
         file.failed
             .iter()
             .find(|s| s.channel == ins.channel && (s.row, s.col) == (row, col))

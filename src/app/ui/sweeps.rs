@@ -8,12 +8,13 @@
 //! Plots the series `view_data` made for the sliders' setting; computes nothing.
 
 use super::super::view_data::{
-    SWEEP_LOCATIONS, SweepKind, SweepSeries, sweep_params, sweep_series, sweep_x_label,
-    sweep_y_label,
+    Calibrated, SWEEP_LOCATIONS, SweepData, SweepKind, SweepSeries, sweep_params, sweep_series,
+    sweep_x_label, sweep_y_label,
 };
-use super::super::{Command, PlotId, StudioApp, SweepAxis};
-use super::{Sliders, TIP_COR, TIP_CXX, TIP_CYY, setting_sliders_ui};
-use crate::simulate::VirtualLens;
+use super::super::{Command, PlotId, SweepAxis, SweepsViewState};
+use super::{Frame, Sliders, TIP_COR, TIP_CXX, TIP_CYY, setting_sliders_ui};
+use crate::app::ViewCommand;
+use crate::plane::Channel;
 use egui::Color32;
 
 const TIP_MTF50: &str = "MTF50 in line pairs per picture height (lp/ph: cycles per sensor pixel times the sensor's height in pixels, as the Sharpness view maps it), from the Gaussian: the frequency at which its contrast falls to one half, √(ln 2 / (2π² uᵀCu)) along a direction u. The Gaussian is the pixel-level PSF, so the pixel's aperture is in it; sampling and demosaicing are not.";
@@ -27,17 +28,43 @@ const LOCATION_COLORS: [Color32; 5] = [
     Color32::from_rgb(200, 120, 230),
 ];
 
-pub(super) fn sweeps_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::Ui) {
+/// What the Sweeps view draws from.
+pub(super) struct SweepsContext<'a> {
+    state: &'a SweepsViewState,
+    data: Option<&'a SweepData>,
+    calibrated: Option<&'a Calibrated>,
+    sliders: Sliders<'a>,
+    channel: Channel,
+    is_demo: bool,
+    has_dataset: bool,
+    has_profile: bool,
+}
+
+impl<'a> SweepsContext<'a> {
+    pub(super) fn of(f: &Frame<'a>) -> Self {
+        Self {
+            state: &f.views.sweeps,
+            data: f.data.sweeps.as_ref(),
+            calibrated: f.data.calibrated.as_ref(),
+            sliders: Sliders::of(f),
+            channel: f.views.shot.channel,
+            is_demo: f.cx.is_demo(),
+            has_dataset: f.cx.dataset().is_some(),
+            has_profile: f.cx.profile().is_some(),
+        }
+    }
+}
+
+pub(super) fn sweeps_ui(cx: &SweepsContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
     use egui_plot::Plot;
     ui.heading("Sweeps");
-    let is_demo = app.session().is_some_and(|s| s.is_demo);
-    let lens = VirtualLens::demo();
-    if app.dataset().is_none() && app.profile().is_none() && !is_demo {
+    let is_demo = cx.is_demo;
+    if !cx.has_dataset && !cx.has_profile && !is_demo {
         ui.label("Measured points appear here after Kernels (Ctrl+K); model curves after Calibrate (Ctrl+M).");
         return;
     }
-    setting_sliders_ui(&Sliders::of(app, &lens), out, ui);
-    super::models::advice_ui(app.data.calibrated.as_ref(), ui);
+    setting_sliders_ui(&cx.sliders, out, ui);
+    super::models::advice_ui(cx.calibrated, ui);
     // One colour per location across the six plots, named once here rather than in six
     // legends that would cover the curves; the glyphs say which series is which.
     ui.horizontal_wrapped(|ui| {
@@ -52,20 +79,20 @@ pub(super) fn sweeps_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::
         } else {
             "Dots: measured at the square nearest each location. Solid: the profile's model at that square. Dotted verticals: settings with shots."
         });
-        if app.dataset().is_none() {
+        if !cx.has_dataset {
             ui.weak("No measured points yet: run Kernels (Ctrl+K).");
-        } else if app.profile().is_none() {
+        } else if !cx.has_profile {
             ui.weak("No model yet: run Calibrate (Ctrl+M).");
         }
     });
-    let Some(data) = &app.data.sweeps else {
+    let Some(data) = cx.data else {
         ui.horizontal(|ui| {
             ui.spinner();
             ui.label("preparing the sweeps…");
         });
         return;
     };
-    let ch = app.views.shot.channel;
+    let ch = cx.channel;
     let (fixed_f, fixed_a) = (data.fixed_f, data.fixed_a);
     ui.horizontal(|ui| {
         ui.label("Plot:");
@@ -78,16 +105,16 @@ pub(super) fn sweeps_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::
             ),
         ] {
             if ui
-                .selectable_label(app.views.sweeps.axis == axis, label)
+                .selectable_label(cx.state.axis == axis, label)
                 .on_hover_text(tip)
                 .clicked()
             {
-                out.push(Command::SetSweepAxis(axis));
+                out.push(Command::View(ViewCommand::SetSweepAxis(axis)));
             }
         }
     });
-    let params = sweep_params(app.views.sweeps.axis);
-    let tips = match app.views.sweeps.axis {
+    let params = sweep_params(cx.state.axis);
+    let tips = match cx.state.axis {
         SweepAxis::Sigma => [TIP_CXX, TIP_CYY, TIP_COR],
         SweepAxis::Mtf50 => [TIP_MTF50; 3],
     };
@@ -95,10 +122,8 @@ pub(super) fn sweeps_ui(app: &StudioApp, out: &mut Vec<Command>, ui: &mut egui::
 
     // Vertical lines at the settings with shots: the model is measured there and
     // interpolates between them.
-    let (shot_f, shot_a) = app
-        .data
+    let (shot_f, shot_a) = cx
         .calibrated
-        .as_ref()
         .map(|c| (c.focal_mm.clone(), c.f_number.clone()))
         .unwrap_or_default();
     let avail = ui.available_size();

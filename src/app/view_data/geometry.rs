@@ -5,6 +5,7 @@
 //! arrows, the fall-off map's texture and colour scale, and the fits' numbers.
 
 use super::{ColourScale, Same, StudioApp};
+use crate::app::GeometryOutput;
 use crate::app::JobOutput;
 use crate::app::jobs::{JobKind, JobScope};
 use crate::chart::ChartSpec;
@@ -143,7 +144,10 @@ fn spawn_measure(app: &mut StudioApp, key: MeasureKey) -> GeometryMeasure {
                 crate::correction::measure(&geometry_shots, &chart, CorrectionOptions::default())
                     .map(Arc::new)
                     .map_err(|e| e.to_string());
-            out.emit(JobOutput::GeometryMeasured { request, result });
+            out.emit(JobOutput::Geometry(GeometryOutput::GeometryMeasured {
+                request,
+                result,
+            }));
             Ok(())
         },
     );
