@@ -149,6 +149,47 @@ pub fn plan_progress(plan: &[PlannedSetting]) -> PlanProgress {
     }
 }
 
+/// A shooting plan laid out as a table: its focal lengths (rows) and f-numbers
+/// (columns), each ascending and once, and at each row and column the planned setting
+/// there, if any.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlanGrid {
+    pub focals: Vec<f64>,
+    pub apertures: Vec<f64>,
+    pub cells: Vec<Vec<Option<PlannedSetting>>>,
+}
+
+/// Lays `plan` out as a [`PlanGrid`].
+#[must_use]
+pub fn plan_grid(plan: &[PlannedSetting]) -> PlanGrid {
+    let axis = |value: fn(&PlannedSetting) -> f64| {
+        let mut v: Vec<f64> = plan.iter().map(value).collect();
+        v.sort_by(f64::total_cmp);
+        v.dedup();
+        v
+    };
+    let focals = axis(|p| p.setting.focal_mm);
+    let apertures = axis(|p| p.setting.f_number);
+    let cells = focals
+        .iter()
+        .map(|&f| {
+            apertures
+                .iter()
+                .map(|&a| {
+                    plan.iter()
+                        .find(|p| p.setting.focal_mm == f && p.setting.f_number == a)
+                        .copied()
+                })
+                .collect()
+        })
+        .collect();
+    PlanGrid {
+        focals,
+        apertures,
+        cells,
+    }
+}
+
 /// Shots wanted at each planned setting: two, so cross-validation can hold one out
 /// and still have the setting.
 pub const SHOTS_PER_SETTING: usize = 2;

@@ -35,8 +35,8 @@ pub mod sharpness;
 pub mod sweeps;
 
 pub use advice::{
-    AdviceLevel, LensRange, PlanProgress, PlannedSetting, SHOTS_PER_SETTING, ShootingAdvice,
-    plan_progress, shooting_advice, shooting_plan,
+    AdviceLevel, LensRange, PlanGrid, PlanProgress, PlannedSetting, SHOTS_PER_SETTING,
+    ShootingAdvice, plan_grid, plan_progress, shooting_advice, shooting_plan,
 };
 pub use coverage::{
     COVERAGE_CELLS, COVERAGE_PARTS, PART_COVERED, SettingCoverage, coverage, coverage_of_dataset,
@@ -62,7 +62,8 @@ pub use lens_geometry::{
 };
 pub use overlay::{chart_grid, point_in_quad, square_circles};
 pub use plot::{
-    aperture_stops, cv_cdf_curves, cv_curve, f_number_at_stops, f_number_label, nice_ticks,
+    CvCurveAxis, aperture_stops, cv_cdf_axis_end, cv_cdf_curves, cv_curve, cv_curve_axis,
+    f_number_at_stops, f_number_label, nice_ticks,
 };
 pub use sharpness::{MapSummary, Mtf50Direction, SharpnessMap, SharpnessUnit, map_grid};
 pub use sweeps::{

@@ -1,5 +1,5 @@
-//! Plot helpers: cross-validation curves as points, and round tick values for a colour
-//! bar.
+//! Plot helpers: cross-validation curves as points and their axes' extents, and round
+//! tick values for a colour bar.
 
 /// A cross-validation curve's points: mean error against α, or against β.
 #[must_use]
@@ -30,6 +30,64 @@ pub fn cv_cdf_curves(sel: &crate::crossval::Selection) -> [(&'static str, Vec<[f
         ("C_yy", curve(&cdf.cyy)),
         ("C_or", curve(&cdf.cor)),
     ]
+}
+
+/// The mean-error axis of the cross-validation curves (by α or β) of `sels`: its top,
+/// and whether some point lies above it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CvCurveAxis {
+    pub top: f64,
+    pub points_above: bool,
+}
+
+/// High orders overfit wildly (hundreds of %): the axis stops at four times the best
+/// mean error (taken as at least 0.25 %) so the minimum stays readable, 5 % above the
+/// highest point below that. With no points, 0–1.
+#[must_use]
+pub fn cv_curve_axis<'a>(
+    sels: impl IntoIterator<Item = &'a crate::crossval::Selection>,
+    by_alpha: bool,
+) -> CvCurveAxis {
+    let values: Vec<f64> = sels
+        .into_iter()
+        .flat_map(|sel| {
+            if by_alpha {
+                &sel.alpha_curve
+            } else {
+                &sel.beta_curve
+            }
+            .iter()
+            .map(|p| p.mean_pct)
+        })
+        .collect();
+    let lo = values.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = values.iter().copied().fold(0.0, f64::max);
+    let top = if lo.is_finite() {
+        hi.min(4.0 * lo.max(0.25)) * 1.05
+    } else {
+        1.0
+    };
+    CvCurveAxis {
+        top,
+        points_above: values.iter().any(|&v| v > top),
+    }
+}
+
+/// The end of the error CDF plot's error axis over `sels`: 2 % past the largest 99th
+/// percentile of any parameter (the worst few samples would stretch the axis until the
+/// curves are a wall at zero); a small positive end when there is none.
+#[must_use]
+pub fn cv_cdf_axis_end<'a>(sels: impl IntoIterator<Item = &'a crate::crossval::Selection>) -> f64 {
+    sels.into_iter()
+        .flat_map(|sel| {
+            let c = &sel.error_cdf;
+            let at99 = c.percentiles.iter().position(|&p| p >= 99.0);
+            [&c.cxx, &c.cyy, &c.cor]
+                .into_iter()
+                .filter_map(move |q| q.get(at99?).copied())
+        })
+        .fold(1e-6, f64::max)
+        * 1.02
 }
 
 /// Round tick values (1, 2 or 5 × 10ⁿ apart) inside `range`, about `n` of them: a

@@ -527,3 +527,117 @@ fn an_aperture_axis_is_in_stops_and_labelled_as_lenses_mark_it() {
         "between thirds: the exact value"
     );
 }
+
+/// The shooting plan's table: rows and columns ascending and once whatever the plan's
+/// order, each cell the setting at its row and column, the setting off the grid in a
+/// column of its own.
+#[test]
+fn the_plan_grid_lays_every_setting_at_its_row_and_column() {
+    let zoom = LensRange {
+        focal_mm: [24.0, 105.0],
+        f_number: [4.0, 22.0],
+    };
+    let shots = [
+        LensSetting {
+            focal_mm: 24.0,
+            f_number: 4.0,
+        },
+        LensSetting {
+            focal_mm: 105.0,
+            f_number: 16.0,
+        },
+    ];
+    let mut plan = shooting_plan(&zoom, &shots);
+    plan.reverse();
+    let grid = plan_grid(&plan);
+    assert_eq!(grid.focals, vec![24.0, 35.0, 50.0, 73.0, 105.0]);
+    assert_eq!(grid.apertures, vec![4.0, 5.6, 8.0, 11.0, 16.0]);
+    assert_eq!(grid.cells.len(), grid.focals.len());
+    let mut filled = 0;
+    for (f, row) in grid.focals.iter().zip(&grid.cells) {
+        assert_eq!(row.len(), grid.apertures.len());
+        for (a, cell) in grid.apertures.iter().zip(row) {
+            if let Some(p) = cell {
+                assert_eq!((p.setting.focal_mm, p.setting.f_number), (*f, *a));
+                filled += 1;
+            }
+        }
+    }
+    assert_eq!(filled, plan.len());
+    assert_eq!(grid.cells[0][0].map(|p| p.shot), Some(1));
+    assert!(
+        grid.cells[0][4].is_none(),
+        "f/16 is planned at no focal length"
+    );
+    let off = grid.cells[4][4].expect("the setting shot off the grid");
+    assert!(!off.on_plan);
+    assert_eq!(off.shot, 1);
+    assert_eq!(
+        plan_grid(&[]),
+        PlanGrid {
+            focals: vec![],
+            apertures: vec![],
+            cells: vec![],
+        }
+    );
+}
+
+/// A selection whose α and β curves have these mean errors and whose error CDF puts
+/// each parameter's 99th percentile at `p99` (and its maximum far beyond).
+fn selection(alpha: &[f64], beta: &[f64], p99: [f64; 3]) -> crate::crossval::Selection {
+    let point = |mean_pct: f64| crate::crossval::CvPoint {
+        alpha: 1,
+        beta: 1,
+        terms: 1,
+        mean_error_pct: [mean_pct; 3],
+        p95_error_pct: [mean_pct; 3],
+        mean_pct,
+    };
+    let quantiles = |at99: f64| vec![0.0, at99 / 2.0, at99, 100.0 * at99];
+    crate::crossval::Selection {
+        kind: crate::model::ModelKind::Global,
+        alpha_curve: alpha.iter().copied().map(point).collect(),
+        beta_curve: beta.iter().copied().map(point).collect(),
+        alpha: 1,
+        beta: 1,
+        chosen: point(alpha.first().copied().unwrap_or(0.0)),
+        error_cdf: crate::crossval::ErrorCdf {
+            percentiles: vec![0.0, 50.0, 99.0, 100.0],
+            cxx: quantiles(p99[0]),
+            cyy: quantiles(p99[1]),
+            cor: quantiles(p99[2]),
+        },
+    }
+}
+
+/// The order plots' error axis stops at four times the best error over every family
+/// (an overfitted order's hundreds of % above it, noted), or just above the highest
+/// point when all lie below that; the CDF's error axis ends just past the largest 99th
+/// percentile, not at the worst sample.
+#[test]
+fn cross_validation_axes_keep_the_minimum_and_the_bulk_readable() {
+    let a = selection(&[3.0, 1.5, 2.0, 300.0], &[2.0, 1.6], [4.0, 5.0, 2.0]);
+    let b = selection(&[2.0, 2.5], &[1.8, 2.2], [6.0, 1.0, 1.0]);
+    let by_alpha = cv_curve_axis([&a, &b], true);
+    assert!(
+        (by_alpha.top - 4.0 * 1.5 * 1.05).abs() < 1e-12,
+        "{by_alpha:?}"
+    );
+    assert!(by_alpha.points_above);
+    let by_beta = cv_curve_axis([&a, &b], false);
+    assert!((by_beta.top - 2.2 * 1.05).abs() < 1e-12, "{by_beta:?}");
+    assert!(!by_beta.points_above);
+    // A near-perfect fit does not shrink the axis below 1 % (4 × 0.25 %).
+    let tiny = selection(&[0.01, 5.0], &[], [1.0; 3]);
+    assert!((cv_curve_axis([&tiny], true).top - 1.05).abs() < 1e-12);
+    let none = cv_curve_axis(std::iter::empty(), true);
+    assert_eq!(
+        none,
+        CvCurveAxis {
+            top: 1.0,
+            points_above: false
+        }
+    );
+    assert!((cv_cdf_axis_end([&a, &b]) - 6.0 * 1.02).abs() < 1e-12);
+    assert!(cv_cdf_axis_end(std::iter::empty()) > 0.0);
+}

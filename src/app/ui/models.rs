@@ -220,40 +220,9 @@ fn cv_order_plot_ui(
             String::new()
         }
     };
-    // High orders overfit wildly (hundreds of %); the axis stops at four times the best
-    // error so the minimum stays readable (what lies above is noted in the title).
-    let y_top = |by_alpha: bool| {
-        let values: Vec<f64> = families
-            .iter()
-            .flat_map(|(_, sel)| {
-                if by_alpha {
-                    &sel.alpha_curve
-                } else {
-                    &sel.beta_curve
-                }
-                .iter()
-                .map(|p| p.mean_pct)
-            })
-            .collect();
-        let lo = values.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = values.iter().copied().fold(0.0, f64::max);
-        if lo.is_finite() {
-            hi.min(4.0 * lo.max(0.25)) * 1.05
-        } else {
-            1.0
-        }
-    };
+    let axis = crate::review::cv_curve_axis(families.iter().map(|(_, sel)| *sel), by_alpha);
     ui.vertical(|ui| {
-        let off_plot = families.iter().any(|(_, sel)| {
-            if by_alpha {
-                &sel.alpha_curve
-            } else {
-                &sel.beta_curve
-            }
-            .iter()
-            .any(|p| p.mean_pct > y_top(by_alpha))
-        });
-        let title = if off_plot {
+        let title = if axis.points_above {
             format!("{title}; higher errors above the plot")
         } else {
             title.to_owned()
@@ -278,7 +247,7 @@ fn cv_order_plot_ui(
             ])
             .custom_y_axes(vec![super::y_axis("mean error (% of range)")])
             .x_grid_spacer(egui_plot::uniform_grid_spacer(|_| [1.0, 5.0, 10.0]))
-            .default_y_bounds(0.0, y_top(by_alpha))
+            .default_y_bounds(0.0, axis.top)
             .legend(Legend::default().position(Corner::RightTop))
             .allow_scroll(false);
         super::show_plot(ui, id, plot, |plot| {
@@ -341,24 +310,13 @@ fn cv_cdf_plot_ui(
             plot_w,
         );
         cdf_legend_ui(ui, families, plot_w);
-        // The worst few samples would stretch the axis until the curves are a wall
-        // at zero: show up to the 99th percentile.
-        let x_max = families
-            .iter()
-            .flat_map(|(_, sel)| {
-                let c = &sel.error_cdf;
-                let at99 = c.percentiles.iter().position(|&p| p >= 99.0);
-                [&c.cxx, &c.cyy, &c.cor]
-                    .into_iter()
-                    .filter_map(move |q| q.get(at99?).copied())
-            })
-            .fold(1e-6, f64::max);
+        let x_end = crate::review::cv_cdf_axis_end(families.iter().map(|(_, sel)| *sel));
         let plot = Plot::new(format!("cv-cdf-{report_id}"))
             .width(plot_w)
             .height(plot_h - CDF_LEGEND_H)
             .custom_x_axes(vec![super::x_axis("error (% of range)")])
             .custom_y_axes(vec![super::y_axis("held-out samples (%)")])
-            .default_x_bounds(0.0, x_max * 1.02)
+            .default_x_bounds(0.0, x_end)
             .default_y_bounds(0.0, 101.0)
             .allow_scroll(false);
         super::show_plot(ui, PlotId::CvCdf, plot, |plot| {
@@ -580,29 +538,20 @@ fn plan_ui(m: &ModelsContext<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
         crate::review::SHOTS_PER_SETTING
     ))
     .on_hover_text("A setting counts once it has a shot; a second shot there lets cross-validation hold one out and still fit the setting. Settings off the plan's grid count too: the model is fitted to every shot.");
-    let mut focals: Vec<f64> = c.plan.iter().map(|p| p.setting.focal_mm).collect();
-    focals.sort_by(f64::total_cmp);
-    focals.dedup();
-    let mut apertures: Vec<f64> = c.plan.iter().map(|p| p.setting.f_number).collect();
-    apertures.sort_by(f64::total_cmp);
-    apertures.dedup();
+    let grid = crate::review::plan_grid(&c.plan);
     let (ok, missing) = (ui.visuals().text_color(), ui.visuals().warn_fg_color);
     egui::Grid::new("shooting plan grid")
         .striped(true)
         .show(ui, |ui| {
             ui.label("");
-            for a in &apertures {
+            for a in &grid.apertures {
                 ui.strong(format!("f/{a:.1}"));
             }
             ui.end_row();
-            for f in &focals {
+            for (f, row) in grid.focals.iter().zip(&grid.cells) {
                 ui.strong(format!("{f:.0} mm"));
-                for a in &apertures {
-                    match c
-                        .plan
-                        .iter()
-                        .find(|p| p.setting.focal_mm == *f && p.setting.f_number == *a)
-                    {
+                for cell in row {
+                    match cell {
                         Some(p) => {
                             let colour = if p.shot >= p.wanted { ok } else { missing };
                             let text = match p.shot {
