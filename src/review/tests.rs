@@ -375,31 +375,29 @@ fn difference_maps_pair_points_and_ranges_are_symmetric() {
     assert_eq!(nice_ticks([0.93, 3.1], 5), vec![1.0, 1.5, 2.0, 2.5, 3.0]);
 }
 
-#[test]
-fn the_shooting_plan_spans_the_lens_and_ticks_what_was_shot() {
-    let zoom = LensRange {
+/// A setting, as the plan's tests write many.
+fn setting(focal_mm: f64, f_number: f64) -> LensSetting {
+    LensSetting { focal_mm, f_number }
+}
+
+/// A 24–105 mm zoom stopping down from f/4 to f/22.
+fn zoom_24_105() -> LensRange {
+    LensRange {
         focal_mm: [24.0, 105.0],
         f_number: [4.0, 22.0],
-    };
+    }
+}
+
+#[test]
+fn the_shooting_plan_spans_the_lens_and_ticks_what_was_shot() {
+    let zoom = zoom_24_105();
     let shots = [
-        LensSetting {
-            focal_mm: 24.0,
-            f_number: 4.0,
-        },
-        LensSetting {
-            focal_mm: 24.0,
-            f_number: 4.0,
-        },
+        setting(24.0, 4.0),
+        setting(24.0, 4.0),
         // Cameras round: 49 mm and f/5.7 are the plan's 50 mm and f/5.6.
-        LensSetting {
-            focal_mm: 49.0,
-            f_number: 5.7,
-        },
+        setting(49.0, 5.7),
         // Not in the plan: f/16 is past f/11.
-        LensSetting {
-            focal_mm: 105.0,
-            f_number: 16.0,
-        },
+        setting(105.0, 16.0),
     ];
     let all = shooting_plan(&zoom, &shots);
     // The setting off the grid is listed, and counts as shot.
@@ -533,20 +531,8 @@ fn an_aperture_axis_is_in_stops_and_labelled_as_lenses_mark_it() {
 /// column of its own.
 #[test]
 fn the_plan_grid_lays_every_setting_at_its_row_and_column() {
-    let zoom = LensRange {
-        focal_mm: [24.0, 105.0],
-        f_number: [4.0, 22.0],
-    };
-    let shots = [
-        LensSetting {
-            focal_mm: 24.0,
-            f_number: 4.0,
-        },
-        LensSetting {
-            focal_mm: 105.0,
-            f_number: 16.0,
-        },
-    ];
+    let zoom = zoom_24_105();
+    let shots = [setting(24.0, 4.0), setting(105.0, 16.0)];
     let mut plan = shooting_plan(&zoom, &shots);
     plan.reverse();
     let grid = plan_grid(&plan);
