@@ -8,8 +8,7 @@ use super::common::{load_chart, write_atomic, write_json};
 use anyhow::{Context, Result, bail};
 use lensblur::correction::lensfun::{NameOverrides, checked_entry};
 use lensblur::correction::{
-    CorrectionOptions, DistortionModel, GeometryShot, LensCorrection, LensfunNames, TcaModel,
-    measure,
+    CorrectionError, CorrectionOptions, DistortionModel, LensCorrection, LensfunNames, TcaModel,
 };
 use lensblur::project::{MeasurePlan, Stages};
 use std::path::PathBuf;
@@ -116,7 +115,7 @@ pub fn run(args: Args) -> Result<()> {
         require_setting: true,
         ..MeasurePlan::missing(Stages::Detect)
     };
-    let project = measure_project(
+    let mut project = measure_project(
         &args.manifest,
         "lensblur lensfun",
         chart,
@@ -125,28 +124,10 @@ pub fn run(args: Args) -> Result<()> {
         args.strict,
         None,
     )?;
-    let chart = project.session().chart.clone();
-    let mut shots = Vec::new();
-    let mut names = Vec::new();
-    let mut first_file = None;
-    for s in project.shots() {
-        let (Some(setting), Some(detection)) = (s.shot.setting(), s.state.detection.as_ref())
-        else {
-            continue;
-        };
-        first_file.get_or_insert_with(|| project.folder().join(&s.shot.path));
-        names.push(s.shot.name());
-        shots.push((setting, detection.clone()));
-    }
-    let geometry_shots: Vec<GeometryShot<'_>> = shots
-        .iter()
-        .zip(&names)
-        .map(|((setting, detection), name)| GeometryShot {
-            name,
-            setting: *setting,
-            detection,
-        })
-        .collect();
+    let first_file = project
+        .shots()
+        .find(|s| s.shot.setting().is_some() && s.state.detection.is_some())
+        .map(|s| project.folder().join(&s.shot.path));
     let options = CorrectionOptions {
         distortion_model: args.distortion_model.map(|m| match m {
             DistortionArg::Poly3 => DistortionModel::Poly3,
@@ -158,7 +139,11 @@ pub fn run(args: Args) -> Result<()> {
             TcaArg::Poly3 => TcaModel::Poly3,
         }),
     };
-    let correction = measure(&geometry_shots, &chart, options)?;
+    let job = project
+        .geometry_job()
+        .ok_or(CorrectionError::NoShots)?
+        .with_options(options);
+    let correction = job.measure()?;
     print_summary(&correction);
     let Some(first_file) = first_file else {
         bail!("no shot has a detected chart");
@@ -179,7 +164,7 @@ pub fn run(args: Args) -> Result<()> {
     let provenance = format!(
         "written by lensblur {} from {} shots of {} ({} × {} px); distortion {}, lateral colour {}",
         env!("CARGO_PKG_VERSION"),
-        geometry_shots.len(),
+        job.shots(),
         args.manifest.display(),
         correction.width,
         correction.height,

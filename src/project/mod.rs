@@ -12,6 +12,9 @@
 //! survey, or by the first job that needs a shot added after it; the [`ShotFile`] is then
 //! handed on, and the cache is never looked up again for what the survey found.
 //!
+//! Made of the shots: the measured Gaussians and the profile ([`Results`]), and the
+//! lens's geometry, measured from the detections once per set of them (`geometry`).
+//!
 //! `session.json` is written off the caller's thread: [`Project::save`] hands a copy to
 //! the project's writer thread, which writes the newest copy it has (atomically and
 //! durably, see [`crate::io`]); [`Project::flush`] waits for it.
@@ -34,9 +37,12 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+mod geometry;
 mod jobs;
 mod saver;
 
+use geometry::GeometryStage;
+pub use geometry::{GeometryJob, GeometryKey, GeometryStatus, MeasuredGeometry};
 pub use jobs::{
     CalibrateAllJob, Calibration, CalibrationJob, DatasetJob, MeasureJob, Survey, SurveyJob,
 };
@@ -241,6 +247,8 @@ pub struct Project {
     persistent: bool,
     saver: Saver,
     results: Results,
+    /// The lens's geometry, measured from the detections (`geometry`).
+    geometry: GeometryStage,
     // Dropped last: the writer finishes before the folder is let go.
     lock: Option<FolderLock>,
 }
@@ -336,6 +344,7 @@ impl Project {
             persistent: true,
             saver: Saver::start(),
             results: Results::default(),
+            geometry: GeometryStage::default(),
             lock,
         }
     }
