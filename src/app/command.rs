@@ -200,7 +200,7 @@ pub enum PlotCommand {
 /// The lens's geometry: its lensfun export.
 #[derive(Clone, Debug, PartialEq)]
 pub enum GeometryCommand {
-    /// Writes the lensfun entry (XML) of the Geometry view's measurement, on a job.
+    /// Writes the lensfun entry (XML) of the project's measured geometry, on a job.
     ExportLensfun(PathBuf),
 }
 
@@ -229,7 +229,7 @@ pub enum DialogCommand {
     SaveSharpnessDialog {
         png: bool,
     },
-    /// Asks where to write the lens's lensfun entry (the Geometry view's measurement).
+    /// Asks where to write the lens's lensfun entry (the project's measured geometry).
     ExportLensfunDialog,
     OpenSessionDialog,
     /// Asks the user before doing something that loses work.
@@ -371,12 +371,9 @@ pub enum DeblurOutput {
 
 /// The lens's geometry measured, and its lensfun entry written.
 pub enum GeometryOutput {
-    /// The lens's geometry measured from the session's detections (the Geometry
-    /// view's), for the request it answers.
-    GeometryMeasured {
-        request: u64,
-        result: Result<Arc<crate::correction::LensCorrection>, String>,
-    },
+    /// The lens's geometry measured from the session's detections, with what it was
+    /// measured from (the project keeps it where that is still what it holds).
+    GeometryMeasured(Box<crate::project::MeasuredGeometry>),
     /// A lensfun entry written: where, and the lens and camera it is for.
     LensfunExported { path: PathBuf, lens: String },
 }

@@ -429,6 +429,7 @@ impl StudioApp {
             logic::apply(self, c);
         }
         logic::ensure_preview(self);
+        logic::follow_up(self);
         view_data::refresh(self);
         logic::autorun_step(self);
         logic::expire_notices(self);

@@ -246,9 +246,9 @@ fn save_sharpness_dialog(app: &mut StudioApp, png: bool) {
 
 /// Where to write the lens's lensfun entry: a file for `~/.local/share/lensfun/`.
 fn export_lensfun_dialog(app: &mut StudioApp) {
-    if crate::app::view_data::measured_geometry(app).is_none() {
+    if super::geometry::measured_geometry(app).is_none() {
         app.error(
-            "nothing to export yet: the Geometry view needs the chart detected in shots at known settings (Detect, Ctrl+D)",
+            "nothing to export yet: the lens's geometry is measured from the chart detected in shots at known settings (Detect, Ctrl+D)",
         );
         return;
     }

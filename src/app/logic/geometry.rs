@@ -1,10 +1,11 @@
-//! The Geometry view's results: the lens's measured geometry as its job hands it back,
-//! and the lensfun entry written from it on a job of its own (the shot's EXIF is read
-//! there; the names and the checks are the core's, as `lensblur lensfun` makes them).
+//! The lens's geometry: measured from the project's detections on a job of low
+//! priority, recorded in the project as it comes back, and the lensfun entry written
+//! from it on a job of its own (the shot's EXIF is read there; the names and the checks
+//! are the core's, as `lensblur lensfun` makes them).
 
 use crate::app::jobs::{JobKind, JobScope};
 use crate::app::{GeometryCommand, GeometryOutput};
-use crate::app::{JobOutput, StudioApp, view_data};
+use crate::app::{JobOutput, StudioApp};
 use crate::correction::lensfun::{NameOverrides, checked_entry};
 use crate::correction::{LensCorrection, LensfunNames};
 use std::path::PathBuf;
@@ -18,8 +19,10 @@ pub(super) fn apply_geometry(app: &mut StudioApp, command: GeometryCommand) {
 
 pub(super) fn geometry_output(app: &mut StudioApp, output: GeometryOutput) {
     match output {
-        GeometryOutput::GeometryMeasured { request, result } => {
-            view_data::geometry_measured(app, request, result);
+        GeometryOutput::GeometryMeasured(measured) => {
+            if let Some(p) = app.project.as_mut() {
+                p.record_geometry(*measured);
+            }
         }
         GeometryOutput::LensfunExported { path, lens } => {
             let shown = app.shown_path(&path);
@@ -27,6 +30,39 @@ pub(super) fn geometry_output(app: &mut StudioApp, output: GeometryOutput) {
                 "Wrote the lensfun entry for {lens} to {shown}: copy it to ~/.local/share/lensfun/ for darktable and RawTherapee"
             ));
         }
+    }
+}
+
+/// Measures the lens's geometry where the project's detections or settings changed
+/// since it was measured, whichever view is open. It comes last: only when no other
+/// job runs and no command waits, so it never holds back the stages (the demo's first
+/// calibration and its photo included), and a run of detections is measured once,
+/// after the last.
+pub(super) fn measure_geometry(app: &mut StudioApp) {
+    if !app.jobs.running.is_empty() || !app.commands.is_empty() {
+        return;
+    }
+    let Some(job) = app
+        .project
+        .as_mut()
+        .and_then(crate::project::Project::geometry_job)
+    else {
+        return;
+    };
+    let scope = JobScope::session(app.session_generation);
+    let r = app
+        .jobs
+        .spawn_scoped(JobKind::Geometry, scope, move |_ctx, out| {
+            // Its failure is its result: the view says why.
+            out.emit(JobOutput::Geometry(GeometryOutput::GeometryMeasured(
+                Box::new(job.run()),
+            )));
+            Ok(())
+        });
+    if let Err(e) = r
+        && let Some(p) = app.project.as_mut()
+    {
+        p.geometry_abandoned(e);
     }
 }
 
@@ -49,8 +85,8 @@ fn demo_names() -> NameOverrides {
 /// EXIF names the camera and lens; what the core refuses (no lens name, one focal
 /// length, uneven light) is said as an error.
 fn export_lensfun(app: &mut StudioApp, path: PathBuf) {
-    let Some(correction) = view_data::measured_geometry(app) else {
-        app.error("nothing to export yet: the Geometry view has not measured the lens");
+    let Some(correction) = measured_geometry(app) else {
+        app.error("nothing to export yet: the lens's geometry is not measured");
         return;
     };
     let Some(session) = app.session() else {
@@ -114,4 +150,9 @@ fn write_entry(
         "{} {} on {} {}",
         names.lens_maker, names.lens_model, names.camera_maker, names.camera_model
     ))
+}
+
+/// The project's measured geometry, once there is one for its present detections.
+pub(super) fn measured_geometry(app: &StudioApp) -> Option<Arc<LensCorrection>> {
+    app.project.as_ref()?.geometry()?.as_ref().ok().cloned()
 }

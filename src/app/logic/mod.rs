@@ -13,6 +13,7 @@ mod autorun;
 mod deblur;
 mod dialogs;
 mod geometry;
+mod inspect;
 mod plots;
 mod session;
 mod shots;
@@ -20,7 +21,6 @@ mod stages;
 mod view;
 
 use super::jobs::{JobEnd, JobEvent, JobKind};
-use super::view_data;
 use super::{Command, JobOutput, StudioApp};
 use crate::app::StageOutput;
 use deblur::run_deblur_preview;
@@ -58,7 +58,7 @@ fn apply_output(app: &mut StudioApp, output: JobOutput) {
         JobOutput::Stage(o) => stages::stage_output(app, o),
         JobOutput::Deblur(o) => deblur::deblur_output(app, o),
         JobOutput::Geometry(o) => geometry::geometry_output(app, o),
-        JobOutput::SquareInspected { key, result } => view_data::inspected(app, key, result),
+        JobOutput::SquareInspected { key, result } => inspect::inspected(app, key, result),
     }
 }
 
@@ -78,7 +78,7 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
             }
             JobEvent::Finished { job, kind, end } => {
                 let tally = app.tallies.remove(&job);
-                match end {
+                match &end {
                     // A preview cancelled by a newer one (a control being dragged) is
                     // not news: the newer one's result follows.
                     JobEnd::Cancelled if kind == JobKind::DeblurPreview => {}
@@ -90,7 +90,7 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                             });
                         app.info(format!("{kind}: cancelled{done}"));
                     }
-                    JobEnd::Failed(e) => app.error(e),
+                    JobEnd::Failed(e) => app.error(e.clone()),
                     JobEnd::Done => {
                         if let Some(t) = tally {
                             finished_message(app, kind, &t);
@@ -99,6 +99,7 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                 }
                 match kind {
                     JobKind::Kernels => spawn_dataset(app),
+                    JobKind::Geometry => geometry_ended(app, end),
                     JobKind::DemoSession => session::calibrate_demo(app),
                     JobKind::DeblurPreview => {
                         if let Some(centre) = app.views.deblur.pending.take() {
@@ -109,6 +110,27 @@ pub(super) fn drain_jobs(app: &mut StudioApp) {
                 }
             }
         }
+    }
+}
+
+/// The jobs the app starts of itself once a step's commands and job outputs are
+/// applied: the crops of the square the selection names, and the lens's geometry of
+/// new detections.
+pub(super) fn follow_up(app: &mut StudioApp) {
+    inspect::request_inspection(app);
+    geometry::measure_geometry(app);
+}
+
+/// A geometry job that ended without handing its result back leaves its reason as the
+/// result, so it is not run again until the detections change.
+fn geometry_ended(app: &mut StudioApp, end: JobEnd) {
+    let reason = match end {
+        JobEnd::Done => return,
+        JobEnd::Cancelled => "the measurement of the lens's geometry was cancelled".to_owned(),
+        JobEnd::Failed(e) => e,
+    };
+    if let Some(p) = app.project.as_mut() {
+        p.geometry_abandoned(reason);
     }
 }
 

@@ -4,38 +4,37 @@
 //! colour as red and blue arrows against green, the fall-off as a map in stops with its
 //! colour bar per aperture, the fits' numbers, and the export of the lensfun entry.
 //!
-//! Draws what `view_data` made; computes nothing.
+//! Draws what `view_data` made of the project's geometry; computes nothing.
 
 use super::super::Command;
 use super::field::colour_bar_ui;
 use super::image_backdrop;
-use crate::app::view_data::{GeometryData, GeometryMeasure};
+use crate::app::view_data::GeometryData;
 use crate::app::{DialogCommand, ViewCommand};
+use crate::project::GeometryStatus;
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
 
 const TIP_GRID: &str = "A regular grid of ideal (pinhole) points, pushed through the fitted distortion: grey where a perfect lens would draw it, white where this lens does, the displacement exaggerated by the factor shown. Bowed out at the edges (corners pulled in): barrel; corners pushed out: pincushion.";
 const TIP_ARROWS: &str = "Where red (and blue) lie against green at points over the frame, from the lateral-colour fit, exaggerated by the factor shown. Outward red and inward blue: red imaged larger than green.";
 const TIP_MAP: &str = "The light the lens loses toward the corners at this aperture (lensfun's pa model fitted to the chart's white squares, assuming the chart was evenly lit), in stops: 1 stop is half the light.";
 
-/// The view, from its view data alone: the measurement (`measure`, absent until the
-/// session has detections) and what it draws at the chosen setting (`data`).
+/// The view, from the project's geometry (`status`: absent until the session has
+/// detections) and what its view data draws of it at the chosen setting (`data`).
 pub(super) fn geometry_ui(
-    measure: Option<&GeometryMeasure>,
+    status: GeometryStatus<'_>,
     data: Option<&GeometryData>,
     out: &mut Vec<Command>,
     ui: &mut egui::Ui,
 ) {
     ui.heading("Lens geometry");
-    let measuring = measure.is_some_and(|m| m.result.is_none());
-    let why = match measure {
-        None => Some(
+    let measuring = matches!(status, GeometryStatus::Waiting);
+    let why = match status {
+        GeometryStatus::NoShots => Some(
             "The Geometry view measures distortion, lateral colour and fall-off from the chart's corners and white squares: it needs the chart detected (Detect, Ctrl+D) in shots whose focal length and aperture are known — ideally at several focal lengths, under even light.".to_owned(),
         ),
-        Some(m) => match &m.result {
-            None => Some("measuring the lens's geometry…".to_owned()),
-            Some(Err(e)) => Some(e.clone()),
-            Some(Ok(_)) => None,
-        },
+        GeometryStatus::Waiting => Some("measuring the lens's geometry…".to_owned()),
+        GeometryStatus::Measured(Err(e)) => Some(e.clone()),
+        GeometryStatus::Measured(Ok(_)) => None,
     };
     let Some(data) = data.filter(|_| why.is_none()) else {
         ui.add_space(24.0);

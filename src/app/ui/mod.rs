@@ -124,7 +124,10 @@ fn draw(f: &Frame<'_>, out: &mut Vec<Command>, ui: &mut egui::Ui) {
             View::Models => models::models_ui(&models::ModelsContext::of(f), out, ui),
             View::Deblur => deblur::deblur_ui(&deblur::DeblurContext::of(f), out, ui),
             View::Geometry => geometry::geometry_ui(
-                f.data.geometry_measure.as_ref(),
+                f.cx.project.map_or(
+                    crate::project::GeometryStatus::NoShots,
+                    crate::project::Project::geometry_status,
+                ),
                 f.data.geometry.as_ref(),
                 out,
                 ui,

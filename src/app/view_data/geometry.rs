@@ -1,39 +1,13 @@
-//! The Geometry view's data: the lens's distortion, lateral colour and fall-off
-//! measured by the core (`crate::correction::measure`, on a job thread whenever the
-//! session's detections change), and what the view draws of it at the chosen focal
-//! length and aperture: a regular grid pushed through the distortion, lateral-colour
-//! arrows, the fall-off map's texture and colour scale, and the fits' numbers.
+//! The Geometry view's data: what the view draws, at the chosen focal length and
+//! aperture, of the lens's distortion, lateral colour and fall-off as the project
+//! measured them (`crate::project`'s geometry stage): a regular grid pushed through the
+//! distortion, lateral-colour arrows, the fall-off map's texture and colour scale, and
+//! the fits' numbers.
 
 use super::{ColourScale, Same, StudioApp};
-use crate::app::GeometryOutput;
-use crate::app::JobOutput;
-use crate::app::jobs::{JobKind, JobScope};
-use crate::chart::ChartSpec;
-use crate::correction::{
-    CorrectionOptions, FocalGeometry, GeometryShot, LensCorrection, LensfunFrame, TcaModel,
-    VignettingFit,
-};
-use crate::detect::Detection;
+use crate::correction::{FocalGeometry, LensCorrection, LensfunFrame, TcaModel, VignettingFit};
 use crate::plane::LensSetting;
 pub use crate::review::{ColourArrows, WarpedGrid};
-use crate::session::ShotId;
-use std::sync::Arc;
-
-/// What the measurement depends on: the session, its chart, and each shot's detection
-/// and setting.
-#[derive(Clone, Debug, PartialEq)]
-struct MeasureKey {
-    session: u64,
-    chart: ChartSpec,
-    shots: Vec<(ShotId, Same<Detection>, [f64; 2])>,
-}
-
-/// The session's geometry: being measured, or measured (or why it could not be).
-pub struct GeometryMeasure {
-    key: MeasureKey,
-    request: u64,
-    pub result: Option<Result<Arc<LensCorrection>, String>>,
-}
 
 /// The fall-off at one aperture as a map in stops.
 pub struct Falloff {
@@ -67,113 +41,14 @@ struct DisplayKey {
     f_number: Option<f64>,
 }
 
-/// The measured geometry, once there is one.
-#[must_use]
-pub fn measured_geometry(app: &StudioApp) -> Option<Arc<LensCorrection>> {
-    match app.data.geometry_measure.as_ref()?.result.as_ref()? {
-        Ok(c) => Some(Arc::clone(c)),
-        Err(_) => None,
-    }
-}
-
-fn measure_key(app: &StudioApp) -> Option<MeasureKey> {
-    let session = app.session()?;
-    let shots: Vec<_> = session
-        .shots
-        .iter()
-        .filter_map(|s| {
-            let setting = s.setting()?;
-            let d = app.detection(s.id)?;
-            Some((
-                s.id,
-                Same::of(Some(d)),
-                [setting.focal_mm, setting.f_number],
-            ))
-        })
-        .collect();
-    (!shots.is_empty()).then(|| MeasureKey {
-        session: app.session_generation,
-        chart: session.chart.clone(),
-        shots,
-    })
-}
-
-/// Measures again when the detections changed (on a job: the fit pools every corner),
-/// then prepares the drawing at the chosen focal length and aperture.
+/// The drawing at the chosen focal length and aperture of the project's measured
+/// geometry (measured by `logic`, on a job, when the detections change).
 pub(super) fn refresh_geometry(app: &mut StudioApp) {
-    let key = measure_key(app);
-    let current = app.data.geometry_measure.as_ref().map(|m| &m.key);
-    if key.as_ref() != current {
-        app.data.geometry_measure = key.map(|key| spawn_measure(app, key));
-    }
-    refresh_display(app);
-}
-
-fn spawn_measure(app: &mut StudioApp, key: MeasureKey) -> GeometryMeasure {
-    app.data.geometry_requests += 1;
-    let request = app.data.geometry_requests;
-    let shots: Vec<(String, LensSetting, Arc<Detection>)> = key
-        .shots
-        .iter()
-        .filter_map(|(id, det, s)| {
-            let name = app.session()?.shot(*id)?.name();
-            Some((
-                name,
-                LensSetting {
-                    focal_mm: s[0],
-                    f_number: s[1],
-                },
-                det.0.clone()?,
-            ))
-        })
-        .collect();
-    let chart = key.chart.clone();
-    let r = app.jobs.spawn_scoped(
-        JobKind::Geometry,
-        JobScope::session(key.session),
-        move |_ctx, out| {
-            let geometry_shots: Vec<GeometryShot<'_>> = shots
-                .iter()
-                .map(|(name, setting, detection)| GeometryShot {
-                    name,
-                    setting: *setting,
-                    detection,
-                })
-                .collect();
-            let result =
-                crate::correction::measure(&geometry_shots, &chart, CorrectionOptions::default())
-                    .map(Arc::new)
-                    .map_err(|e| e.to_string());
-            out.emit(JobOutput::Geometry(GeometryOutput::GeometryMeasured {
-                request,
-                result,
-            }));
-            Ok(())
-        },
-    );
-    let result = r.err().map(Err);
-    GeometryMeasure {
-        key,
-        request,
-        result,
-    }
-}
-
-/// A finished measurement: kept when it answers the latest request.
-pub(in crate::app) fn geometry_measured(
-    app: &mut StudioApp,
-    request: u64,
-    result: Result<Arc<LensCorrection>, String>,
-) {
-    if let Some(m) = app.data.geometry_measure.as_mut()
-        && m.request == request
-    {
-        m.result = Some(result);
-    }
-}
-
-fn refresh_display(app: &mut StudioApp) {
-    let Some(correction) = measured_geometry(app) else {
+    let correction = app
+        .project
+        .as_ref()
+        .and_then(|p| p.geometry()?.as_ref().ok().cloned());
+    let Some(correction) = correction else {
         app.data.geometry = None;
         return;
     };

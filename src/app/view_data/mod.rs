@@ -1,17 +1,16 @@
-//! View data: everything a view shows that takes computing, made here (or on a job
-//! thread) when its inputs change and cached on the app keyed by exactly those inputs.
+//! View data: everything a view shows that takes arranging, made here when its inputs
+//! change and cached on the app keyed by exactly those inputs.
 //!
 //! Owns the shot viewer's plane choice, the Kernel field view's panels (measured
 //! ellipses, the kernel atlas texture, predicted and true fields), the Sharpness view's
-//! map, the Sweeps view's
-//! measured points and model and truth curves, the Geometry view's measurement (a job)
-//! and drawing, and the square inspector (its crops come
-//! from a job; their textures, the kernel's texture and the truth beside it are made
-//! here when they arrive). [`refresh`] runs once per frame from the app's logic step and
-//! recomputes only what is stale; the draw code reads these caches and shows a
-//! placeholder where one is absent, never computing. The numbers come from the core
-//! (`crate::review`, `crate::detect::inspect`); this module only arranges them and
-//! makes textures.
+//! map, the Sweeps view's measured points and model and truth curves, the Geometry
+//! view's drawing of the project's measured geometry, and what the square inspector
+//! shows beside its crops (the measured kernel's texture, the truth); the crops are a
+//! job's, which `logic` asks for and keeps here. [`refresh`] runs once per frame from
+//! the app's logic step and recomputes only what is stale; the draw code reads these
+//! caches and shows a placeholder where one is absent, never computing. The numbers
+//! come from the core (`crate::review`, `crate::detect::inspect`); this module only
+//! arranges them and makes textures.
 
 use super::{StudioApp, View};
 use crate::kernel::file::KernelsFile;
@@ -22,7 +21,7 @@ use crate::simulate::VirtualLens;
 use atlas::refresh_kernel_atlas;
 use field::refresh_field;
 use geometry::refresh_geometry;
-use inspector::refresh_inspection;
+use inspector::refresh_inspection_details;
 use sharpness::refresh_sharpness;
 use shot_plane::refresh_shot_plane;
 use std::sync::Arc;
@@ -41,11 +40,7 @@ pub use atlas::{AtlasCell, KernelAtlas};
 pub use field::{
     ColourScale, FieldData, FieldPanel, FieldPoint, PanelContent, PanelOf, difference_words,
 };
-pub(super) use geometry::geometry_measured;
-pub use geometry::{
-    ColourArrows, Falloff, GeometryData, GeometryMeasure, WarpedGrid, measured_geometry,
-};
-pub(super) use inspector::inspected;
+pub use geometry::{ColourArrows, Falloff, GeometryData, WarpedGrid};
 pub use inspector::{Inspecting, Inspection};
 pub use sharpness::SharpnessData;
 pub use shot_plane::ShotPlane;
@@ -66,11 +61,8 @@ pub struct ViewData {
     pub sharpness: Option<SharpnessData>,
     pub sweeps: Option<SweepData>,
     pub inspection: Option<Inspecting>,
-    /// The lens's geometry measured from the session's detections (on a job), and the
-    /// count of measurements asked for (a result answers one).
-    pub geometry_measure: Option<GeometryMeasure>,
-    geometry_requests: u64,
-    /// What the Geometry view draws at its focal length and aperture.
+    /// What the Geometry view draws of the project's geometry at its focal length and
+    /// aperture.
     pub geometry: Option<GeometryData>,
     /// The session's settings with shots and what they allow the model.
     pub calibrated: Option<Calibrated>,
@@ -121,12 +113,14 @@ impl ViewData {
     }
 }
 
-/// Recomputes what is stale; called once per frame after commands and job results.
+/// Rebuilds the cached data that is stale; called once per frame after `logic` has
+/// applied the commands and job results. It writes only `app.data` (and makes
+/// textures): no job is started and no other state changed here.
 pub(super) fn refresh(app: &mut StudioApp) {
     refresh_shot_plane(app);
     refresh_calibrated(app);
     refresh_coverage(app);
-    refresh_inspection(app);
+    refresh_inspection_details(app);
     match app.view {
         View::KernelField => {
             refresh_field_kernels(app);
