@@ -612,8 +612,8 @@ fn square_levels(
         }
     }
     for (k, inside) in per_plane.iter().enumerate() {
-        // Clipped pixels weigh nothing in the registration and the kernels; a square
-        // goes only when its edges themselves are lost.
+        // Clipped pixels weigh nothing in the registration and are censored in the
+        // kernels; a square goes only when its edges themselves are lost.
         let [along, clipped] = edge_clipped[k];
         if clipped as f64 > params.max_clipped_edge_fraction * along as f64 {
             return Err(format!(

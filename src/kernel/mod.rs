@@ -3,15 +3,16 @@
 //!
 //! For one square and channel we solve min ‖W(A_r k − U b)‖² by conjugate gradients on
 //! the normal equations. W weighs the observed pixel centres; a clipped pixel (at or
-//! above [`KernelParams::clip_level`]) is a missing observation and weighs nothing, so a
-//! square whose whites touch the top of the range keeps the rest of its edges. (Its
-//! unclipped neighbours keep their weight: those whose truth lies within the noise of
-//! the top are a sample biased low, but on simulated shots weighing nothing within a
-//! pixel of a clipped one cost more, p95 σ error 4.6–5.9 % → 4.6–46 %, than the bias
-//! does.) A_r convolves with the sharp chart rasterised at `oversample`×
-//! from the square's refined homography; every product with A_r or A_rᵀ is an FFT
-//! (never a matrix). The raster extends past the observed region by the kernel radius,
-//! so the convolution is the valid part of a linear one: the FFT side is at least the
+//! above [`KernelParams::clip_level`]) is a censored observation, not a value: it says
+//! only that the value there would have been at least the clip level, so with the
+//! default operator it enters as its expected value given that under the current fit
+//! (EM on a Tobit model, see `solve_edges`), and a square whose whites touch the top of
+//! the range keeps the rest of its edges. (Weighing it nothing leaves its unclipped
+//! neighbours, those whose truth lies within the noise of the top, a sample biased
+//! low.) A_r convolves with the sharp chart rasterised at `oversample`× from the
+//! square's refined homography; every product with A_r or A_rᵀ is an FFT (never a
+//! matrix). The raster extends past the observed region by the kernel radius, so the
+//! convolution is the valid part of a linear one: the FFT side is at least the
 //! raster's, and the circular wrap only touches outputs we never read.
 //!
 //! Levels: rather than trusting a black/white estimate, the unknowns are an
@@ -88,8 +89,9 @@ pub struct KernelParams {
     /// A kernel with more than this fraction of its mass in its outermost pixel-wide
     /// ring is reported as clipped by its support.
     pub clipped_fraction: f64,
-    /// An observed value at or above this (white = 1) is clipped and has zero weight
-    /// (Kee's W): it bounds the blurred edge from below and no more.
+    /// An observed value at or above this (white = 1) is clipped: it bounds the blurred
+    /// edge from below and no more (a censored observation with the default operator,
+    /// zero weight in Kee's W with the others).
     pub clip_level: f64,
 }
 
@@ -581,33 +583,33 @@ fn solve(
     // The channel's real pixel centres in the observed window: where each one's kernel
     // patch starts in the raster, and its value. The patch under pixel x is centred on
     // its raster sample (x − bx0)·s + r_sub, so it starts at (x − bx0)·s.
-    let pixel_centres = || {
-        planes()
-            .flat_map(move |cp| {
-                // The plane's pixels inside the window [b·0, b·1] along one axis.
-                let span = move |lo: usize, hi: usize, offset: usize, n: usize| {
-                    let first = lo.saturating_sub(offset).div_ceil(cp.step);
-                    let end = if hi < offset {
-                        0
-                    } else {
-                        ((hi - offset) / cp.step + 1).min(n)
-                    };
-                    first..end.max(first)
+    let centres = || {
+        planes().flat_map(move |cp| {
+            // The plane's pixels inside the window [b·0, b·1] along one axis.
+            let span = move |lo: usize, hi: usize, offset: usize, n: usize| {
+                let first = lo.saturating_sub(offset).div_ceil(cp.step);
+                let end = if hi < offset {
+                    0
+                } else {
+                    ((hi - offset) / cp.step + 1).min(n)
                 };
-                span(prep.by0, prep.by1, cp.offset_y, cp.plane.height).flat_map(move |j| {
-                    span(prep.bx0, prep.bx1, cp.offset_x, cp.plane.width).map(move |i| {
-                        let (x, y) = (cp.step * i + cp.offset_x, cp.step * j + cp.offset_y);
-                        (
-                            (x - prep.bx0) * os,
-                            (y - prep.by0) * os,
-                            f64::from(cp.plane.get(i, j)),
-                        )
-                    })
+                first..end.max(first)
+            };
+            span(prep.by0, prep.by1, cp.offset_y, cp.plane.height).flat_map(move |j| {
+                span(prep.bx0, prep.bx1, cp.offset_x, cp.plane.width).map(move |i| {
+                    let (x, y) = (cp.step * i + cp.offset_x, cp.step * j + cp.offset_y);
+                    (
+                        (x - prep.bx0) * os,
+                        (y - prep.by0) * os,
+                        f64::from(cp.plane.get(i, j)),
+                    )
                 })
             })
-            // A clipped pixel is a missing observation, not a value: zero weight.
-            .filter(|&(_, _, v)| v < params.clip_level)
+        })
     };
+    // A clipped pixel is not a value: it says only that the value would have been at
+    // least the clip level (see `solve_edges`).
+    let pixel_centres = || centres().filter(|&(_, _, v)| v < params.clip_level);
     // The FFT forms decide on the shading unknowns as the direct one does.
     let fft_shading = |problem: &mut LeastSquares| {
         let Some(sigma) = reference_sigma_px else {
@@ -627,18 +629,23 @@ fn solve(
     };
     let solution = match (&prep.uniform, params.weighting) {
         (Some(uniform), _) => {
-            let mut problem = edges::EdgeProblem::new(&prep.raster, prep.nx, k_size);
-            for (x0, y0, v) in pixel_centres() {
-                problem.observe(x0, y0, v, uniform.value(x0, y0));
-            }
-            if problem.observations() < k_size {
-                return Err(KernelFailure::NoObservations(channel));
-            }
-            problem.set_smoothness(params.smoothness);
-            if let Some(sigma) = reference_sigma_px.filter(|_| problem.light_slopes()) {
-                problem.set_shading_reference(&gaussian_guess(k_size, os, sigma));
-            }
-            cgls_solve(&mut problem, iterations, tolerance)
+            let clipped: Vec<(usize, usize)> = centres()
+                .filter(|&(_, _, v)| v >= params.clip_level)
+                .map(|(x0, y0, _)| (x0, y0))
+                .collect();
+            let data = Observations {
+                kept: pixel_centres,
+                clipped: &clipped,
+            };
+            solve_edges(
+                prep,
+                uniform,
+                params,
+                &data,
+                reference_sigma_px,
+                (iterations, tolerance),
+            )
+            .ok_or(KernelFailure::NoObservations(channel))?
         }
         (None, Weighting::PixelCentres) => {
             let mut problem = LeastSquares::new(&prep.raster, prep.nx, prep.ny, k_size);
@@ -699,6 +706,146 @@ fn solve(
         iterations: solution.iterations,
         residual: solution.relative_residual,
     })
+}
+
+/// Most rounds of the censored term in [`solve_edges`].
+const CENSORED_ROUNDS: usize = 6;
+
+/// A channel's pixel centres in a square's window, as (patch x, patch y, value): those
+/// below the clip level, and the positions of those at or above it.
+struct Observations<'a, F> {
+    kept: F,
+    clipped: &'a [(usize, usize)],
+}
+
+/// The default operator's solve, with the clipped pixels as censored observations (a
+/// Tobit model): a clipped pixel says that its truth plus its noise reached the clip
+/// level, and no more. Pure zero weight throws that away, and then the pixels kept
+/// beside the clipped ones, those whose truth lies within the noise of the top, are a
+/// sample biased low: their brighter draws are the ones that clipped. The model is
+/// fitted by EM: each round gives every clipped pixel its expected value under the
+/// current fit given that it clipped, μ + σ·φ(z)/(1 − Φ(z)) with z = (level − μ)/σ, and
+/// solves again (σ: the noise of the kept pixels near the top, from their residuals).
+/// Where too few pixels near the top are kept to tell σ, the term is one-sided
+/// instead: a clipped pixel the fit predicts below the level joins at the level.
+/// `None`: too few observations.
+fn solve_edges<F, I>(
+    prep: &Prepared,
+    uniform: &edges::Uniformity,
+    params: &KernelParams,
+    data: &Observations<'_, F>,
+    reference_sigma_px: Option<f64>,
+    (iterations, tolerance): (usize, f64),
+) -> Option<CgSolution>
+where
+    F: Fn() -> I,
+    I: Iterator<Item = (usize, usize, f64)>,
+{
+    let (k_size, level) = (prep.k_size, params.clip_level);
+    let problem_with = |censored: &[Option<f64>]| {
+        let mut problem = edges::EdgeProblem::new(&prep.raster, prep.nx, k_size);
+        for (x0, y0, v) in (data.kept)() {
+            problem.observe(x0, y0, v, uniform.value(x0, y0));
+        }
+        for (&(x0, y0), t) in data.clipped.iter().zip(censored) {
+            if let Some(t) = *t {
+                problem.observe(x0, y0, t, uniform.value(x0, y0));
+            }
+        }
+        problem
+    };
+    let mut censored = vec![None; data.clipped.len()];
+    let mut problem = problem_with(&censored);
+    if problem.observations() < k_size {
+        return None;
+    }
+    // Decided once, on the unclipped data, so that the rounds solve the same model.
+    let guess = reference_sigma_px
+        .filter(|_| problem.light_slopes())
+        .map(|sigma| gaussian_guess(k_size, prep.os, sigma));
+    let finish = |problem: &mut edges::EdgeProblem| {
+        problem.set_smoothness(params.smoothness);
+        if let Some(g) = &guess {
+            problem.set_shading_reference(g);
+        }
+        cgls_solve(problem, iterations, tolerance)
+    };
+    let mut solution = finish(&mut problem);
+    if data.clipped.is_empty() {
+        return Some(solution);
+    }
+    // The model at every clipped pixel, then at the kept ones near the top: each one
+    // its own row.
+    let top: Vec<(usize, usize, f64)> = (data.kept)()
+        .filter(|&(_, _, v)| v >= 0.5 * level)
+        .collect();
+    let mut probe = edges::EdgeProblem::new(&prep.raster, prep.nx, k_size);
+    for &(x0, y0) in data.clipped {
+        probe.observe(x0, y0, 0.0, None);
+    }
+    for &(x0, y0, _) in &top {
+        probe.observe(x0, y0, 0.0, None);
+    }
+    if let Some(g) = &guess {
+        probe.set_shading_reference(g);
+    }
+    let mut predicted = vec![0.0; probe.rows()];
+    let n = data.clipped.len();
+    for _ in 0..CENSORED_ROUNDS {
+        probe.forward(&solution.x, &mut predicted);
+        let noise = top_noise(&predicted[n..n + top.len()], &top, level);
+        let next: Vec<Option<f64>> = predicted[..n]
+            .iter()
+            .map(|&mu| match noise {
+                Some(sigma) => Some(mu + sigma * inverse_mills((level - mu) / sigma)),
+                None => (mu < level).then_some(level),
+            })
+            .collect();
+        let settled = next.iter().zip(&censored).all(|(a, b)| match (a, b) {
+            (Some(a), Some(b)) => (a - b).abs() <= 0.05 * noise.unwrap_or(0.0),
+            (None, None) => true,
+            _ => false,
+        });
+        if settled {
+            break;
+        }
+        censored = next;
+        solution = finish(&mut problem_with(&censored));
+    }
+    Some(solution)
+}
+
+/// The noise σ of the pixels kept near the clip level (predicted within its top
+/// quarter), robustly from their residuals; `None` with too few of them.
+fn top_noise(predicted: &[f64], top: &[(usize, usize, f64)], level: f64) -> Option<f64> {
+    let mut residuals: Vec<f64> = predicted
+        .iter()
+        .zip(top)
+        .filter(|&(&mu, _)| mu >= 0.75 * level && mu < level)
+        .map(|(&mu, &(_, _, v))| v - mu)
+        .collect();
+    if residuals.len() < 30 {
+        return None;
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let centre = median(&mut residuals);
+    let mut spread: Vec<f64> = residuals.iter().map(|r| (r - centre).abs()).collect();
+    let sigma = 1.4826 * median(&mut spread);
+    (sigma > 0.0).then_some(sigma)
+}
+
+/// φ(z) / (1 − Φ(z)) for the standard normal: the mean of a normal variable beyond z,
+/// in σ. Beyond z = 4 the asymptotic series (erf's absolute error would dominate the
+/// tail there).
+fn inverse_mills(z: f64) -> f64 {
+    if z >= 4.0 {
+        return z + 1.0 / z - 2.0 / z.powi(3);
+    }
+    let survival = 0.5 * (1.0 - crate::psf::erf(z / std::f64::consts::SQRT_2));
+    (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt() / survival
 }
 
 /// Whether a bilinear sample at plane point (x, y) draws on a clipped pixel.
@@ -775,4 +922,32 @@ pub fn estimate_shot(
         oversample: params.oversample,
         squares,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::inverse_mills;
+
+    /// φ(z) / (1 − Φ(z)) against the mean of the standard normal beyond z by quadrature,
+    /// on both sides of the switch to the asymptotic series.
+    #[test]
+    fn inverse_mills_is_the_mean_beyond_z() {
+        for z in [-2.0f64, 0.0, 1.0, 2.5, 3.9, 4.1, 6.0] {
+            let (mut mass, mut moment) = (0.0, 0.0);
+            let h = 1e-4;
+            let mut x = z + 0.5 * h;
+            while x < z + 12.0 {
+                let density = (-0.5 * x * x).exp();
+                mass += density;
+                moment += x * density;
+                x += h;
+            }
+            let want = moment / mass;
+            let got = inverse_mills(z);
+            assert!(
+                (got - want).abs() < 2e-3 * want.abs().max(1.0),
+                "z {z}: {got} vs {want}"
+            );
+        }
+    }
 }
