@@ -300,7 +300,10 @@ pub fn clipping_advice(det: &Detection, params: &DetectParams) -> Option<String>
 /// else a local homography over nearby junctions, else the global one. The board's
 /// own outer corners have only a 2 × 2 block of junctions within two steps, so the
 /// neighbourhood widens to three: under lens distortion the global homography is off
-/// by a good fraction of a square there, exactly where the blur is worst.
+/// by a good fraction of a square there, exactly where the blur is worst, and the local
+/// one, extrapolated a step, still misses the bend by most of a pixel, so a quadratic
+/// through its residuals adds it (the outer corner of a white corner square is held
+/// at this estimate).
 fn corner_estimate(lattice: &grid::Lattice, c: usize, r: usize) -> ([f64; 2], bool) {
     if let Some(p) = lattice.corners.get(&(c, r)) {
         return (*p, true);
@@ -324,10 +327,48 @@ fn corner_estimate(lattice: &grid::Lattice, c: usize, r: usize) -> ([f64; 2], bo
         if from.len() >= 6
             && let Some(h) = Homography::from_correspondences(&from, &to)
         {
-            return (h.apply([c as f64, r as f64]), false);
+            let p = h.apply([c as f64, r as f64]);
+            // A board corner lies a step outside its block of junctions: a homography
+            // has no curvature, and the lens's bends it by most of a pixel there.
+            if reach == 3
+                && let Some(d) = quadratic_residual_at(&h, &from, &to, [c as f64, r as f64])
+            {
+                return ([p[0] + d[0], p[1] + d[1]], false);
+            }
+            return (p, false);
         }
     }
     (lattice.image_from_chart.apply([c as f64, r as f64]), false)
+}
+
+/// The least-squares quadratic in chart (c, r) through the junctions' residuals from
+/// `h`, evaluated at `at`: the lens's bend that a homography over the block leaves out.
+/// None when the block cannot fix the six terms.
+fn quadratic_residual_at(
+    h: &Homography,
+    from: &[[f64; 2]],
+    to: &[[f64; 2]],
+    at: [f64; 2],
+) -> Option<[f64; 2]> {
+    if from.len() < 9 {
+        return None;
+    }
+    let terms = |q: [f64; 2]| {
+        let (u, v) = (q[0] - at[0], q[1] - at[1]);
+        [1.0, u, v, u * u, u * v, v * v]
+    };
+    let mut ata = nalgebra::Matrix6::<f64>::zeros();
+    let mut atb = nalgebra::Matrix6x2::<f64>::zeros();
+    for (f, t) in from.iter().zip(to) {
+        let p = h.apply(*f);
+        let row = nalgebra::Vector6::from(terms(*f));
+        ata += row * row.transpose();
+        atb.column_mut(0).axpy(t[0] - p[0], &row, 1.0);
+        atb.column_mut(1).axpy(t[1] - p[1], &row, 1.0);
+    }
+    let x = ata.cholesky()?.solve(&atb);
+    // With the terms centred on `at`, the constant is the value there.
+    Some([x[(0, 0)], x[(0, 1)]])
 }
 
 fn square(
