@@ -145,9 +145,9 @@ impl Target {
 
 /// Deterministic mutations of an input, as the fuzzer's first stages make them: bit
 /// flips, interesting bytes, truncations, duplications, and numbers in text made
-/// extreme. `n` mutants for a seed.
-#[must_use]
-pub fn mutants(seed: &[u8], n: usize, rng_seed: u64) -> Vec<Vec<u8>> {
+/// extreme. `n` mutants for a seed, made one at a time as they are asked for (a run of
+/// 10⁵ mutants of a 100 kB file would not fit in memory at once).
+pub fn mutants(seed: &[u8], n: usize, rng_seed: u64) -> impl Iterator<Item = Vec<u8>> + '_ {
     use rand::{Rng, SeedableRng};
     let mut rng = rand_pcg::Pcg64::seed_from_u64(rng_seed);
     const INTERESTING: [u8; 8] = [0, 1, 0x7f, 0x80, 0xff, b'-', b'9', b'"'];
@@ -160,49 +160,47 @@ pub fn mutants(seed: &[u8], n: usize, rng_seed: u64) -> Vec<Vec<u8>> {
         b"NaN",
         b"0.0000001",
     ];
-    (0..n)
-        .map(|_| {
-            let mut m = seed.to_vec();
-            if m.is_empty() {
-                return vec![rng.random()];
-            }
-            for _ in 0..rng.random_range(1..=4) {
-                let at = rng.random_range(0..m.len().max(1));
-                match rng.random_range(0..6) {
-                    0 => m[at] ^= 1 << rng.random_range(0..8),
-                    1 => m[at] = INTERESTING[rng.random_range(0..INTERESTING.len())],
-                    2 => m.truncate(at.max(1)),
-                    3 => {
-                        let end = (at + rng.random_range(1..64)).min(m.len());
-                        let chunk = m[at..end].to_vec();
-                        m.splice(at..at, chunk);
-                    }
-                    4 => {
-                        // Replace the number starting here (text formats) with an extreme.
-                        let end = m[at..]
-                            .iter()
-                            .position(|b| !(b.is_ascii_digit() || *b == b'.' || *b == b'-'))
-                            .map_or(m.len(), |k| at + k);
-                        let with = NUMBERS[rng.random_range(0..NUMBERS.len())];
-                        m.splice(at..end, with.iter().copied());
-                    }
-                    _ => {
-                        // A 32-bit field of a binary header set to an extreme.
-                        let v: u32 = [0, 1, 0xffff, 0x7fff_ffff, u32::MAX][rng.random_range(0..5)];
-                        for (k, b) in v.to_le_bytes().into_iter().enumerate() {
-                            if let Some(x) = m.get_mut(at + k) {
-                                *x = b;
-                            }
+    (0..n).map(move |_| {
+        let mut m = seed.to_vec();
+        if m.is_empty() {
+            return vec![rng.random()];
+        }
+        for _ in 0..rng.random_range(1..=4) {
+            let at = rng.random_range(0..m.len().max(1));
+            match rng.random_range(0..6) {
+                0 => m[at] ^= 1 << rng.random_range(0..8),
+                1 => m[at] = INTERESTING[rng.random_range(0..INTERESTING.len())],
+                2 => m.truncate(at.max(1)),
+                3 => {
+                    let end = (at + rng.random_range(1..64)).min(m.len());
+                    let chunk = m[at..end].to_vec();
+                    m.splice(at..at, chunk);
+                }
+                4 => {
+                    // Replace the number starting here (text formats) with an extreme.
+                    let end = m[at..]
+                        .iter()
+                        .position(|b| !(b.is_ascii_digit() || *b == b'.' || *b == b'-'))
+                        .map_or(m.len(), |k| at + k);
+                    let with = NUMBERS[rng.random_range(0..NUMBERS.len())];
+                    m.splice(at..end, with.iter().copied());
+                }
+                _ => {
+                    // A 32-bit field of a binary header set to an extreme.
+                    let v: u32 = [0, 1, 0xffff, 0x7fff_ffff, u32::MAX][rng.random_range(0..5)];
+                    for (k, b) in v.to_le_bytes().into_iter().enumerate() {
+                        if let Some(x) = m.get_mut(at + k) {
+                            *x = b;
                         }
                     }
                 }
-                if m.is_empty() {
-                    break;
-                }
             }
-            m
-        })
-        .collect()
+            if m.is_empty() {
+                break;
+            }
+        }
+        m
+    })
 }
 
 #[cfg(test)]
@@ -212,8 +210,8 @@ mod tests {
     #[test]
     fn mutants_are_deterministic_and_differ_from_their_seed() {
         let seed = br#"{"schema":"lensblur.chart/1","cols":12}"#;
-        let a = mutants(seed, 50, 1);
-        assert_eq!(a, mutants(seed, 50, 1));
+        let a: Vec<Vec<u8>> = mutants(seed, 50, 1).collect();
+        assert_eq!(a, mutants(seed, 50, 1).collect::<Vec<_>>());
         assert!(a.iter().filter(|m| m.as_slice() != seed).count() > 40);
     }
 }

@@ -133,20 +133,28 @@ struct Tally {
 
 /// `per_container` mutants of each container's inputs through `targets`' readers, in
 /// `decoding`'s worker: each is decoded, or refused in one line naming the file.
-/// `LENSBLUR_FUZZ_TRACE` prints each refusal as it comes.
+/// `LENSBLUR_FUZZ_TRACE` prints each refusal as it comes; `LENSBLUR_FUZZ_ONLY=raf,nef`
+/// keeps those containers, so a long run can be split over processes.
 fn mutate_raw_inputs(
     decoding: &Decoding,
     targets: &[Target],
     per_container: usize,
 ) -> BTreeMap<String, Tally> {
-    let inputs = raw_inputs();
+    let only = std::env::var("LENSBLUR_FUZZ_ONLY").ok();
+    let inputs: Vec<(String, Vec<u8>)> = raw_inputs()
+        .into_iter()
+        .filter(|(ext, _)| {
+            only.as_deref()
+                .is_none_or(|o| o.split(',').any(|x| x == ext))
+        })
+        .collect();
     let mut tallies: BTreeMap<String, Tally> = BTreeMap::new();
     let trace = std::env::var_os("LENSBLUR_FUZZ_TRACE").is_some();
     with_decoding(decoding, || {
         for (k, (ext, bytes)) in inputs.iter().enumerate() {
             let of_kind = inputs.iter().filter(|(e, _)| e == ext).count();
             let n = per_container.div_ceil(of_kind);
-            for (j, m) in mutants(bytes, n, 0x5eed + k as u64).into_iter().enumerate() {
+            for (j, m) in mutants(bytes, n, 0x5eed + k as u64).enumerate() {
                 for &target in targets {
                     let name = format!("mutant-{}-{k}-{j}.{ext}", target.name());
                     let path = Path::new(&name);
