@@ -130,6 +130,12 @@ pub trait Real:
     /// The shrinkage table's nodes in this precision.
     #[doc(hidden)]
     fn nodes(lut: &ShrinkLut) -> &[[Self; 2]];
+    /// The slice as single precision, when this is single precision: the shrinkage's
+    /// vector form is written for it.
+    #[doc(hidden)]
+    fn as_f32_slice(v: &[Self]) -> Option<&[f32]>;
+    #[doc(hidden)]
+    fn as_f32_slice_mut(v: &mut [Self]) -> Option<&mut [f32]>;
 }
 
 impl Real for f32 {
@@ -153,6 +159,12 @@ impl Real for f32 {
     }
     fn nodes(lut: &ShrinkLut) -> &[[Self; 2]] {
         &lut.nodes32
+    }
+    fn as_f32_slice(v: &[Self]) -> Option<&[f32]> {
+        Some(v)
+    }
+    fn as_f32_slice_mut(v: &mut [Self]) -> Option<&mut [f32]> {
+        Some(v)
     }
 }
 
@@ -178,6 +190,12 @@ impl Real for f64 {
     fn nodes(lut: &ShrinkLut) -> &[[Self; 2]] {
         &lut.nodes
     }
+    fn as_f32_slice(_: &[Self]) -> Option<&[f32]> {
+        None
+    }
+    fn as_f32_slice_mut(_: &mut [Self]) -> Option<&mut [f32]> {
+        None
+    }
 }
 
 /// Deconvolves periodic blocks of one size: FFT plans, the gradient spectrum and every
@@ -198,6 +216,7 @@ pub struct Deconvolver<T: Real = f64> {
     row_a: Vec<T>,
     row_b: Vec<T>,
     row_c: Vec<T>,
+    row_d: Vec<T>,
     /// This worker's stage times (off unless the deblur is timed).
     pub clock: Clock,
 }
@@ -228,6 +247,7 @@ impl<T: Real> Deconvolver<T> {
             row_a: vec![zero; width],
             row_b: vec![zero; width],
             row_c: vec![zero; width],
+            row_d: vec![zero; width],
             clock: Clock::default(),
             fft,
         }
@@ -392,24 +412,34 @@ impl<T: Real> Deconvolver<T> {
             // w-step and divergence Dxᵀwx + Dyᵀwy in one pass over the rows, with
             // (Dᵀg)(i) = g(i − 1) − g(i): a row's divergence needs its own shrunk
             // gradients and the previous row's wy, which wraps to the last row's.
-            let (wx, wy, wy_prev) = (&mut self.row_a, &mut self.row_b, &mut self.row_c);
+            // Each row's differences are formed first and shrunk as one slice, which
+            // the table's vector form reads eight at a time.
+            let (wx, wy, wy_prev, diff) = (
+                &mut self.row_a,
+                &mut self.row_b,
+                &mut self.row_c,
+                &mut self.row_d,
+            );
             {
                 let (last, first) = (&x[(h - 1) * w..], &x[..w]);
-                for ((o, &a), &b) in wy_prev.iter_mut().zip(last).zip(first) {
-                    *o = lut.eval(b - a);
+                for ((d, &a), &b) in diff.iter_mut().zip(last).zip(first) {
+                    *d = b - a;
                 }
+                lut.eval_row(diff, wy_prev);
             }
             for r in 0..h {
                 let rn = if r + 1 == h { 0 } else { r + 1 };
                 let row = &x[r * w..(r + 1) * w];
                 let next = &x[rn * w..(rn + 1) * w];
-                for c in 0..w - 1 {
-                    wx[c] = lut.eval(row[c + 1] - row[c]);
+                for (d, p) in diff.iter_mut().zip(row.windows(2)) {
+                    *d = p[1] - p[0];
                 }
-                wx[w - 1] = lut.eval(row[0] - row[w - 1]);
-                for ((o, &a), &b) in wy.iter_mut().zip(row).zip(next) {
-                    *o = lut.eval(b - a);
+                diff[w - 1] = row[0] - row[w - 1];
+                lut.eval_row(diff, wx);
+                for ((d, &a), &b) in diff.iter_mut().zip(row).zip(next) {
+                    *d = b - a;
                 }
+                lut.eval_row(diff, wy);
                 let div = &mut self.real_c[r * w..(r + 1) * w];
                 div[0] = wx[w - 1] - wx[0] + wy_prev[0] - wy[0];
                 for c in 1..w {
@@ -688,13 +718,152 @@ impl<'a, T: Real> Lookup<'a, T> {
             let [a, slope] = self.nodes[i as usize];
             a + slope * (t - T::of_i64(i))
         } else {
-            T::of(shrink_hyper_laplacian(
-                v.as_f64(),
-                self.lut.beta,
-                self.lut.alpha,
-            ))
+            self.exact(v)
         }
     }
+
+    fn exact(&self, v: T) -> T {
+        T::of(shrink_hyper_laplacian(
+            v.as_f64(),
+            self.lut.beta,
+            self.lut.alpha,
+        ))
+    }
+
+    /// [`Self::eval`] of every element of `v` into `out`, the same to the bit: eight
+    /// lookups at a time where the CPU gathers (AVX2), which is most of an HQS step's
+    /// time in scalar form.
+    fn eval_row(&self, v: &[T], out: &mut [T]) {
+        assert_eq!(v.len(), out.len(), "row lengths");
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2")
+            && let (Some(v32), Some(out32)) = (T::as_f32_slice(v), T::as_f32_slice_mut(out))
+            && let Some(nodes) = T::as_f32_slice(self.nodes.as_flattened())
+        {
+            let (range, inv_step, last) = (
+                self.range.as_f32(),
+                self.inv_step.as_f32(),
+                self.last.as_f32(),
+            );
+            // The table's last node is `last − 1`: every index the vector form forms
+            // from a position below `last` is inside it.
+            assert!(
+                last > 0.0 && nodes.len() >= 2 * last as usize,
+                "shrinkage table bounds"
+            );
+            let whole = v32.len() / 8 * 8;
+            // SAFETY: the CPU has AVX2 (checked above); the rows hold `whole` elements
+            // and every gathered index lies in `nodes` (asserted above).
+            let outside = unsafe {
+                shrink_row_avx2(
+                    range,
+                    inv_step,
+                    last,
+                    nodes,
+                    &v32[..whole],
+                    &mut out32[..whole],
+                )
+            };
+            for (o, &x) in out32[whole..].iter_mut().zip(&v32[whole..]) {
+                *o = self.eval(T::of_f32(x)).as_f32();
+            }
+            if outside {
+                // Past the table (rare): the exact solve, as the scalar form takes it.
+                for (o, &x) in out32[..whole].iter_mut().zip(&v32[..whole]) {
+                    let t = (x + range) * inv_step;
+                    if !(t >= 0.0 && t < last) {
+                        *o = self.exact(T::of_f32(x)).as_f32();
+                    }
+                }
+            }
+            return;
+        }
+        for (o, &x) in out.iter_mut().zip(v) {
+            *o = self.eval(x);
+        }
+    }
+}
+
+/// The table's lerp of eight values at a time, rounded as [`Lookup::eval`] rounds
+/// (a separate multiply and add, no fused one), so either form gives the same bits.
+/// Positions outside the table read node 0 and are reported (`true`) for the caller to
+/// redo exactly. `nodes` is the table's (value, slope) pairs, flattened.
+///
+/// # Safety
+/// The CPU has AVX2; `v` and `out` have the same length, a multiple of 8; `nodes`
+/// holds at least `2 · last` values (every position in [0, last) reads inside it).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn shrink_row_avx2(
+    range: f32,
+    inv_step: f32,
+    last: f32,
+    nodes: &[f32],
+    v: &[f32],
+    out: &mut [f32],
+) -> bool {
+    use std::arch::x86_64::{
+        _CMP_GE_OQ, _CMP_LT_OQ, _mm256_add_ps, _mm256_and_ps, _mm256_cmp_ps, _mm256_cvtepi32_ps,
+        _mm256_cvttps_epi32, _mm256_i32gather_ps, _mm256_movemask_ps, _mm256_mul_ps,
+        _mm256_set1_ps, _mm256_setzero_ps, _mm256_sub_ps,
+    };
+    let (range, inv_step, last, zero) = (
+        _mm256_set1_ps(range),
+        _mm256_set1_ps(inv_step),
+        _mm256_set1_ps(last),
+        _mm256_setzero_ps(),
+    );
+    let mut outside = 0;
+    for (o, x) in out.chunks_exact_mut(8).zip(v.chunks_exact(8)) {
+        let x = load8(x);
+        let t = _mm256_mul_ps(_mm256_add_ps(x, range), inv_step);
+        // Both comparisons are false for NaN, which then reads node 0 and is redone.
+        let inside = _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_GE_OQ>(t, zero),
+            _mm256_cmp_ps::<_CMP_LT_OQ>(t, last),
+        );
+        outside |= _mm256_movemask_ps(inside) ^ 0xff;
+        let t = _mm256_and_ps(t, inside);
+        let i = _mm256_cvttps_epi32(t);
+        // SAFETY: 0 ≤ i < last, so 2i + 1 < 2 · last ≤ nodes.len() (the contract).
+        let (a, slope) = unsafe {
+            (
+                _mm256_i32gather_ps::<8>(nodes.as_ptr(), i),
+                _mm256_i32gather_ps::<8>(nodes.as_ptr().add(1), i),
+            )
+        };
+        let lerp = _mm256_add_ps(
+            a,
+            _mm256_mul_ps(slope, _mm256_sub_ps(t, _mm256_cvtepi32_ps(i))),
+        );
+        store8(o, lerp);
+    }
+    outside != 0
+}
+
+/// Eight floats at any address, read and written as one unaligned move each (see
+/// `kernel::edges::segments::Unaligned` for why not `_mm256_loadu_ps`).
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+#[repr(C, packed)]
+struct Unaligned8(std::arch::x86_64::__m256);
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+#[inline]
+fn load8(x: &[f32]) -> std::arch::x86_64::__m256 {
+    assert!(x.len() >= 8, "eight floats");
+    // SAFETY: eight floats are readable (asserted); `Unaligned8` has alignment 1.
+    unsafe { x.as_ptr().cast::<Unaligned8>().read() }.0
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+#[inline]
+fn store8(out: &mut [f32], v: std::arch::x86_64::__m256) {
+    assert!(out.len() >= 8, "eight floats");
+    // SAFETY: eight floats are writable (asserted); `Unaligned8` has alignment 1.
+    unsafe { out.as_mut_ptr().cast::<Unaligned8>().write(Unaligned8(v)) }
 }
 
 #[cfg(test)]
@@ -727,5 +896,41 @@ mod tests {
                 best.1
             );
         }
+    }
+
+    /// The row form gives the scalar lookup's bits for every value: inside the table,
+    /// past either end, at its edges, NaN, and in a row whose length is no multiple of
+    /// the vector width (where the CPU gathers, this compares its vector form).
+    #[test]
+    fn the_shrinkage_of_a_row_is_the_lookup_of_each_value_to_the_bit() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+        let lut = ShrinkLut::new(22.6, 2.0 / 3.0);
+        let (l32, l64) = (Lookup::<f32>::new(&lut), Lookup::<f64>::new(&lut));
+        let mut v: Vec<f64> = (0..1003).map(|_| rng.random_range(-0.3..0.3)).collect();
+        for (k, edge) in [-2.5, -2.0, -1.9999, 1.9999, 2.0, 3.0, 0.0, f64::NAN]
+            .into_iter()
+            .enumerate()
+        {
+            v[100 * k + 13] = edge;
+        }
+        let v32: Vec<f32> = v.iter().map(|&x| x as f32).collect();
+        let mut out32 = vec![0.0f32; v.len()];
+        l32.eval_row(&v32, &mut out32);
+        let mut out64 = vec![0.0f64; v.len()];
+        l64.eval_row(&v, &mut out64);
+        for (i, (&x, &o)) in v32.iter().zip(&out32).enumerate() {
+            assert_eq!(o.to_bits(), l32.eval(x).to_bits(), "f32 at {i}: {x}");
+        }
+        for (i, (&x, &o)) in v.iter().zip(&out64).enumerate() {
+            assert_eq!(o.to_bits(), l64.eval(x).to_bits(), "f64 at {i}: {x}");
+        }
+        // The values past the table took the exact solve, not node 0 (about −1.98).
+        assert!(
+            out32[13] < -2.4 && out32[513] > 2.9,
+            "{} {}",
+            out32[13],
+            out32[513]
+        );
     }
 }
