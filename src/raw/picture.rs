@@ -115,7 +115,7 @@ pub(super) fn load_image(
         .iter()
         .map(|&(channel, c)| ChannelPlane {
             channel,
-            plane: Plane::from_fn(w, h, |x, y| {
+            plane: Plane::par_from_fn(w, h, |x, y| {
                 let v = sample((y * w + x) * cc + c);
                 if decode_srgb { srgb_decode(v) } else { v }
             }),

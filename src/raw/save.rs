@@ -17,6 +17,14 @@ pub fn full_planes(capture: &Capture) -> Vec<(Channel, Plane)> {
         if planes.is_empty() {
             continue;
         }
+        if let [only] = planes[..]
+            && (only.step, only.offset_x, only.offset_y) == (1, 0, 0)
+            && (only.plane.width, only.plane.height) == (w, h)
+        {
+            // Already whole: nothing to fill in.
+            out.push((ch, only.plane.clone()));
+            continue;
+        }
         let mut sum = vec![0.0f32; w * h];
         let mut known = vec![false; w * h];
         for cp in &planes {
@@ -106,12 +114,7 @@ pub fn save_planes(path: &Path, planes: &[(Channel, Plane)], srgb: bool) -> Resu
         u32::try_from(h).map_err(|_| err("too tall".into()))?,
     );
     let img: image::DynamicImage = if srgb {
-        let data: Vec<u8> = (0..w * h)
-            .flat_map(|i| {
-                rgb.iter()
-                    .map(move |p| (encode(p.data[i]) * 255.0).round() as u8)
-            })
-            .collect();
+        let data: Vec<u8> = interleave(&rgb, |v| (encode(v) * 255.0).round() as u8);
         if rgb.len() == 3 {
             image::RgbImage::from_raw(w32, h32, data).map(image::DynamicImage::ImageRgb8)
         } else {
@@ -119,12 +122,7 @@ pub fn save_planes(path: &Path, planes: &[(Channel, Plane)], srgb: bool) -> Resu
         }
         .ok_or_else(|| err("image buffer size".into()))?
     } else {
-        let data: Vec<u16> = (0..w * h)
-            .flat_map(|i| {
-                rgb.iter()
-                    .map(move |p| (encode(p.data[i]) * 65535.0).round() as u16)
-            })
-            .collect();
+        let data: Vec<u16> = interleave(&rgb, |v| (encode(v) * 65535.0).round() as u16);
         if rgb.len() == 3 {
             image::ImageBuffer::<image::Rgb<u16>, _>::from_raw(w32, h32, data)
                 .map(image::DynamicImage::ImageRgb16)
@@ -142,6 +140,31 @@ pub fn save_planes(path: &Path, planes: &[(Channel, Plane)], srgb: bool) -> Resu
 
 /// The planes to write, all of one size: R, G, B where there are all three, else the
 /// first (a grey image).
+/// The planes' samples interleaved pixel by pixel (R, G, B or one Y), each through
+/// `sample`; rows in parallel, a whole photo's worth of rounding being no work for one
+/// core while the others wait.
+fn interleave<T: Copy + Default + Send>(
+    planes: &[&Plane],
+    sample: impl Fn(f32) -> T + Sync,
+) -> Vec<T> {
+    use rayon::prelude::*;
+    let Some(first) = planes.first() else {
+        return Vec::new();
+    };
+    let (w, c) = (first.width, planes.len());
+    let mut out = vec![T::default(); first.data.len() * c];
+    if w > 0 {
+        out.par_chunks_mut(w * c).enumerate().for_each(|(y, row)| {
+            for (x, px) in row.chunks_exact_mut(c).enumerate() {
+                for (o, p) in px.iter_mut().zip(planes) {
+                    *o = sample(p.data[y * w + x]);
+                }
+            }
+        });
+    }
+    out
+}
+
 fn rgb_or_grey(planes: &[(Channel, Plane)]) -> Result<(usize, usize, Vec<&Plane>), &'static str> {
     let Some((_, first)) = planes.first() else {
         return Err("no image planes");
@@ -223,20 +246,14 @@ pub fn save_like_original(
         layout
     };
     let data: Vec<u8> = if eight_bit {
-        (0..w * h)
-            .flat_map(|i| {
-                rgb.iter()
-                    .map(move |p| (srgb_encode(p.data[i].clamp(0.0, 1.0)) * 255.0).round() as u8)
-            })
-            .collect()
+        interleave(&rgb, |v| {
+            (srgb_encode(v.clamp(0.0, 1.0)) * 255.0).round() as u8
+        })
     } else {
-        (0..w * h)
-            .flat_map(|i| {
-                rgb.iter().flat_map(move |p| {
-                    ((p.data[i].clamp(0.0, 1.0) * 65535.0).round() as u16).to_ne_bytes()
-                })
-            })
-            .collect()
+        interleave(&rgb, |v| {
+            ((v.clamp(0.0, 1.0) * 65535.0).round() as u16).to_ne_bytes()
+        })
+        .into_flattened()
     };
     let (w32, h32) = (
         u32::try_from(w).map_err(|_| err("too wide".into()))?,
