@@ -429,7 +429,7 @@ fn entry(binding: u32, buffer: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
 /// the grids one per plane, the kernels of all planes' tiles in one parallel pass.
 fn plane_jobs<'c>(
     cap: &'c Capture,
-    source: &dyn KernelSource,
+    source: &'c dyn KernelSource,
     opts: &DeblurOptions,
     job: &JobContext,
 ) -> Result<Vec<PlaneJob<'c>>, DeblurError> {

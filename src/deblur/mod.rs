@@ -21,7 +21,7 @@ pub use gpu::{Device, GpuError};
 pub use solve::{HqsParams, IrlsParams, Method, WienerParams};
 pub use source::{
     ConstantKernel, KernelSource, KernelsFile, PlacedGaussian, ProfileKernels, ScatteredKernels,
-    SourceError,
+    ShapedKernel, SourceError,
 };
 
 use crate::fft::good_size;

@@ -1,6 +1,7 @@
 //! Where a tile's kernel comes from: anything that answers "the kernel of this channel
 //! at this sensor point" — a lens profile, a kernels file, the simulator's truth.
 
+use crate::model::{PlacedShape, ShapeModel};
 use crate::plane::Channel;
 use crate::psf::{Gaussian2, Kernel};
 use std::path::Path;
@@ -25,6 +26,16 @@ pub struct PlacedGaussian {
     pub oversample: usize,
 }
 
+/// A kernel a kernel-shape model predicts, as its parts: exactly
+/// `model.kernel_of(&placed, oversample)`, so the model's components (the same for
+/// every tile) and a few numbers a tile say all of it.
+#[derive(Clone, Debug)]
+pub struct ShapedKernel<'a> {
+    pub model: &'a ShapeModel,
+    pub placed: PlacedShape,
+    pub oversample: usize,
+}
+
 /// The pixel-level kernel (any oversample) of `channel` at sensor point (x, y).
 pub trait KernelSource: Sync {
     /// # Errors
@@ -43,6 +54,20 @@ pub trait KernelSource: Sync {
         _x: f64,
         _y: f64,
     ) -> Result<Option<PlacedGaussian>, SourceError> {
+        Ok(None)
+    }
+
+    /// The same kernel as a [`ShapedKernel`] where a shape model predicts it (the GPU
+    /// path then makes its taps on the device); `None`, the default, where not.
+    ///
+    /// # Errors
+    /// As [`Self::kernel_at`].
+    fn shaped_kernel(
+        &self,
+        _channel: Channel,
+        _x: f64,
+        _y: f64,
+    ) -> Result<Option<ShapedKernel<'_>>, SourceError> {
         Ok(None)
     }
 }
@@ -384,6 +409,28 @@ impl KernelSource for ProfileKernels {
         Ok(Some(PlacedGaussian {
             gaussian,
             mean,
+            oversample: crate::profile::KERNEL_OVERSAMPLE,
+        }))
+    }
+
+    /// The shape model's kernels are shaped kernels; the Gaussian model's are not.
+    fn shaped_kernel(
+        &self,
+        channel: Channel,
+        x: f64,
+        y: f64,
+    ) -> Result<Option<ShapedKernel<'_>>, SourceError> {
+        if self.model != crate::model::KernelModel::Shape {
+            return Ok(None);
+        }
+        let ch = self.channel_for(channel);
+        let (model, placed) = self
+            .profile
+            .placed_shape(self.lateral, ch, x, y, self.setting)
+            .map_err(|e| SourceError::Other(e.to_string()))?;
+        Ok(Some(ShapedKernel {
+            model,
+            placed,
             oversample: crate::profile::KERNEL_OVERSAMPLE,
         }))
     }

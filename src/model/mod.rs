@@ -39,12 +39,14 @@ pub use place::{
     ChannelPlace, LateralColour, MAX_PLACE_ALPHA, MAX_PLACE_BETA, PlaceCv, PlaceModel, centroid_px,
 };
 pub use restoration::{RestorationError, WIENER_NSR};
+#[cfg(test)]
+pub(crate) use shape::kernel_with_shape_at;
 pub use shape::{
-    KernelModel, MAX_COMPONENTS, PIXEL_SIDE, ShapeFit, ShapeModel, ShapeSpace, WHITENED_LEN,
-    WHITENED_PER_SIGMA, WHITENED_SIDE, kernel_with_residual, kernel_with_shape, psf_mass,
-    relative_l2, session_residuals, shape_basis, shape_residual, whitened_residual,
+    KernelModel, MAX_COMPONENTS, PIXEL_SIDE, PlacedShape, ShapeFit, ShapeModel, ShapeSpace,
+    WHITENED_LEN, WHITENED_PER_SIGMA, WHITENED_SIDE, kernel_with_residual, kernel_with_shape,
+    psf_mass, relative_l2, session_residuals, shape_basis, shape_residual, whitened_residual,
 };
-pub(crate) use shape::{PreparedKernels, deployed_kernel_side};
+pub(crate) use shape::{PreparedKernels, Whitening, deployed_kernel_side};
 
 use crate::plane::{Channel, LensSetting};
 use crate::psf::Gaussian2;

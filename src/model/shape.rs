@@ -160,6 +160,16 @@ impl Whitening {
         })
     }
 
+    /// A⁻¹, symmetric: [xx, xy, yy].
+    pub(crate) fn inverse(self) -> [f64; 3] {
+        [self.a_inv[0][0], self.a_inv[0][1], self.a_inv[1][1]]
+    }
+
+    /// det A.
+    pub(crate) fn det(self) -> f64 {
+        self.det_a
+    }
+
     fn to_px(self, w: [f64; 2]) -> [f64; 2] {
         [
             self.a[0][0] * w[0] + self.a[0][1] * w[1],
@@ -735,9 +745,53 @@ impl ShapeModel {
         oversample: usize,
         offset: [f64; 2],
     ) -> Option<Kernel> {
-        let r = self.residual(channel, x, y, s)?;
-        kernel_with_shape_at(self.space, gaussian, Some(&r), oversample, None, offset)
+        let placed = self.placed(channel, [x, y], s, gaussian, offset)?;
+        self.kernel_of(&placed, oversample)
     }
+
+    /// The parts of [`ShapeModel::kernel_moved`]'s kernel: its Gaussian, its move and
+    /// the predicted coefficients.
+    #[must_use]
+    pub fn placed(
+        &self,
+        channel: Channel,
+        [x, y]: [f64; 2],
+        s: LensSetting,
+        gaussian: &Gaussian2,
+        offset: [f64; 2],
+    ) -> Option<PlacedShape> {
+        Some(PlacedShape {
+            gaussian: *gaussian,
+            offset,
+            coefficients: self.coefficients(channel, x, y, s)?,
+        })
+    }
+
+    /// The kernel of a placed shape at `oversample`×: its Gaussian with the residual its
+    /// coefficients combine, moved, on the deployed grid.
+    #[must_use]
+    pub fn kernel_of(&self, placed: &PlacedShape, oversample: usize) -> Option<Kernel> {
+        let r = combine(self.space.values(), &self.components, &placed.coefficients);
+        kernel_with_shape_at(
+            self.space,
+            &placed.gaussian,
+            Some(&r),
+            oversample,
+            None,
+            placed.offset,
+        )
+    }
+}
+
+/// A shape model's kernel at one place, as its parts: the Gaussian it shapes, how far
+/// the whole is moved (px), and the shape's coefficients over the model's components.
+/// [`ShapeModel::kernel_of`] renders it; a GPU makes the same taps from these numbers
+/// and the components, uploaded once.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlacedShape {
+    pub gaussian: Gaussian2,
+    pub offset: [f64; 2],
+    pub coefficients: Vec<f64>,
 }
 
 /// Σ c_i b_i.

@@ -20,7 +20,7 @@ use crate::model::{
     CentreGrid, ChannelCoeffs, FieldAtSetting, FittedModel, GlobalModel, LocalModel, MAX_ORDER,
     ModelKind, Normalisation, model_basis, to_gaussian,
 };
-use crate::model::{KernelModel, LateralColour, ShapeModel};
+use crate::model::{KernelModel, LateralColour, PlacedShape, ShapeModel};
 use crate::plane::{
     CameraIdentity, Channel, LensSetting, PictureKind, f_number_text, focal_text, short_number,
 };
@@ -1157,31 +1157,54 @@ impl Profile {
         y: f64,
         setting: LensSetting,
     ) -> Result<Kernel, ProfileError> {
-        let place = self.place.as_ref();
-        match (model, &self.shape) {
+        match model {
             // A Gaussian is centred: all of its place comes from the place model.
-            (KernelModel::Gaussian, _) => {
+            KernelModel::Gaussian => {
                 let (g, mean) = self.placed_gaussian(lateral, channel, x, y, setting)?;
                 Ok(g.kernel_at(KERNEL_OVERSAMPLE, mean))
             }
-            // A shape keeps the place it learnt from the kernels (moving it to their
-            // centroid would move its core by whatever its tail gets wrong, and the core
-            // is what deconvolution aligns the channels by); it moves only by what the
-            // kernels did not carry, their channel's registration against green's.
-            (KernelModel::Shape, Some(shape)) => {
-                let g = self.predict(channel, x, y, setting)?;
-                let offset = match lateral {
-                    LateralColour::Correct => place
-                        .and_then(|c| c.registration(channel, x, y, setting))
-                        .unwrap_or([0.0, 0.0]),
-                    LateralColour::Keep => [0.0, 0.0],
-                };
+            KernelModel::Shape => {
+                let (shape, placed) = self.placed_shape(lateral, channel, x, y, setting)?;
                 shape
-                    .kernel_moved(channel, [x, y], setting, &g, KERNEL_OVERSAMPLE, offset)
+                    .kernel_of(&placed, KERNEL_OVERSAMPLE)
                     .ok_or(ProfileError::NoChannel(channel))
             }
-            (KernelModel::Shape, None) => Err(ProfileError::NoShapeModel),
         }
+    }
+
+    /// The shape model's prediction at sensor (x, y), as its parts: the model and the
+    /// placed shape whose kernel [`Self::predict_kernel`] renders
+    /// (`shape.kernel_of(&placed, KERNEL_OVERSAMPLE)`); a GPU makes the same from them.
+    ///
+    /// # Errors
+    /// As [`Profile::predict`]; [`ProfileError::NoShapeModel`] for a profile without
+    /// one, [`ProfileError::NoChannel`] for a channel it does not hold.
+    pub fn placed_shape(
+        &self,
+        lateral: LateralColour,
+        channel: Channel,
+        x: f64,
+        y: f64,
+        setting: LensSetting,
+    ) -> Result<(&ShapeModel, PlacedShape), ProfileError> {
+        let shape = self.shape.as_ref().ok_or(ProfileError::NoShapeModel)?;
+        let g = self.predict(channel, x, y, setting)?;
+        // A shape keeps the place it learnt from the kernels (moving it to their
+        // centroid would move its core by whatever its tail gets wrong, and the core
+        // is what deconvolution aligns the channels by); it moves only by what the
+        // kernels did not carry, their channel's registration against green's.
+        let offset = match lateral {
+            LateralColour::Correct => self
+                .place
+                .as_ref()
+                .and_then(|c| c.registration(channel, x, y, setting))
+                .unwrap_or([0.0, 0.0]),
+            LateralColour::Keep => [0.0, 0.0],
+        };
+        let placed = shape
+            .placed(channel, [x, y], setting, &g, offset)
+            .ok_or(ProfileError::NoChannel(channel))?;
+        Ok((shape, placed))
     }
 
     /// The kernel model the profile recommends: its shape model where it holds one.

@@ -1553,6 +1553,25 @@ fn full_size_spatially_varying_figures() {
     }
 }
 
+/// The aberrated lens calibrated on a 300 × 200 session of 8 × 6 boards at 3 × 3
+/// settings, its kernels kept: a profile whose cross-validation chose a kernel-shape
+/// model.
+fn aberrated_profile_300x200() -> &'static Profile {
+    static PROFILE: OnceLock<Profile> = OnceLock::new();
+    PROFILE.get_or_init(|| {
+        let lens = VirtualLens::aberrated();
+        let ds = SimulatedSession {
+            cols: 8,
+            rows: 6,
+            kernel_noise: Some(0.01),
+            seed: 9,
+            ..SimulatedSession::new(300, 200)
+        }
+        .dataset(&lens, &lens.setting_grid(3, 3));
+        crate::global_profile(&ds, 4, 2)
+    })
+}
+
 /// The aberrated lens (coma, astigmatism, spherical aberration through an imperfect
 /// pupil) calibrated on a small session that kept its kernels: wide open, between the
 /// calibrated settings, its predicted kernel shapes deblur better than its predicted
@@ -1564,15 +1583,7 @@ fn full_size_spatially_varying_figures() {
 fn predicted_kernel_shapes_deblur_an_aberrated_lens_better_than_its_gaussians() {
     let lens = VirtualLens::aberrated();
     let (w, h) = (300, 200);
-    let ds = SimulatedSession {
-        cols: 8,
-        rows: 6,
-        kernel_noise: Some(0.01),
-        seed: 9,
-        ..SimulatedSession::new(w, h)
-    }
-    .dataset(&lens, &lens.setting_grid(3, 3));
-    let profile = crate::global_profile(&ds, 4, 2);
+    let profile = aberrated_profile_300x200();
     assert!(
         profile.shape.is_some(),
         "cross-validation kept the Gaussians"
@@ -1580,7 +1591,7 @@ fn predicted_kernel_shapes_deblur_an_aberrated_lens_better_than_its_gaussians() 
     let job = JobContext::silent();
     let at = |focal_mm: f64, f_number: f64, ch: Channel, seed: u64| {
         lensblur::experiment::compare_kernel_models(
-            &profile,
+            profile,
             &lens,
             ch,
             LensSetting { focal_mm, f_number },
@@ -1740,10 +1751,11 @@ fn gpu_test_photo(w: usize, h: usize) -> (lensblur::plane::Capture, impl KernelS
 /// (measured on llvmpipe: max 5.5e-4, median 1.2e-7 of a [0, 1] image). Held, per
 /// plane: SSIM between the two ≥ 0.9999; max |difference| below half an 8-bit level
 /// (1/510), so an 8-bit rendering of the two differs by at most one level; median
-/// ≤ 1e-5, so the agreement is everywhere, not on average. Three sources: kernels handed
+/// ≤ 1e-5, so the agreement is everywhere, not on average. Four sources: kernels handed
 /// over as taps (a field of kernels); Gaussians placed off centre, as lateral colour
 /// places a channel's, and a profile's Gaussians, both of which the device makes from
-/// six numbers a tile.
+/// six numbers a tile; and a profile's kernel-shape model, which the device makes from
+/// its components and each tile's Gaussian and coefficients.
 #[test]
 fn gpu_deblur_matches_the_cpu_path() {
     use lensblur::deblur::gpu;
@@ -1771,6 +1783,28 @@ fn gpu_deblur_matches_the_cpu_path() {
     assert_eq!(made.1, 32 * made.2, "{made:?}");
     assert_eq!(placed.1, 32 * placed.2, "{placed:?}");
     assert!(taps.1 > 32 * taps.2, "{taps:?}");
+    // A kernel-shape model's kernels, also made on the device: its components once, then
+    // a tile's entry, fourteen numbers and its coefficients.
+    let (cap, _) = gpu_test_photo(300, 200);
+    let profile = aberrated_profile_300x200();
+    let model = profile.shape.as_ref().expect("a kernel-shape model");
+    let (k, values) = (model.len() as u64, model.space.values() as u64);
+    eprintln!("shape model: {k} components, {} space", model.space.name());
+    let shapes = ProfileKernels::with_model(
+        profile.clone(),
+        LensSetting {
+            focal_mm: 40.0,
+            f_number: 4.5,
+        },
+        KernelModel::Shape,
+    )
+    .expect("the shape model");
+    let shaped = gpu_matches_cpu(&cap, &shapes, "profile shapes");
+    assert_eq!(
+        shaped.1,
+        4 * k * values + (8 + 4 * (14 + k)) * shaped.2,
+        "{shaped:?}"
+    );
 }
 
 /// Gaussians that widen and turn toward the corners, red's and blue's moved outward

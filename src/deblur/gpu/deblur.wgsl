@@ -60,11 +60,12 @@ struct Step {
 @group(0) @binding(4) var<storage, read_write> num: array<vec2<f32>>;
 // λ·|K|²; before `prepare`, each Gaussian kernel's sum at its block's first element.
 @group(0) @binding(5) var<storage, read_write> den: array<f32>;
-// Per tile of the photo: (offset of its kernel in `aux`, kernel side), the side 0 for a
-// Gaussian given by its numbers (`gaussian_tap`).
+// Per tile of the photo: (offset of its kernel in `aux`, kernel side), the side
+// MADE_GAUSSIAN or MADE_SHAPE for a kernel given by its numbers (`made_tap`).
 @group(0) @binding(6) var<storage, read> kinfo: array<vec2<u32>>;
-// The photo's kernels (taps, or a Gaussian's numbers), then each plane's blend windows
-// along x and along y, then the steps' shrinkage tables.
+// The shape models' components, the photo's kernels (taps, or a Gaussian's or a
+// shape's numbers), then each plane's blend windows along x and along y, then the
+// steps' shrinkage tables.
 @group(0) @binding(7) var<storage, read> aux: array<f32>;
 @group(0) @binding(8) var<storage, read_write> out_plane: array<f32>;
 @group(1) @binding(0) var<uniform> S: Step;
@@ -106,9 +107,69 @@ fn gaussian_half(at: u32) -> u32 {
     return u32(aux[at + 5u]);
 }
 
+// The shape's residual grid, Σ cᵢ · componentᵢ, at sample (i, j); 0 outside it.
+fn shape_residual(at: u32, i: f32, j: f32) -> f32 {
+    let side = u32(aux[at + 10u]);
+    if i < 0.0 || j < 0.0 || i >= f32(side) || j >= f32(side) {
+        return 0.0;
+    }
+    let e = u32(j) * side + u32(i);
+    let components = u32(aux[at + 12u]);
+    let n = u32(aux[at + 13u]);
+    var acc = 0.0;
+    for (var c = 0u; c < n; c++) {
+        acc += aux[at + 14u + c] * aux[components + c * side * side + e];
+    }
+    return acc;
+}
+
+// Tap (dx, dy) from the centre of the kernel-shape model's kernel whose numbers start
+// at `aux[at]` (kernels.rs's ShapeTaps): with p = d − offset, max(0, s · N(A⁻¹p) +
+// R(G p)), R the residual grid read bilinearly. Unnormalised, as `gaussian_tap`.
+fn shape_tap(at: u32, dx: i32, dy: i32) -> f32 {
+    let p = vec2<f32>(f32(dx) - aux[at + 7u], f32(dy) - aux[at + 8u]);
+    let w = vec2<f32>(aux[at] * p.x + aux[at + 1u] * p.y, aux[at + 1u] * p.x + aux[at + 2u] * p.y);
+    let normal = aux[at + 3u] * exp(-0.5 * dot(w, w)) / TAU;
+    let g = vec2<f32>(
+        aux[at + 4u] * p.x + aux[at + 5u] * p.y,
+        aux[at + 5u] * p.x + aux[at + 6u] * p.y,
+    );
+    let h = f32(u32(aux[at + 10u]) / 2u);
+    let q = g * aux[at + 11u] + vec2<f32>(h, h);
+    let q0 = floor(q);
+    let f = q - q0;
+    let r = (1.0 - f.x) * (1.0 - f.y) * shape_residual(at, q0.x, q0.y)
+        + f.x * (1.0 - f.y) * shape_residual(at, q0.x + 1.0, q0.y)
+        + (1.0 - f.x) * f.y * shape_residual(at, q0.x, q0.y + 1.0)
+        + f.x * f.y * shape_residual(at, q0.x + 1.0, q0.y + 1.0);
+    return max(normal + r, 0.0);
+}
+
+const MADE_GAUSSIAN: u32 = 0u;
+const MADE_SHAPE: u32 = 0xffffffffu;
+
+fn is_made(ki: vec2<u32>) -> bool {
+    return ki.y == MADE_GAUSSIAN || ki.y == MADE_SHAPE;
+}
+
+// A made kernel's tap (dx, dy) from its centre, unnormalised.
+fn made_tap(ki: vec2<u32>, dx: i32, dy: i32) -> f32 {
+    if ki.y == MADE_SHAPE {
+        return shape_tap(ki.x, dx, dy);
+    }
+    return gaussian_tap(ki.x, dx, dy);
+}
+
+fn made_half(ki: vec2<u32>) -> u32 {
+    if ki.y == MADE_SHAPE {
+        return u32(aux[ki.x + 9u]);
+    }
+    return gaussian_half(ki.x);
+}
+
 var<workgroup> partial: array<f32, 256>;
 
-// One workgroup per tile: a Gaussian kernel's taps summed, into `den` at the tile's
+// One workgroup per tile: a made kernel's taps summed, into `den` at the tile's
 // block's first element, so `load` makes them sum to 1 as the CPU's do.
 @compute @workgroup_size(256, 1, 1)
 fn kernel_sum(
@@ -119,14 +180,14 @@ fn kernel_sum(
     let ki = kinfo[P.kinfo0 + t];
     var half = 0u;
     var n = 0u;
-    if ki.y == 0u {
-        half = gaussian_half(ki.x);
+    if is_made(ki) {
+        half = made_half(ki);
         n = (2u * half + 1u) * (2u * half + 1u);
     }
     let side = 2u * half + 1u;
     var acc = 0.0;
     for (var e = lid; e < n; e += 256u) {
-        acc += gaussian_tap(ki.x, i32(e % side) - i32(half), i32(e / side) - i32(half));
+        acc += made_tap(ki, i32(e % side) - i32(half), i32(e / side) - i32(half));
     }
     partial[lid] = acc;
     workgroupBarrier();
@@ -136,7 +197,7 @@ fn kernel_sum(
         }
         workgroupBarrier();
     }
-    if lid == 0u && ki.y == 0u {
+    if lid == 0u && is_made(ki) {
         den[t * block_len()] = partial[0];
     }
 }
@@ -189,13 +250,15 @@ fn load(@builtin(global_invocation_id) gid: vec3<u32>) {
     dst[idx] = v;
     let ki = kinfo[P.kinfo0 + t];
     var k = 0.0;
-    if ki.y == 0u {
-        let half = gaussian_half(ki.x);
+    if is_made(ki) {
+        let half = made_half(ki);
         let ii = wrap_tap(i, P.bw, 2u * half + 1u, half);
         let jj = wrap_tap(j, P.bh, 2u * half + 1u, half);
-        if ii >= 0 && jj >= 0 {
-            let tap = gaussian_tap(ki.x, ii - i32(half), jj - i32(half));
-            k = tap / den[t * block_len()];
+        let sum = den[t * block_len()];
+        // A kernel with no positive tap stays all zero, as the CPU's normalisation
+        // leaves it.
+        if ii >= 0 && jj >= 0 && sum > 0.0 {
+            k = made_tap(ki, ii - i32(half), jj - i32(half)) / sum;
         }
     } else {
         let c = ki.y / 2u;

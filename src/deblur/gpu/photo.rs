@@ -25,7 +25,7 @@ const BATCH_BYTES: u64 = 1 << 30;
 pub(crate) struct PlaneJob<'a> {
     pub plane: &'a Plane,
     pub grid: TileGrid,
-    pub kernels: Vec<TileKernel>,
+    pub kernels: Vec<TileKernel<'a>>,
 }
 
 /// The buffers a photo runs in, kept from photo to photo.
@@ -83,14 +83,29 @@ struct Layout {
     aux: Vec<f32>,
     /// How many of `aux`'s first values are the kernels.
     kernel_len: usize,
-    /// Per tile: (offset of its kernel in `aux`, its side; 0: a Gaussian's numbers).
+    /// Per tile: (offset of its kernel in `aux`, its side; [`MADE_GAUSSIAN`] or
+    /// [`MADE_SHAPE`] for numbers the device makes the taps of).
     kinfo: Vec<u32>,
 }
 
+/// A tile's side in `kinfo` that says its kernel is a Gaussian's numbers.
+const MADE_GAUSSIAN: u32 = 0;
+/// … a shape's numbers (`deblur.wgsl`'s `MADE_SHAPE`).
+const MADE_SHAPE: u32 = u32::MAX;
+
 impl Layout {
     fn of(jobs: &[PlaneJob<'_>], solve: &Solve, max_buffer: u64) -> Result<Self, GpuError> {
-        let mut aux: Vec<f32> = Vec::new();
-        let mut kinfo = Vec::new();
+        let (mut aux, mut kinfo) = (Vec::new(), Vec::new());
+        // Each shape model's components once, first, so their offsets are small.
+        let mut components: Vec<(*const Vec<f64>, usize)> = Vec::new();
+        for k in jobs.iter().flat_map(|j| &j.kernels) {
+            if let TileKernel::Shape(t) = k
+                && !components.iter().any(|c| c.0 == t.components.as_ptr())
+            {
+                components.push((t.components.as_ptr(), aux.len()));
+                aux.extend(t.components.iter().flatten().map(|&v| v as f32));
+            }
+        }
         for k in jobs.iter().flat_map(|j| &j.kernels) {
             match k {
                 TileKernel::Taps(k) => {
@@ -98,8 +113,16 @@ impl Layout {
                     aux.extend(k.data.iter().map(|&v| v as f32));
                 }
                 TileKernel::Gaussian(g) => {
-                    kinfo.extend([aux.len() as u32, 0]);
+                    kinfo.extend([aux.len() as u32, MADE_GAUSSIAN]);
                     aux.extend(g.packed());
+                }
+                TileKernel::Shape(t) => {
+                    let at = components
+                        .iter()
+                        .find(|c| c.0 == t.components.as_ptr())
+                        .map_or(0, |c| c.1);
+                    kinfo.extend([aux.len() as u32, MADE_SHAPE]);
+                    aux.extend(t.packed(at));
                 }
             }
         }
