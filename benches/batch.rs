@@ -8,8 +8,9 @@
 //! with the slowest (stages overlapping).
 //!
 //! `LENSBLUR_BENCH_BATCH_MP` (24) and `LENSBLUR_BENCH_BATCH_PHOTOS` (4) set the photos'
-//! size and count. `LENSBLUR_BENCH_REPS=N` replaces criterion by N timed batches, one
-//! line on the CPU and one on the GPU (`scripts/device_bench.sh`). The GPU case runs on a
+//! size and count. `LENSBLUR_BENCH_REPS=N` replaces criterion by N timed batches, a
+//! line on the CPU, one with one photo in flight at a time (the stages one after
+//! another) and one on the GPU (`scripts/device_bench.sh`). The GPU case runs on a
 //! hardware adapter, on a software one only with `LENSBLUR_BENCH_SOFTWARE_GPU=1`.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
@@ -198,6 +199,15 @@ fn bench(c: &mut Criterion) {
             );
         };
         line("cpu", &opts);
+        // The same batch with one photo in flight at a time (a memory budget smaller
+        // than a photo): the stages one after another, what the overlap is measured by.
+        line(
+            "cpu_one_at_a_time",
+            &BatchOptions {
+                memory_budget: Some(1),
+                ..opts.clone()
+            },
+        );
         match &on_gpu {
             Ok(deblur) => {
                 print_stages("GPU", stages(&photos[0], &profile, deblur, dir.path()));
