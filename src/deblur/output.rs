@@ -27,11 +27,12 @@ pub enum OutputError {
     Save(#[from] crate::raw::SaveError),
 }
 
-/// Why [`deblur_and_write`] failed: the deblurring (or its cancellation), or the writing.
+/// Why [`deblur_and_write`] failed: the deblurring (or its cancellation) of the photo
+/// that was to be written to `path`, or the writing (whose error names its file).
 #[derive(Debug, thiserror::Error)]
 pub enum DeblurWriteError {
-    #[error(transparent)]
-    Deblur(#[from] DeblurError),
+    #[error("{}: {source}", path.display())]
+    Deblur { path: PathBuf, source: DeblurError },
     #[error(transparent)]
     Output(#[from] OutputError),
 }
@@ -50,7 +51,12 @@ pub fn deblur_and_write(
     note: &str,
     job: &JobContext,
 ) -> Result<Written, DeblurWriteError> {
-    let deblurred = super::deblur_capture(capture, source, opts, job)?;
+    let deblurred = super::deblur_capture(capture, source, opts, job).map_err(|source| {
+        DeblurWriteError::Deblur {
+            path: out.to_path_buf(),
+            source,
+        }
+    })?;
     Ok(write_deblurred(out, original_file_name, &deblurred, note)?)
 }
 

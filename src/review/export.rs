@@ -1,32 +1,7 @@
-//! Export: a deblurred photo written whole, a plot's data as CSV, and a plot cut out of
-//! a screenshot as PNG.
+//! Export: a plot's data as CSV, and a plot cut out of a screenshot as PNG (a deblurred
+//! photo is written whole by [`crate::deblur::output::deblur_and_write`]).
 
-use crate::deblur::{DeblurOptions, KernelSource};
-use crate::job::JobContext;
-use crate::plane::Capture;
 use std::path::Path;
-
-/// Deblurs a whole capture and writes it as `out` says: 16-bit linear PNG or TIFF (full
-/// resolution, RAW mosaics interpolated), or DNG for a RAW photo
-/// ([`crate::deblur::output::deblur_and_write`]).
-///
-/// # Errors
-/// The source failed, the file cannot be written, or the job was cancelled.
-pub fn export_deblurred(
-    cap: &Capture,
-    source: &dyn KernelSource,
-    opts: &DeblurOptions,
-    out: &Path,
-    original_file_name: Option<String>,
-    note: &str,
-    job: &JobContext,
-) -> Result<crate::deblur::output::Written, String> {
-    use crate::deblur::output::{DeblurWriteError, deblur_and_write};
-    deblur_and_write(cap, source, opts, out, original_file_name, note, job).map_err(|e| match e {
-        DeblurWriteError::Deblur(e) => format!("{}: {e}", out.display()),
-        DeblurWriteError::Output(e) => e.to_string(),
-    })
-}
 
 /// A plot's data as the studio draws it, for saving beside its picture: the axes'
 /// titles and every named series of (x, y) points.

@@ -46,7 +46,7 @@ pub use crops::{
     DeblurComparison, Region, compare_deblur, crop_capture, deblur_region, display_whites,
     measured_at, measured_source, profile_source, region_planes,
 };
-pub use export::{PlotTable, export_deblurred, plot_csv, write_png_crop};
+pub use export::{PlotTable, plot_csv, write_png_crop};
 pub use fields::{
     FieldDifference, colour_range, ellipse_outline, field_difference, field_grid, palette_rgb,
     predicted_at, predicted_field, truth_field, truth_pixel_gaussian,

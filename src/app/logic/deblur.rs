@@ -486,7 +486,16 @@ fn run_export(app: &mut StudioApp, path: PathBuf, result: DeblurResult) {
         result.label()
     );
     let r = app.jobs.spawn(JobKind::ExportPhoto, move |ctx, out| {
-        crate::review::export_deblurred(&cap, source.as_ref(), &opts, &path, original, &note, ctx)?;
+        crate::deblur::output::deblur_and_write(
+            &cap,
+            source.as_ref(),
+            &opts,
+            &path,
+            original,
+            &note,
+            ctx,
+        )
+        .map_err(|e| e.to_string())?;
         out.emit(JobOutput::Deblur(DeblurOutput::DeblurExported(path)));
         Ok(())
     });
